@@ -1,0 +1,39 @@
+# Everything a fresh clone needs: `make demo` and `make test` build .venv on first use.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed-stamp
+OUT    ?= out
+
+.PHONY: demo test test-slow lint bench system-deps clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $@
+
+# Debian tools that tests drive as independent peers (mbpoll: a Modbus client we did not write).
+system-deps:
+	@command -v mbpoll >/dev/null 2>&1 || { \
+	  echo "installing mbpoll (Debian package)"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq mbpoll >/dev/null; }
+
+demo: $(STAMP)
+	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo
+
+test: $(STAMP) system-deps
+	$(BIN)/python -m pytest -q -m "not slow"
+
+test-slow: $(STAMP) system-deps
+	$(BIN)/python -m pytest -q -m slow
+
+lint: $(STAMP)
+	$(BIN)/ruff check furnace_model furnace_daq tests bench
+
+bench: $(STAMP)
+	$(BIN)/python bench/run_all.py
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache

@@ -1,0 +1,40 @@
+"""`furnace-model`: thin front end over the library. Each subcommand lives in its own module
+and registers itself through `register(subparsers)`; errors the user can fix print one line
+and exit non-zero, never a traceback."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from ..errors import FurnaceError
+
+COMMANDS = ("simulate",)
+"""Subcommand modules of this package, in the order `--help` lists them."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="furnace-model",
+        description="Three-zone reheating-furnace model: simulate, identify, diagnose.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(f"{__name__}.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.run(args) or 0)
+    except FurnaceError as exc:
+        print(f"furnace-model {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print(f"furnace-model {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,247 @@
+"""Heat-up data in the tabular contract (CONTRACTS.md section 1), read into an Experiment.
+
+Everything that breaks the contract is refused with the file, the column and the row (CSV:
+the line number as an editor shows it) and nothing is guessed: an empty thermocouple cell is
+a missing reading, not a zero, and a burner count must be a whole number within the zone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import BURNERS_PER_ZONE, SENSORS, ZONES
+from .errors import DataError
+from .structure import Inputs
+
+TC_COLUMNS = tuple(f"tc_{s}" for s in SENSORS)
+BURNER_COLUMNS = tuple(f"burners_{z}" for z in ZONES)
+TIME_COLUMNS = ("timestamp", "t_min")
+DEFAULT_T_AIR_C = 30.0
+
+
+@dataclass
+class Experiment:
+    """One heat-up record: readings and inputs per sample, time in minutes from the start."""
+
+    name: str
+    t_min: np.ndarray  # (N,) strictly increasing
+    tc: np.ndarray  # (N, 6) NaN = missing reading
+    burners: np.ndarray  # (N, 3) burners on per zone
+    t_air: np.ndarray  # (N,)
+    start_time: pd.Timestamp | None = None
+    source: str = ""
+
+    def __len__(self) -> int:
+        return self.t_min.size
+
+    @property
+    def zone_temp(self) -> np.ndarray:
+        """Zone temperature (N, 3): mean of the zone's good thermocouples, NaN when none."""
+        pairs = self.tc.reshape(-1, 3, 2)
+        good = np.isfinite(pairs)
+        total = np.where(good, pairs, 0.0).sum(axis=2)
+        count = good.sum(axis=2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+    def inputs(self) -> Inputs:
+        return Inputs.from_samples(self.t_min, self.burners, self.t_air)
+
+    @property
+    def burner_steps(self) -> int:
+        """How many times the burner pattern changes: the excitation the data carry."""
+        return int(np.any(np.diff(self.burners, axis=0) != 0, axis=1).sum())
+
+    def sample_period_min(self) -> float:
+        return float(np.median(np.diff(self.t_min))) if len(self) > 1 else float("nan")
+
+    def between(self, lo: float, hi: float) -> Experiment:
+        """The samples with lo <= t_min < hi, times kept as they are."""
+        m = (self.t_min >= lo) & (self.t_min < hi)
+        return Experiment(self.name, self.t_min[m], self.tc[m], self.burners[m], self.t_air[m],
+                          self.start_time, self.source)
+
+    def to_frame(self) -> pd.DataFrame:
+        cols: dict[str, object] = {}
+        if self.start_time is not None:
+            ts = self.start_time + pd.to_timedelta(self.t_min, unit="min")
+            cols["timestamp"] = ts.strftime("%Y-%m-%dT%H:%M:%S.%f").str[:-3] + "Z"
+        else:
+            cols["t_min"] = self.t_min
+        for i, c in enumerate(TC_COLUMNS):
+            cols[c] = self.tc[:, i]
+        for i, c in enumerate(BURNER_COLUMNS):
+            cols[c] = self.burners[:, i].astype(int)
+        cols["t_air"] = self.t_air
+        return pd.DataFrame(cols)
+
+
+def write_table(frame: pd.DataFrame, path: str | Path) -> None:
+    """Write the tabular contract as CSV or Parquet, chosen by the file's suffix."""
+    path = Path(path)
+    kind = _kind(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if kind == "csv":
+        frame.to_csv(path, index=False, float_format="%.3f")
+    else:
+        frame.to_parquet(path, index=False)
+
+
+def _kind(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        return "csv"
+    if suffix in (".parquet", ".pq"):
+        return "parquet"
+    raise DataError(str(path), f"unsupported file type '{suffix or '(none)'}': use .csv or .parquet")
+
+
+def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C) -> Experiment:
+    """Read and check one file of the tabular contract."""
+    path = Path(path)
+    kind = _kind(path)
+    file = str(path)
+    if not path.exists():
+        raise DataError(file, "file not found")
+    try:
+        if kind == "csv":
+            if path.stat().st_size == 0:
+                raise DataError(file, "empty file: no header and no data")
+            frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+        else:
+            frame = pd.read_parquet(path)
+    except DataError:
+        raise
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise DataError(file, f"not a readable CSV file: {_first_line(exc)}") from None
+    except (OSError, ValueError) as exc:  # pyarrow's errors derive from these
+        raise DataError(file, f"not a readable {kind} file: {_first_line(exc)}") from None
+    return experiment_from_frame(frame, file, t_air_default,
+                                 row_offset=2 if kind == "csv" else 1,
+                                 row_label="line" if kind == "csv" else "row")
+
+
+def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
+                          t_air_default: float = DEFAULT_T_AIR_C, row_offset: int = 1,
+                          row_label: str = "row") -> Experiment:
+    """Check a table against the contract and convert it. `row_offset` maps the frame's
+    positional index to the number the user sees (2 for a CSV line under its header)."""
+    cols = [str(c).strip() for c in frame.columns]
+    frame = frame.set_axis(cols, axis=1)
+
+    def err(message: str, column: str | None = None, pos: int | None = None) -> DataError:
+        row = None if pos is None else pos + row_offset
+        return DataError(file, message, column, row, row_label)
+
+    dup = sorted({c for c in cols if cols.count(c) > 1})
+    if dup:
+        raise err(f"column(s) appear more than once: {', '.join(dup)}")
+    time_cols = [c for c in TIME_COLUMNS if c in cols]
+    if len(time_cols) != 1:
+        raise err("needs exactly one time column, 'timestamp' (ISO 8601) or 't_min' (minutes)"
+                  + ("; found both" if len(time_cols) == 2 else "; found neither"))
+    missing = [c for c in BURNER_COLUMNS if c not in cols]
+    if missing:
+        raise err(f"missing required column(s): {', '.join(missing)}")
+    for z in ZONES:
+        if not any(f"tc_{z}_{i}" in cols for i in (1, 2)):
+            raise err(f"zone '{z}' has no thermocouple column (need tc_{z}_1 or tc_{z}_2)")
+    if len(frame) == 0:
+        raise err("no data rows")
+
+    time_col = time_cols[0]
+    start_time = None
+    if time_col == "timestamp":
+        stamps = _timestamps(frame[time_col], err)
+        start_time = stamps[0]
+        t_min = (stamps - start_time).total_seconds().to_numpy() / 60.0
+    else:
+        t_min = _numbers(frame[time_col], time_col, err, allow_empty=False)
+    steps = np.diff(t_min)
+    bad = np.nonzero(steps <= 0)[0]
+    if bad.size:
+        i = int(bad[0]) + 1
+        what = "duplicate time" if steps[bad[0]] == 0 else "time goes backwards"
+        raise err(f"{what}: rows must be in strictly increasing time order", time_col, i)
+
+    tc = np.full((len(frame), len(TC_COLUMNS)), np.nan)
+    for j, c in enumerate(TC_COLUMNS):
+        if c in cols:
+            tc[:, j] = _numbers(frame[c], c, err, allow_empty=True)
+
+    burners = np.empty((len(frame), 3), dtype=int)
+    for j, c in enumerate(BURNER_COLUMNS):
+        v = _numbers(frame[c], c, err, allow_empty=False)
+        frac = np.nonzero(v != np.round(v))[0]
+        if frac.size:
+            raise err(f"burner count must be a whole number, got {v[frac[0]]:g}", c, int(frac[0]))
+        neg = np.nonzero(v < 0)[0]
+        if neg.size:
+            raise err(f"burner count cannot be negative, got {v[neg[0]]:g}", c, int(neg[0]))
+        over = np.nonzero(v > BURNERS_PER_ZONE[j])[0]
+        if over.size:
+            raise err(f"the {ZONES[j]} zone has {BURNERS_PER_ZONE[j]} burners, got {v[over[0]]:g}",
+                      c, int(over[0]))
+        burners[:, j] = v.astype(int)
+
+    if "t_air" in cols:
+        t_air = _numbers(frame["t_air"], "t_air", err, allow_empty=True)
+        # Ambient changes slowly: an empty cell holds the last reading (the default before any).
+        t_air = pd.Series(t_air).ffill().fillna(t_air_default).to_numpy()
+    else:
+        t_air = np.full(len(frame), float(t_air_default))
+
+    return Experiment(Path(file).stem, t_min, tc, burners, t_air, start_time, file)
+
+
+def _numbers(col: pd.Series, name: str, err, allow_empty: bool) -> np.ndarray:
+    if pd.api.types.is_bool_dtype(col.dtype):
+        raise err("expected numbers, got true/false values", name)
+    if pd.api.types.is_numeric_dtype(col.dtype):
+        v = col.to_numpy(dtype=float, na_value=np.nan)
+        empty = np.isnan(v)
+    else:
+        text = col.astype(str).str.strip()
+        empty = ((text == "") | col.isna()).to_numpy()
+        v = pd.to_numeric(text.where(~empty, None), errors="coerce").to_numpy(dtype=float)
+        bad = np.nonzero(np.isnan(v) & ~empty)[0]
+        if bad.size:
+            raise err(f"not a number: '{text.iloc[bad[0]]}'", name, int(bad[0]))
+    inf = np.nonzero(np.isinf(v))[0]
+    if inf.size:
+        raise err("not a finite number", name, int(inf[0]))
+    if not allow_empty and empty.any():
+        raise err("empty cell: a value is required here", name, int(np.nonzero(empty)[0][0]))
+    return v
+
+
+def _timestamps(col: pd.Series, err) -> pd.DatetimeIndex:
+    if pd.api.types.is_datetime64_any_dtype(col.dtype):
+        idx = pd.DatetimeIndex(col)
+        if idx.tz is None:
+            raise err("timestamps need a UTC offset or Z (time zone unknown)", "timestamp")
+        if idx.isna().any():
+            raise err("empty cell: a value is required here", "timestamp",
+                      int(np.nonzero(idx.isna())[0][0]))
+        return idx.tz_convert("UTC")
+    text = col.astype(str).str.strip()
+    parsed = pd.to_datetime(text, format="ISO8601", utc=True, errors="coerce")
+    bad = np.nonzero(parsed.isna().to_numpy())[0]
+    if bad.size:
+        i = int(bad[0])
+        raise err(f"not an ISO 8601 time: '{text.iloc[i]}'", "timestamp", i)
+    # utc=True silently treats a time without an offset as UTC; refuse instead of guessing.
+    naive = ~text.str.contains(r"(?:Z|[+-]\d\d:?\d\d)$", regex=True)
+    if naive.any():
+        i = int(np.nonzero(naive.to_numpy())[0][0])
+        raise err(f"timestamp has no UTC offset or Z: '{text.iloc[i]}'", "timestamp", i)
+    return pd.DatetimeIndex(parsed)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__

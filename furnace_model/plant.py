@@ -1,0 +1,141 @@
+"""The plant simulator: the model with effects switched on, seen through real thermocouples.
+
+A furnace's truth is never measured directly. Each zone has two thermocouples; each reads the
+sensed zone temperature plus a small fixed bias of its own plus noise, plus whatever sensor
+effects the scenario switches on. Runs are reproducible from a seed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from . import SENSORS
+from .experiment import Experiment
+from .scenario import Scenario, SensorSpec
+from .structure import Inputs, ModelStructure
+
+SENSOR_ZONE = np.array([i // 2 for i in range(len(SENSORS))])
+"""Zone index of each thermocouple, in SENSORS order."""
+
+
+@dataclass
+class PlantRun:
+    """One simulated run: the truth, what the sensors read, and the inputs, per sample."""
+
+    t_min: np.ndarray  # (N,)
+    zone_true: np.ndarray  # (N, 3) gas temperature of each zone
+    tc: np.ndarray  # (N, 6) thermocouple readings
+    burners: np.ndarray  # (N, 3) burners on per zone
+    t_air: np.ndarray  # (N,)
+    start_time: pd.Timestamp | None = None
+
+    def to_experiment(self, name: str = "simulated") -> Experiment:
+        return Experiment(name, self.t_min, self.tc, self.burners.astype(int), self.t_air,
+                          self.start_time, name)
+
+    def to_frame(self) -> pd.DataFrame:
+        """The run as the tabular contract (CONTRACTS.md section 1)."""
+        return self.to_experiment().to_frame()
+
+
+class Plant:
+    """A furnace: a model structure, its true parameter values, and its thermocouples."""
+
+    def __init__(self, structure: ModelStructure, values: Mapping[str, float],
+                 sensors: SensorSpec | None = None, seed: int | None = None):
+        self.structure = structure
+        self.values = dict(values)
+        self.sensors = sensors or SensorSpec()
+        self.rng = np.random.default_rng(seed)
+        if self.sensors.bias_c is not None:
+            self.bias = np.asarray(self.sensors.bias_c, dtype=float)
+        else:
+            self.bias = self.rng.normal(0.0, self.sensors.bias_sd_c, len(SENSORS))
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario, seed: int | None = None) -> Plant:
+        return cls(scenario.structure(), scenario.values(), scenario.sensors, seed)
+
+    def read(self, sensed: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Thermocouple readings (N, 6) for sensed zone temperatures (N, 3) at times t."""
+        offsets = self.structure.sensor_offsets(self.values, t)[0]
+        noise = self.rng.normal(0.0, self.sensors.noise_sd_c, (np.size(t), len(SENSORS)))
+        return sensed[:, SENSOR_ZONE] + self.bias + offsets + noise
+
+    def run(self, inputs: Inputs, t: np.ndarray, x0_zone: np.ndarray,
+            start_time: pd.Timestamp | None = None) -> PlantRun:
+        t = np.asarray(t, dtype=float)
+        states = self.structure.simulate(self.values, inputs, t, x0_zone, states=True)[0]
+        sensed = states @ self.structure.system(self.structure.theta(self.values)).C[0].T
+        j = np.searchsorted(inputs.t, t, side="right") - 1
+        return PlantRun(t, states[:, :3], self.read(sensed, t), inputs.burners[j],
+                        inputs.t_air[j], start_time)
+
+    def run_scenario(self, scenario: Scenario) -> PlantRun:
+        return self.run(scenario.inputs(), scenario.sample_times(), scenario.initial_c,
+                        scenario.start_time)
+
+    def stepper(self, x0_zone: np.ndarray, burners: np.ndarray, t_air: float,
+                t0: float = 0.0) -> PlantStepper:
+        return PlantStepper(self, x0_zone, burners, t_air, t0)
+
+
+class PlantStepper:
+    """The plant advanced in increments, for a simulated PLC whose burners may be switched
+    by hand: the schedule is not known ahead, so it is built up as commands arrive.
+
+    Each advance is exact (same simulator as a whole run); the input history is kept, so
+    a dead time sees burner changes made before the current step.
+    """
+
+    def __init__(self, plant: Plant, x0_zone: np.ndarray, burners: np.ndarray, t_air: float,
+                 t0: float = 0.0):
+        self.plant = plant
+        self.t = float(t0)
+        self.x = plant.structure.full_state(np.asarray(x0_zone, dtype=float))[0]
+        self._t = [self.t]
+        self._burners = [np.asarray(burners, dtype=float)]
+        self._air = [float(t_air)]
+        C = plant.structure.system(plant.structure.theta(plant.values)).C[0]
+        self._C = C
+
+    @property
+    def burners(self) -> np.ndarray:
+        return self._burners[-1].astype(int)
+
+    @property
+    def t_air(self) -> float:
+        return self._air[-1]
+
+    def set_inputs(self, burners: np.ndarray | None = None, t_air: float | None = None) -> None:
+        """Change burner counts per zone and/or ambient from the current time on."""
+        b = self._burners[-1] if burners is None else np.asarray(burners, dtype=float)
+        a = self._air[-1] if t_air is None else float(t_air)
+        if np.array_equal(b, self._burners[-1]) and a == self._air[-1]:
+            return
+        if self._t[-1] == self.t:
+            self._burners[-1], self._air[-1] = b, a
+        else:
+            self._t.append(self.t)
+            self._burners.append(b)
+            self._air.append(a)
+
+    def advance(self, t_new: float) -> None:
+        if t_new <= self.t:
+            return
+        inputs = Inputs(np.array(self._t), np.array(self._burners), np.array(self._air))
+        self.x = self.plant.structure.simulate(self.plant.values, inputs, np.array([t_new]),
+                                               self.x[None], t0=self.t, states=True)[0, 0]
+        self.t = float(t_new)
+
+    def zone_true(self) -> np.ndarray:
+        return self.x[:3].copy()
+
+    def readings(self) -> np.ndarray:
+        """One scan of the six thermocouples (noise drawn anew)."""
+        sensed = (self._C @ self.x)[None]
+        return self.plant.read(sensed, np.array([self.t]))[0]

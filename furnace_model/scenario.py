@@ -1,0 +1,163 @@
+"""Scenarios: a plant (parameters, effects, sensors) and a burner schedule, read from YAML.
+
+config/scenarios/paper_exp1.yaml is the reference: the paper's first experiment with its
+Table V parameters. Every key is checked; an error names the file and the key path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import BURNERS_PER_ZONE, SENSORS, ZONES
+from .config import load_yaml
+from .effects import EFFECTS, Effect
+from .parameters import BASELINE
+from .structure import Inputs, ModelStructure
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """Two thermocouples per zone: each reads the zone plus its own bias plus white noise."""
+
+    noise_sd_c: float = 1.5
+    bias_sd_c: float = 0.5
+    bias_c: tuple[float, ...] | None = None
+    """Fixed biases in SENSORS order; when absent they are drawn (sd bias_sd_c) from the seed."""
+
+
+@dataclass
+class Scenario:
+    name: str
+    duration_min: float
+    sample_min: float
+    t_air_c: float
+    initial_c: np.ndarray
+    params: dict[str, float]
+    steps_t: np.ndarray  # (J,) minutes
+    steps_burners: np.ndarray  # (J, 3) counts per zone
+    effects: list[Effect] = field(default_factory=list)
+    effect_values: dict[str, float] = field(default_factory=dict)
+    sensors: SensorSpec = field(default_factory=SensorSpec)
+    description: str = ""
+    start_time: pd.Timestamp | None = None
+    file: str = ""
+
+    def structure(self) -> ModelStructure:
+        return ModelStructure(self.effects)
+
+    def values(self) -> dict[str, float]:
+        return {**self.params, **self.effect_values}
+
+    def inputs(self) -> Inputs:
+        return Inputs(self.steps_t.astype(float), self.steps_burners.astype(float),
+                      np.full(self.steps_t.size, self.t_air_c))
+
+    def burners_at(self, t_min: float) -> np.ndarray:
+        """Counts per zone (3,) the schedule asks for at time t_min."""
+        j = max(int(np.searchsorted(self.steps_t, t_min, side="right")) - 1, 0)
+        return self.steps_burners[j].copy()
+
+    def sample_times(self) -> np.ndarray:
+        n = int(np.floor(self.duration_min / self.sample_min + 1e-9))
+        return np.arange(n + 1) * self.sample_min
+
+
+def split_total(total: int, fill_order: tuple[str, ...]) -> np.ndarray:
+    """Burners on per zone when `total` are open, filling zones in order (the paper: soaking
+    first, then heating, then preheating)."""
+    counts = np.zeros(3, dtype=int)
+    left = total
+    for zone in fill_order:
+        i = ZONES.index(zone)
+        counts[i] = min(left, BURNERS_PER_ZONE[i])
+        left -= counts[i]
+    return counts
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    root = load_yaml(path).mapping({
+        "name", "description", "duration_min", "sample_min", "start_time", "t_air_c",
+        "initial_c", "model", "burners", "sensors", "effects"})
+    name = root.get_string("name", Path(path).stem)
+    duration = root.get_number("duration_min", lo=1.0, hi=1e7)
+    sample = root.get_number("sample_min", 1.0, lo=1e-3, hi=duration)
+    t_air = root.get_number("t_air_c", 30.0, lo=-60.0, hi=200.0)
+
+    start_time = None
+    if root.has("start_time"):
+        node = root.child("start_time")
+        try:
+            start_time = pd.Timestamp(str(node.value))
+        except ValueError:
+            raise node.error(f"not an ISO 8601 time: '{node.value}'") from None
+        if start_time.tzinfo is None:
+            raise node.error("give a UTC offset or Z, e.g. 2026-03-04T06:00:00Z")
+        start_time = start_time.tz_convert("UTC")
+
+    init = root.child("initial_c", t_air)
+    if isinstance(init.value, list):
+        initial = np.array([n.number(lo=-60.0, hi=2000.0) for n in init.elements(3, 3)])
+    else:
+        initial = np.full(3, init.number(lo=-60.0, hi=2000.0))
+
+    model = root.child("model", {}).mapping({p.name for p in BASELINE})
+    params = {p.name: model.get_number(p.name, p.default, lo=p.lo, hi=p.hi) for p in BASELINE}
+
+    burners = root.child("burners").mapping({"fill_order", "steps"})
+    order_node = burners.child("fill_order", list(ZONES))
+    fill = tuple(n.string(ZONES) for n in order_node.elements(3, 3))
+    if sorted(fill) != sorted(ZONES):
+        raise order_node.error(f"must name each of {', '.join(ZONES)} once")
+    times, counts = [], []
+    for step in burners.child("steps").elements(min_len=1):
+        step.mapping({"at_min", "total", *ZONES})
+        at = step.get_number("at_min", lo=0.0, hi=duration)
+        if times and at <= times[-1]:
+            raise step.child("at_min").error(f"steps must be in time order; {at:g} follows {times[-1]:g}")
+        if step.has("total"):
+            if any(step.has(z) for z in ZONES):
+                raise step.error("give either 'total' or per-zone counts, not both")
+            total = step.get_integer("total", lo=0, hi=sum(BURNERS_PER_ZONE))
+            counts.append(split_total(total, fill))
+        else:
+            counts.append(np.array([step.get_integer(z, 0, lo=0, hi=BURNERS_PER_ZONE[i])
+                                    for i, z in enumerate(ZONES)]))
+        times.append(at)
+    if times[0] != 0.0:
+        raise burners.child("steps").error("the first step must be at_min: 0")
+
+    sensors_node = root.child("sensors", {}).mapping({"noise_sd_c", "bias_sd_c", "bias_c"})
+    bias = None
+    if sensors_node.has("bias_c"):
+        bias = tuple(n.number(lo=-50.0, hi=50.0)
+                     for n in sensors_node.child("bias_c").elements(len(SENSORS), len(SENSORS)))
+    sensors = SensorSpec(
+        noise_sd_c=sensors_node.get_number("noise_sd_c", 1.5, lo=0.0, hi=100.0),
+        bias_sd_c=sensors_node.get_number("bias_sd_c", 0.5, lo=0.0, hi=50.0),
+        bias_c=bias,
+    )
+
+    effects, values = [], {}
+    for key, node in root.child("effects", {}).items():
+        if key not in EFFECTS:
+            raise node.error(f"unknown effect (expected one of: {', '.join(EFFECTS)})")
+        node.mapping()
+        if not node.get_bool("enabled", True):
+            continue
+        try:
+            effect, vals = EFFECTS[key].from_config(node)
+        except ValueError as exc:
+            raise node.error(str(exc)) from None
+        effects.append(effect)
+        values.update(vals)
+
+    return Scenario(
+        name=name, duration_min=duration, sample_min=sample, t_air_c=t_air, initial_c=initial,
+        params=params, steps_t=np.array(times), steps_burners=np.array(counts),
+        effects=effects, effect_values=values, sensors=sensors,
+        description=root.get_string("description", ""), start_time=start_time, file=str(path),
+    )

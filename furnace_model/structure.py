@@ -1,0 +1,211 @@
+"""The paper's model (eq. 11) with optional effect terms: baseline, plant and candidates.
+
+`ModelStructure()` is exactly eq. 11. `ModelStructure([ZoneBurners(), SensorLag()])` is the
+same model extended, used by the plant simulator with chosen parameter values and by the
+diagnosis with fitted ones. All simulation is batched over parameter sets: parameter values
+are arrays of length P and results carry a leading P axis.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from .effects import DRIVE_ORDER, N_INPUTS, U_AIR, U_BURNERS, Effect, Theta
+from .lti import Drive, Modes, response
+from .parameters import BASELINE, Param
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """Piecewise-constant inputs: burner counts per zone and ambient temperature.
+
+    Level j holds from t[j] until t[j+1] (and after the last). `burners` is (J, 3), `t_air`
+    (J,). This is the paper's input with more detail: the baseline adds the three counts
+    into q1, an extended model may use them apart.
+    """
+
+    t: np.ndarray
+    burners: np.ndarray
+    t_air: np.ndarray
+
+    def levels(self) -> np.ndarray:
+        u = np.empty((1, self.t.size, N_INPUTS))
+        u[0, :, U_BURNERS] = self.burners
+        u[0, :, U_AIR] = self.t_air
+        return u
+
+    @classmethod
+    def from_samples(cls, t: np.ndarray, burners: np.ndarray, t_air: np.ndarray,
+                     air_deadband_c: float = 0.5) -> Inputs:
+        """Hold each sample's inputs until the next sample; keep only the changes.
+
+        Ambient readings jitter from sample to sample; a change smaller than the deadband is
+        not a step of the input (it moves zone 3 by far less than the sensor noise), and
+        keeping them all would turn a handful of burner steps into thousands of segments.
+        """
+        t = np.asarray(t, dtype=float)
+        burners = np.asarray(burners, dtype=float)
+        t_air = np.asarray(t_air, dtype=float)
+        keep = [0]
+        held_air = t_air[0]
+        for i in range(1, t.size):
+            if np.any(burners[i] != burners[keep[-1]]) or abs(t_air[i] - held_air) > air_deadband_c:
+                keep.append(i)
+                held_air = t_air[i]
+        idx = np.array(keep)
+        return cls(t[idx], burners[idx], t_air[idx])
+
+
+@dataclass(frozen=True)
+class System:
+    A: np.ndarray  # (P, n, n)
+    B: np.ndarray  # (P, n, m)
+    C: np.ndarray  # (P, 3, n): sensed zone temperatures
+
+
+class ModelStructure:
+    """Baseline plus effects: which states, which parameters, and how to simulate them."""
+
+    def __init__(self, effects: Sequence[Effect] = ()):
+        names = [e.name for e in effects]
+        if len(set(names)) != len(names):
+            raise ValueError(f"an effect appears twice in {names}")
+        self.effects: tuple[Effect, ...] = tuple(effects)
+        self.params: tuple[Param, ...] = BASELINE + tuple(p for e in self.effects for p in e.params)
+        pnames = [p.name for p in self.params]
+        if len(set(pnames)) != len(pnames):
+            raise ValueError(f"parameter names collide in {pnames}")
+        self.n_states = 3 + sum(len(e.state_zones) for e in self.effects)
+        self.linear = all(e.linear for e in self.effects)
+
+    def __repr__(self) -> str:
+        return f"ModelStructure({[e.name for e in self.effects]})"
+
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.params]
+
+    @property
+    def label(self) -> str:
+        return "+".join(e.name for e in self.effects) or "baseline"
+
+    def defaults(self) -> dict[str, float]:
+        return {p.name: p.default for p in self.params}
+
+    def theta(self, values: Mapping[str, float | np.ndarray]) -> Theta:
+        """Parameter values as arrays of one common length P; every parameter must be given."""
+        missing = [n for n in self.names if n not in values]
+        if missing:
+            raise KeyError(f"{self.label}: missing parameter(s) {missing}")
+        arrays = [np.atleast_1d(np.asarray(values[n], dtype=float)) for n in self.names]
+        P = max(a.size for a in arrays)
+        return {n: np.broadcast_to(a, (P,)) for n, a in zip(self.names, arrays, strict=True)}
+
+    def system(self, theta: Theta) -> System:
+        a, b, c, d, e, f = (theta[k] for k in "abcdef")
+        P, n = a.shape[0], self.n_states
+        A = np.zeros((P, n, n))
+        A[:, 0, 0], A[:, 0, 1] = -a, a
+        A[:, 1, 0], A[:, 1, 1], A[:, 1, 2] = b, -(b + c), c
+        A[:, 2, 1], A[:, 2, 2] = d, -(d + e)
+        B = np.zeros((P, n, N_INPUTS))
+        B[:, 0, U_BURNERS] = f[:, None]  # q1 = all burners on, into zone 1 (the paper's input)
+        B[:, 2, U_AIR] = e
+        C = np.zeros((P, 3, n))
+        C[:, :, :3] = np.eye(3)
+        first = 3
+        for eff in self.effects:
+            eff.extend(A, B, C, theta, first)
+            first += len(eff.state_zones)
+        return System(A, B, C)
+
+    def drive(self, theta: Theta, inputs: Inputs) -> Drive:
+        u = inputs.levels()
+        for eff in self.effects:
+            u = eff.transform_levels(theta, u)
+        drive = Drive.from_levels(inputs.t, u)
+        by_name = {e.name: e for e in self.effects}
+        for name in DRIVE_ORDER:
+            if name in by_name:
+                drive = by_name[name].transform_drive(theta, drive)
+        return drive
+
+    def full_state(self, x_zone: np.ndarray) -> np.ndarray:
+        """Extend zone temperatures (P|1, 3) to all states: each extra state starts at rest
+        with its zone (a lagged sensor reads the zone, a wall is at the gas temperature)."""
+        x_zone = np.atleast_2d(np.asarray(x_zone, dtype=float))
+        extra = [z for e in self.effects for z in e.state_zones]
+        return np.concatenate([x_zone, x_zone[:, extra]], axis=1)
+
+    def simulate(self, values: Mapping[str, float | np.ndarray], inputs: Inputs, t: np.ndarray,
+                 x0: np.ndarray, t0: float | None = None, states: bool = False) -> np.ndarray:
+        """Sensed zone temperatures (P, N, 3) at times t, from zone temperatures x0 at t0.
+
+        x0 is (P|1, 3) zone temperatures, or (P|1, n) full states. t0 defaults to the first
+        input time. With states=True return all states (P, N, n) instead.
+        """
+        theta = self.theta(values)
+        sys = self.system(theta)
+        drive = self.drive(theta, inputs)
+        x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+        if x0.shape[-1] == 3 and self.n_states != 3:
+            x0 = self.full_state(x0)
+        t0 = float(inputs.t[0]) if t0 is None else float(t0)
+        t = np.asarray(t, dtype=float)
+        C = None if states else sys.C
+        if self.linear:
+            return response(sys.A, sys.B, x0, t0, drive, t, C=C, modes=Modes.of(sys.A))
+        return self._integrate(theta, sys, drive, x0, t0, t, C)
+
+    def sensor_offsets(self, values: Mapping[str, float | np.ndarray], t: np.ndarray) -> np.ndarray:
+        """Per-thermocouple additive errors (P, N, 6) from sensor effects; zeros without."""
+        theta = self.theta(values)
+        P = next(iter(theta.values())).shape[0]
+        out = np.zeros((P, np.size(t), 6))
+        for eff in self.effects:
+            off = eff.sensor_offsets(theta, np.asarray(t, dtype=float))
+            if off is not None:
+                out += off
+        return out
+
+    def _integrate(self, theta, sys, drive, x0, t0, t, C):
+        """Nonlinear structures: adaptive stiff integration, one constant-input piece at a time
+        so that no step straddles a burner change."""
+        P, n = sys.A.shape[0], self.n_states
+        x0 = np.broadcast_to(x0, (P, n))
+        out = np.empty((P, t.size, n))
+        end = max(float(t[-1]), t0) if t.size else t0
+        for p in range(P):
+            th = {k: v[p:p + 1] for k, v in theta.items()}
+            A, B = sys.A[p:p + 1], sys.B[p:p + 1]
+            cuts = drive.breakpoints(p)
+            edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
+            x = np.array(x0[p])
+            for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+                if hi <= lo:
+                    continue
+                level = drive.level_at(lo)
+                u = level[min(p, level.shape[0] - 1)][None]
+
+                def rhs(_t, xv, A=A, B=B, u=u, th=th):
+                    dx = A[0] @ xv + B[0] @ u[0]
+                    for eff in self.effects:
+                        if not eff.linear:
+                            dx = dx + eff.nonlinear_rhs(th, xv[None], A, B, u)[0]
+                    return dx
+
+                idx = np.nonzero((t >= lo) & (t < hi))[0]
+                sol = solve_ivp(rhs, (lo, hi), x, method="LSODA", rtol=1e-9, atol=1e-7,
+                                t_eval=np.append(t[idx], hi))
+                if not sol.success:
+                    raise RuntimeError(f"integration failed on [{lo}, {hi}] min: {sol.message}")
+                out[p, idx] = sol.y[:, :-1].T
+                x = sol.y[:, -1]
+            out[p, t >= end] = x
+        if C is None:
+            return out
+        return np.einsum("pqn,pNn->pNq", C, out)

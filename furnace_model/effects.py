@@ -169,13 +169,16 @@ class SensorLag(Effect):
         return tuple(z for _ in range(self.options["order"]) for z in range(3))
 
     def extend(self, A, B, C, theta, first):
-        # `order` cascaded stages of tau/order each: the same time constant, a sharper lag.
+        # `order` cascaded stages (sheath, then junction) whose time constants add up to
+        # tau_lag: the same mean delay, a sharper lag. Unequal stages keep A diagonalisable.
         order = self.options["order"]
-        rate = order / theta["tau_lag"]
+        shares = np.arange(1, order + 1, dtype=float)
+        shares /= shares.sum()
         for z in range(3):
             prev = z
             for k in range(order):
                 i = first + 3 * k + z
+                rate = 1.0 / (shares[k] * theta["tau_lag"])
                 A[:, i, i] -= rate
                 A[:, i, prev] += rate
                 prev = i

@@ -1,0 +1,151 @@
+"""The exact simulator against an independent integrator, and its batching."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from furnace_model.effects import DeadTime, FuelChange, SensorLag, WallStorage, ZoneBurners
+from furnace_model.parameters import PAPER_TABLE_V
+from furnace_model.structure import Inputs, ModelStructure
+
+
+def random_values(structure: ModelStructure, rng: np.random.Generator, P: int) -> dict:
+    out = {}
+    for p in structure.params:
+        if p.name in PAPER_TABLE_V:
+            out[p.name] = PAPER_TABLE_V[p.name] * np.exp(rng.uniform(-1.0, 1.0, P))
+        elif p.log:
+            out[p.name] = p.default * np.exp(rng.uniform(-1.0, 1.0, P))
+        else:
+            out[p.name] = np.full(P, p.default)
+    return out
+
+
+def random_inputs(rng: np.random.Generator, duration: float = 2000.0) -> Inputs:
+    J = int(rng.integers(2, 8))
+    t = np.concatenate(([0.0], np.sort(rng.uniform(1.0, duration - 1.0, J - 1))))
+    burners = np.column_stack([rng.integers(0, 11, J), rng.integers(0, 9, J),
+                               rng.integers(0, 9, J)]).astype(float)
+    return Inputs(t, burners, rng.uniform(10.0, 40.0, J))
+
+
+def reference(structure: ModelStructure, values: dict, inputs: Inputs, t: np.ndarray,
+              x0: np.ndarray, delay: float = 0.0) -> np.ndarray:
+    """Radau at tight tolerance on the plain ODE, piece by piece between input changes."""
+    sysm = structure.system(structure.theta(values))
+    A, B, C = sysm.A[0], sysm.B[0], sysm.C[0]
+    burner_t = inputs.t + delay
+
+    def u_at(tt):
+        jb = max(np.searchsorted(burner_t, tt, side="right") - 1, 0)
+        ja = np.searchsorted(inputs.t, tt, side="right") - 1
+        return np.r_[inputs.burners[jb], inputs.t_air[ja]]
+
+    edges = np.unique(np.concatenate(([0.0], inputs.t, burner_t, [t[-1]])))
+    edges = edges[edges <= t[-1]]
+    x = structure.full_state(x0)[0]
+    out = np.empty((t.size, A.shape[0]))
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        u = u_at(lo)
+        idx = np.nonzero((t >= lo) & (t < hi))[0]
+        sol = solve_ivp(lambda _t, xv, u=u: A @ xv + B @ u, (lo, hi), x, method="Radau",
+                        rtol=1e-12, atol=1e-10, t_eval=np.append(t[idx], hi))
+        out[idx] = sol.y[:, :-1].T
+        x = sol.y[:, -1]
+    out[t >= edges[-1]] = x
+    return out @ C.T
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_exact_against_solve_ivp_random(seed):
+    rng = np.random.default_rng(seed)
+    ms = ModelStructure()
+    values = {k: v[0] for k, v in random_values(ms, rng, 1).items()}
+    inputs = random_inputs(rng)
+    # irregular sample times, some of them exactly on input changes
+    t = np.unique(np.concatenate((np.sort(rng.uniform(0, 2000, 400)), inputs.t[1:3], [0.0])))
+    x0 = rng.uniform(20, 900, 3)
+    y = ms.simulate(values, inputs, t, x0)[0]
+    ref = reference(ms, values, inputs, t, x0)
+    assert np.max(np.abs(y - ref) / np.abs(ref)) < 1e-6
+
+
+@pytest.mark.parametrize("effects", [
+    [ZoneBurners()], [SensorLag()], [WallStorage()], [SensorLag(order=2), ZoneBurners()],
+], ids=lambda e: "+".join(x.name for x in e))
+def test_exact_extended_structures_against_solve_ivp(effects):
+    rng = np.random.default_rng(7)
+    ms = ModelStructure(effects)
+    values = {k: v[0] for k, v in random_values(ms, rng, 1).items()}
+    inputs = random_inputs(rng)
+    t = np.linspace(0, 2000, 701)
+    x0 = np.array([400.0, 300.0, 150.0])
+    ref = reference(ms, values, inputs, t, x0)
+    y = ms.simulate(values, inputs, t, x0)[0]
+    assert np.max(np.abs(y - ref) / np.abs(ref)) < 1e-6
+
+
+def test_per_parameter_step_times_dead_time_exact():
+    """A dead time moves the burner steps per parameter set (the superposition path)."""
+    rng = np.random.default_rng(3)
+    ms = ModelStructure([DeadTime()])
+    inputs = random_inputs(rng)
+    t = np.linspace(0, 2000, 501)
+    x0 = np.array([300.0, 250.0, 100.0])
+    delays = np.array([0.5, 7.0, 33.3])
+    values = {**PAPER_TABLE_V, "theta_dead": delays}
+    y = ms.simulate(values, inputs, t, x0)
+    for p, delay in enumerate(delays):
+        ref = reference(ModelStructure(), PAPER_TABLE_V, inputs, t, x0, delay=delay)
+        assert np.max(np.abs(y[p] - ref) / np.abs(ref)) < 1e-6
+
+
+def test_fuel_change_equals_scaled_schedule():
+    """A fuel change at t_c is the same as burners scaled from t_c on (checked on the segment
+    path, which the fuel change's per-parameter instant does not use)."""
+    ms = ModelStructure([FuelChange()])
+    inputs = Inputs(np.array([0.0, 500.0, 1500.0]), np.array([[2, 0, 0], [6, 0, 0], [10, 4, 0.0]]),
+                    np.full(3, 25.0))
+    t = np.linspace(0, 2500, 1001)
+    x0 = np.full(3, 25.0)
+    y = ms.simulate({**PAPER_TABLE_V, "t_fuel": 1000.0, "fuel_ratio": 0.7}, inputs, t, x0)[0]
+    scaled = Inputs(np.array([0.0, 500.0, 1000.0, 1500.0]),
+                    np.array([[2, 0, 0], [6, 0, 0], [4.2, 0, 0], [7, 2.8, 0.0]]), np.full(4, 25.0))
+    ref = ModelStructure().simulate(PAPER_TABLE_V, scaled, t, x0)[0]
+    np.testing.assert_allclose(y, ref, rtol=1e-9)
+
+
+def test_batched_call_equals_loop_of_single_calls():
+    rng = np.random.default_rng(11)
+    for structure in (ModelStructure(), ModelStructure([DeadTime(), ZoneBurners()])):
+        values = random_values(structure, rng, 40)
+        inputs = random_inputs(rng)
+        t = np.linspace(0, 2000, 300)
+        x0 = rng.uniform(20, 500, (40, 3))
+        batch = structure.simulate(values, inputs, t, x0)
+        for p in range(40):
+            single = structure.simulate({k: v[p] for k, v in values.items()}, inputs, t, x0[p])
+            np.testing.assert_allclose(batch[p], single[0], rtol=1e-10, atol=1e-9)
+
+
+def test_samples_before_start_are_refused():
+    ms = ModelStructure()
+    inputs = Inputs(np.array([10.0]), np.array([[2, 0, 0.0]]), np.array([30.0]))
+    with pytest.raises(ValueError, match="precedes"):
+        ms.simulate(PAPER_TABLE_V, inputs, np.array([5.0, 20.0]), np.full(3, 30.0))
+
+
+def test_lag_coinciding_with_a_furnace_mode_stays_exact():
+    """A sensor time constant equal to a furnace mode makes A defective: no eigenbasis."""
+    ms = ModelStructure([SensorLag()])
+    A = ms.system(ms.theta({**PAPER_TABLE_V, "tau_lag": 1.0})).A[0, :3, :3]
+    tau = -1.0 / np.sort(np.linalg.eigvals(A).real)[1]
+    values = {**PAPER_TABLE_V, "tau_lag": tau}
+    inputs = Inputs(np.array([0.0, 100.0]), np.array([[2, 0, 0], [8, 0, 0.0]]), np.full(2, 30.0))
+    t = np.linspace(0, 400, 201)
+    x0 = np.array([300.0, 200.0, 100.0])
+    y = ms.simulate(values, inputs, t, x0)[0]
+    ref = reference(ms, values, inputs, t, x0)
+    assert np.max(np.abs(y - ref) / np.abs(ref)) < 1e-6

@@ -1,0 +1,177 @@
+"""Salvage of an MCAP file whose writer died before writing its footer.
+
+`make_reader` needs the footer and summary at the end of the file; a killed or powered-off
+writer leaves none. `StreamReader` reads records front to back and stops at the cut: every
+chunk that was closed (the log writer closes one at least every flush interval) comes back
+whole, the chunk being filled when the writer died is lost, and a half-written record at the
+end is detected (its length runs past the end of the file) and dropped, never half-decoded.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import Channel, Footer, Header, Message, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from furnace_model.errors import DataError
+
+MAGIC = b"\x89MCAP0\r\n"
+_FOOTER_RECORD_SIZE = 1 + 8 + 20
+
+
+@dataclass
+class Salvage:
+    """What could be read from the front of a file."""
+
+    path: Path
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    messages: list[Message] = field(default_factory=list)
+    complete: bool = False  # the footer was reached
+    cut: str | None = None  # why reading stopped before the footer
+    good_bytes: int = 0  # end of the last complete record
+
+
+def has_footer(path: str | Path) -> bool:
+    """Whether the file ends with a footer record and the closing magic: a cheap test of
+    'the writer finished this file', without reading it."""
+    path = Path(path)
+    size = _size(path)
+    if size < 2 * len(MAGIC) + _FOOTER_RECORD_SIZE:
+        return False
+    with path.open("rb") as f:
+        f.seek(size - len(MAGIC) - _FOOTER_RECORD_SIZE)
+        tail = f.read()
+    opcode, length = struct.unpack_from("<BQ", tail)
+    return tail.endswith(MAGIC) and opcode == Opcode.FOOTER and length == 20
+
+
+def salvage(path: str | Path) -> Salvage:
+    """Read every complete record up to the footer or the cut. Raises DataError when the file
+    is missing, empty, not MCAP, or cut inside its header (nothing to salvage)."""
+    path = Path(path)
+    size = _size(path)
+    if size == 0:
+        raise DataError(str(path), "empty file: not an MCAP log")
+    out = Salvage(path)
+    with path.open("rb") as f:
+        head = f.read(len(MAGIC))
+        if head != MAGIC:
+            if len(head) < len(MAGIC) and MAGIC.startswith(head):
+                raise DataError(str(path), "truncated in the header: not a usable MCAP file")
+            raise DataError(str(path), "not an MCAP file (bad magic bytes)")
+        f.seek(0)
+        # Chunk CRCs are checked: a chunk of zeros left by a power cut must not pass as data.
+        records = StreamReader(f, validate_crcs=True, record_size_limit=1 << 31).records
+        try:
+            first = next(records)
+        except (McapError, struct.error, ValueError, zlib.error, UnicodeDecodeError) as exc:
+            raise DataError(str(path), "truncated in the header: not a usable MCAP file"
+                            if _is_cut(exc) else f"unreadable header: {exc}") from None
+        except StopIteration:
+            first = None
+        if not isinstance(first, Header):
+            raise DataError(str(path), "truncated in the header: not a usable MCAP file")
+        out.good_bytes = f.tell()
+        try:
+            for record in records:
+                if isinstance(record, Schema):
+                    out.schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    out.channels[record.id] = record
+                elif isinstance(record, Message):
+                    out.messages.append(record)
+                elif isinstance(record, Footer):
+                    out.complete = True
+                out.good_bytes = f.tell()
+        except (McapError, struct.error, ValueError, zlib.error, UnicodeDecodeError) as exc:
+            out.cut = (f"file ends inside a record at byte {out.good_bytes} of {size}"
+                       if _is_cut(exc) else
+                       f"unreadable record after byte {out.good_bytes} of {size}: {exc}")
+    if not out.complete and out.cut is None:
+        out.cut = f"no footer: the file ends after byte {out.good_bytes}"
+    # A message whose channel record was lost cannot be decoded: keep what can be.
+    out.messages = [m for m in out.messages if m.channel_id in out.channels]
+    return out
+
+
+def _is_cut(exc: BaseException) -> bool:
+    return type(exc).__name__ == "EndOfFile" or isinstance(exc, struct.error)
+
+
+def _size(path: Path) -> int:
+    try:
+        if path.is_dir():
+            raise DataError(str(path), "is a directory, not an MCAP file")
+        return path.stat().st_size
+    except FileNotFoundError:
+        raise DataError(str(path), "file not found") from None
+    except OSError as exc:
+        raise DataError(str(path), f"cannot read: {exc.strerror or exc}") from None
+
+
+def default_output(path: str | Path) -> Path:
+    """`furnace-20260302T060000Z.mcap[.part]` -> `furnace-20260302T060000Z.recovered.mcap`."""
+    path = Path(path)
+    name = path.name
+    for suffix in (".part", ".mcap"):
+        if name.endswith(suffix):
+            name = name[: -len(suffix)]
+    return path.with_name(name + ".recovered.mcap")
+
+
+@dataclass
+class Recovered:
+    source: Path
+    out: Path
+    messages: int
+    start_ns: int
+    end_ns: int
+    was_complete: bool
+    cut: str | None
+
+
+def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
+    """Write every salvageable message of `path` into a new, complete file; the input is never
+    touched. The new file is written under a temporary name and renamed when whole."""
+    path = Path(path)
+    target = Path(out) if out is not None else default_output(path)
+    if target.resolve() == path.resolve():
+        raise DataError(str(path), "--out must differ from the input: the input is never overwritten")
+    if target.exists():
+        raise DataError(str(target), "output exists already: remove it or pass another --out")
+    got = salvage(path)
+    if not got.messages:
+        raise DataError(str(path), f"no complete message to recover ({got.cut or 'empty log'})")
+    tmp = target.with_name(target.name + ".tmp")
+    try:
+        with tmp.open("wb") as f:
+            writer = Writer(f, compression=CompressionType.ZSTD)
+            writer.start(profile="", library="furnace-daq recover")
+            schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data)
+                          for sid, s in sorted(got.schemas.items())}
+            channel_ids = {cid: writer.register_channel(c.topic, c.message_encoding,
+                                                        schema_ids.get(c.schema_id, 0),
+                                                        dict(c.metadata))
+                           for cid, c in sorted(got.channels.items())}
+            for m in got.messages:
+                writer.add_message(channel_ids[m.channel_id], m.log_time, m.data,
+                                   m.publish_time, m.sequence)
+            writer.finish()
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise DataError(str(target), f"cannot write: {exc.strerror or exc}") from None
+    times = [m.log_time for m in got.messages]
+    return Recovered(path, target, len(got.messages), min(times), max(times), got.complete,
+                     got.cut)

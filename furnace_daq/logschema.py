@@ -1,0 +1,170 @@
+"""The MCAP topics and their JSON schemas (CONTRACTS.md section 2), defined once for the
+writer, the reader, `logs info` and `logs export`.
+
+The schemas are written for Foxglove as much as for validation: Foxglove turns a
+`jsonschema` channel into plottable fields only when every object lists its `properties` and
+every field has exactly one of boolean/string/number/integer/object/array (no `$ref`, no
+`["number", "null"]` unions, no `"null"`). A reading that can be missing is therefore declared
+`"number"` and says in its description that it is `null` when unusable; Foxglove then leaves a
+gap in the plot, which is what an engineer should see.
+
+Fields beyond the contract's minimum are welcome (JSON Schema allows additional properties by
+default); the contract grows by adding fields, never by renaming.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
+
+SCHEMA_ENCODING = "jsonschema"
+MESSAGE_ENCODING = "json"
+
+QUALITIES: tuple[str, ...] = ("ok", "stale", "comm_error", "out_of_range", "sensor_open")
+"""Quality of one reading; only `ok` readings enter averages and fits."""
+
+DAQ_STATES: tuple[str, ...] = ("connected", "disconnected")
+BURNER_SOURCES: tuple[str, ...] = ("modbus", "can")
+MODEL_STATUSES: tuple[str, ...] = ("ok", "insufficient_excitation", "failed")
+PARAM_NAMES: tuple[str, ...] = ("a", "b", "c", "d", "e", "f")
+
+THERMOCOUPLES = "/furnace/thermocouples"
+BURNERS = "/furnace/burners"
+AMBIENT = "/furnace/ambient"
+DAQ_STATUS = "/daq/status"
+DAQ_EVENTS = "/daq/events"
+MODEL_PARAMETERS = "/model/parameters"
+MODEL_EVENTS = "/model/events"
+
+
+def _number(description: str) -> dict:
+    return {"type": "number", "description": description}
+
+
+def _string(description: str, choices: tuple[str, ...] | None = None) -> dict:
+    s: dict = {"type": "string", "description": description}
+    if choices:
+        s["enum"] = list(choices)
+    return s
+
+
+def _object(properties: dict, description: str = "", required: tuple[str, ...] = ()) -> dict:
+    s: dict = {"type": "object", "properties": properties}
+    if description:
+        s["description"] = description
+    if required:
+        s["required"] = list(required)
+    return s
+
+
+def _params_object(description: str) -> dict:
+    return _object({p: _number(f"parameter {p} of the paper's eq. 11") for p in PARAM_NAMES},
+                   description)
+
+
+@dataclass(frozen=True)
+class Topic:
+    """One channel of the log: its topic name, schema name and JSON schema."""
+
+    name: str
+    schema_name: str
+    schema: dict = field(hash=False, compare=False)
+
+    def schema_bytes(self) -> bytes:
+        return json.dumps(self.schema, sort_keys=True, separators=(",", ":")).encode()
+
+
+_THERMOCOUPLES = _object(
+    {
+        **{s: _number(f"thermocouple {s} in degC; null when the reading is not usable")
+           for s in SENSORS},
+        "quality": _object({s: _string(f"quality of {s}", QUALITIES) for s in SENSORS},
+                           "quality per thermocouple; only 'ok' readings are averaged",
+                           SENSORS),
+    },
+    "the six zone thermocouples of one poll",
+    (*SENSORS, "quality"),
+)
+
+_BURNERS = _object(
+    {
+        **{z: {"type": "array", "items": {"type": "boolean"}, "minItems": n, "maxItems": n,
+               "description": f"flame-on state of each of the {n} burners of the {z} zone"}
+           for z, n in zip(ZONES, BURNERS_PER_ZONE, strict=True)},
+        **{f"count_{z}": {"type": "integer", "minimum": 0, "maximum": n,
+                          "description": f"burners firing in the {z} zone"}
+           for z, n in zip(ZONES, BURNERS_PER_ZONE, strict=True)},
+        "source": _string("where the states were read", BURNER_SOURCES),
+    },
+    "burner flame-on states",
+    (*ZONES, *(f"count_{z}" for z in ZONES), "source"),
+)
+
+_AMBIENT = _object(
+    {"t_air": _number("ambient air temperature in degC; null when the reading is not usable"),
+     "quality": _string("quality of t_air (absent means ok)", QUALITIES)},
+    "ambient temperature",
+    ("t_air",),
+)
+
+_DAQ_STATUS = _object(
+    {"state": _string("connection to the PLC", DAQ_STATES),
+     "detail": _string("why the state changed, in words")},
+    "one message on every change of connection state, plus any counters of the poller",
+    ("state", "detail"),
+)
+
+_DAQ_EVENTS = _object(
+    {"kind": _string("what happened, e.g. burner_disagreement, missed_tick, log_gap"),
+     "detail": _string("the event in words")},
+    "acquisition events: PLC and flame signals disagree, a poll tick was missed, the log "
+    "could not be written for a while",
+    ("kind", "detail"),
+)
+
+_MODEL_PARAMETERS = _object(
+    {
+        **{p: _number(f"parameter {p} of the paper's eq. 11") for p in PARAM_NAMES},
+        "ci95": _object({p: {"type": "array", "items": {"type": "number"}, "minItems": 2,
+                             "maxItems": 2, "description": f"95% interval of {p}: [lo, hi]"}
+                         for p in PARAM_NAMES}, "95% confidence intervals"),
+        "window_start": _string("start of the data window of the fit, ISO 8601 UTC"),
+        "window_end": _string("end of the data window of the fit, ISO 8601 UTC"),
+        "rmse_c": _object({z: _number(f"fit RMSE of the {z} zone in degC") for z in ZONES},
+                          "fit RMSE per zone"),
+        "status": _string("outcome of the refit", MODEL_STATUSES),
+    },
+    "an online refit of the three-zone model",
+    (*PARAM_NAMES, "status"),
+)
+
+_MODEL_EVENTS = _object(
+    {"kind": _string("what happened, e.g. drift"),
+     "detail": _string("the event in words"),
+     "parameters": _params_object("the parameters involved and their new values")},
+    "model events such as parameter drift",
+    ("kind", "detail"),
+)
+
+TOPICS: dict[str, Topic] = {t.name: t for t in (
+    Topic(THERMOCOUPLES, "furnace.Thermocouples", _THERMOCOUPLES),
+    Topic(BURNERS, "furnace.Burners", _BURNERS),
+    Topic(AMBIENT, "furnace.Ambient", _AMBIENT),
+    Topic(DAQ_STATUS, "daq.Status", _DAQ_STATUS),
+    Topic(DAQ_EVENTS, "daq.Event", _DAQ_EVENTS),
+    Topic(MODEL_PARAMETERS, "model.Parameters", _MODEL_PARAMETERS),
+    Topic(MODEL_EVENTS, "model.Event", _MODEL_EVENTS),
+)}
+"""Every topic of the contract, in the order the writer registers them."""
+
+
+def topic(name: str) -> Topic:
+    """The contract's topic, or an open object schema for a topic the contract does not name
+    yet (logged rather than lost; Foxglove shows its fields without autocompletion)."""
+    known = TOPICS.get(name)
+    if known is not None:
+        return known
+    schema_name = "extra." + name.strip("/").replace("/", ".")
+    return Topic(name, schema_name, _object({}, f"messages on {name}"))

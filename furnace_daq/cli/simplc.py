@@ -1,0 +1,70 @@
+"""`furnace-daq sim-plc`: serve a scenario's plant as a Modbus TCP PLC (default map of
+CONTRACTS.md section 3), optionally broadcasting flame states on a CAN bus."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+import sys
+from pathlib import Path
+
+from furnace_model.errors import FurnaceError
+from furnace_model.scenario import load_scenario
+
+from ..simplc import SimPLC
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("sim-plc", help="run the simulated furnace PLC (Modbus TCP server)",
+                       description=__doc__)
+    p.add_argument("--scenario", required=True, type=Path, help="scenario YAML")
+    p.add_argument("--speed", type=float, default=3600.0,
+                   help="simulated seconds per wall second (default 3600)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=5020, help="TCP port (default 5020; 0 = any free)")
+    p.add_argument("--manual", action="store_true",
+                   help="burners follow coil writes from a client instead of the schedule")
+    p.add_argument("--seed", type=int, default=0, help="sensor noise seed (default 0)")
+    p.add_argument("--scan-s", type=float, default=0.1, help="PLC scan period, s (default 0.1)")
+    p.add_argument("--can-channel", help="also send flame states as CAN frames on this channel")
+    p.add_argument("--can-interface", default="virtual",
+                   help="python-can interface for --can-channel (default virtual)")
+    p.add_argument("--duration", type=float, help="stop after this many wall seconds")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.speed <= 0 or args.scan_s <= 0:
+        raise FurnaceError("--speed and --scan-s must be positive")
+    if not 0 <= args.port <= 65535:
+        raise FurnaceError(f"--port must be 0-65535, got {args.port}")
+    scenario = load_scenario(args.scenario)
+    return asyncio.run(_serve(scenario, args))
+
+
+async def _serve(scenario, args: argparse.Namespace) -> int:
+    plc = SimPLC(scenario, speed=args.speed, host=args.host, port=args.port, manual=args.manual,
+                 seed=args.seed, scan_s=args.scan_s, can_channel=args.can_channel,
+                 can_interface=args.can_interface)
+    try:
+        await plc.start()
+    except (OSError, RuntimeError) as exc:
+        raise FurnaceError(f"cannot listen on {args.host}:{args.port}: {exc}") from None
+    except Exception as exc:  # python-can raises various types for a bad interface/channel
+        await plc.stop()
+        raise FurnaceError(f"cannot start: {exc}") from None
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, stop.set)
+    print(f"listening on {args.host}:{plc.port}", flush=True)
+    print(f"{scenario.name}: {args.speed:g}x, {'manual' if args.manual else 'schedule'} burners",
+          file=sys.stderr, flush=True)
+    try:
+        await asyncio.wait_for(stop.wait(), args.duration)
+    except TimeoutError:
+        pass
+    finally:
+        await plc.stop()
+    return 0

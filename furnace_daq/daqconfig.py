@@ -1,0 +1,259 @@
+"""The daemon's YAML config: where the PLC is, its register map, the CAN flame signals, the
+log. Checked in full at load, so a typo stops the service at start with the key path
+(exit code 2) rather than hours later as a silent gap. Defaults live here and only here.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
+from furnace_model.config import Node, load_yaml
+from furnace_model.errors import ConfigError
+
+from .registers import BIT_TABLES, DATA_TYPES, ORDERS, TABLES, BitRange, Point, overlaps
+
+BURNER_SOURCES = ("modbus", "can", "both")
+
+
+@dataclass(frozen=True)
+class Backoff:
+    initial_s: float = 0.5
+    max_s: float = 30.0
+    factor: float = 2.0
+
+    def delay(self, attempt: int) -> float:
+        """Wait before reconnect attempt number `attempt` (0 = first retry)."""
+        return min(self.max_s, self.initial_s * self.factor ** min(attempt, 64))
+
+
+@dataclass(frozen=True)
+class PlcConfig:
+    host: str = "127.0.0.1"
+    port: int = 502
+    device_id: int = 1
+    timeout_s: float = 1.0
+    max_gap_registers: int = 8
+    max_gap_bits: int = 64
+    max_consecutive_errors: int = 3
+    reconnect: Backoff = field(default_factory=Backoff)
+
+
+@dataclass(frozen=True)
+class ClockConfig:
+    point: Point
+    epoch: pd.Timestamp | None = None
+    """PLC second 0 in UTC; when absent it is anchored at the first reading."""
+
+
+@dataclass(frozen=True)
+class CanFrame:
+    can_id: int
+    start_bit: int
+    extended: bool = False
+
+
+@dataclass(frozen=True)
+class CanConfig:
+    interface: str = "virtual"
+    channel: str = "furnace"
+    bitrate: int | None = None
+    timeout_s: float = 3.0
+    frames: dict[str, CanFrame] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class LogConfig:
+    dir: Path = Path("logs")
+    prefix: str = "furnace"
+    flush_interval_s: float = 5.0
+    rotate_s: float = 3600.0
+    rotate_bytes: int = 256 * 2**20
+    retention_files: int = 0
+    file_mode: int = 0o640
+
+
+@dataclass(frozen=True)
+class DaqConfig:
+    plc: PlcConfig
+    poll_period_s: float
+    thermocouples: tuple[Point, ...]
+    ambient: Point | None
+    ambient_default_c: float
+    clock: ClockConfig | None
+    heartbeat: Point | None
+    stale_after_s: float
+    burner_source: str
+    burner_bits: tuple[BitRange, ...]
+    can: CanConfig | None
+    disagreement_polls: int
+    status_interval_s: float
+    log: LogConfig
+    file: str = ""
+
+    def modbus_items(self) -> list[Point | BitRange]:
+        items: list[Point | BitRange] = list(self.thermocouples)
+        items += [p for p in (self.ambient, self.heartbeat) if p is not None]
+        if self.clock is not None:
+            items.append(self.clock.point)
+        if self.burner_source in ("modbus", "both"):
+            items += self.burner_bits
+        return items
+
+
+def _point(node: Node, name: str, extra: tuple[str, ...] = ()) -> Point:
+    node.mapping({"table", "address", "type", "word_order", "byte_order", "scale", "offset",
+                  "sentinels", "range", *extra})
+    table = node.get_string("table", "input", choices=[t for t in TABLES if t not in BIT_TABLES])
+    dtype = node.get_string("type", "int16", choices=tuple(DATA_TYPES))
+    count = DATA_TYPES[dtype][0]
+    address = node.get_integer("address", lo=0, hi=65536 - count)
+    sentinels = tuple(n.number() for n in node.child("sentinels", []).elements())
+    lo = hi = None
+    if node.has("range"):
+        rng = node.child("range")
+        lo, hi = (n.number() for n in rng.elements(2, 2))
+        if lo >= hi:
+            raise rng.error(f"expected [low, high] with low < high, got [{lo:g}, {hi:g}]")
+    scale = node.get_number("scale", 1.0)
+    if scale == 0:
+        raise node.child("scale").error("must not be 0")
+    return Point(name=name, table=table, address=address, dtype=dtype,
+                 word_order=node.get_string("word_order", "big", choices=ORDERS),
+                 byte_order=node.get_string("byte_order", "big", choices=ORDERS),
+                 scale=scale, offset=node.get_number("offset", 0.0),
+                 sentinels=sentinels, lo=lo, hi=hi)
+
+
+def _bits(node: Node, zone: str, n: int) -> BitRange:
+    node.mapping({"table", "address", "invert"})
+    return BitRange(zone, node.get_string("table", "discrete", choices=BIT_TABLES),
+                    node.get_integer("address", lo=0, hi=65536 - n), n,
+                    node.get_bool("invert", False))
+
+
+def _can(node: Node) -> CanConfig:
+    node.mapping({"interface", "channel", "bitrate", "timeout_s", *ZONES})
+    frames = {}
+    defaults = {"soak": 0, "heat": 10, "preheat": 18}
+    for i, zone in enumerate(ZONES):
+        f = node.child(zone, {"id": 0x180, "start_bit": defaults[zone]}).mapping(
+            {"id", "start_bit", "extended"})
+        extended = f.get_bool("extended", False)
+        can_id = f.get_integer("id", lo=0, hi=0x1FFFFFFF if extended else 0x7FF)
+        start = f.get_integer("start_bit", lo=0, hi=64 - BURNERS_PER_ZONE[i])
+        frames[zone] = CanFrame(can_id, start, extended)
+    bitrate = node.child("bitrate", None)
+    return CanConfig(interface=node.get_string("interface", "virtual"),
+                     channel=str(node.get_string("channel", "furnace")),
+                     bitrate=None if bitrate.value is None else bitrate.integer(lo=1),
+                     timeout_s=node.get_number("timeout_s", 3.0, lo=0.01, hi=3600.0),
+                     frames=frames)
+
+
+def _log(node: Node) -> LogConfig:
+    node.mapping({"dir", "prefix", "flush_interval_s", "rotate_s", "rotate_mb",
+                  "retention_files", "file_mode"})
+    default_dir = os.environ.get("LOGS_DIRECTORY", "logs").split(":")[0]
+    mode = node.get_string("file_mode", "0640")
+    try:
+        file_mode = int(mode, 8)
+    except ValueError:
+        raise node.child("file_mode").error(f"expected an octal mode like '0640', got '{mode}'") from None
+    return LogConfig(
+        dir=Path(node.get_string("dir", default_dir)),
+        prefix=node.get_string("prefix", "furnace"),
+        flush_interval_s=node.get_number("flush_interval_s", 5.0, lo=0.1, hi=3600.0),
+        rotate_s=node.get_number("rotate_s", 3600.0, lo=1.0),
+        rotate_bytes=int(node.get_number("rotate_mb", 256.0, lo=0.01) * 2**20),
+        retention_files=node.get_integer("retention_files", 0, lo=0),
+        file_mode=file_mode)
+
+
+def load_config(path: str | Path) -> DaqConfig:
+    """Read and check a daemon config; every error names the file and key path."""
+    return parse_config(load_yaml(path))
+
+
+def parse_config(root: Node) -> DaqConfig:
+    root.mapping({"plc", "poll_period_s", "thermocouples", "ambient", "ambient_default_c",
+                  "clock", "heartbeat", "stale_after_s", "burners", "status_interval_s", "log"})
+
+    plc_node = root.child("plc", {}).mapping(
+        {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
+         "max_consecutive_errors", "reconnect"})
+    rc = plc_node.child("reconnect", {}).mapping({"initial_s", "max_s", "factor"})
+    backoff = Backoff(rc.get_number("initial_s", 0.5, lo=0.01, hi=3600.0),
+                      rc.get_number("max_s", 30.0, lo=0.01, hi=86400.0),
+                      rc.get_number("factor", 2.0, lo=1.0, hi=10.0))
+    if backoff.max_s < backoff.initial_s:
+        raise rc.child("max_s").error(f"must be at least initial_s ({backoff.initial_s:g})")
+    plc = PlcConfig(
+        host=plc_node.get_string("host", "127.0.0.1"),
+        port=plc_node.get_integer("port", 502, lo=1, hi=65535),
+        device_id=plc_node.get_integer("device_id", 1, lo=0, hi=255),
+        timeout_s=plc_node.get_number("timeout_s", 1.0, lo=0.01, hi=60.0),
+        max_gap_registers=plc_node.get_integer("max_gap_registers", 8, lo=0, hi=124),
+        max_gap_bits=plc_node.get_integer("max_gap_bits", 64, lo=0, hi=1999),
+        max_consecutive_errors=plc_node.get_integer("max_consecutive_errors", 3, lo=1, hi=1000),
+        reconnect=backoff)
+
+    tc_node = root.child("thermocouples").mapping(SENSORS)
+    thermocouples = tuple(_point(tc_node.child(s), s) for s in SENSORS)
+    ambient = _point(root.child("ambient"), "t_air") if root.has("ambient") else None
+    clock = None
+    if root.has("clock"):
+        cn = root.child("clock")
+        point = _point(cn, "clock", extra=("epoch",))
+        epoch = None
+        if cn.has("epoch"):
+            en = cn.child("epoch")
+            try:
+                epoch = pd.Timestamp(str(en.value))
+            except ValueError:
+                raise en.error(f"not an ISO 8601 time: '{en.value}'") from None
+            if epoch.tzinfo is None:
+                raise en.error("give a UTC offset or Z, e.g. 2026-03-04T06:00:00Z")
+            epoch = epoch.tz_convert("UTC")
+        clock = ClockConfig(point, epoch)
+    heartbeat = _point(root.child("heartbeat"), "heartbeat") if root.has("heartbeat") else None
+
+    bn = root.child("burners").mapping({"source", "modbus", "can", "disagreement_polls"})
+    source = bn.get_string("source", "modbus", choices=BURNER_SOURCES)
+    bits: tuple[BitRange, ...] = ()
+    # A block the chosen source does not use is still checked: a typo there would bite later.
+    if source in ("modbus", "both") or bn.has("modbus"):
+        mb = bn.child("modbus").mapping(ZONES)
+        bits = tuple(_bits(mb.child(z), z, BURNERS_PER_ZONE[i]) for i, z in enumerate(ZONES))
+    can = _can(bn.child("can")) if source in ("can", "both") or bn.has("can") else None
+
+    poll = root.get_number("poll_period_s", 1.0, lo=0.01, hi=3600.0)
+    config = DaqConfig(
+        plc=plc, poll_period_s=poll, thermocouples=thermocouples, ambient=ambient,
+        ambient_default_c=root.get_number("ambient_default_c", 30.0, lo=-60.0, hi=200.0),
+        clock=clock, heartbeat=heartbeat,
+        stale_after_s=root.get_number("stale_after_s", 5.0, lo=0.01, hi=86400.0),
+        burner_source=source, burner_bits=bits, can=can,
+        disagreement_polls=bn.get_integer("disagreement_polls", 2, lo=1, hi=10000),
+        status_interval_s=root.get_number("status_interval_s", 10.0, lo=0.1, hi=86400.0),
+        log=_log(root.child("log", {})), file=root.file)
+    _check_overlaps(root, config)
+    return config
+
+
+def _check_overlaps(root: Node, config: DaqConfig) -> None:
+    """Two entries that share an address are almost always a copy-paste slip in the map."""
+    where = {p.name: f"thermocouples.{p.name}" for p in config.thermocouples}
+    where.update(t_air="ambient", clock="clock", heartbeat="heartbeat")
+    where.update({z: f"burners.modbus.{z}" for z in ZONES})
+    items = config.modbus_items()
+    hit = overlaps(items)
+    if hit is not None:
+        a, b = items[hit[0]], items[hit[1]]
+        first, second = where[a.name], where[b.name]
+        raise ConfigError(root.file, second, f"overlaps {first} ({a.table} address "
+                                             f"{max(a.address, b.address)})")

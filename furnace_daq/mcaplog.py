@@ -67,7 +67,7 @@ class _OpenFile:
     writer: Writer
     start_ns: int
     rotate_at_ns: int | None
-    last_sync: float
+    last_sync: float | None  # caller's clock; None before its first maybe_flush
     channels: dict[str, int] = field(default_factory=dict)
     unsynced: list[_Rec] = field(default_factory=list)
 
@@ -102,6 +102,7 @@ class LogWriter:
         self._retry_at = 0.0
         self._outage: tuple[int, str] | None = None  # (log time of first unwritten, error)
         self._dropped_in_outage = 0
+        self._now: float | None = None  # the caller's monotonic clock at its last maybe_flush
 
     @property
     def current_path(self) -> Path | None:
@@ -115,19 +116,24 @@ class LogWriter:
         log_time_ns = int(log_time_ns)
         pub = log_time_ns if publish_time_ns is None else int(publish_time_ns)
         self._queue(_Rec(topic, encode(message), log_time_ns, pub))
-        self._drain(time.monotonic())
+        self._drain(self._now if self._now is not None else time.monotonic())
 
     def maybe_flush(self, now_monotonic: float) -> None:
-        """Close the chunk and fsync when the flush interval has passed; retry a failed log."""
+        """Close the chunk and fsync when the flush interval has passed; retry a failed log.
+        The writer keeps time on this clock only, whichever monotonic clock the caller uses."""
+        if self._now is None:  # times so far came from time.monotonic(): retry on this clock
+            self._retry_at = -math.inf
+        self._now = now_monotonic
         self._drain(now_monotonic)
         f = self._file
-        if f is not None and now_monotonic - f.last_sync >= self.flush_interval_s:
+        if f is not None and (f.last_sync is None
+                              or now_monotonic - f.last_sync >= self.flush_interval_s):
             self._sync(now_monotonic)
 
     def close(self) -> None:
         """Write what is buffered (one last try) and finish the file with its footer."""
-        self._retry_at = 0.0
-        self._drain(time.monotonic())
+        self._retry_at = -math.inf
+        self._drain(self._now if self._now is not None else time.monotonic())
         if self._file is not None:
             self._finish()
         if self._pending:
@@ -211,7 +217,7 @@ class LogWriter:
         rotate_at = None
         if self.rotate_ns is not None:
             rotate_at = (start_ns // self.rotate_ns + 1) * self.rotate_ns
-        self._file = _OpenFile(part, final, fh, writer, start_ns, rotate_at, now)
+        self._file = _OpenFile(part, final, fh, writer, start_ns, rotate_at, self._now)
         return self._file
 
     def _create(self, stamp: str) -> tuple[Path, Path, int]:
@@ -240,7 +246,7 @@ class LogWriter:
             self._fail(exc, now)
             return
         f.unsynced.clear()
-        f.last_sync = now
+        f.last_sync = self._now
 
     def _finish(self) -> None:
         f = self._file
@@ -254,7 +260,7 @@ class LogWriter:
             os.rename(f.part, f.final)
             _fsync_dir(self.log_dir)
         except OSError as exc:
-            self._fail(exc, time.monotonic())
+            self._fail(exc, self._now if self._now is not None else time.monotonic())
             return
         self._file = None
         self._apply_retention()
@@ -286,7 +292,7 @@ class LogWriter:
         now_ns = time.time_ns()
         self.write(DAQ_EVENTS, {
             "kind": "log_gap",
-            "detail": (f"the log could not be written from {_iso(first_ns)} to {_iso(now_ns)}: "
+            "detail": (f"the log could not be written from {iso_time(first_ns)} to {iso_time(now_ns)}: "
                        f"{error}; {dropped} messages dropped"),
             "error": error, "dropped": dropped,
         }, now_ns)
@@ -350,7 +356,7 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def _iso(ns: int) -> str:
+def iso_time(ns: int) -> str:
     return datetime.fromtimestamp(ns / 1e9, UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
 
@@ -401,10 +407,10 @@ def decode(path: Path, raw: RawMessage) -> dict:
     try:
         value = json.loads(raw.message.data)
     except (ValueError, UnicodeDecodeError) as exc:
-        raise DataError(str(path), f"message on {raw.topic} at {_iso(raw.message.log_time)} "
+        raise DataError(str(path), f"message on {raw.topic} at {iso_time(raw.message.log_time)} "
                         f"is not JSON: {exc}") from None
     if not isinstance(value, dict):
-        raise DataError(str(path), f"message on {raw.topic} at {_iso(raw.message.log_time)} "
+        raise DataError(str(path), f"message on {raw.topic} at {iso_time(raw.message.log_time)} "
                         "is not a JSON object")
     return value
 

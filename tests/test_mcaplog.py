@@ -142,7 +142,7 @@ def test_rotation_by_size(tmp_path: Path) -> None:
     w = LogWriter(tmp_path, rotate_bytes=limit)
     n = 3000
     for i in range(n):  # random digits: barely compressible, ~180 bytes each
-        w.write("/furnace/thermocouples", {s: float(v) for s, v in zip(SENSORS, rng.random(6))}
+        w.write("/furnace/thermocouples", {s: float(v) for s, v in zip(SENSORS, rng.random(6), strict=True)}
                 | {"i": i}, T0 + i * 10**6)
     w.close()
     files = finished_files(tmp_path, "furnace")

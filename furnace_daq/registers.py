@@ -94,7 +94,7 @@ class Point:
         v = raw * self.scale + self.offset
         if (self.lo is not None and v < self.lo) or (self.hi is not None and v > self.hi):
             return None, OUT_OF_RANGE
-        return float(v), OK
+        return round(float(v), 9), OK  # no 400.70000000000005 in the log
 
 
 @dataclass(frozen=True)

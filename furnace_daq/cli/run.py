@@ -1,0 +1,74 @@
+"""`furnace-daq run`: the acquisition daemon. Polls the furnace PLC (and the flame scanners
+on CAN) as the config describes and logs every sample to MCAP until SIGTERM or --duration."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from furnace_model.errors import ConfigError, FurnaceError
+
+from ..daemon import Daemon
+from ..daqconfig import load_config
+from ..mcaplog import LogWriter
+from ..sdnotify import Notifier
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run the acquisition daemon", description=__doc__)
+    p.add_argument("--config", required=True, type=Path, help="daemon YAML (config/gateway.yaml)")
+    p.add_argument("--plc", metavar="HOST:PORT", help="PLC address, overrides plc.host/port")
+    p.add_argument("--log-dir", type=Path, help="MCAP directory, overrides log.dir")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (exit 0)")
+    p.set_defaults(run=run)
+
+
+def _plc_address(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ConfigError("--plc", "", f"expected HOST:PORT, got '{text}'")
+    return host.strip("[]"), int(port)
+
+
+def run(args: argparse.Namespace) -> int:
+    config = load_config(args.config)
+    if args.plc:
+        host, port = _plc_address(args.plc)
+        config = replace(config, plc=replace(config.plc, host=host, port=port))
+    if args.log_dir:
+        config = replace(config, log=replace(config.log, dir=args.log_dir))
+    if args.duration is not None and args.duration <= 0:
+        raise ConfigError("--duration", "", f"must be positive, got {args.duration:g}")
+    # Connection trouble is reported on /daq/status; the client library's own log lines
+    # would only repeat it on stderr at every retry.
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    lc = config.log
+    try:
+        lc.dir.mkdir(parents=True, exist_ok=True)
+        log = LogWriter(lc.dir, prefix=lc.prefix, flush_interval_s=lc.flush_interval_s,
+                        rotate_s=lc.rotate_s, rotate_bytes=lc.rotate_bytes,
+                        retention_files=lc.retention_files, file_mode=lc.file_mode)
+    except (OSError, ValueError) as exc:
+        raise FurnaceError(f"log directory {lc.dir}: {exc}") from None
+    return asyncio.run(_main(config, log, args.duration))
+
+
+async def _main(config, log: LogWriter, duration: float | None) -> int:
+    daemon = Daemon(config, log, notifier=Notifier())
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, daemon.stop)
+    print(f"polling {daemon.plc.host}:{daemon.plc.port} every {config.poll_period_s:g} s, "
+          f"logging to {config.log.dir}", file=sys.stderr, flush=True)
+    counters = await daemon.run(duration)
+    print(f"stopped: {counters.ok_polls}/{counters.polls} polls ok, {counters.comm_errors} "
+          f"errors, {counters.skipped_ticks} skipped ticks, {counters.disconnects} drops",
+          file=sys.stderr, flush=True)
+    if log.error:
+        print(f"log: {log.error}", file=sys.stderr, flush=True)
+    return 0

@@ -1,0 +1,330 @@
+"""The acquisition loop: poll the PLC (and read the flame scanners) on a fixed period, log
+every sample with its quality to MCAP, and keep going whatever the PLC does.
+
+Scheduling. Ticks sit on a grid of the monotonic clock (t0 + k * period), so the period never
+drifts; when a tick is missed (a slow read, a stalled host) the loop skips to the next grid
+point and counts the skipped ticks instead of bursting to catch up. A read never takes longer
+than the PLC timeout.
+
+Connection. The daemon starts whether or not the PLC answers; a connector task dials with
+exponential backoff (capped) while the PLC is down, and a run of failed polls drops the
+connection and hands it back to the connector. Every change of state is one message on
+/daq/status, so a gap in the data is always explained next to it.
+
+Time. log_time is host UTC at acquisition. publish_time is the PLC's clock when the map has
+one: epoch + PLC seconds, the epoch given in the config or anchored at the first reading (and
+re-anchored, with an event, when the PLC clock jumps back after a PLC restart).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Protocol
+
+from furnace_model import SENSORS, ZONES
+
+from .daqconfig import DaqConfig
+from .logschema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
+from .registers import COMM_ERROR, OK, STALE
+from .sdnotify import Notifier
+from .sources import CanSource, ModbusSource, Sample, Source, SourceError
+
+
+class Log(Protocol):
+    error: str | None
+
+    def write(self, topic: str, message: dict, log_time_ns: int,
+              publish_time_ns: int | None = None) -> None: ...
+
+    def maybe_flush(self, now_monotonic: float) -> None: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass
+class Counters:
+    polls: int = 0
+    ok_polls: int = 0
+    comm_errors: int = 0
+    skipped_ticks: int = 0
+    connects: int = 0
+    disconnects: int = 0
+    connect_attempts: int = 0
+    can_frames: int = 0
+    disagreements: int = 0
+
+
+class Daemon:
+    def __init__(self, config: DaqConfig, log: Log, *, plc: Source | None = None,
+                 flame: Source | None = None, notifier: Notifier | None = None,
+                 wall_ns: Callable[[], int] = time.time_ns):
+        self.config = config
+        self.log = log
+        self.plc = plc if plc is not None else ModbusSource(config)
+        self.flame = flame
+        if flame is None and config.burner_source in ("can", "both") and config.can is not None:
+            self.flame = CanSource(config.can)
+        self.notifier = notifier or Notifier({})
+        self.wall_ns = wall_ns
+        self.counters = Counters()
+        self.state = "disconnected"
+        self.detail = "starting"
+        self._stop = asyncio.Event()
+        self._connected = asyncio.Event()
+        self._consecutive_errors = 0
+        self._epoch_ns: int | None = None
+        if config.clock is not None and config.clock.epoch is not None:
+            self._epoch_ns = config.clock.epoch.value
+        self._last_plc_s: float | None = None
+        self._heartbeat: tuple[float, float] | None = None  # (value, monotonic time it changed)
+        self._disagree: tuple[frozenset[str], int] = (frozenset(), 0)
+        self._reported_disagreement: frozenset[str] = frozenset()
+        self._last_status_mono = float("-inf")
+
+    # -- life cycle ----------------------------------------------------------------------------
+    def stop(self) -> None:
+        self._stop.set()
+
+    async def run(self, duration_s: float | None = None) -> Counters:
+        """Poll until stop() (SIGTERM) or `duration_s`; always ends with a finished log."""
+        t_start = time.monotonic()
+        where = f"{getattr(self.plc, 'host', '?')}:{getattr(self.plc, 'port', '?')}"
+        self._status("disconnected", f"starting; dialling PLC at {where}")
+        self.notifier.ready(f"polling {where} every {self.config.poll_period_s:g} s")
+        tasks = [asyncio.create_task(self._connector(self.plc), name="plc connector")]
+        if self.flame is not None:
+            tasks.append(asyncio.create_task(self._open_flame(), name="can connector"))
+        try:
+            # The first tick waits (at most one timeout) for the first dial, so a reachable
+            # PLC's first sample is not lost to the connection set-up.
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._connected.wait(), self.config.plc.timeout_s)
+            t0 = time.monotonic()
+            await self._loop(t0, None if duration_s is None else duration_s - (t0 - t_start))
+        finally:
+            self.notifier.stopping()
+            for task in tasks:
+                task.cancel()
+            for task in tasks:
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+            await self.plc.close()
+            if self.flame is not None:
+                await self.flame.close()
+            self._status("disconnected", "stopping")
+            self.log.close()
+            self.notifier.close()
+        return self.counters
+
+    async def _loop(self, t0: float, duration_s: float | None) -> None:
+        period = self.config.poll_period_s
+        end = None if duration_s is None else t0 + duration_s
+        k = 0
+        while not self._stop.is_set():
+            due = t0 + k * period
+            if end is not None and due >= end:
+                break
+            delay = due - time.monotonic()
+            if delay > 0:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._stop.wait(), delay)
+                if self._stop.is_set():
+                    break
+            await self.tick()
+            k += 1
+            late = time.monotonic() - (t0 + k * period)
+            if late > 0:  # the next grid point has passed already: skip, do not burst
+                missed = int(late // period) + 1
+                k += missed
+                self.counters.skipped_ticks += missed
+
+    # -- one tick -----------------------------------------------------------------------------
+    async def tick(self) -> None:
+        """Read every source once, log what came back, feed the watchdog."""
+        c = self.counters
+        c.polls += 1
+        log_ns = self.wall_ns()
+        plc_sample: Sample | None = None
+        if self._connected.is_set():
+            try:
+                plc_sample = await asyncio.wait_for(self.plc.read(), self.config.plc.timeout_s)
+            except (SourceError, TimeoutError, OSError) as exc:
+                await self._poll_failed(log_ns, str(exc) or "timeout")
+            else:
+                self._consecutive_errors = 0
+                c.ok_polls += 1
+                self._log_plc(plc_sample, log_ns)
+        flame_sample = None
+        if self.flame is not None and self.flame.connected:
+            with contextlib.suppress(SourceError):
+                flame_sample = await self.flame.read()
+                c.can_frames = getattr(self.flame, "frames", 0)
+            if flame_sample is not None and flame_sample.burners is not None:
+                self._write(BURNERS, self._burner_message(flame_sample, "can"), log_ns, log_ns)
+        if plc_sample is not None and flame_sample is not None:
+            self._compare_burners(plc_sample, flame_sample, log_ns)
+        now = time.monotonic()
+        if now - self._last_status_mono >= self.config.status_interval_s:
+            self._status(self.state, self.detail)
+        self.log.maybe_flush(now)
+        self.notifier.watchdog(now)
+
+    async def _poll_failed(self, log_ns: int, reason: str) -> None:
+        self.counters.comm_errors += 1
+        self._consecutive_errors += 1
+        msg: dict = {s: None for s in SENSORS}
+        msg["quality"] = {s: COMM_ERROR for s in SENSORS}
+        msg["error"] = reason
+        self._write(THERMOCOUPLES, msg, log_ns, log_ns)
+        if self._consecutive_errors >= self.config.plc.max_consecutive_errors:
+            await self.plc.close()
+            self._lost(f"{self._consecutive_errors} failed polls in a row, last: {reason}")
+
+    def _lost(self, why: str) -> None:
+        self._connected.clear()
+        self._consecutive_errors = 0
+        self.counters.disconnects += 1
+        self._status("disconnected", why)
+
+    # -- logging a PLC sample -------------------------------------------------------------------
+    def _publish_ns(self, sample: Sample, log_ns: int) -> int:
+        s = sample.plc_seconds
+        if s is None:
+            return log_ns
+        if self._last_plc_s is not None and s < self._last_plc_s and \
+                (self.config.clock is None or self.config.clock.epoch is None):
+            self._write(DAQ_EVENTS, {"kind": "plc_clock_reset",
+                                     "detail": f"PLC clock went back from {self._last_plc_s:g} s "
+                                               f"to {s:g} s; publish time re-anchored"},
+                        log_ns, log_ns)
+            self._epoch_ns = None
+        self._last_plc_s = s
+        if self._epoch_ns is None:
+            self._epoch_ns = log_ns - int(round(s * 1e9))
+        return self._epoch_ns + int(round(s * 1e9))
+
+    def _stale(self, sample: Sample) -> bool:
+        if sample.heartbeat is None:
+            return False
+        now = time.monotonic()
+        if self._heartbeat is None or sample.heartbeat != self._heartbeat[0]:
+            self._heartbeat = (sample.heartbeat, now)
+            return False
+        return now - self._heartbeat[1] > self.config.stale_after_s
+
+    def _log_plc(self, sample: Sample, log_ns: int) -> None:
+        pub = self._publish_ns(sample, log_ns)
+        stale = self._stale(sample)
+        quality = {k: (STALE if stale and q == OK else q) for k, q in sample.quality.items()}
+        tc: dict = {s: sample.values.get(s) for s in SENSORS}
+        tc["quality"] = {s: quality.get(s, COMM_ERROR) for s in SENSORS}
+        if sample.plc_seconds is not None:
+            tc["plc_seconds"] = sample.plc_seconds
+        self._write(THERMOCOUPLES, tc, log_ns, pub)
+        if self.config.ambient is not None:
+            amb = {"t_air": sample.values.get("t_air"), "quality": quality.get("t_air", COMM_ERROR)}
+        else:
+            amb = {"t_air": self.config.ambient_default_c, "quality": OK, "from_config": True}
+        self._write(AMBIENT, amb, log_ns, pub)
+        if sample.burners is not None:
+            sample.burner_quality = STALE if stale else sample.burner_quality
+            self._write(BURNERS, self._burner_message(sample, "modbus"), log_ns, pub)
+
+    @staticmethod
+    def _burner_message(sample: Sample, source: str) -> dict:
+        assert sample.burners is not None
+        msg: dict = {z: sample.burners[z] for z in ZONES}
+        msg.update({f"count_{z}": sum(sample.burners[z]) for z in ZONES})
+        msg["source"] = source
+        msg["quality"] = sample.burner_quality
+        return msg
+
+    def _compare_burners(self, plc: Sample, flame: Sample, log_ns: int) -> None:
+        """An event when PLC states and flame scanners disagree for `disagreement_polls`
+        polls in a row, and one when they agree again: a burner commanded on whose flame
+        is out (or the reverse) is what an operator must see."""
+        if plc.burners is None or flame.burners is None or plc.burner_quality != OK \
+                or flame.burner_quality != OK:
+            return
+        diff = frozenset(f"{z}[{i}]" for z in ZONES
+                         for i, (a, b) in enumerate(zip(plc.burners[z], flame.burners[z],
+                                                        strict=True)) if a != b)
+        seen, n = self._disagree
+        n = n + 1 if diff == seen else 1
+        self._disagree = (diff, n)
+        if diff == self._reported_disagreement or n < self.config.disagreement_polls:
+            return
+        self._reported_disagreement = diff
+        if diff:
+            self.counters.disagreements += 1
+            detail = f"PLC and flame scanners disagree on {', '.join(sorted(diff))}"
+            kind = "burner_disagreement"
+        else:
+            detail, kind = "PLC and flame scanners agree again", "burner_agreement"
+        self._write(DAQ_EVENTS, {"kind": kind, "detail": detail, "burners": sorted(diff),
+                                 "plc": plc.burners, "flame": flame.burners}, log_ns, log_ns)
+
+    # -- connections ------------------------------------------------------------------------------
+    async def _connector(self, source: Source) -> None:
+        """Dial while disconnected, waiting longer after each failure (capped)."""
+        attempt = 0
+        while not self._stop.is_set():
+            if self._connected.is_set():
+                attempt = 0
+                await asyncio.sleep(min(0.05, self.config.poll_period_s / 4))
+                continue
+            self.counters.connect_attempts += 1
+            try:
+                await source.connect()
+            except SourceError as exc:
+                self.detail = f"{exc}; retry {attempt + 1} in " \
+                              f"{self.config.plc.reconnect.delay(attempt):g} s"
+                await self._sleep(self.config.plc.reconnect.delay(attempt))
+                attempt += 1
+                continue
+            self.counters.connects += 1
+            self._consecutive_errors = 0
+            self._heartbeat = None
+            self._connected.set()
+            self._status("connected", f"connected after {attempt + 1} attempt(s)")
+
+    async def _open_flame(self) -> None:
+        assert self.flame is not None
+        attempt = 0
+        while not self._stop.is_set() and not self.flame.connected:
+            try:
+                await self.flame.connect()
+            except SourceError as exc:
+                now = self.wall_ns()
+                self._write(DAQ_EVENTS, {"kind": "can_unavailable", "detail": str(exc)}, now, now)
+                await self._sleep(self.config.plc.reconnect.delay(attempt))
+                attempt += 1
+
+    async def _sleep(self, seconds: float) -> None:
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self._stop.wait(), seconds)
+
+    # -- status -----------------------------------------------------------------------------------
+    def _status(self, state: str, detail: str) -> None:
+        self.state, self.detail = state, detail
+        self._last_status_mono = time.monotonic()
+        now = self.wall_ns()
+        msg = {"state": state, "detail": detail, **asdict(self.counters),
+               "period_s": self.config.poll_period_s}
+        if self.log.error:
+            msg["log_error"] = self.log.error
+        self._write(DAQ_STATUS, msg, now, now)
+        self.notifier.status(self._status_line())
+
+    def _status_line(self) -> str:
+        c = self.counters
+        line = (f"{self.state}: {c.ok_polls}/{c.polls} polls ok, {c.comm_errors} errors, "
+                f"{c.skipped_ticks} skipped, {c.disconnects} drops")
+        return line + (f"; LOG: {self.log.error}" if self.log.error else "")
+
+    def _write(self, topic: str, message: dict, log_ns: int, pub_ns: int) -> None:
+        self.log.write(topic, message, log_ns, pub_ns)

@@ -1,0 +1,215 @@
+"""Where samples come from: one narrow interface (connect, read one sample, close) with a
+Modbus TCP PLC and a CAN bus of flame scanners behind it, so the daemon does not care which
+protocol delivered a value. Everything behind `read()` is plain data.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import can
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ModbusException
+
+from furnace_model import BURNERS_PER_ZONE, ZONES
+
+from .daqconfig import CanConfig, DaqConfig
+from .registers import COMM_ERROR, OK, STALE, Image, plan_reads
+
+
+class SourceError(Exception):
+    """The source could not deliver: connection refused or lost, timeout, Modbus exception."""
+
+
+@dataclass
+class Sample:
+    """One read of a source; absent parts are None."""
+
+    values: dict[str, float | None] = field(default_factory=dict)
+    quality: dict[str, str] = field(default_factory=dict)
+    plc_seconds: float | None = None
+    heartbeat: float | None = None
+    burners: dict[str, list[bool]] | None = None
+    burner_quality: str = OK
+
+
+class Source(ABC):
+    """A device the daemon polls, after python-can's BusABC: a narrow hardware boundary."""
+
+    name: str = "source"
+
+    @abstractmethod
+    async def connect(self) -> None:
+        """Open the connection; raise SourceError when the device cannot be reached."""
+
+    @abstractmethod
+    async def read(self) -> Sample:
+        """One sample; raise SourceError on a failed read."""
+
+    @abstractmethod
+    async def close(self) -> None:
+        """Release the connection; safe to call twice."""
+
+    @property
+    @abstractmethod
+    def connected(self) -> bool: ...
+
+
+class ModbusSource(Source):
+    """The furnace PLC over Modbus TCP, read in as few requests as the map allows.
+
+    pymodbus' own reconnect is switched off (reconnect_delay=0): the daemon owns the
+    connection state, so every drop and redial is visible in the log."""
+
+    name = "modbus"
+
+    def __init__(self, config: DaqConfig, host: str | None = None, port: int | None = None):
+        self.config = config
+        self.host = host or config.plc.host
+        self.port = port or config.plc.port
+        self.items = config.modbus_items()
+        self.requests = plan_reads(self.items, config.plc.max_gap_registers,
+                                   config.plc.max_gap_bits)
+        self._client: AsyncModbusTcpClient | None = None
+
+    @property
+    def connected(self) -> bool:
+        return self._client is not None and self._client.connected
+
+    async def connect(self) -> None:
+        await self.close()
+        client = AsyncModbusTcpClient(self.host, port=self.port, timeout=self.config.plc.timeout_s,
+                                      retries=0, reconnect_delay=0)
+        try:
+            ok = await asyncio.wait_for(client.connect(), self.config.plc.timeout_s)
+        except (TimeoutError, OSError, ModbusException) as exc:
+            client.close()
+            raise SourceError(f"cannot connect to {self.host}:{self.port}: {exc or 'timeout'}") from None
+        if not ok:
+            client.close()
+            raise SourceError(f"cannot connect to {self.host}:{self.port}: refused or unreachable")
+        self._client = client
+
+    async def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
+    async def read(self) -> Sample:
+        client = self._client
+        if client is None or not client.connected:
+            raise SourceError("not connected")
+        image = Image()
+        methods = {"input": client.read_input_registers, "holding": client.read_holding_registers,
+                   "discrete": client.read_discrete_inputs, "coil": client.read_coils}
+        device_id = self.config.plc.device_id
+        for req in self.requests:
+            try:
+                rr = await methods[req.table](req.address, count=req.count, device_id=device_id)
+            except ModbusException as exc:
+                raise SourceError(f"{req.table} {req.address}+{req.count}: {exc}") from None
+            if rr.isError():
+                raise SourceError(f"{req.table} {req.address}+{req.count}: Modbus exception "
+                                  f"code {getattr(rr, 'exception_code', '?')}")
+            values = rr.bits if req.table in ("discrete", "coil") else rr.registers
+            if len(values) < req.count:
+                raise SourceError(f"{req.table} {req.address}+{req.count}: short response "
+                                  f"({len(values)} values)")
+            image.put(req, values)
+        return self.decode(image)
+
+    def decode(self, image: Image) -> Sample:
+        """Engineering values and qualities from one scan's words and bits."""
+        cfg = self.config
+        sample = Sample()
+        for point in (*cfg.thermocouples, *([cfg.ambient] if cfg.ambient else [])):
+            words = image.words(point)
+            value, quality = (None, COMM_ERROR) if words is None else point.value(words)
+            sample.values[point.name] = value
+            sample.quality[point.name] = quality
+        if cfg.clock is not None:
+            words = image.words(cfg.clock.point)
+            if words is not None:
+                sample.plc_seconds = float(cfg.clock.point.raw(words)) * cfg.clock.point.scale \
+                    + cfg.clock.point.offset
+        if cfg.heartbeat is not None:
+            words = image.words(cfg.heartbeat)
+            if words is not None:
+                sample.heartbeat = float(cfg.heartbeat.raw(words))
+        if cfg.burner_source in ("modbus", "both"):
+            burners = {}
+            for bits in cfg.burner_bits:
+                got = image.words(bits)
+                if got is None:
+                    break
+                burners[bits.name] = bits.states([bool(b) for b in got])
+            else:
+                sample.burners = burners
+        return sample
+
+
+class CanSource(Source):
+    """Flame scanners broadcasting burner states on a CAN bus. Frames arrive on their own
+    schedule; `read()` returns the latest state of each zone, `stale` when a zone has been
+    silent for longer than the configured timeout."""
+
+    name = "can"
+
+    def __init__(self, config: CanConfig):
+        self.config = config
+        self._bus: can.BusABC | None = None
+        self._notifier: can.Notifier | None = None
+        self._latest: dict[str, tuple[list[bool], float]] = {}
+        self.frames = 0
+        self._by_id: dict[tuple[int, bool], list[tuple[str, int, int]]] = {}
+        for i, zone in enumerate(ZONES):
+            f = config.frames[zone]
+            self._by_id.setdefault((f.can_id, f.extended), []).append(
+                (zone, f.start_bit, BURNERS_PER_ZONE[i]))
+
+    @property
+    def connected(self) -> bool:
+        return self._bus is not None
+
+    async def connect(self) -> None:
+        await self.close()
+        kwargs = {} if self.config.bitrate is None else {"bitrate": self.config.bitrate}
+        try:
+            bus = can.Bus(interface=self.config.interface, channel=self.config.channel, **kwargs)
+        except (can.CanError, OSError, ValueError, ImportError) as exc:
+            raise SourceError(f"cannot open CAN {self.config.interface}:{self.config.channel}: "
+                              f"{exc}") from None
+        self._bus = bus
+        self._notifier = can.Notifier(bus, [self.on_message], loop=asyncio.get_running_loop())
+
+    def on_message(self, msg: can.Message) -> None:
+        zones = self._by_id.get((msg.arbitration_id, bool(msg.is_extended_id)))
+        if not zones or msg.is_error_frame or msg.is_remote_frame:
+            return
+        value = int.from_bytes(bytes(msg.data), "little")
+        now = time.monotonic()
+        for zone, start, n in zones:
+            if start + n <= 8 * len(msg.data):
+                self._latest[zone] = ([bool(value >> (start + k) & 1) for k in range(n)], now)
+        self.frames += 1
+
+    async def read(self) -> Sample:
+        if self._bus is None:
+            raise SourceError("CAN bus not open")
+        if len(self._latest) < len(ZONES):
+            return Sample(burners=None, burner_quality=COMM_ERROR)
+        now = time.monotonic()
+        oldest = min(t for _, t in self._latest.values())
+        quality = STALE if now - oldest > self.config.timeout_s else OK
+        return Sample(burners={z: list(self._latest[z][0]) for z in ZONES}, burner_quality=quality)
+
+    async def close(self) -> None:
+        if self._notifier is not None:
+            self._notifier.stop()
+            self._notifier = None
+        if self._bus is not None:
+            self._bus.shutdown()
+            self._bus = None

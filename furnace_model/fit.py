@@ -1,0 +1,481 @@
+"""Offline identification of the model's parameters from heat-up records (paper section III).
+
+The criterion is the paper's eq. 12: the sum over zones of the squared difference between
+the measured zone temperature and the model's, over every sample with a reading (missing
+readings are masked out, not filled). Unknowns are the structure's parameters plus each
+experiment's initial zone temperatures: a cold start sits at ambient, a window cut from a
+running furnace does not.
+
+Two methods:
+- `ga`: the paper's real-coded genetic algorithm, population and generations as its knobs.
+- `fast` (default): a short evolutionary search to find the basin, then a Gauss-Newton polish
+  (scipy's trust-region least squares) on the exact simulator, with the finite-difference
+  Jacobian evaluated as one batched simulation of all perturbed parameter sets.
+Both search positive parameters on the log scale. The Jacobian at the optimum gives the
+intervals and the determined combinations (furnace_model.uncertainty).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import ZONES
+from .effects import Effect
+from .errors import FurnaceError
+from .experiment import Experiment
+from .ga import genetic_search
+from .scores import zone_metrics
+from .structure import Inputs, ModelStructure
+from .uncertainty import Uncertainty, from_jacobian
+
+METHODS = ("fast", "ga")
+GA_DEFAULTS = {"fast": (32, 30), "ga": (20, 2000)}
+"""(population, generations) per method: the paper ran population 20 for 25 000-100 000
+cycles; 2000 generations already take seconds per run here."""
+_FD_STEP = 1e-6
+
+
+@dataclass
+class _Record:
+    """One experiment made ready for repeated simulation: inputs built once."""
+
+    t: np.ndarray
+    y: np.ndarray  # (N, 3) measured zone temperatures
+    mask: np.ndarray  # (N, 3) readings present
+    inputs: Inputs
+    x0_guess: np.ndarray  # (3,)
+    tc_weight: np.ndarray | None  # (N, 6): how each thermocouple enters its zone's mean
+    complete: bool = False  # no reading missing: the mask can be skipped
+
+    @classmethod
+    def of(cls, exp: Experiment, with_sensor_offsets: bool) -> _Record:
+        if len(exp) < 2:
+            raise FurnaceError(f"{exp.source or exp.name}: needs at least two samples to fit")
+        y = exp.zone_temp
+        mask = np.isfinite(y)
+        guess = np.empty(3)
+        for w, zone in enumerate(ZONES):
+            if not mask[:, w].any():
+                raise FurnaceError(f"{exp.source or exp.name}: zone '{zone}' has no readings")
+            guess[w] = y[np.argmax(mask[:, w]), w]
+        weight = None
+        if with_sensor_offsets:
+            good = np.isfinite(exp.tc).reshape(-1, 3, 2).astype(float)
+            weight = (good / np.maximum(good.sum(axis=2, keepdims=True), 1)).reshape(-1, 6)
+        return cls(exp.t_min, np.where(mask, y, 0.0), mask, exp.inputs(), guess, weight,
+                   bool(mask.all()))
+
+
+def _has_sensor_offsets(structure: ModelStructure) -> bool:
+    return any(type(e).sensor_offsets is not Effect.sensor_offsets for e in structure.effects)
+
+
+class _Problem:
+    """The least-squares problem: unknown vector = free parameters (log scale where the
+    parameter is positive) followed by three initial zone temperatures per experiment."""
+
+    def __init__(self, experiments: list[Experiment], structure: ModelStructure,
+                 fixed: dict[str, float], bounds: dict[str, tuple[float, float]]):
+        unknown = sorted(set(fixed) - set(structure.names)) + sorted(set(bounds) - set(structure.names))
+        if unknown:
+            raise FurnaceError(f"unknown parameter(s) {unknown}; the model has {structure.names}")
+        self.structure = structure
+        self.fixed = dict(fixed)
+        self.free = [p for p in structure.params if p.name not in fixed]
+        self.names = [p.name for p in self.free]
+        self.log = np.array([p.log for p in self.free], dtype=bool)
+        lo = np.array([bounds.get(p.name, (p.lo, p.hi))[0] for p in self.free], dtype=float)
+        hi = np.array([bounds.get(p.name, (p.lo, p.hi))[1] for p in self.free], dtype=float)
+        if np.any(lo >= hi) or np.any(self.log & (lo <= 0)):
+            raise FurnaceError("parameter bounds must have lo < hi (and lo > 0 for rates)")
+        self.lo_val, self.hi_val = lo, hi
+        self.lo, self.hi = self.to_z(lo), self.to_z(hi)
+        offsets = _has_sensor_offsets(structure)
+        self.records = [_Record.of(e, offsets) for e in experiments]
+        self.k = len(self.free)
+        self.n = self.k + 3 * len(self.records)
+        self.n_obs = int(sum(r.mask.sum() for r in self.records))
+
+    def to_z(self, v: np.ndarray) -> np.ndarray:
+        v = np.asarray(v, dtype=float)
+        return np.where(self.log, np.log(np.where(self.log, np.maximum(v, 1e-300), 1.0)), v)
+
+    def from_z(self, z: np.ndarray) -> np.ndarray:
+        return np.where(self.log, np.exp(np.where(self.log, z, 0.0)), z)
+
+    def values(self, zp: np.ndarray) -> dict[str, np.ndarray]:
+        """Parameter sets (P, k) on the search scale -> {name: (P,)} for the simulator."""
+        v = self.from_z(np.atleast_2d(zp))
+        out = {n: v[:, i] for i, n in enumerate(self.names)}
+        for name, val in self.fixed.items():
+            out[name] = np.full(v.shape[0], float(val))
+        return out
+
+    def predict(self, j: int, values: dict[str, np.ndarray], x0: np.ndarray) -> np.ndarray:
+        """Model zone temperatures (P, N, 3) for experiment j."""
+        r = self.records[j]
+        with np.errstate(all="ignore"):
+            y = self._simulate(values, r, x0)
+            if r.tc_weight is not None:
+                off = self.structure.sensor_offsets(values, r.t) * r.tc_weight
+                y = y + off.reshape(off.shape[0], -1, 3, 2).sum(axis=3)
+        return y
+
+    def _simulate(self, values: dict[str, np.ndarray], r: _Record, x0: np.ndarray) -> np.ndarray:
+        try:
+            return self.structure.simulate(values, r.inputs, r.t, x0)
+        except IndexError:
+            # The simulator cannot yet take a mode slower than ~1e9 min (an eigenvalue that
+            # is numerically zero) in a batch with shared steps: such a set is a furnace that
+            # never cools, far from any data. Score the others; those get NaN.
+            theta = self.structure.theta(values)
+            lam = np.linalg.eigvals(self.structure.system(theta).A)
+            span = max(float(r.t[-1] - r.t[0]), 1.0)
+            bad = np.any(np.abs(lam) * span <= 1e-6, axis=1)
+            if not bad.any() or bad.all():
+                raise
+            good = np.nonzero(~bad)[0]
+            x0 = np.broadcast_to(x0, (bad.size, x0.shape[-1]))
+            out = np.full((bad.size, r.t.size, 3), np.nan)
+            out[good] = self.structure.simulate({k: v[good] for k, v in theta.items()},
+                                                r.inputs, r.t, x0[good])
+            return out
+
+    def residuals(self, j: int, values: dict[str, np.ndarray], x0: np.ndarray) -> np.ndarray:
+        r = self.records[j]
+        diff = self.predict(j, values, x0) - r.y
+        return diff.reshape(diff.shape[0], -1) if r.complete else diff[:, r.mask]
+
+    def sse_params(self, zp: np.ndarray) -> np.ndarray:
+        """SSE (P,) for parameter sets (P, k), initial states at the first readings: the
+        GA's objective, one simulation call per experiment for the whole population."""
+        vals = self.values(zp)
+        total = np.zeros(zp.shape[0])
+        for j, r in enumerate(self.records):
+            res = self.residuals(j, vals, r.x0_guess[None])
+            total += np.einsum("pm,pm->p", res, res)
+        return np.where(np.isfinite(total), total, np.inf)
+
+    def x0_of(self, z: np.ndarray, j: int) -> np.ndarray:
+        return z[self.k + 3 * j:self.k + 3 * j + 3]
+
+    def start(self, zp: np.ndarray) -> np.ndarray:
+        return np.concatenate([zp] + [r.x0_guess for r in self.records])
+
+    def fun(self, z: np.ndarray) -> np.ndarray:
+        vals = self.values(z[:self.k])
+        return np.concatenate([self.residuals(j, vals, self.x0_of(z, j)[None])[0]
+                               for j in range(len(self.records))])
+
+    def jac(self, z: np.ndarray) -> np.ndarray:
+        """Forward differences, all perturbed sets of an experiment in one batched call."""
+        k = self.k
+        blocks = []
+        for j in range(len(self.records)):
+            h = np.concatenate([_FD_STEP * np.maximum(1.0, np.abs(z[:k])), np.full(3, 1e-3)])
+            P = k + 4
+            zp = np.repeat(z[None, :k], P, axis=0)
+            zp[1 + np.arange(k), np.arange(k)] += h[:k]
+            x0 = np.repeat(self.x0_of(z, j)[None], P, axis=0)
+            x0[1 + k + np.arange(3), np.arange(3)] += h[k:]
+            res = self.residuals(j, self.values(zp), x0)
+            d = (res[1:] - res[0]) / h[:, None]  # (k+3, m_j)
+            block = np.zeros((res.shape[1], self.n))
+            block[:, :k] = d[:k].T
+            block[:, k + 3 * j:k + 3 * j + 3] = d[k:].T
+            blocks.append(block)
+        return np.concatenate(blocks)
+
+    def polish(self, z0: np.ndarray, deadline: float | None, max_iter: int = 60):
+        """Levenberg-Marquardt from z0, parameters kept in their box; returns
+        (z, residual, jacobian, converged).
+
+        The steps are those of scipy's least_squares, solved on the n x n normal equations
+        instead of a QR or SVD of the tall Jacobian: with tens of thousands of residuals and
+        a dozen unknowns, that factorisation is what would cost, not the simulation.
+        """
+        lo = np.concatenate([self.lo, np.full(self.n - self.k, -np.inf)])
+        hi = np.concatenate([self.hi, np.full(self.n - self.k, np.inf)])
+        z = np.clip(z0, lo, hi)
+        r = self.fun(z)
+        cost = float(r @ r)
+        if self.n == 0 or not np.isfinite(cost):
+            return z, r, np.zeros((r.size, self.n)), np.isfinite(cost)
+        J = self.jac(z)
+        mu, ok = 1e-3, False
+        for _ in range(max_iter):
+            if deadline is not None and time.perf_counter() > deadline:
+                break
+            H, g = J.T @ J, J.T @ r
+            d = np.maximum(np.diag(H), 1e-12 * max(np.diag(H).max(), 1e-300))
+            accepted = False
+            while mu < 1e12:
+                step = -_solve(H + mu * np.diag(d), g)
+                z_new = np.clip(z + step, lo, hi)
+                r_new = self.fun(z_new)
+                c_new = float(r_new @ r_new)
+                if np.isfinite(c_new) and c_new < cost:
+                    accepted = True
+                    break
+                mu *= 4.0
+            if not accepted:
+                ok = True  # no step lowers the cost: a minimum to working precision
+                break
+            gain = (cost - c_new) / cost
+            moved = np.max(np.abs(z_new - z) / (1.0 + np.abs(z)))
+            z, r, cost = z_new, r_new, c_new
+            mu = max(mu / 5.0, 1e-9)
+            J = self.jac(z)
+            if gain < 1e-10 or moved < 1e-9:
+                ok = True
+                break
+        return z, r, J, ok
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    try:
+        return np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+@dataclass
+class FitResult:
+    structure: ModelStructure
+    params: dict[str, float]
+    x0: list[np.ndarray]
+    ci95: dict[str, tuple[float, float]]
+    corr: np.ndarray
+    undetermined: list[str]
+    determined_combinations: list[str]
+    warnings: list[str]
+    per_zone: dict[str, dict[str, float]]
+    sse: float
+    n_obs: int
+    elapsed_s: float
+    runs: list[dict]
+    method: str = "fast"
+    status: str = "ok"  # ok | insufficient_excitation
+    genetic_mean: dict[str, float] = field(default_factory=dict)
+    sigma_c: float = float("nan")  # residual standard deviation
+    uncertainty: Uncertainty | None = None
+
+    def predict(self, exp: Experiment, x0: np.ndarray | None = None) -> np.ndarray:
+        """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None."""
+        if x0 is None:
+            x0 = _estimate_x0(self.params, exp, self.structure)
+        prob = _Problem([exp], self.structure, self.params, {})
+        return prob.predict(0, prob.values(np.zeros((1, 0))), np.asarray(x0, float)[None])[0]
+
+    def to_json(self, data: list[str]) -> dict:
+        """CONTRACTS.md section 5, plus the diagnostics of this fit."""
+        return {
+            "model": "paper-3zone" + ("" if not self.structure.effects
+                                      else "+" + self.structure.label),
+            "effects": [{"name": e.name, "options": _plain(e.options)}
+                        for e in self.structure.effects],
+            "params": dict(self.params),
+            "ci95": {k: [v[0], v[1]] for k, v in self.ci95.items()},
+            "per_zone": self.per_zone,
+            "runs": self.runs,
+            "data": list(data),
+            "elapsed_s": self.elapsed_s,
+            "method": self.method,
+            "status": self.status,
+            "genetic_mean": self.genetic_mean,
+            "undetermined": self.undetermined,
+            "determined_combinations": self.determined_combinations,
+            "corr": {"names": list(self.ci95), "matrix": np.round(self.corr, 6).tolist()},
+            "warnings": self.warnings,
+            "x0": [np.round(x, 4).tolist() for x in self.x0],
+            "sse": self.sse,
+            "n_obs": self.n_obs,
+            "sigma_c": self.sigma_c,
+        }
+
+
+def _plain(options: dict) -> dict:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in options.items()}
+
+
+def fit(experiments: list[Experiment], structure: ModelStructure | None = None, *,
+        method: str = "fast", runs: int = 1, population: int | None = None,
+        generations: int | None = None, seed: int = 0,
+        init: dict[str, float] | None = None,
+        fixed: dict[str, float] | None = None,
+        bounds: dict[str, tuple[float, float]] | None = None,
+        progress: Callable[[float], None] | None = None,
+        time_budget_s: float | None = None) -> FitResult:
+    """Fit the structure's parameters to the experiments (jointly; own initial state each).
+
+    Run r uses seed + r. With `init` the global search is skipped: a warm-started polish,
+    which is what a sliding-window refit wants. The best run (lowest SSE) is the result; the
+    arithmetic mean of the runs is kept as the paper's 'genetic mean parameter'.
+    """
+    t_start = time.perf_counter()
+    if method not in METHODS:
+        raise FurnaceError(f"unknown method '{method}': use one of {', '.join(METHODS)}")
+    if not experiments:
+        raise FurnaceError("no data to fit")
+    if runs < 1:
+        raise FurnaceError("runs must be at least 1")
+    structure = structure or ModelStructure()
+    prob = _Problem(experiments, structure, fixed or {}, bounds or {})
+    pop_default, gen_default = GA_DEFAULTS[method]
+    population = int(population or pop_default)
+    generations = int(generations if generations is not None else gen_default)
+    deadline = None if time_budget_s is None else t_start + float(time_budget_s)
+    start = None
+    if init:
+        start_vals = {**structure.defaults(), **init}
+        start = prob.to_z(np.array([start_vals[n] for n in prob.names]))
+
+    results = []
+    for r in range(runs):
+        t_run = time.perf_counter()
+        rng = np.random.default_rng(seed + r)
+
+        def report(frac, r=r):
+            if progress is not None:
+                progress(min((r + frac) / runs, 1.0))
+
+        z, ok, gens = _one_run(prob, method, population, generations, rng, start, deadline, report)
+        results.append((z, ok, gens, seed + r, time.perf_counter() - t_run))
+    report_done = progress or (lambda _f: None)
+    report_done(1.0)
+
+    run_dicts = []
+    for z, _ok, gens, s, dt in results:
+        vals = _param_dict(prob, z)
+        run_dicts.append({"seed": s, "method": method, "population": population,
+                          "generations": gens, "params": vals,
+                          "per_zone": _per_zone(prob, z), "sse": _sse(prob, z),
+                          "elapsed_s": round(dt, 4)})
+    best = int(np.argmin([d["sse"] for d in run_dicts]))
+    z, ok = results[best][0], results[best][1]
+    res = prob.fun(z)
+    J = prob.jac(z)
+    unc = from_jacobian(J, res, prob.names, prob.log, z[:prob.k])
+    params = _param_dict(prob, z)
+    ci = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val), strict=True))
+    for name, v in prob.fixed.items():
+        ci[name] = (float(v), float(v))
+    undetermined = unc.undetermined(prob.from_z(z[:prob.k]), prob.lo_val, prob.hi_val)
+    combos = unc.determined_combinations(undetermined)
+    warnings = _warnings(experiments, unc, undetermined, combos, ok, method, time_budget_s,
+                         deadline)
+    static = all(e.burner_steps == 0 for e in experiments)
+    corr = np.eye(len(structure.names))
+    idx = [structure.names.index(n) for n in prob.names]
+    corr[np.ix_(idx, idx)] = unc.corr
+    mean = {n: float(np.mean([d["params"][n] for d in run_dicts])) for n in structure.names}
+    return FitResult(
+        structure=structure, params=params,
+        x0=[prob.x0_of(z, j).copy() for j in range(len(prob.records))],
+        ci95={n: ci[n] for n in structure.names}, corr=corr, undetermined=undetermined,
+        determined_combinations=combos, warnings=warnings, per_zone=_per_zone(prob, z),
+        sse=float(res @ res), n_obs=prob.n_obs, elapsed_s=time.perf_counter() - t_start,
+        runs=run_dicts, method=method,
+        status="insufficient_excitation" if static else "ok", genetic_mean=mean,
+        sigma_c=unc.sigma, uncertainty=unc)
+
+
+def _one_run(prob: _Problem, method: str, population: int, generations: int,
+             rng: np.random.Generator, start: np.ndarray | None, deadline: float | None,
+             report: Callable[[float], None]) -> tuple[np.ndarray, bool, int]:
+    if prob.k == 0:
+        z, _, _, ok = prob.polish(prob.start(np.zeros(0)), deadline)
+        return z, ok, 0
+    if method == "fast" and start is not None:
+        z, _, _, ok = prob.polish(prob.start(start), deadline)
+        report(1.0)
+        return z, ok, 0
+    ga_deadline = deadline
+    if deadline is not None and method == "fast":
+        ga_deadline = time.perf_counter() + 0.5 * (deadline - time.perf_counter())
+    share = 0.8 if method == "fast" else 1.0
+    found = genetic_search(prob.sse_params, prob.lo, prob.hi, population=population,
+                           generations=generations, rng=rng, start=start,
+                           spread=0.05 if start is not None else 1.0,
+                           progress=lambda f: report(share * f), deadline=ga_deadline)
+    if method == "ga":
+        return prob.start(found.best), True, found.generations
+    # Polish the best few distinct members: the GA's best may sit in a side valley.
+    best_z, best_c, best_ok = None, np.inf, False
+    picked: list[np.ndarray] = []
+    for cand in found.population:
+        if len(picked) == 3:
+            break
+        if any(np.max(np.abs(cand - p)) < 0.3 for p in picked):
+            continue
+        picked.append(cand)
+        z, r, _, ok = prob.polish(prob.start(cand), deadline)
+        c = float(r @ r)
+        if c < best_c:
+            best_z, best_c, best_ok = z, c, ok
+    report(1.0)
+    return best_z, best_ok, found.generations
+
+
+def _param_dict(prob: _Problem, z: np.ndarray) -> dict[str, float]:
+    v = prob.values(z[:prob.k][None])
+    return {n: float(v[n][0]) for n in prob.structure.names}
+
+
+def _sse(prob: _Problem, z: np.ndarray) -> float:
+    r = prob.fun(z)
+    return float(r @ r)
+
+
+def _per_zone(prob: _Problem, z: np.ndarray) -> dict[str, dict[str, float]]:
+    vals = prob.values(z[:prob.k][None])
+    meas, model = [], []
+    for j, r in enumerate(prob.records):
+        meas.append(np.where(r.mask, r.y, np.nan))
+        model.append(prob.predict(j, vals, prob.x0_of(z, j)[None])[0])
+    return zone_metrics(np.concatenate(meas), np.concatenate(model))
+
+
+def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: list[str],
+              ok: bool, method: str, budget, deadline) -> list[str]:
+    out = []
+    for e in experiments:
+        if e.burner_steps == 0:
+            out.append(f"{e.name}: no burner change in the data: too little excitation to "
+                       "identify the model; do not trust these values")
+    if undetermined:
+        pairs = [c for c in combos if c not in unc.names]
+        out.append(f"the data do not determine {', '.join(undetermined)} (95% interval wider "
+                   f"than +-{100 * 0.1:.0f}%)"
+                   + (f"; they do determine {', '.join(pairs)}" if pairs else ""))
+    for a, b, r in unc.strong_correlations():
+        out.append(f"{a} and {b} are strongly correlated (r = {r:+.3f}): the data fix a "
+                   "combination of them better than either")
+    if deadline is not None and time.perf_counter() > deadline:
+        out.append(f"time budget of {budget:g} s ran out: the search stopped early")
+    elif not ok and method == "fast":
+        out.append("the least-squares polish did not converge")
+    return out
+
+
+def _estimate_x0(params: dict[str, float], exp: Experiment,
+                 structure: ModelStructure) -> np.ndarray:
+    prob = _Problem([exp], structure, params, {})
+    z, _, _, _ = prob.polish(prob.start(np.zeros(0)), None)
+    return prob.x0_of(z, 0)
+
+
+def score(params: dict, experiments: list[Experiment],
+          structure: ModelStructure | None = None) -> dict:
+    """Per-zone MAE, RMSE and fit % of given parameters on experiments (the paper's
+    Table VI), each experiment's initial state estimated from its data."""
+    structure = structure or ModelStructure()
+    values = {**structure.defaults(), **{k: float(v) for k, v in params.items()
+                                         if k in structure.names}}
+    prob = _Problem(experiments, structure, values, {})
+    z, _, _, _ = prob.polish(prob.start(np.zeros(0)), None)
+    return _per_zone(prob, z)

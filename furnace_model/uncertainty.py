@@ -1,0 +1,162 @@
+"""What the data say about the fitted parameters: intervals, correlations, and which
+combinations of parameters they actually pin down.
+
+Everything is read off the Jacobian of the residual at the optimum, on the scale the search
+uses (log for positive parameters), so an interval is symmetric in log and never crosses
+zero. The paper's runs scatter d and e by a factor of four while d/e barely moves: that is a
+flat valley of the SSE, and it shows here as a tiny eigenvalue of the Fisher information
+whose eigenvector is about log d + log e. The well-determined eigen-directions are named as
+readable combinations ("d/e") and the parameters moving along the flat ones are reported as
+undetermined rather than given a confident value.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from itertools import combinations
+
+import numpy as np
+
+Z95 = 1.959963984540054
+WIDE = 0.1
+"""A 95% half-width above this (on the log scale: beyond about +-10%) is 'not determined'."""
+STRONG_CORR = 0.99
+_EPS = 1e-13
+
+
+@dataclass
+class Uncertainty:
+    names: list[str]  # the fitted (free) parameters, in order
+    log: np.ndarray  # (k,) bool: searched on the log scale
+    z: np.ndarray  # (k,) estimate on that scale
+    cov: np.ndarray  # (k, k) covariance on that scale, initial states marginalised out
+    sigma: float  # residual standard deviation, degC
+    eigvals: np.ndarray = field(default_factory=lambda: np.zeros(0))  # Fisher information
+    eigvecs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+
+    @property
+    def sd(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+
+    @property
+    def corr(self) -> np.ndarray:
+        sd = np.where(self.sd > 0, self.sd, 1.0)
+        c = self.cov / np.outer(sd, sd)
+        return np.clip(c, -1.0, 1.0)
+
+    def ci95(self, lo: np.ndarray, hi: np.ndarray) -> list[tuple[float, float]]:
+        """Intervals in the parameters' own units, cut to the search box (an interval that
+        reaches the box edge says: anywhere in the range the search was allowed)."""
+        half = Z95 * self.sd
+        a, b = self.z - half, self.z + half
+        out = []
+        for i in range(self.z.size):
+            if self.log[i]:
+                with np.errstate(over="ignore"):
+                    pair = (float(np.exp(a[i])), float(np.exp(b[i])))
+            else:
+                pair = (float(a[i]), float(b[i]))
+            out.append((max(pair[0], float(lo[i])), min(pair[1], float(hi[i]))))
+        return out
+
+    def undetermined(self, values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[str]:
+        half = Z95 * self.sd
+        out = []
+        for i, name in enumerate(self.names):
+            if self.log[i]:
+                wide = half[i] > WIDE
+            else:
+                wide = half[i] > max(WIDE * abs(values[i]), 0.01 * (hi[i] - lo[i]))
+            if wide:
+                out.append(name)
+        return out
+
+    def n_flat_directions(self) -> int:
+        """Eigen-directions of the Fisher information the data leave wider than WIDE."""
+        if self.eigvals.size == 0:
+            return 0
+        return int(np.sum(Z95 / np.sqrt(np.maximum(self.eigvals, 1e-300)) > WIDE))
+
+    def combination_sd(self, coef: np.ndarray) -> float:
+        return float(np.sqrt(max(coef @ self.cov @ coef, 0.0)))
+
+    def determined_combinations(self, undetermined: list[str]) -> list[str]:
+        """Singles that are determined, then readable products/ratios of undetermined
+        log-scale parameters along the well-determined eigen-directions."""
+        out = [n for n in self.names if n not in undetermined]
+        U = [i for i, n in enumerate(self.names) if n in undetermined and self.log[i]]
+        if not U:
+            return out
+        found: list[np.ndarray] = []
+        for w, v in zip(self.eigvals, self.eigvecs.T, strict=True):
+            if Z95 / np.sqrt(max(w, 1e-300)) > WIDE:
+                continue
+            vu = np.zeros_like(v)
+            vu[U] = v[U]
+            if np.linalg.norm(vu) < 0.3:
+                continue
+            coef = np.round(2.0 * vu / np.abs(vu).max()) / 2.0
+            if Z95 * self.combination_sd(coef) <= WIDE * np.abs(coef).max():
+                found.append(coef)
+        for i, j in combinations(U, 2):  # eigenvectors of near-equal eigenvalues mix: try pairs
+            for s in (-1.0, 1.0):
+                coef = np.zeros(len(self.names))
+                coef[i], coef[j] = 1.0, s
+                if Z95 * self.combination_sd(coef) <= WIDE:
+                    found.append(coef)
+        seen = set()
+        for coef in found:
+            key = tuple(np.sign(coef[np.nonzero(coef)[0][0]]) * coef)
+            if key in seen:
+                continue
+            seen.add(key)
+            out.append(self.name_of(coef))
+        return out
+
+    def name_of(self, coef: np.ndarray) -> str:
+        """'d/e' for log d - log e, 'd*e' for the sum, 'd^0.5/e' for other weights."""
+        if coef[np.nonzero(coef)[0][0]] < 0:
+            coef = -coef
+
+        def term(i: int) -> str:
+            p = abs(coef[i])
+            return self.names[i] if p == 1 else f"{self.names[i]}^{p:g}"
+
+        num = [term(i) for i in range(coef.size) if coef[i] > 0]
+        den = [term(i) for i in range(coef.size) if coef[i] < 0]
+        text = "*".join(num) or "1"
+        if den:
+            text += "/" + (den[0] if len(den) == 1 else "(" + "*".join(den) + ")")
+        return text
+
+    def strong_correlations(self) -> list[tuple[str, str, float]]:
+        c = self.corr
+        return [(self.names[i], self.names[j], float(c[i, j]))
+                for i, j in combinations(range(len(self.names)), 2)
+                if abs(c[i, j]) > STRONG_CORR]
+
+
+def from_jacobian(J: np.ndarray, residual: np.ndarray, names: list[str], log: np.ndarray,
+                  z: np.ndarray) -> Uncertainty:
+    """Linearised uncertainty of the first len(names) unknowns; the rest (initial states)
+    are nuisance parameters, marginalised out. Flat directions get a huge but finite
+    variance instead of being dropped by a pseudo-inverse (which would report them as exact)."""
+    k = len(names)
+    m, n = J.shape
+    sigma2 = float(residual @ residual) / max(m - n, 1)
+    JtJ = J.T @ J
+    scale = np.sqrt(np.maximum(np.diag(JtJ), 1e-300))
+    S = JtJ / np.outer(scale, scale)
+    w, V = np.linalg.eigh(S)
+    w = np.maximum(w, _EPS * max(w.max(), 1e-300))
+    cov = sigma2 * (V / w) @ V.T / np.outer(scale, scale)
+    cov_p = cov[:k, :k]
+    # Fisher information of the parameters alone, on their (log) scale.
+    sp = np.sqrt(np.maximum(np.diag(cov_p), 1e-300))
+    Cn = cov_p / np.outer(sp, sp)
+    wc, Vc = np.linalg.eigh(Cn)
+    wc = np.maximum(wc, _EPS * max(wc.max(), 1e-300))
+    fisher = (Vc / wc) @ Vc.T / np.outer(sp, sp)
+    fw, fv = np.linalg.eigh((fisher + fisher.T) / 2)
+    return Uncertainty(list(names), np.asarray(log, dtype=bool), np.asarray(z, dtype=float),
+                       cov_p, float(np.sqrt(sigma2)), fw, fv)

@@ -216,7 +216,7 @@ def _superposed(lam, z, w, s, dw, t_start, t):
     lam3 = lam[:, :, None]
     e, phi = _propagators(lam3, (t - t_start)[None, None, :])
     Z = z[:, :, None] * e + w[:, :, None] * phi
-    for k in range(s.shape[1]):
+    for k in np.nonzero(np.any(dw != 0, axis=(0, 2)))[0]:  # steps that change nothing cost nothing
         tau = np.maximum(t[None, :] - s[:, k, None], 0.0)[:, None, :]  # (P, 1, N)
         _, phi = _propagators(lam3, tau)
         Z += dw[:, k, :, None] * phi

@@ -96,10 +96,10 @@ class DaqConfig:
     file: str = ""
 
     def modbus_items(self) -> list[Point | BitRange]:
+        """Everything read over Modbus, in the order of the config file."""
         items: list[Point | BitRange] = list(self.thermocouples)
-        items += [p for p in (self.ambient, self.heartbeat) if p is not None]
-        if self.clock is not None:
-            items.append(self.clock.point)
+        clock = None if self.clock is None else self.clock.point
+        items += [p for p in (self.ambient, clock, self.heartbeat) if p is not None]
         if self.burner_source in ("modbus", "both"):
             items += self.burner_bits
         return items

@@ -1,0 +1,144 @@
+"""Register decoding: every data type in every word and byte order, against an independent
+encoder (struct on the natural byte string), plus the read plan's protocol limits."""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from furnace_daq.registers import (
+    COMM_ERROR,
+    MAX_BITS_PER_READ,
+    MAX_REGISTERS_PER_READ,
+    OK,
+    OUT_OF_RANGE,
+    SENSOR_OPEN,
+    BitRange,
+    Image,
+    Point,
+    ReadRequest,
+    decode,
+    encode,
+    overlaps,
+    plan_reads,
+)
+
+RANGES = {"int16": (-2**15, 2**15 - 1), "uint16": (0, 2**16 - 1),
+          "int32": (-2**31, 2**31 - 1), "uint32": (0, 2**32 - 1)}
+FORMATS = {"int16": "h", "uint16": "H", "int32": "i", "uint32": "I", "float32": "f"}
+orders = st.sampled_from(["big", "little"])
+
+
+def plc_words(value, dtype: str, word_order: str, byte_order: str) -> list[int]:
+    """How a PLC lays the value out, written the other way round from the decoder: build the
+    little-endian byte string and pick bytes by position."""
+    le = struct.pack("<" + FORMATS[dtype], value)  # le[0] = least significant byte
+    n = len(le) // 2
+    regs = []  # register k holds bytes 2k (low) and 2k+1 (high) of the little-endian string
+    for k in range(n):
+        lo, hi = le[2 * k], le[2 * k + 1]
+        regs.append(hi << 8 | lo if byte_order == "big" else lo << 8 | hi)
+    return regs[::-1] if word_order == "big" else regs  # big: most significant register first
+
+
+@st.composite
+def typed_values(draw):
+    dtype = draw(st.sampled_from(list(FORMATS)))
+    if dtype == "float32":
+        value = draw(st.floats(width=32, allow_nan=False))
+    else:
+        value = draw(st.integers(*RANGES[dtype]))
+    return dtype, value
+
+
+@given(typed_values(), orders, orders)
+def test_decode_matches_an_independent_layout(tv, word_order, byte_order):
+    dtype, value = tv
+    words = plc_words(value, dtype, word_order, byte_order)
+    assert all(0 <= w <= 0xFFFF for w in words)
+    assert decode(words, dtype, word_order, byte_order) == value
+    assert encode(value, dtype, word_order, byte_order) == words
+
+
+@given(typed_values(), orders, orders)
+def test_wrong_order_changes_the_value_unless_symmetric(tv, word_order, byte_order):
+    dtype, value = tv
+    words = plc_words(value, dtype, word_order, byte_order)
+    other = "little" if byte_order == "big" else "big"
+    swapped = decode(words, dtype, word_order, other)
+    same_bytes = all((w >> 8) == (w & 0xFF) for w in words)
+    assert (swapped == value) == same_bytes or (dtype == "float32" and value == 0.0)
+
+
+def test_known_layouts():
+    # 0x12345678 as a big-endian PLC and as a word-swapped (Schneider-style) one
+    assert decode([0x1234, 0x5678], "uint32", "big") == 0x12345678
+    assert decode([0x5678, 0x1234], "uint32", "little") == 0x12345678
+    assert decode([0x3412, 0x7856], "uint32", "big", "little") == 0x12345678
+    assert decode([0xFFFF], "int16") == -1
+    assert decode([0x3F80, 0x0000], "float32") == 1.0
+    with pytest.raises(ValueError):
+        decode([1], "float32")
+
+
+@given(st.integers(-2**15, 2**15 - 1))
+def test_point_quality(raw):
+    p = Point("soak_1", scale=0.1, sentinels=(32767,), lo=-50.0, hi=1600.0)
+    value, quality = p.value(encode(raw, "int16"))
+    if raw == 32767:
+        assert (value, quality) == (None, SENSOR_OPEN)
+    elif -500 <= raw <= 16000:
+        assert quality == OK and math.isclose(value, raw * 0.1, abs_tol=1e-9)
+    else:
+        assert (value, quality) == (None, OUT_OF_RANGE)
+
+
+def test_float_nan_is_an_open_sensor_and_offset_applies():
+    p = Point("x", dtype="float32", scale=2.0, offset=-273.15)
+    assert p.value(encode(float("nan"), "float32"))[1] == SENSOR_OPEN
+    assert p.value(encode(300.0, "float32")) == (pytest.approx(326.85), OK)
+
+
+spans = st.lists(st.tuples(st.sampled_from(["input", "holding", "discrete", "coil"]),
+                           st.integers(0, 3000), st.sampled_from(["int16", "uint32"])),
+                 min_size=1, max_size=40)
+
+
+@given(spans, st.integers(0, 130), st.integers(0, 2100))
+def test_plan_covers_everything_within_limits(items, gap_r, gap_b):
+    objs = [BitRange(f"b{i}", t, a, 10) if t in ("discrete", "coil")
+            else Point(f"p{i}", t, a, d) for i, (t, a, d) in enumerate(items)]
+    plan = plan_reads(objs, gap_r, gap_b)
+    for o in objs:
+        assert any(r.table == o.table and r.address <= o.address and o.address + o.count <= r.end
+                   for r in plan), o
+    for r in plan:
+        limit = MAX_BITS_PER_READ if r.table in ("discrete", "coil") else MAX_REGISTERS_PER_READ
+        assert 1 <= r.count <= limit
+    tables = {o.table for o in objs}
+    assert len(plan) >= len(tables)
+
+
+def test_plan_merges_within_gap_and_splits_beyond():
+    pts = [Point("a", "input", 0), Point("b", "input", 5), Point("c", "input", 20)]
+    assert plan_reads(pts, max_gap_registers=3) == [ReadRequest("input", 0, 1),
+                                                    ReadRequest("input", 5, 1),
+                                                    ReadRequest("input", 20, 1)]
+    assert plan_reads(pts, max_gap_registers=14) == [ReadRequest("input", 0, 21)]
+    assert plan_reads(pts, max_gap_registers=4)[0] == ReadRequest("input", 0, 6)  # hole of 4
+    far = [Point("a", "holding", 0), Point("b", "holding", 124, "uint32")]
+    assert len(plan_reads(far, max_gap_registers=200)) == 2  # 126 registers > 125
+
+
+def test_overlaps_and_image():
+    a, b = Point("a", "input", 7, "uint32"), Point("b", "input", 8)
+    assert overlaps([a, b]) == (0, 1)
+    assert overlaps([a, Point("b", "holding", 8)]) is None
+    img = Image()
+    img.put(ReadRequest("input", 7, 2), [1, 2])
+    assert img.words(a) == [1, 2] and img.words(Point("c", "input", 9)) is None
+    assert COMM_ERROR == "comm_error"

@@ -30,7 +30,7 @@ from .experiment import Experiment
 from .ga import genetic_search
 from .scores import zone_metrics
 from .structure import Inputs, ModelStructure
-from .uncertainty import Uncertainty, from_jacobian
+from .uncertainty import WIDE, Uncertainty, from_jacobian
 
 METHODS = ("fast", "ga")
 GA_DEFAULTS = {"fast": (32, 30), "ga": (20, 2000)}
@@ -262,14 +262,12 @@ class FitResult:
     status: str = "ok"  # ok | insufficient_excitation
     genetic_mean: dict[str, float] = field(default_factory=dict)
     sigma_c: float = float("nan")  # residual standard deviation
+    combinations: dict[str, dict] = field(default_factory=dict)  # name -> {value, ci95}
     uncertainty: Uncertainty | None = None
 
     def predict(self, exp: Experiment, x0: np.ndarray | None = None) -> np.ndarray:
         """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None."""
-        if x0 is None:
-            x0 = _estimate_x0(self.params, exp, self.structure)
-        prob = _Problem([exp], self.structure, self.params, {})
-        return prob.predict(0, prob.values(np.zeros((1, 0))), np.asarray(x0, float)[None])[0]
+        return predict(self.params, exp, self.structure, x0)
 
     def to_json(self, data: list[str]) -> dict:
         """CONTRACTS.md section 5, plus the diagnostics of this fit."""
@@ -289,6 +287,7 @@ class FitResult:
             "genetic_mean": self.genetic_mean,
             "undetermined": self.undetermined,
             "determined_combinations": self.determined_combinations,
+            "combinations": self.combinations,
             "corr": {"names": list(self.ci95), "matrix": np.round(self.corr, 6).tolist()},
             "warnings": self.warnings,
             "x0": [np.round(x, 4).tolist() for x in self.x0],
@@ -365,7 +364,12 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     for name, v in prob.fixed.items():
         ci[name] = (float(v), float(v))
     undetermined = unc.undetermined(prob.from_z(z[:prob.k]), prob.lo_val, prob.hi_val)
-    combos = unc.determined_combinations(undetermined)
+    named = unc.determined_combinations(undetermined)
+    combos = [name for name, _ in named]
+    combo_values = {}
+    for name, coef in named:
+        value, (lo, hi) = unc.combination_value(coef)
+        combo_values[name] = {"value": value, "ci95": [lo, hi]}
     warnings = _warnings(experiments, unc, undetermined, combos, ok, method, time_budget_s,
                          deadline)
     static = all(e.burner_steps == 0 for e in experiments)
@@ -381,7 +385,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         sse=float(res @ res), n_obs=prob.n_obs, elapsed_s=time.perf_counter() - t_start,
         runs=run_dicts, method=method,
         status="insufficient_excitation" if static else "ok", genetic_mean=mean,
-        sigma_c=unc.sigma, uncertainty=unc)
+        sigma_c=unc.sigma, combinations=combo_values, uncertainty=unc)
 
 
 def _one_run(prob: _Problem, method: str, population: int, generations: int,
@@ -450,7 +454,7 @@ def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: li
     if undetermined:
         pairs = [c for c in combos if c not in unc.names]
         out.append(f"the data do not determine {', '.join(undetermined)} (95% interval wider "
-                   f"than +-{100 * 0.1:.0f}%)"
+                   f"than +-{100 * WIDE:.0f}%)"
                    + (f"; they do determine {', '.join(pairs)}" if pairs else ""))
     for a, b, r in unc.strong_correlations():
         out.append(f"{a} and {b} are strongly correlated (r = {r:+.3f}): the data fix a "
@@ -469,13 +473,25 @@ def _estimate_x0(params: dict[str, float], exp: Experiment,
     return prob.x0_of(z, 0)
 
 
+def predict(params: dict[str, float], exp: Experiment, structure: ModelStructure | None = None,
+            x0: np.ndarray | None = None) -> np.ndarray:
+    """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None."""
+    structure = structure or ModelStructure()
+    if x0 is None:
+        x0 = _estimate_x0(params, exp, structure)
+    prob = _Problem([exp], structure, dict(params), {})
+    return prob.predict(0, prob.values(np.zeros((1, 0))), np.asarray(x0, float)[None])[0]
+
+
 def score(params: dict, experiments: list[Experiment],
           structure: ModelStructure | None = None) -> dict:
     """Per-zone MAE, RMSE and fit % of given parameters on experiments (the paper's
     Table VI), each experiment's initial state estimated from its data."""
     structure = structure or ModelStructure()
-    values = {**structure.defaults(), **{k: float(v) for k, v in params.items()
-                                         if k in structure.names}}
+    missing = [n for n in structure.names if n not in params]
+    if missing:
+        raise FurnaceError(f"parameter(s) {', '.join(missing)} missing for {structure.label}")
+    values = {n: float(params[n]) for n in structure.names}
     prob = _Problem(experiments, structure, values, {})
     z, _, _, _ = prob.polish(prob.start(np.zeros(0)), None)
     return _per_zone(prob, z)

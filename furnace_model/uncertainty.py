@@ -18,8 +18,8 @@ from itertools import combinations
 import numpy as np
 
 Z95 = 1.959963984540054
-WIDE = 0.1
-"""A 95% half-width above this (on the log scale: beyond about +-10%) is 'not determined'."""
+WIDE = 0.05
+"""A 95% half-width above this (on the log scale: beyond about +-5%) is 'not determined'."""
 STRONG_CORR = 0.99
 _EPS = 1e-13
 
@@ -80,14 +80,26 @@ class Uncertainty:
     def combination_sd(self, coef: np.ndarray) -> float:
         return float(np.sqrt(max(coef @ self.cov @ coef, 0.0)))
 
-    def determined_combinations(self, undetermined: list[str]) -> list[str]:
-        """Singles that are determined, then readable products/ratios of undetermined
-        log-scale parameters along the well-determined eigen-directions."""
-        out = [n for n in self.names if n not in undetermined]
+    def determined_combinations(self, undetermined: list[str]) -> list[tuple[str, np.ndarray]]:
+        """(name, coefficients on the log scale): the determined parameters alone, then
+        readable products/ratios of undetermined log-scale parameters along the
+        well-determined eigen-directions."""
+        out = []
+        for i, n in enumerate(self.names):
+            if n not in undetermined:
+                coef = np.zeros(len(self.names))
+                coef[i] = 1.0
+                out.append((n, coef))
         U = [i for i, n in enumerate(self.names) if n in undetermined and self.log[i]]
         if not U:
             return out
         found: list[np.ndarray] = []
+        for i, j in combinations(U, 2):  # the simple ones first: ratios and products of two
+            for sgn in (-1.0, 1.0):
+                coef = np.zeros(len(self.names))
+                coef[i], coef[j] = 1.0, sgn
+                if Z95 * self.combination_sd(coef) <= WIDE:
+                    found.append(coef)
         for w, v in zip(self.eigvals, self.eigvecs.T, strict=True):
             if Z95 / np.sqrt(max(w, 1e-300)) > WIDE:
                 continue
@@ -98,20 +110,24 @@ class Uncertainty:
             coef = np.round(2.0 * vu / np.abs(vu).max()) / 2.0
             if Z95 * self.combination_sd(coef) <= WIDE * np.abs(coef).max():
                 found.append(coef)
-        for i, j in combinations(U, 2):  # eigenvectors of near-equal eigenvalues mix: try pairs
-            for s in (-1.0, 1.0):
-                coef = np.zeros(len(self.names))
-                coef[i], coef[j] = 1.0, s
-                if Z95 * self.combination_sd(coef) <= WIDE:
-                    found.append(coef)
-        seen = set()
+        basis = np.array([c for _, c in out]).reshape(-1, len(self.names))
         for coef in found:
-            key = tuple(np.sign(coef[np.nonzero(coef)[0][0]]) * coef)
-            if key in seen:
-                continue
-            seen.add(key)
-            out.append(self.name_of(coef))
+            trial = np.vstack([basis, coef])
+            if np.linalg.matrix_rank(trial, tol=1e-8) == basis.shape[0]:
+                continue  # already implied by the ones named
+            basis = trial
+            if coef[np.nonzero(coef)[0][0]] < 0:
+                coef = -coef
+            out.append((self.name_of(coef), coef))
         return out
+
+    def combination_value(self, coef: np.ndarray) -> tuple[float, tuple[float, float]]:
+        """Value and 95% interval of prod p_i^coef_i (a sum for linear-scale parameters)."""
+        v = float(coef @ self.z)
+        half = Z95 * self.combination_sd(coef)
+        if np.all(self.log[coef != 0]):
+            return float(np.exp(v)), (float(np.exp(v - half)), float(np.exp(v + half)))
+        return v, (v - half, v + half)
 
     def name_of(self, coef: np.ndarray) -> str:
         """'d/e' for log d - log e, 'd*e' for the sum, 'd^0.5/e' for other weights."""

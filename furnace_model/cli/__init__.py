@@ -10,7 +10,7 @@ import sys
 
 from ..errors import FurnaceError
 
-COMMANDS = ("simulate",)
+COMMANDS = ("simulate", "fit", "validate")
 """Subcommand modules of this package, in the order `--help` lists them."""
 
 

@@ -1,0 +1,147 @@
+"""`furnace-model fit`: identify a..f (and any effect parameters) from heat-up files, print
+the paper's tables (runs, genetic mean) with intervals and per-zone errors, and optionally
+write the JSON of CONTRACTS.md section 5 and the measured-vs-model plots."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from .. import ZONES
+from ..errors import FurnaceError
+from ..experiment import load_experiment
+from ..fit import METHODS, FitResult, fit
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("fit", help="identify the model's parameters from heat-up data",
+                       description=__doc__)
+    p.add_argument("data", nargs="+", type=Path, help="CSV or Parquet files (fitted jointly)")
+    p.add_argument("--method", choices=METHODS, default="fast",
+                   help="fast: evolutionary search + least-squares polish (default); "
+                        "ga: the paper's genetic algorithm alone")
+    p.add_argument("--runs", type=_positive, default=1, help="independent runs (seed, seed+1, ...)")
+    p.add_argument("--population", type=_positive, help="GA population (fast 32, ga 20)")
+    p.add_argument("--generations", type=_positive, help="GA generations (fast 30, ga 2000)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the first run (default 0)")
+    p.add_argument("--json", type=Path, metavar="OUT", help="write the result as JSON")
+    p.add_argument("--plot", type=Path, metavar="DIR", help="write measured-vs-model PNGs here")
+    p.set_defaults(run=run)
+
+
+def _positive(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: '{text}'") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    return v
+
+
+class ProgressBar:
+    """A one-line bar on stderr, only when stderr is a terminal (logs stay clean)."""
+
+    def __init__(self, label: str, stream=sys.stderr):
+        self.label, self.stream = label, stream
+        self.enabled = bool(getattr(stream, "isatty", lambda: False)())
+        self.t0 = time.perf_counter()
+        self.shown = -1
+
+    def __call__(self, frac: float) -> None:
+        if not self.enabled:
+            return
+        pct = int(100 * frac)
+        if pct == self.shown:
+            return
+        self.shown = pct
+        n = pct * 30 // 100
+        self.stream.write(f"\r{self.label} [{'#' * n}{'.' * (30 - n)}] {pct:3d}% "
+                          f"{time.perf_counter() - self.t0:5.1f} s")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled and self.shown >= 0:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def run(args: argparse.Namespace) -> int:
+    experiments = [load_experiment(p) for p in args.data]
+    names = [e.name for e in experiments]
+    if len(set(names)) != len(names):
+        raise FurnaceError(f"two data files share the name {names}: plots and tables need "
+                           "distinct file names")
+    bar = ProgressBar("fitting")
+    try:
+        result = fit(experiments, method=args.method, runs=args.runs, population=args.population,
+                     generations=args.generations, seed=args.seed, progress=bar)
+    finally:
+        bar.close()
+    print(render(result, experiments))
+    for w in result.warnings:
+        print(f"furnace-model fit: warning: {w}", file=sys.stderr)
+    if args.json:
+        _write_json(args.json, result.to_json([str(p) for p in args.data]))
+    if args.plot:
+        from ..plots import plot_fit  # matplotlib only when plots are asked for
+
+        for exp, x0 in zip(experiments, result.x0, strict=True):
+            plot_fit(exp, result.predict(exp, x0), args.plot, label=result.method)
+    return 0
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    except (OSError, ValueError) as exc:
+        raise FurnaceError(f"{path}: cannot write JSON: {exc}") from None
+
+
+def _g(v: float) -> str:
+    return f"{v:.6g}"
+
+
+def render(result: FitResult, experiments) -> str:
+    """The paper's tables in markdown: runs (Tables I-II), genetic mean (Table V), then
+    the best fit with its intervals and per-zone errors."""
+    names = result.structure.names
+    n = sum(len(e) for e in experiments)
+    out = [f"{len(experiments)} experiment(s), {n} samples, {result.n_obs} zone readings; "
+           f"method {result.method}, {len(result.runs)} run(s), {result.elapsed_s:.2f} s", ""]
+    out.append("Runs (the paper's Tables I-II; e_w = mean absolute error per zone, degC)")
+    out.append("| run | seed | population | generations | " + " | ".join(names)
+               + " | e_1 | e_2 | e_3 | SSE |")
+    out.append("|---" * (8 + len(names)) + "|")
+    for i, r in enumerate(result.runs, 1):
+        errs = [f"{r['per_zone'][z]['mae_c']:.3f}" for z in ZONES]
+        out.append(f"| {i} | {r['seed']} | {r['population']} | {r['generations']} | "
+                   + " | ".join(_g(r["params"][k]) for k in names) + " | "
+                   + " | ".join(errs) + f" | {r['sse']:.6g} |")
+    if len(result.runs) > 1:
+        out.append("| mean | | | | " + " | ".join(_g(result.genetic_mean[k]) for k in names)
+                   + " | | | | |")
+    out += ["", "Best fit, 95% intervals (log scale for rates)",
+            "| parameter | value | 95% interval | determined |", "|---|---|---|---|"]
+    for k in names:
+        lo, hi = result.ci95[k]
+        out.append(f"| {k} | {_g(result.params[k])} | [{_g(lo)}, {_g(hi)}] | "
+                   f"{'no' if k in result.undetermined else 'yes'} |")
+    out += ["", "Per zone", "| zone | MAE (degC) | RMSE (degC) | fit % |", "|---|---|---|---|"]
+    for z in ZONES:
+        m = result.per_zone[z]
+        out.append(f"| {z} | {m['mae_c']:.3f} | {m['rmse_c']:.3f} | {m['fit_pct']:.2f} |")
+    out.append("")
+    combos = [f"{k} = {_g(v['value'])} [{_g(v['ci95'][0])}, {_g(v['ci95'][1])}]"
+              for k, v in result.combinations.items() if k not in names]
+    if combos:
+        out.append("Determined combinations: " + "; ".join(combos))
+    out.append("Initial zone temperatures: " + "; ".join(
+        f"{e.name} [{', '.join(f'{v:.1f}' for v in x)}]"
+        for e, x in zip(experiments, result.x0, strict=True)))
+    out.append(f"Status: {result.status}; residual sd {result.sigma_c:.3f} degC")
+    return "\n".join(out)

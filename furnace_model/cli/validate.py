@@ -1,0 +1,87 @@
+"""`furnace-model validate`: score fitted parameters on other experiments (the paper's
+Table VI): per-zone MAE, RMSE and fit %, each experiment's initial state estimated from its
+own first readings onward."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .. import ZONES
+from ..effects import EFFECTS
+from ..errors import FurnaceError
+from ..experiment import load_experiment
+from ..fit import predict, score
+from ..structure import ModelStructure
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("validate", help="score fitted parameters on other data (Table VI)",
+                       description=__doc__)
+    p.add_argument("data", nargs="+", type=Path, help="CSV or Parquet files to score on")
+    p.add_argument("--params", required=True, type=Path, metavar="FIT.json",
+                   help="JSON written by `furnace-model fit --json`")
+    p.add_argument("--json", type=Path, metavar="OUT", help="write the scores as JSON")
+    p.add_argument("--plot", type=Path, metavar="DIR", help="write measured-vs-model PNGs here")
+    p.set_defaults(run=run)
+
+
+def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
+    """Parameters and structure from a fit's JSON, checked: a wrong file is one clear line."""
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise FurnaceError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FurnaceError(f"{path}: not a readable JSON file: {exc}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("params"), dict):
+        raise FurnaceError(f"{path}: no 'params' object (expected the JSON of furnace-model fit)")
+    effects = []
+    for i, e in enumerate(doc.get("effects") or []):
+        name = e.get("name") if isinstance(e, dict) else None
+        if name not in EFFECTS:
+            raise FurnaceError(f"{path}: effects[{i}]: unknown effect {name!r}")
+        opts = {k: tuple(v) if isinstance(v, list) else v for k, v in (e.get("options") or {}).items()}
+        try:
+            effects.append(EFFECTS[name](**opts))
+        except (TypeError, ValueError) as exc:
+            raise FurnaceError(f"{path}: effects[{i}]: {exc}") from None
+    structure = ModelStructure(effects)
+    params = {}
+    for k in structure.names:
+        v = doc["params"].get(k)
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise FurnaceError(f"{path}: params.{k}: expected a number, got {v!r}")
+        params[k] = float(v)
+    return params, structure
+
+
+def run(args: argparse.Namespace) -> int:
+    params, structure = load_params(args.params)
+    experiments = [load_experiment(p) for p in args.data]
+    per_exp = {e.name: score(params, [e], structure) for e in experiments}
+    pooled = score(params, experiments, structure) if len(experiments) > 1 else next(iter(per_exp.values()))
+    lines = [f"Parameters from {args.params} ({structure.label}) on {len(experiments)} experiment(s)",
+             "", "| experiment | zone | MAE (degC) | RMSE (degC) | fit % |", "|---|---|---|---|---|"]
+    for name, pz in [*per_exp.items(), *([("all", pooled)] if len(experiments) > 1 else [])]:
+        for z in ZONES:
+            m = pz[z]
+            lines.append(f"| {name} | {z} | {m['mae_c']:.3f} | {m['rmse_c']:.3f} | {m['fit_pct']:.2f} |")
+    print("\n".join(lines))
+    if args.json:
+        doc = {"params_file": str(args.params), "params": params, "data": [str(p) for p in args.data],
+               "per_experiment": per_exp, "per_zone": pooled}
+        try:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(json.dumps(doc, indent=1) + "\n")
+        except OSError as exc:
+            raise FurnaceError(f"{args.json}: cannot write JSON: {exc}") from None
+    if args.plot:
+        from ..plots import plot_fit
+
+        for exp in experiments:
+            plot_fit(exp, predict(params, exp, structure), args.plot, label="validation")
+    print(f"scored {len(experiments)} file(s)", file=sys.stderr)
+    return 0

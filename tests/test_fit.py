@@ -1,0 +1,216 @@
+"""Identification against data with a known truth: the simulator is the furnace."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from furnace_model.effects import SensorDrift
+from furnace_model.experiment import Experiment
+from furnace_model.fit import fit, score
+from furnace_model.parameters import PAPER_TABLE_V
+from furnace_model.plant import Plant
+from furnace_model.scenario import SensorSpec, load_scenario
+from furnace_model.structure import Inputs, ModelStructure
+
+TC_SD = 1.5
+ZONE_SD = TC_SD / np.sqrt(2)  # zone temperature = mean of two thermocouples, both reading
+
+
+def heat_up(scenarios, values, sample_min, seed=1, name="exp1", sensors=None,
+            structure=None) -> Experiment:
+    """The paper's first experiment's burner schedule, unbiased thermocouples (sd 1.5 C)."""
+    scn = load_scenario(scenarios / "paper_exp1.yaml")
+    plant = Plant(structure or ModelStructure(), values,
+                  sensors or SensorSpec(noise_sd_c=TC_SD, bias_sd_c=0.0), seed=seed)
+    t = np.arange(0.0, 3300.0 + 1e-9, sample_min)
+    return plant.run(scn.inputs(), t, scn.initial_c).to_experiment(name)
+
+
+def combination_truth(name: str, truth: dict) -> float:
+    return float(eval(name.replace("^", "**"), {}, dict(truth)))  # names like 'd/e', 'b*c'
+
+
+SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"
+
+
+@pytest.fixture(scope="module")
+def paper_1min() -> Experiment:
+    return heat_up(SCENARIOS, PAPER_TABLE_V, 1.0)
+
+
+def test_every_parameter_within_2pct_at_10s(scenarios):
+    # The paper's a, b, c, f; zone 3 ten times slower (1/(d+e) about 6 min instead of 0.6):
+    # a mode the data can resolve. With the paper's own d and e no sampling period of a
+    # heat-up resolves them apart (see test_paper_values_at_10s_still_leave_d_and_e_open).
+    truth = {**PAPER_TABLE_V, "d": 0.0873573, "e": 0.0727504}
+    exp = heat_up(scenarios, truth, 10 / 60)
+    res = fit([exp])
+    for k, v in truth.items():
+        assert abs(res.params[k] / v - 1) < 0.02, (k, res.params[k], v)
+        lo, hi = res.ci95[k]
+        assert lo < v < hi, (k, lo, v, hi)
+    assert res.undetermined == []
+    for zone, m in res.per_zone.items():
+        assert abs(m["rmse_c"] / ZONE_SD - 1) < 0.10, (zone, m)
+        assert m["fit_pct"] > 95
+    assert res.status == "ok"
+    assert not any("do not determine" in w for w in res.warnings)
+
+
+def test_one_minute_sampling_names_what_it_determines(paper_1min):
+    res = fit([paper_1min])
+    assert {"d", "e"} <= set(res.undetermined)
+    assert "d/e" in res.determined_combinations
+    assert any("d, e" in w or ("d" in w and "do not determine" in w) for w in res.warnings)
+    for name in res.determined_combinations:
+        got = res.combinations[name]["value"]
+        want = combination_truth(name, PAPER_TABLE_V)
+        assert abs(got / want - 1) < 0.02, (name, got, want)
+        lo, hi = res.combinations[name]["ci95"]
+        assert lo < want < hi, (name, lo, want, hi)
+    for k, v in PAPER_TABLE_V.items():
+        lo, hi = res.ci95[k]
+        assert lo <= v <= hi, (k, lo, v, hi)
+    # the undetermined ones get honest intervals: much wider than the determined ones
+    width = {k: np.log(hi / lo) for k, (lo, hi) in res.ci95.items()}
+    assert min(width["d"], width["e"]) > 10 * max(width["a"], width["f"])
+
+
+def test_paper_values_at_10s_still_leave_d_and_e_open(scenarios):
+    """Sampling faster does not separate d from e: the zone-3 mode is never excited on its
+    own (burners heat zone 1), so only its lag behind zone 2 carries d + e."""
+    res = fit([heat_up(scenarios, PAPER_TABLE_V, 10 / 60)])
+    assert {"d", "e"} <= set(res.undetermined)
+    assert "d/e" in res.determined_combinations
+    for k, v in PAPER_TABLE_V.items():
+        lo, hi = res.ci95[k]
+        assert lo <= v <= hi, (k, lo, v, hi)
+
+
+def test_ten_seeds_agree_on_the_determined_quantities(paper_1min):
+    results = [fit([paper_1min], seed=s) for s in range(10)]
+    names = results[0].determined_combinations
+    assert "d/e" in names
+    for r in results[1:]:
+        assert r.determined_combinations == names
+    for name in names:
+        vals = np.array([r.combinations[name]["value"] for r in results])
+        assert np.ptp(vals) / vals.mean() < 0.01, (name, vals)
+
+
+def test_no_burner_change_is_not_a_confident_answer():
+    t = np.arange(0.0, 1500.0, 1.0)
+    inputs = Inputs(np.array([0.0]), np.array([[4.0, 0.0, 0.0]]), np.array([30.0]))
+    plant = Plant(ModelStructure(), PAPER_TABLE_V, SensorSpec(TC_SD, 0.0), seed=3)
+    exp = plant.run(inputs, t, np.full(3, 30.0)).to_experiment("flat")
+    assert exp.burner_steps == 0
+    res = fit([exp])
+    assert res.status == "insufficient_excitation"
+    assert any("no burner change" in w for w in res.warnings)
+    assert res.to_json(["flat.csv"])["status"] == "insufficient_excitation"
+
+
+def test_missing_readings_are_masked_not_filled(paper_1min):
+    exp = paper_1min
+    tc = exp.tc.copy()
+    gap = (exp.t_min >= 1000) & (exp.t_min < 1400)  # no burner change inside
+    tc[gap, 2:4] = np.nan  # the heating zone is blind for 400 min
+    tc[(exp.t_min >= 200) & (exp.t_min < 300), 0] = np.nan  # one soak thermocouple out
+    holed = Experiment("holed", exp.t_min, tc, exp.burners, exp.t_air)
+    res = fit([holed])
+    assert res.n_obs == 3 * len(exp) - gap.sum()
+    # Leaving the heating zone out of those rows must equal fitting rows that never had them:
+    # if the hole were filled or zeroed the two fits would differ.
+    keep = ~gap
+    twin_tc = tc.copy()
+    twin_tc[gap, 2:4] = 9999.0  # garbage where the hole is: must be masked to matter nowhere
+    twin = Experiment("twin", exp.t_min, np.where(np.isnan(tc), np.nan, twin_tc),
+                      exp.burners, exp.t_air)
+    res2 = fit([twin])
+    assert res2.n_obs == res.n_obs
+    for k in ("a", "f"):
+        assert res2.params[k] == pytest.approx(res.params[k], rel=1e-6)
+    assert res.per_zone["heat"]["n"] == keep.sum()
+    for k, v in PAPER_TABLE_V.items():
+        lo, hi = res.ci95[k]
+        assert lo <= v <= hi, (k, lo, v, hi)
+
+
+def test_paper_ga_is_reproducible_and_reports_its_runs(paper_1min):
+    kw = dict(method="ga", runs=2, population=20, generations=60)
+    a = fit([paper_1min], seed=5, **kw)
+    b = fit([paper_1min], seed=5, **kw)
+    assert a.params == b.params
+    assert [r["seed"] for r in a.runs] == [5, 6]
+    assert all(r["population"] == 20 and r["generations"] == 60 for r in a.runs)
+    assert a.runs[0]["params"] != a.runs[1]["params"]
+    for k in a.params:
+        assert a.genetic_mean[k] == pytest.approx(np.mean([r["params"][k] for r in a.runs]))
+    best = min(a.runs, key=lambda r: r["sse"])
+    assert a.params == best["params"]
+    # a short GA alone stops short of the polished optimum
+    assert a.sse >= fit([paper_1min]).sse * 0.999
+
+
+def test_warm_start_and_fixed_parameters(paper_1min):
+    cold = fit([paper_1min])
+    warm = fit([paper_1min], init={k: v * 1.05 for k, v in PAPER_TABLE_V.items()})
+    assert warm.runs[0]["generations"] == 0
+    assert warm.sse == pytest.approx(cold.sse, rel=1e-6)
+    held = fit([paper_1min], init=PAPER_TABLE_V, fixed={"d": 0.873573})
+    assert held.params["d"] == 0.873573
+    assert held.ci95["d"] == (0.873573, 0.873573)
+    assert held.params["e"] == pytest.approx(0.727504, rel=0.02)
+
+
+def test_joint_fit_of_two_experiments_has_one_initial_state_each(scenarios):
+    a = heat_up(scenarios, PAPER_TABLE_V, 1.0, seed=1, name="one")
+    b = heat_up(scenarios, PAPER_TABLE_V, 1.0, seed=2, name="two").between(600, 3300)
+    res = fit([a, b])
+    assert len(res.x0) == 2
+    assert np.allclose(res.x0[0], 30.0, atol=2.0)
+    assert res.x0[1][0] > 150  # the second starts hot, mid-run, from its own state
+    assert np.allclose(res.x0[1], b.zone_temp[0], atol=3.0)
+    assert res.n_obs == 3 * (len(a) + len(b))
+
+
+def test_effect_parameters_fit_too(scenarios):
+    structure = ModelStructure([SensorDrift(sensor="heat_2")])
+    truth = {**PAPER_TABLE_V, "drift_rate": 0.004, "t_drift": 1500.0}
+    exp = heat_up(scenarios, truth, 1.0, structure=structure)
+    res = fit([exp], structure, init={**PAPER_TABLE_V, "drift_rate": 0.0, "t_drift": 1000.0})
+    lo, hi = res.ci95["drift_rate"]
+    assert lo < 0.004 < hi
+    assert res.params["drift_rate"] == pytest.approx(0.004, rel=0.1)
+    assert res.params["t_drift"] == pytest.approx(1500.0, abs=60)
+    doc = res.to_json(["x.csv"])
+    assert doc["effects"] == [{"name": "sensor_drift", "options": {"sensor": "heat_2"}}]
+
+
+def test_score_on_another_experiment(scenarios):
+    exp2 = load_scenario(scenarios / "paper_exp2.yaml")
+    plant = Plant(ModelStructure(), PAPER_TABLE_V, SensorSpec(TC_SD, 0.0), seed=4)
+    other = plant.run(exp2.inputs(), exp2.sample_times(), exp2.initial_c).to_experiment()
+    good = score(PAPER_TABLE_V, [other])
+    bad = score({**PAPER_TABLE_V, "f": 0.25}, [other])
+    for zone in good:
+        assert abs(good[zone]["rmse_c"] / ZONE_SD - 1) < 0.1
+        assert bad[zone]["rmse_c"] > 3 * good[zone]["rmse_c"]
+
+
+def test_json_follows_the_contract(paper_1min):
+    doc = fit([paper_1min]).to_json(["run1.csv"])
+    assert doc["model"] == "paper-3zone"
+    assert set(doc["params"]) == set("abcdef")
+    assert all(len(doc["ci95"][k]) == 2 for k in "abcdef")
+    assert set(doc["per_zone"]) == {"soak", "heat", "preheat"}
+    assert set(doc["per_zone"]["soak"]) >= {"mae_c", "rmse_c", "fit_pct"}
+    run = doc["runs"][0]
+    assert set(run) >= {"seed", "population", "generations", "params", "per_zone"}
+    assert doc["data"] == ["run1.csv"] and doc["elapsed_s"] > 0
+    import json
+
+    json.dumps(doc, allow_nan=False)

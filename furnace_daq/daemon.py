@@ -149,6 +149,8 @@ class Daemon:
         c.polls += 1
         log_ns = self.wall_ns()
         plc_sample: Sample | None = None
+        if self._connected.is_set() and not self.plc.connected:
+            self._lost("connection closed by the PLC")
         if self._connected.is_set():
             try:
                 plc_sample = await asyncio.wait_for(self.plc.read(), self.config.plc.timeout_s)

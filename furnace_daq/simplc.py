@@ -75,6 +75,8 @@ class SimPLC:
         self.states = states_from_counts(scenario.burners_at(0.0))
         self.open_sensors: set[str] = set()
         """Sensors to report as open circuit (sentinel), for fault drills."""
+        self.frozen = False
+        """A PLC whose program stopped: registers keep their last values, heartbeat included."""
         self.plc_seconds = 0
         self.heartbeat = 0
         self.scans = 0
@@ -125,7 +127,8 @@ class SimPLC:
                 k += int(-delay // self.scan_s) + 1
                 delay = self._t0 + k * self.scan_s - time.monotonic()
             await asyncio.sleep(delay)
-            await self.scan()
+            if not self.frozen:
+                await self.scan()
 
     # -- one PLC scan --------------------------------------------------------------------------
     async def scan(self) -> None:

@@ -1,0 +1,112 @@
+"""`furnace-model fit` as a user runs it: a real process on real files."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "furnace_model.cli", *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def exp_files(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("data")
+    out = {}
+    for name, seed in (("paper_exp1", 1), ("paper_exp2", 2)):
+        path = d / f"{name}.csv"
+        r = cli("simulate", "--scenario", f"config/scenarios/{name}.yaml", "--out", str(path),
+                "--seed", str(seed))
+        assert r.returncode == 0, r.stderr
+        out[name] = path
+    return out
+
+
+def test_fit_writes_tables_json_and_plots(exp_files, tmp_path):
+    out_json, plots = tmp_path / "fit.json", tmp_path / "plots"
+    r = cli("fit", str(exp_files["paper_exp1"]), "--runs", "2", "--seed", "7",
+            "--json", str(out_json), "--plot", str(plots))
+    assert r.returncode == 0, r.stderr
+    assert "| run | seed | population | generations |" in r.stdout
+    assert "| mean |" in r.stdout  # the genetic mean row, as Table V
+    assert "d/e" in r.stdout
+    assert "warning" in r.stderr and "do not determine" in r.stderr
+    assert "\r" not in r.stderr  # no progress bar when stderr is not a terminal
+    doc = json.loads(out_json.read_text())
+    assert doc["model"] == "paper-3zone"
+    assert [run["seed"] for run in doc["runs"]] == [7, 8]
+    assert doc["data"] == [str(exp_files["paper_exp1"])]
+    assert doc["params"]["f"] == pytest.approx(0.224131, rel=0.03)
+    for zone in ("soak", "heat", "preheat"):
+        png = plots / f"paper_exp1_{zone}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_two_files_fit_jointly(exp_files, tmp_path):
+    out_json = tmp_path / "joint.json"
+    r = cli("fit", str(exp_files["paper_exp1"]), str(exp_files["paper_exp2"]),
+            "--json", str(out_json))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out_json.read_text())
+    assert len(doc["x0"]) == 2
+    assert doc["n_obs"] == 3 * (3311 + 3801)
+
+
+def test_paper_ga_method_from_the_command_line(exp_files, tmp_path):
+    out_json = tmp_path / "ga.json"
+    r = cli("fit", str(exp_files["paper_exp1"]), "--method", "ga", "--population", "20",
+            "--generations", "40", "--json", str(out_json))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out_json.read_text())
+    assert doc["method"] == "ga"
+    assert doc["runs"][0]["population"] == 20 and doc["runs"][0]["generations"] == 40
+
+
+@pytest.mark.parametrize("args, expect", [
+    (["fit", "missing.csv"], "missing.csv: file not found"),
+    (["fit", "config/scenarios/paper_exp1.yaml"], "unsupported file type"),
+    (["fit", "{bad}", "--runs", "0"], "must be at least 1"),
+])
+def test_bad_input_is_one_line_not_a_traceback(args, expect, tmp_path):
+    args = [a.replace("{bad}", str(tmp_path / "x.csv")) for a in args]
+    r = cli(*args)
+    assert r.returncode != 0
+    assert expect in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_broken_csv_names_file_column_and_line(tmp_path):
+    bad = tmp_path / "broken.csv"
+    bad.write_text("t_min,tc_soak_1,tc_heat_1,tc_preheat_1,burners_soak,burners_heat,"
+                   "burners_preheat\n0,30,30,30,2,0,0\n1,31,abc,30,2,0,0\n")
+    r = cli("fit", str(bad))
+    assert r.returncode == 1
+    assert "broken.csv" in r.stderr and "tc_heat_1" in r.stderr and "line 3" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_progress_bar_only_on_a_terminal():
+    import io
+
+    from furnace_model.cli.fit import ProgressBar
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty, pipe = Tty(), io.StringIO()
+    for stream in (tty, pipe):
+        bar = ProgressBar("fitting", stream)
+        for f in (0.0, 0.5, 1.0):
+            bar(f)
+        bar.close()
+    assert "100%" in tty.getvalue() and "\r" in tty.getvalue()
+    assert pipe.getvalue() == ""

@@ -1,0 +1,78 @@
+"""`furnace-model validate`: the paper's Table VI, fitted parameters on another experiment."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "furnace_model.cli", *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60)
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    d = tmp_path_factory.mktemp("val")
+    for name, seed in (("paper_exp1", 11), ("paper_exp2", 12)):
+        r = cli("simulate", "--scenario", f"config/scenarios/{name}.yaml",
+                "--out", str(d / f"{name}.csv"), "--seed", str(seed))
+        assert r.returncode == 0, r.stderr
+    r = cli("fit", str(d / "paper_exp1.csv"), "--json", str(d / "fit.json"))
+    assert r.returncode == 0, r.stderr
+    return d
+
+
+def test_validate_scores_the_other_experiment(fitted, tmp_path):
+    out = tmp_path / "val.json"
+    r = cli("validate", "--params", str(fitted / "fit.json"), str(fitted / "paper_exp2.csv"),
+            "--json", str(out), "--plot", str(tmp_path / "png"))
+    assert r.returncode == 0, r.stderr
+    assert "| paper_exp2 | soak |" in r.stdout
+    doc = json.loads(out.read_text())
+    for zone in ("soak", "heat", "preheat"):
+        m = doc["per_zone"][zone]
+        # The plant is the model (plus thermocouple biases of sd 0.5): held-out errors stay
+        # a few tenths of a degree above the noise floor of 1.5/sqrt(2).
+        assert 0.9 < m["rmse_c"] < 2.5, (zone, m)
+        assert m["fit_pct"] > 95
+        assert (tmp_path / "png" / f"paper_exp2_{zone}.png").exists()
+
+
+def test_wrong_parameters_score_worse(fitted, tmp_path):
+    doc = json.loads((fitted / "fit.json").read_text())
+    doc["params"]["f"] *= 1.2
+    worse = tmp_path / "worse.json"
+    worse.write_text(json.dumps(doc))
+    good = cli("validate", "--params", str(fitted / "fit.json"), str(fitted / "paper_exp2.csv"),
+               "--json", str(tmp_path / "g.json"))
+    bad = cli("validate", "--params", str(worse), str(fitted / "paper_exp2.csv"),
+              "--json", str(tmp_path / "b.json"))
+    assert good.returncode == 0 and bad.returncode == 0
+    g = json.loads((tmp_path / "g.json").read_text())["per_zone"]
+    b = json.loads((tmp_path / "b.json").read_text())["per_zone"]
+    assert b["soak"]["rmse_c"] > 5 * g["soak"]["rmse_c"]
+
+
+@pytest.mark.parametrize("content, expect", [
+    (None, "file not found"),
+    ("{not json", "not a readable JSON file"),
+    ('{"model": "paper-3zone"}', "no 'params' object"),
+    ('{"params": {"a": 0.02}}', "params.b: expected a number"),
+    ('{"params": {"a": 1, "b": 1, "c": 1, "d": 1, "e": 1, "f": 1}, '
+     '"effects": [{"name": "warp_drive"}]}', "unknown effect 'warp_drive'"),
+])
+def test_bad_params_file(fitted, tmp_path, content, expect):
+    path = tmp_path / "p.json"
+    if content is not None:
+        path.write_text(content)
+    r = cli("validate", "--params", str(path), str(fitted / "paper_exp2.csv"))
+    assert r.returncode != 0
+    assert expect in r.stderr and str(path) in r.stderr
+    assert "Traceback" not in r.stderr

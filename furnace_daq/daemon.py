@@ -93,8 +93,8 @@ class Daemon:
         """Poll until stop() (SIGTERM) or `duration_s`; always ends with a finished log."""
         t_start = time.monotonic()
         where = f"{getattr(self.plc, 'host', '?')}:{getattr(self.plc, 'port', '?')}"
-        self._status("disconnected", f"starting; dialling PLC at {where}")
         self.notifier.ready(f"polling {where} every {self.config.poll_period_s:g} s")
+        self._status("disconnected", f"starting; dialling PLC at {where}")
         tasks = [asyncio.create_task(self._connector(self.plc), name="plc connector")]
         if self.flame is not None:
             tasks.append(asyncio.create_task(self._open_flame(), name="can connector"))

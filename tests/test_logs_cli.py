@@ -122,6 +122,8 @@ def test_export_time_window(series: list[Path], tmp_path: Path, capsys) -> None:
                  "--start", "2026-03-02T06:01:00"]) != 0
     assert "no UTC offset" in capsys.readouterr().err
     assert main(["logs", "export", *map(str, series), "--out", str(out), "--period", "0"]) != 0
+    assert main(["logs", "export", *map(str, series), "--out", str(tmp_path / "x.txt")]) != 0
+    assert "x.txt: unsupported output type" in capsys.readouterr().err
     assert main(["logs", "export", *map(str, series), "--out", str(out),
                  "--start", "2027-01-01T00:00:00Z"]) != 0
     assert "no furnace data" in capsys.readouterr().err

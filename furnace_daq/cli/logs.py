@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from furnace_model.errors import DataError
 from furnace_model.experiment import write_table
 
 from ..logexport import export_frame, parse_time
@@ -117,6 +118,8 @@ def _duration(s: float) -> str:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    if args.out.suffix.lower() not in (".csv", ".parquet", ".pq"):
+        raise DataError(str(args.out), "unsupported output type: use .csv or .parquet")
     start = parse_time(args.start, "--start") if args.start else None
     end = parse_time(args.end, "--end") if args.end else None
     frame = export_frame(args.files, args.period, start, end)

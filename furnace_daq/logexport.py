@@ -7,7 +7,8 @@ Per bin [t, t + period), labelled with its start t:
 - each thermocouple is the mean of its readings of quality `ok` in the bin; a bin without one
   stays empty (missing), never filled in;
 - burner counts are the state in force at the end of the bin (the last message up to then,
-  also from before the bin): a state holds until it changes;
+  also from before the bin): a state holds until it changes. When the daemon reads burners
+  both from the PLC and from CAN flame scanners, the PLC's (`source: modbus`) are used;
 - `t_air` is the mean of the usable ambient readings, empty when there are none.
 A row is written for every bin in which the daemon logged furnace data; a bin with nothing
 logged (daemon stopped, disk full) has no row at all, and a bin before the first known burner
@@ -45,7 +46,7 @@ def export_frame(paths: Iterable[str | Path], period_s: float = 60.0,
 
     tc_bins, tc_vals = [], []
     air_bins, air_vals = [], []
-    burner_t, burner_counts = [], []
+    burner_t, burner_counts, burner_plc = [], [], []
     seen_bins: set[int] = set()
     for topic, msg, _log_ns, pub_ns in read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT)):
         inside = (lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)
@@ -53,6 +54,7 @@ def export_frame(paths: Iterable[str | Path], period_s: float = 60.0,
         if topic == BURNERS:
             burner_t.append(pub_ns)
             burner_counts.append(_counts(msg))
+            burner_plc.append(msg.get("source") == "modbus")
         elif topic == THERMOCOUPLES and inside:
             tc_bins.append(b)
             tc_vals.append(_good_readings(msg))
@@ -68,9 +70,13 @@ def export_frame(paths: Iterable[str | Path], period_s: float = 60.0,
 
     bins = np.array(sorted(seen_bins), dtype=np.int64)
     bin_end = origin + (bins + 1) * period_ns
-    order = np.argsort(np.asarray(burner_t, dtype=np.int64), kind="stable")
-    bt = np.asarray(burner_t, dtype=np.int64)[order]
-    bc = np.asarray(burner_counts, dtype=float).reshape(-1, 3)[order]
+    bt = np.asarray(burner_t, dtype=np.int64)
+    bc = np.asarray(burner_counts, dtype=float).reshape(-1, 3)
+    plc = np.asarray(burner_plc, dtype=bool)
+    if plc.any():  # one source of truth per poll
+        bt, bc = bt[plc], bc[plc]
+    order = np.argsort(bt, kind="stable")
+    bt, bc = bt[order], bc[order]
     last = np.searchsorted(bt, bin_end, side="left") - 1  # last state strictly before the end
     known = last >= 0
     if not known.any():

@@ -75,6 +75,10 @@ class Daemon:
         self.detail = "starting"
         self._stop = asyncio.Event()
         self._connected = asyncio.Event()
+        self._need_dial = asyncio.Event()
+        self._need_dial.set()
+        self._missed_unreported = 0
+        self._last_missed_event = float("-inf")
         self._consecutive_errors = 0
         self._epoch_ns: int | None = None
         if config.clock is not None and config.clock.epoch is not None:
@@ -141,6 +145,20 @@ class Daemon:
                 missed = int(late // period) + 1
                 k += missed
                 self.counters.skipped_ticks += missed
+                self._missed(missed)
+
+    def _missed(self, n: int) -> None:
+        """One /daq/events message per status interval at most, however long a stall."""
+        self._missed_unreported += n
+        now = time.monotonic()
+        if now - self._last_missed_event >= self.config.status_interval_s:
+            self._last_missed_event = now
+            wall = self.wall_ns()
+            self._write(DAQ_EVENTS, {"kind": "missed_tick", "detail":
+                                     f"{self._missed_unreported} poll tick(s) skipped: a poll "
+                                     "or the host was slower than the period",
+                                     "skipped": self._missed_unreported}, wall, wall)
+            self._missed_unreported = 0
 
     # -- one tick -----------------------------------------------------------------------------
     async def tick(self) -> None:
@@ -156,6 +174,8 @@ class Daemon:
                 plc_sample = await asyncio.wait_for(self.plc.read(), self.config.plc.timeout_s)
             except (SourceError, TimeoutError, OSError) as exc:
                 await self._poll_failed(log_ns, str(exc) or "timeout")
+            except Exception as exc:  # a malformed reply must not end acquisition
+                await self._poll_failed(log_ns, f"{type(exc).__name__}: {exc}")
             else:
                 self._consecutive_errors = 0
                 c.ok_polls += 1
@@ -188,6 +208,7 @@ class Daemon:
 
     def _lost(self, why: str) -> None:
         self._connected.clear()
+        self._need_dial.set()
         self._consecutive_errors = 0
         self.counters.disconnects += 1
         self._status("disconnected", why)
@@ -275,9 +296,9 @@ class Daemon:
         """Dial while disconnected, waiting longer after each failure (capped)."""
         attempt = 0
         while not self._stop.is_set():
-            if self._connected.is_set():
+            if not self._need_dial.is_set():
                 attempt = 0
-                await asyncio.sleep(min(0.05, self.config.poll_period_s / 4))
+                await self._need_dial.wait()
                 continue
             self.counters.connect_attempts += 1
             try:
@@ -291,6 +312,7 @@ class Daemon:
             self.counters.connects += 1
             self._consecutive_errors = 0
             self._heartbeat = None
+            self._need_dial.clear()
             self._connected.set()
             self._status("connected", f"connected after {attempt + 1} attempt(s)")
 

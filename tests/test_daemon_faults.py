@@ -14,7 +14,7 @@ from daq_processes import ROOT, SCENARIO
 
 from furnace_daq.daemon import Daemon
 from furnace_daq.daqconfig import parse_config
-from furnace_daq.logschema import DAQ_STATUS, THERMOCOUPLES
+from furnace_daq.logschema import DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
 from furnace_daq.mcaplog import LogWriter, read_messages
 from furnace_daq.simplc import SimPLC
 from furnace_daq.sources import ModbusSource
@@ -148,6 +148,8 @@ def test_stalled_plc_never_stalls_the_loop(tmp_path):
     # between stall and recovery, no silence longer than timeout + period (+ scheduling slack)
     during = [b - a for a, b in zip(tc_times, tc_times[1:], strict=False) if a >= t_stall]
     assert during and max(during[:2]) / 1e9 < 0.2 + 0.05 + 0.1
+    missed = [m for t, m, _ in msgs if t == DAQ_EVENTS and m["kind"] == "missed_tick"]
+    assert len(missed) == 1 and missed[0]["skipped"] >= 1, "one event per status interval"
     states = [m["state"] for t, m, _ in msgs if t == DAQ_STATUS]
     assert "disconnected" in states[2:] and states[-2] == "connected", states
     assert msgs[-1][1]["detail"] == "stopping"

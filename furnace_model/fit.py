@@ -50,6 +50,7 @@ class _Record:
     x0_guess: np.ndarray  # (3,)
     tc_weight: np.ndarray | None  # (N, 6): how each thermocouple enters its zone's mean
     complete: bool = False  # no reading missing: the mask can be skipped
+    zone_of: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # per residual
 
     @classmethod
     def of(cls, exp: Experiment, with_sensor_offsets: bool) -> _Record:
@@ -66,8 +67,9 @@ class _Record:
         if with_sensor_offsets:
             good = np.isfinite(exp.tc).reshape(-1, 3, 2).astype(float)
             weight = (good / np.maximum(good.sum(axis=2, keepdims=True), 1)).reshape(-1, 6)
+        zone_of = np.broadcast_to(np.arange(3), mask.shape)[mask]
         return cls(exp.t_min, np.where(mask, y, 0.0), mask, exp.inputs(), guess, weight,
-                   bool(mask.all()))
+                   bool(mask.all()), zone_of)
 
 
 def _has_sensor_offsets(structure: ModelStructure) -> bool:
@@ -79,7 +81,8 @@ class _Problem:
     parameter is positive) followed by three initial zone temperatures per experiment."""
 
     def __init__(self, experiments: list[Experiment], structure: ModelStructure,
-                 fixed: dict[str, float], bounds: dict[str, tuple[float, float]]):
+                 fixed: dict[str, float], bounds: dict[str, tuple[float, float]],
+                 zone_offsets: bool = False):
         unknown = sorted(set(fixed) - set(structure.names)) + sorted(set(bounds) - set(structure.names))
         if unknown:
             raise FurnaceError(f"unknown parameter(s) {unknown}; the model has {structure.names}")
@@ -97,7 +100,8 @@ class _Problem:
         offsets = _has_sensor_offsets(structure)
         self.records = [_Record.of(e, offsets) for e in experiments]
         self.k = len(self.free)
-        self.n = self.k + 3 * len(self.records)
+        self.o = 3 if zone_offsets else 0
+        self.n = self.k + self.o + 3 * len(self.records)
         self.n_obs = int(sum(r.mask.sum() for r in self.records))
 
     def to_z(self, v: np.ndarray) -> np.ndarray:
@@ -161,15 +165,20 @@ class _Problem:
         return np.where(np.isfinite(total), total, np.inf)
 
     def x0_of(self, z: np.ndarray, j: int) -> np.ndarray:
-        return z[self.k + 3 * j:self.k + 3 * j + 3]
+        i = self.k + self.o + 3 * j
+        return z[i:i + 3]
+
+    def offsets_of(self, z: np.ndarray) -> np.ndarray:
+        return z[self.k:self.k + self.o] if self.o else np.zeros(3)
 
     def start(self, zp: np.ndarray) -> np.ndarray:
-        return np.concatenate([zp] + [r.x0_guess for r in self.records])
+        return np.concatenate([zp, np.zeros(self.o)] + [r.x0_guess for r in self.records])
 
     def fun(self, z: np.ndarray) -> np.ndarray:
         vals = self.values(z[:self.k])
+        off = self.offsets_of(z)
         return np.concatenate([self.residuals(j, vals, self.x0_of(z, j)[None])[0]
-                               for j in range(len(self.records))])
+                               + off[r.zone_of] for j, r in enumerate(self.records)])
 
     def jac(self, z: np.ndarray) -> np.ndarray:
         """Forward differences, all perturbed sets of an experiment in one batched call."""
@@ -186,7 +195,10 @@ class _Problem:
             d = (res[1:] - res[0]) / h[:, None]  # (k+3, m_j)
             block = np.zeros((res.shape[1], self.n))
             block[:, :k] = d[:k].T
-            block[:, k + 3 * j:k + 3 * j + 3] = d[k:].T
+            if self.o:  # a zone's offset moves its own residuals one for one
+                block[np.arange(res.shape[1]), k + self.records[j].zone_of] = 1.0
+            i = k + self.o + 3 * j
+            block[:, i:i + 3] = d[k:].T
             blocks.append(block)
         return np.concatenate(blocks)
 
@@ -263,11 +275,15 @@ class FitResult:
     genetic_mean: dict[str, float] = field(default_factory=dict)
     sigma_c: float = float("nan")  # residual standard deviation
     combinations: dict[str, dict] = field(default_factory=dict)  # name -> {value, ci95}
+    zone_offsets_c: dict[str, float] | None = None  # fitted thermocouple offsets per zone
     uncertainty: Uncertainty | None = None
 
     def predict(self, exp: Experiment, x0: np.ndarray | None = None) -> np.ndarray:
         """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None."""
-        return predict(self.params, exp, self.structure, x0)
+        y = predict(self.params, exp, self.structure, x0)
+        if self.zone_offsets_c:
+            y = y + np.array([self.zone_offsets_c[z] for z in ZONES])
+        return y
 
     def to_json(self, data: list[str]) -> dict:
         """CONTRACTS.md section 5, plus the diagnostics of this fit."""
@@ -294,6 +310,7 @@ class FitResult:
             "sse": self.sse,
             "n_obs": self.n_obs,
             "sigma_c": self.sigma_c,
+            "zone_offsets_c": self.zone_offsets_c,
         }
 
 
@@ -308,12 +325,14 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         fixed: dict[str, float] | None = None,
         bounds: dict[str, tuple[float, float]] | None = None,
         progress: Callable[[float], None] | None = None,
-        time_budget_s: float | None = None) -> FitResult:
+        time_budget_s: float | None = None, zone_offsets: bool = False) -> FitResult:
     """Fit the structure's parameters to the experiments (jointly; own initial state each).
 
     Run r uses seed + r. With `init` the global search is skipped: a warm-started polish,
     which is what a sliding-window refit wants. The best run (lowest SSE) is the result; the
     arithmetic mean of the runs is kept as the paper's 'genetic mean parameter'.
+    `zone_offsets` adds a constant offset per zone (shared by the experiments): thermocouple
+    biases the model cannot otherwise absorb, except by bending its parameters.
     """
     t_start = time.perf_counter()
     if method not in METHODS:
@@ -323,7 +342,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     if runs < 1:
         raise FurnaceError("runs must be at least 1")
     structure = structure or ModelStructure()
-    prob = _Problem(experiments, structure, fixed or {}, bounds or {})
+    prob = _Problem(experiments, structure, fixed or {}, bounds or {}, zone_offsets)
     pop_default, gen_default = GA_DEFAULTS[method]
     population = int(population or pop_default)
     generations = int(generations if generations is not None else gen_default)
@@ -385,7 +404,10 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         sse=float(res @ res), n_obs=prob.n_obs, elapsed_s=time.perf_counter() - t_start,
         runs=run_dicts, method=method,
         status="insufficient_excitation" if static else "ok", genetic_mean=mean,
-        sigma_c=unc.sigma, combinations=combo_values, uncertainty=unc)
+        sigma_c=unc.sigma, combinations=combo_values,
+        zone_offsets_c=(dict(zip(ZONES, map(float, prob.offsets_of(z)), strict=True))
+                        if zone_offsets else None),
+        uncertainty=unc)
 
 
 def _one_run(prob: _Problem, method: str, population: int, generations: int,
@@ -440,7 +462,7 @@ def _per_zone(prob: _Problem, z: np.ndarray) -> dict[str, dict[str, float]]:
     meas, model = [], []
     for j, r in enumerate(prob.records):
         meas.append(np.where(r.mask, r.y, np.nan))
-        model.append(prob.predict(j, vals, prob.x0_of(z, j)[None])[0])
+        model.append(prob.predict(j, vals, prob.x0_of(z, j)[None])[0] + prob.offsets_of(z))
     return zone_metrics(np.concatenate(meas), np.concatenate(model))
 
 

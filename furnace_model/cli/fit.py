@@ -27,6 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--population", type=_positive, help="GA population (fast 32, ga 20)")
     p.add_argument("--generations", type=_positive, help="GA generations (fast 30, ga 2000)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the first run (default 0)")
+    p.add_argument("--zone-offsets", action="store_true",
+                   help="also fit a constant offset per zone (thermocouple bias)")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the result as JSON")
     p.add_argument("--plot", type=Path, metavar="DIR", help="write measured-vs-model PNGs here")
     p.set_defaults(run=run)
@@ -78,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     bar = ProgressBar("fitting")
     try:
         result = fit(experiments, method=args.method, runs=args.runs, population=args.population,
-                     generations=args.generations, seed=args.seed, progress=bar)
+                     generations=args.generations, seed=args.seed, progress=bar,
+                     zone_offsets=args.zone_offsets)
     finally:
         bar.close()
     print(render(result, experiments))
@@ -143,5 +146,8 @@ def render(result: FitResult, experiments) -> str:
     out.append("Initial zone temperatures: " + "; ".join(
         f"{e.name} [{', '.join(f'{v:.1f}' for v in x)}]"
         for e, x in zip(experiments, result.x0, strict=True)))
+    if result.zone_offsets_c:
+        out.append("Zone offsets (measured minus model): " + "; ".join(
+            f"{z} {v:+.2f} degC" for z, v in result.zone_offsets_c.items()))
     out.append(f"Status: {result.status}; residual sd {result.sigma_c:.3f} degC")
     return "\n".join(out)

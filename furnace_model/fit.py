@@ -100,8 +100,8 @@ class _Problem:
         offsets = _has_sensor_offsets(structure)
         self.records = [_Record.of(e, offsets) for e in experiments]
         self.k = len(self.free)
-        self.o = 3 if zone_offsets else 0
-        self.n = self.k + self.o + 3 * len(self.records)
+        self.block = 6 if zone_offsets else 3  # per experiment: x0, then offsets if fitted
+        self.n = self.k + self.block * len(self.records)
         self.n_obs = int(sum(r.mask.sum() for r in self.records))
 
     def to_z(self, v: np.ndarray) -> np.ndarray:
@@ -165,20 +165,22 @@ class _Problem:
         return np.where(np.isfinite(total), total, np.inf)
 
     def x0_of(self, z: np.ndarray, j: int) -> np.ndarray:
-        i = self.k + self.o + 3 * j
+        i = self.k + self.block * j
         return z[i:i + 3]
 
-    def offsets_of(self, z: np.ndarray) -> np.ndarray:
-        return z[self.k:self.k + self.o] if self.o else np.zeros(3)
+    def offsets_of(self, z: np.ndarray, j: int) -> np.ndarray:
+        i = self.k + self.block * j + 3
+        return z[i:i + 3] if self.block == 6 else np.zeros(3)
 
     def start(self, zp: np.ndarray) -> np.ndarray:
-        return np.concatenate([zp, np.zeros(self.o)] + [r.x0_guess for r in self.records])
+        per = [np.concatenate([r.x0_guess, np.zeros(self.block - 3)]) for r in self.records]
+        return np.concatenate([zp, *per])
 
     def fun(self, z: np.ndarray) -> np.ndarray:
         vals = self.values(z[:self.k])
-        off = self.offsets_of(z)
         return np.concatenate([self.residuals(j, vals, self.x0_of(z, j)[None])[0]
-                               + off[r.zone_of] for j, r in enumerate(self.records)])
+                               + self.offsets_of(z, j)[r.zone_of]
+                               for j, r in enumerate(self.records)])
 
     def jac(self, z: np.ndarray) -> np.ndarray:
         """Forward differences, all perturbed sets of an experiment in one batched call."""
@@ -195,10 +197,10 @@ class _Problem:
             d = (res[1:] - res[0]) / h[:, None]  # (k+3, m_j)
             block = np.zeros((res.shape[1], self.n))
             block[:, :k] = d[:k].T
-            if self.o:  # a zone's offset moves its own residuals one for one
-                block[np.arange(res.shape[1]), k + self.records[j].zone_of] = 1.0
-            i = k + self.o + 3 * j
+            i = k + self.block * j
             block[:, i:i + 3] = d[k:].T
+            if self.block == 6:  # a zone's offset moves its own residuals one for one
+                block[np.arange(res.shape[1]), i + 3 + self.records[j].zone_of] = 1.0
             blocks.append(block)
         return np.concatenate(blocks)
 
@@ -275,15 +277,14 @@ class FitResult:
     genetic_mean: dict[str, float] = field(default_factory=dict)
     sigma_c: float = float("nan")  # residual standard deviation
     combinations: dict[str, dict] = field(default_factory=dict)  # name -> {value, ci95}
-    zone_offsets_c: dict[str, float] | None = None  # fitted thermocouple offsets per zone
+    zone_offsets_c: list[dict[str, float]] | None = None  # per experiment: offset per zone
     uncertainty: Uncertainty | None = None
 
     def predict(self, exp: Experiment, x0: np.ndarray | None = None) -> np.ndarray:
-        """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None."""
-        y = predict(self.params, exp, self.structure, x0)
-        if self.zone_offsets_c:
-            y = y + np.array([self.zone_offsets_c[z] for z in ZONES])
-        return y
+        """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None.
+        Fitted zone offsets are not added: they belong to the thermocouples of the fitted
+        records, not to the furnace."""
+        return predict(self.params, exp, self.structure, x0)
 
     def to_json(self, data: list[str]) -> dict:
         """CONTRACTS.md section 5, plus the diagnostics of this fit."""
@@ -331,8 +332,9 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     Run r uses seed + r. With `init` the global search is skipped: a warm-started polish,
     which is what a sliding-window refit wants. The best run (lowest SSE) is the result; the
     arithmetic mean of the runs is kept as the paper's 'genetic mean parameter'.
-    `zone_offsets` adds a constant offset per zone (shared by the experiments): thermocouple
-    biases the model cannot otherwise absorb, except by bending its parameters.
+    `zone_offsets` adds a constant offset per zone and experiment: thermocouple biases the
+    model cannot otherwise absorb, except by bending its parameters (per experiment, since
+    thermocouples are replaced and recalibrated between campaigns).
     """
     t_start = time.perf_counter()
     if method not in METHODS:
@@ -405,8 +407,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         runs=run_dicts, method=method,
         status="insufficient_excitation" if static else "ok", genetic_mean=mean,
         sigma_c=unc.sigma, combinations=combo_values,
-        zone_offsets_c=(dict(zip(ZONES, map(float, prob.offsets_of(z)), strict=True))
-                        if zone_offsets else None),
+        zone_offsets_c=([dict(zip(ZONES, map(float, prob.offsets_of(z, j)), strict=True))
+                         for j in range(len(experiments))] if zone_offsets else None),
         uncertainty=unc)
 
 
@@ -462,7 +464,7 @@ def _per_zone(prob: _Problem, z: np.ndarray) -> dict[str, dict[str, float]]:
     meas, model = [], []
     for j, r in enumerate(prob.records):
         meas.append(np.where(r.mask, r.y, np.nan))
-        model.append(prob.predict(j, vals, prob.x0_of(z, j)[None])[0] + prob.offsets_of(z))
+        model.append(prob.predict(j, vals, prob.x0_of(z, j)[None])[0] + prob.offsets_of(z, j))
     return zone_metrics(np.concatenate(meas), np.concatenate(model))
 
 

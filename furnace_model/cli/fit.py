@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from .. import ZONES
 from ..errors import FurnaceError
 from ..experiment import load_experiment
@@ -92,8 +94,10 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         from ..plots import plot_fit  # matplotlib only when plots are asked for
 
-        for exp, x0 in zip(experiments, result.x0, strict=True):
-            plot_fit(exp, result.predict(exp, x0), args.plot, label=result.method)
+        offsets = result.zone_offsets_c or [dict.fromkeys(ZONES, 0.0)] * len(experiments)
+        for exp, x0, off in zip(experiments, result.x0, offsets, strict=True):
+            model = result.predict(exp, x0) + np.array([off[z] for z in ZONES])
+            plot_fit(exp, model, args.plot, label=result.method)
     return 0
 
 
@@ -148,6 +152,7 @@ def render(result: FitResult, experiments) -> str:
         for e, x in zip(experiments, result.x0, strict=True)))
     if result.zone_offsets_c:
         out.append("Zone offsets (measured minus model): " + "; ".join(
-            f"{z} {v:+.2f} degC" for z, v in result.zone_offsets_c.items()))
+            f"{e.name} [" + ", ".join(f"{v:+.2f}" for v in off.values()) + "] degC"
+            for e, off in zip(experiments, result.zone_offsets_c, strict=True)))
     out.append(f"Status: {result.status}; residual sd {result.sigma_c:.3f} degC")
     return "\n".join(out)

@@ -234,3 +234,18 @@ def test_zone_offsets_absorb_thermocouple_bias(scenarios):
         assert res.combinations[name]["value"] == pytest.approx(
             combination_truth(name, PAPER_TABLE_V), rel=0.02)
     assert res.to_json(["x"])["zone_offsets_c"] == res.zone_offsets_c
+
+
+@pytest.mark.slow
+def test_intervals_cover_the_truth_about_95_percent_of_the_time(scenarios):
+    """Calibration: over many noise draws each 95% interval holds the truth about 95% of the
+    time (binomial spread over 60 draws: below 85% would be a real miscalibration)."""
+    hits = dict.fromkeys(PAPER_TABLE_V, 0)
+    n = 60
+    for seed in range(100, 100 + n):
+        res = fit([heat_up(scenarios, PAPER_TABLE_V, 1.0, seed=seed)], seed=seed)
+        for k, v in PAPER_TABLE_V.items():
+            lo, hi = res.ci95[k]
+            hits[k] += lo <= v <= hi
+    for k, h in hits.items():
+        assert h / n >= 0.85, (k, h, n)

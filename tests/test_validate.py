@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -76,3 +77,23 @@ def test_bad_params_file(fitted, tmp_path, content, expect):
     assert r.returncode != 0
     assert expect in r.stderr and str(path) in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_params_of_an_extended_structure_round_trip(tmp_path):
+    from furnace_model.cli.validate import load_params
+    from furnace_model.effects import ZoneLosses
+    from furnace_model.fit import FitResult
+    from furnace_model.structure import ModelStructure
+
+    structure = ModelStructure([ZoneLosses(zones=("heat",))])
+    values = structure.defaults()
+    res = FitResult(structure, values, [], {k: (v, v) for k, v in values.items()},
+                    np.eye(len(values)), [], [],
+                    [], {}, 0.0, 0, 0.0, [])
+    doc = res.to_json(["x.csv"])
+    path = tmp_path / "fit.json"
+    path.write_text(json.dumps(doc))
+    params, back = load_params(path)
+    assert back.names == structure.names
+    assert back.effects[0].options == structure.effects[0].options
+    assert params == values

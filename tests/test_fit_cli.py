@@ -110,3 +110,14 @@ def test_progress_bar_only_on_a_terminal():
         bar.close()
     assert "100%" in tty.getvalue() and "\r" in tty.getvalue()
     assert pipe.getvalue() == ""
+
+
+def test_a_zone_without_any_reading_is_refused(tmp_path):
+    bad = tmp_path / "blind.csv"
+    rows = "".join(f"{i},{30 + i},,{30 + i},2,0,0\n" for i in range(5))
+    bad.write_text("t_min,tc_soak_1,tc_heat_1,tc_preheat_1,burners_soak,burners_heat,"
+                   "burners_preheat\n" + rows)
+    r = cli("fit", str(bad))
+    assert r.returncode == 1
+    assert "blind.csv" in r.stderr and "zone 'heat' has no readings" in r.stderr
+    assert "Traceback" not in r.stderr

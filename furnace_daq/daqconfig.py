@@ -209,16 +209,7 @@ def parse_config(root: Node) -> DaqConfig:
     if root.has("clock"):
         cn = root.child("clock")
         point = _point(cn, "clock", extra=("epoch",))
-        epoch = None
-        if cn.has("epoch"):
-            en = cn.child("epoch")
-            try:
-                epoch = pd.Timestamp(str(en.value))
-            except ValueError:
-                raise en.error(f"not an ISO 8601 time: '{en.value}'") from None
-            if epoch.tzinfo is None:
-                raise en.error("give a UTC offset or Z, e.g. 2026-03-04T06:00:00Z")
-            epoch = epoch.tz_convert("UTC")
+        epoch = cn.child("epoch").timestamp() if cn.has("epoch") else None
         clock = ClockConfig(point, epoch)
     heartbeat = _point(root.child("heartbeat"), "heartbeat") if root.has("heartbeat") else None
 

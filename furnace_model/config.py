@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 import yaml
 
 from .errors import ConfigError
@@ -130,6 +131,16 @@ class Node:
         if choices is not None and self.value not in choices:
             raise self.error(f"must be one of {', '.join(choices)}, got '{self.value}'")
         return self.value
+
+    def timestamp(self) -> pd.Timestamp:
+        """An ISO 8601 time with an explicit offset, in UTC: a plant's clock is never guessed."""
+        try:
+            value = pd.Timestamp(str(self.value))
+        except ValueError:
+            raise self.error(f"not an ISO 8601 time: '{self.value}'") from None
+        if value.tzinfo is None:
+            raise self.error("give a UTC offset or Z, e.g. 2026-03-04T06:00:00Z")
+        return value.tz_convert("UTC")
 
     # -- shorthands for optional keys ------------------------------------------------------
     def get_number(self, key: str, default: float | None = None, **bounds: float) -> float:

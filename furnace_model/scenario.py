@@ -87,16 +87,7 @@ def load_scenario(path: str | Path) -> Scenario:
     sample = root.get_number("sample_min", 1.0, lo=1e-3, hi=duration)
     t_air = root.get_number("t_air_c", 30.0, lo=-60.0, hi=200.0)
 
-    start_time = None
-    if root.has("start_time"):
-        node = root.child("start_time")
-        try:
-            start_time = pd.Timestamp(str(node.value))
-        except ValueError:
-            raise node.error(f"not an ISO 8601 time: '{node.value}'") from None
-        if start_time.tzinfo is None:
-            raise node.error("give a UTC offset or Z, e.g. 2026-03-04T06:00:00Z")
-        start_time = start_time.tz_convert("UTC")
+    start_time = root.child("start_time").timestamp() if root.has("start_time") else None
 
     init = root.child("initial_c", t_air)
     if isinstance(init.value, list):

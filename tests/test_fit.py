@@ -249,3 +249,13 @@ def test_intervals_cover_the_truth_about_95_percent_of_the_time(scenarios):
             hits[k] += lo <= v <= hi
     for k, h in hits.items():
         assert h / n >= 0.85, (k, h, n)
+
+
+def test_time_budget_returns_what_it_has_and_says_so(paper_1min):
+    seen = []
+    res = fit([paper_1min], method="ga", generations=100000, time_budget_s=0.3,
+              progress=seen.append)
+    assert res.runs[0]["generations"] < 100000
+    assert any("time budget" in w for w in res.warnings)
+    assert seen and seen[-1] == 1.0 and all(0 <= f <= 1 for f in seen)
+    assert np.isfinite(res.sse)

@@ -508,14 +508,15 @@ def predict(params: dict[str, float], exp: Experiment, structure: ModelStructure
 
 
 def score(params: dict, experiments: list[Experiment],
-          structure: ModelStructure | None = None) -> dict:
+          structure: ModelStructure | None = None, zone_offsets: bool = False) -> dict:
     """Per-zone MAE, RMSE and fit % of given parameters on experiments (the paper's
-    Table VI), each experiment's initial state estimated from its data."""
+    Table VI), each experiment's initial state (and with `zone_offsets` its thermocouple
+    offsets) estimated from its data."""
     structure = structure or ModelStructure()
     missing = [n for n in structure.names if n not in params]
     if missing:
         raise FurnaceError(f"parameter(s) {', '.join(missing)} missing for {structure.label}")
     values = {n: float(params[n]) for n in structure.names}
-    prob = _Problem(experiments, structure, values, {})
+    prob = _Problem(experiments, structure, values, {}, zone_offsets)
     z, _, _, _ = prob.polish(prob.start(np.zeros(0)), None)
     return _per_zone(prob, z)

@@ -97,3 +97,15 @@ def test_params_of_an_extended_structure_round_trip(tmp_path):
     assert back.names == structure.names
     assert back.effects[0].options == structure.effects[0].options
     assert params == values
+
+
+def test_zone_offsets_take_the_bias_out_of_the_score(fitted, tmp_path):
+    args = ["validate", "--params", str(fitted / "fit.json"), str(fitted / "paper_exp2.csv")]
+    plain = cli(*args, "--json", str(tmp_path / "plain.json"))
+    offset = cli(*args, "--zone-offsets", "--json", str(tmp_path / "off.json"))
+    assert plain.returncode == 0 and offset.returncode == 0, offset.stderr
+    p = json.loads((tmp_path / "plain.json").read_text())["per_zone"]
+    o = json.loads((tmp_path / "off.json").read_text())["per_zone"]
+    for zone in ("soak", "heat", "preheat"):
+        assert o[zone]["rmse_c"] <= p[zone]["rmse_c"] + 1e-9
+        assert abs(o[zone]["rmse_c"] / (1.5 / 2 ** 0.5) - 1) < 0.15, (zone, o[zone])

@@ -23,6 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("data", nargs="+", type=Path, help="CSV or Parquet files to score on")
     p.add_argument("--params", required=True, type=Path, metavar="FIT.json",
                    help="JSON written by `furnace-model fit --json`")
+    p.add_argument("--zone-offsets", action="store_true",
+                   help="estimate each file's constant offset per zone (thermocouple bias) "
+                        "before scoring")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the scores as JSON")
     p.add_argument("--plot", type=Path, metavar="DIR", help="write measured-vs-model PNGs here")
     p.set_defaults(run=run)
@@ -61,8 +64,10 @@ def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
 def run(args: argparse.Namespace) -> int:
     params, structure = load_params(args.params)
     experiments = [load_experiment(p) for p in args.data]
-    per_exp = {e.name: score(params, [e], structure) for e in experiments}
-    pooled = score(params, experiments, structure) if len(experiments) > 1 else next(iter(per_exp.values()))
+    off = args.zone_offsets
+    per_exp = {e.name: score(params, [e], structure, off) for e in experiments}
+    pooled = (score(params, experiments, structure, off) if len(experiments) > 1
+              else next(iter(per_exp.values())))
     lines = [f"Parameters from {args.params} ({structure.label}) on {len(experiments)} experiment(s)",
              "", "| experiment | zone | MAE (degC) | RMSE (degC) | fit % |", "|---|---|---|---|---|"]
     for name, pz in [*per_exp.items(), *([("all", pooled)] if len(experiments) > 1 else [])]:

@@ -37,6 +37,8 @@ GA_DEFAULTS = {"fast": (32, 30), "ga": (20, 2000)}
 """(population, generations) per method: the paper ran population 20 for 25 000-100 000
 cycles; 2000 generations already take seconds per run here."""
 _FD_STEP = 1e-6
+_CELLS = 4_000_000
+"""Model values (sets x samples x zones) per simulator call in the GA: about 32 MB each."""
 
 
 @dataclass
@@ -156,12 +158,15 @@ class _Problem:
 
     def sse_params(self, zp: np.ndarray) -> np.ndarray:
         """SSE (P,) for parameter sets (P, k), initial states at the first readings: the
-        GA's objective, one simulation call per experiment for the whole population."""
-        vals = self.values(zp)
+        GA's objective, one simulation call per experiment for the whole population (in
+        slices of about _CELLS values, so a long 1-second window stays within memory)."""
         total = np.zeros(zp.shape[0])
         for j, r in enumerate(self.records):
-            res = self.residuals(j, vals, r.x0_guess[None])
-            total += np.einsum("pm,pm->p", res, res)
+            step = max(1, _CELLS // (3 * r.t.size))
+            for p0 in range(0, zp.shape[0], step):
+                sl = slice(p0, p0 + step)
+                res = self.residuals(j, self.values(zp[sl]), r.x0_guess[None])
+                total[sl] += np.einsum("pm,pm->p", res, res)
         return np.where(np.isfinite(total), total, np.inf)
 
     def x0_of(self, z: np.ndarray, j: int) -> np.ndarray:

@@ -142,13 +142,14 @@ class _Problem:
             lam = np.linalg.eigvals(self.structure.system(theta).A)
             span = max(float(r.t[-1] - r.t[0]), 1.0)
             bad = np.any(np.abs(lam) * span <= 1e-6, axis=1)
-            if not bad.any() or bad.all():
+            if not bad.any():
                 raise
             good = np.nonzero(~bad)[0]
             x0 = np.broadcast_to(x0, (bad.size, x0.shape[-1]))
             out = np.full((bad.size, r.t.size, 3), np.nan)
-            out[good] = self.structure.simulate({k: v[good] for k, v in theta.items()},
-                                                r.inputs, r.t, x0[good])
+            if good.size:
+                out[good] = self.structure.simulate({k: v[good] for k, v in theta.items()},
+                                                    r.inputs, r.t, x0[good])
             return out
 
     def residuals(self, j: int, values: dict[str, np.ndarray], x0: np.ndarray) -> np.ndarray:
@@ -354,10 +355,13 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     population = int(population or pop_default)
     generations = int(generations if generations is not None else gen_default)
     deadline = None if time_budget_s is None else t_start + float(time_budget_s)
-    start = None
+    start, spread = None, None
     if init:
         start_vals = {**structure.defaults(), **init}
         start = prob.to_z(np.array([start_vals[n] for n in prob.names]))
+        # Given values are searched near where they are; the others (an effect's parameters
+        # on top of a baseline fit) over half their box around their defaults.
+        spread = np.array([0.02 if n in init else 0.5 for n in prob.names])
 
     results = []
     for r in range(runs):
@@ -368,7 +372,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
             if progress is not None:
                 progress(min((r + frac) / runs, 1.0))
 
-        z, ok, gens = _one_run(prob, method, population, generations, rng, start, deadline, report)
+        z, ok, gens = _one_run(prob, method, population, generations, rng, start, spread,
+                               deadline, report)
         results.append((z, ok, gens, seed + r, time.perf_counter() - t_run))
     report_done = progress or (lambda _f: None)
     report_done(1.0)
@@ -418,13 +423,14 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
 
 
 def _one_run(prob: _Problem, method: str, population: int, generations: int,
-             rng: np.random.Generator, start: np.ndarray | None, deadline: float | None,
+             rng: np.random.Generator, start: np.ndarray | None, spread: np.ndarray | None,
+             deadline: float | None,
              report: Callable[[float], None]) -> tuple[np.ndarray, bool, int]:
     if prob.k == 0:
         z, _, _, ok = prob.polish(prob.start(np.zeros(0)), deadline)
         return z, ok, 0
-    if method == "fast" and start is not None:
-        z, _, _, ok = prob.polish(prob.start(start), deadline)
+    if method == "fast" and start is not None and np.all(spread < 0.1):
+        z, _, _, ok = prob.polish(prob.start(start), deadline)  # every value given: polish
         report(1.0)
         return z, ok, 0
     ga_deadline = deadline
@@ -433,15 +439,17 @@ def _one_run(prob: _Problem, method: str, population: int, generations: int,
     share = 0.8 if method == "fast" else 1.0
     found = genetic_search(prob.sse_params, prob.lo, prob.hi, population=population,
                            generations=generations, rng=rng, start=start,
-                           spread=0.05 if start is not None else 1.0,
+                           spread=spread if start is not None else 1.0,
                            progress=lambda f: report(share * f), deadline=ga_deadline)
     if method == "ga":
         return prob.start(found.best), True, found.generations
-    # Polish the best few distinct members: the GA's best may sit in a side valley.
+    # Polish the best few distinct members: the GA's best may sit in a side valley. A warm
+    # start is always among them: the extended model may be the baseline with its effect off.
     best_z, best_c, best_ok = None, np.inf, False
     picked: list[np.ndarray] = []
-    for cand in found.population:
-        if len(picked) == 3:
+    first = [] if start is None else [np.clip(start, prob.lo, prob.hi)]
+    for cand in [*first, *found.population]:
+        if len(picked) == 3 + len(first):
             break
         if any(np.max(np.abs(cand - p)) < 0.3 for p in picked):
             continue

@@ -29,13 +29,15 @@ class GAResult:
 
 def genetic_search(objective: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray,
                    *, population: int, generations: int, rng: np.random.Generator,
-                   start: np.ndarray | None = None, spread: float = 1.0, elite: int = 2,
+                   start: np.ndarray | None = None, spread: float | np.ndarray = 1.0,
+                   elite: int = 2,
                    crossover: float = 0.9, progress: Callable[[float], None] | None = None,
                    deadline: float | None = None) -> GAResult:
     """Minimise objective((P, n) genes) -> (P,) over the box [lo, hi].
 
-    With `start`, the first population is drawn around it (sd `spread` times the box width
-    for each gene, one member exactly at it) instead of uniformly over the box: a warm start.
+    With `start`, the first population is drawn around it (sd `spread` times the box width,
+    per gene if an array; one member exactly at it) instead of uniformly over the box: a
+    warm start.
     `deadline` is a time.perf_counter() value after which the search returns what it has.
     """
     lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
@@ -44,7 +46,7 @@ def genetic_search(objective: Callable[[np.ndarray], np.ndarray], lo: np.ndarray
     if start is None:
         pop = lo + rng.random((P, n)) * width
     else:
-        pop = np.clip(start + rng.normal(0.0, 1.0, (P, n)) * spread * width, lo, hi)
+        pop = _reflect(start + rng.normal(0.0, 1.0, (P, n)) * np.asarray(spread) * width, lo, hi)
         pop[0] = np.clip(start, lo, hi)
     fit = _score(objective, pop)
     evals = P

@@ -159,20 +159,20 @@ def from_jacobian(J: np.ndarray, residual: np.ndarray, names: list[str], log: np
     variance instead of being dropped by a pseudo-inverse (which would report them as exact)."""
     k = len(names)
     m, n = J.shape
+    J = np.nan_to_num(J, nan=0.0, posinf=0.0, neginf=0.0)
     sigma2 = float(residual @ residual) / max(m - n, 1)
     JtJ = J.T @ J
-    scale = np.sqrt(np.maximum(np.diag(JtJ), 1e-300))
+    d = np.diag(JtJ)
+    scale = np.where(d > 0, np.sqrt(np.where(d > 0, d, 1.0)), 1.0)  # a dead column stays 0
     S = JtJ / np.outer(scale, scale)
-    w, V = np.linalg.eigh(S)
-    w = np.maximum(w, _EPS * max(w.max(), 1e-300))
+    w, V = np.linalg.eigh((S + S.T) / 2)
+    w = np.maximum(w, _EPS * max(float(w.max()), 1.0))
     cov = sigma2 * (V / w) @ V.T / np.outer(scale, scale)
-    cov_p = cov[:k, :k]
-    # Fisher information of the parameters alone, on their (log) scale.
-    sp = np.sqrt(np.maximum(np.diag(cov_p), 1e-300))
-    Cn = cov_p / np.outer(sp, sp)
-    wc, Vc = np.linalg.eigh(Cn)
-    wc = np.maximum(wc, _EPS * max(wc.max(), 1e-300))
-    fisher = (Vc / wc) @ Vc.T / np.outer(sp, sp)
-    fw, fv = np.linalg.eigh((fisher + fisher.T) / 2)
+    cov_p = (cov[:k, :k] + cov[:k, :k].T) / 2
+    # Directions on the parameters' (log) scale: the covariance's eigenvectors are those of
+    # the Fisher information, its eigenvalues the reciprocals.
+    wc, Vc = np.linalg.eigh(cov_p) if k else (np.zeros(0), np.zeros((0, 0)))
+    fisher_w = 1.0 / np.maximum(wc, 1e-300)
+    order = np.argsort(fisher_w)
     return Uncertainty(list(names), np.asarray(log, dtype=bool), np.asarray(z, dtype=float),
-                       cov_p, float(np.sqrt(sigma2)), fw, fv)
+                       cov_p, float(np.sqrt(sigma2)), fisher_w[order], Vc[:, order])

@@ -259,3 +259,15 @@ def test_time_budget_returns_what_it_has_and_says_so(paper_1min):
     assert any("time budget" in w for w in res.warnings)
     assert seen and seen[-1] == 1.0 and all(0 <= f <= 1 for f in seen)
     assert np.isfinite(res.sse)
+
+
+def test_an_extension_warm_started_from_the_baseline_fits_no_worse(paper_1min):
+    """The diagnosis fits each effect on top of the baseline: the effect's own parameters
+    are searched, the baseline's start where they were; a nested model must not lose."""
+    from furnace_model.effects import SensorLag, WallStorage
+
+    base = fit([paper_1min])
+    for effect in (SensorLag(), WallStorage()):
+        ext = fit([paper_1min], ModelStructure([effect]), init=base.params)
+        assert ext.sse <= base.sse * 1.001, (effect.name, ext.sse, base.sse)
+        assert set(ext.params) == set(ModelStructure([effect]).names)

@@ -213,6 +213,8 @@ def _modal_sum(lam: np.ndarray, tau: np.ndarray, G: np.ndarray, H: np.ndarray) -
 
 def _superposed(lam, z, w, s, dw, t_start, t):
     """Per-parameter step times: sum the step responses, each exact (linearity)."""
+    if s.ndim == 1:  # shared steps sent here because an eigenvalue is (numerically) zero
+        s = np.broadcast_to(s, (lam.shape[0], s.size))
     lam3 = lam[:, :, None]
     e, phi = _propagators(lam3, (t - t_start)[None, None, :])
     Z = z[:, :, None] * e + w[:, :, None] * phi

@@ -122,11 +122,11 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
         while True:
             await asyncio.sleep(2.0)
             temps = "  ".join(f"{z} {t:7.1f} C" for z, t in
-                              zip(("soak", "heat", "preheat"), plc.stepper.zone_true(),
+                              zip(("soak", "heat", "preheat"), plc.source.stepper.zone_true(),
                                   strict=True))
             c = daemon.counters
             print(f"   t = {plc.plc_seconds / 60:6.0f} min  {temps}  burners "
-                  f"{int(plc.stepper.burners.sum()):2d}  polls {c.ok_polls}", flush=True)
+                  f"{int(plc.source.stepper.burners.sum()):2d}  polls {c.ok_polls}", flush=True)
 
     shower = asyncio.create_task(show())
     try:

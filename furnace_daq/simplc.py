@@ -1,10 +1,12 @@
-"""A simulated furnace PLC: the plant simulator behind a real Modbus TCP server (and optionally
-a CAN bus), serving the default register map of CONTRACTS.md section 3.
+"""A simulated furnace PLC: a real Modbus TCP server (and optionally a CAN bus) serving the
+default register map of CONTRACTS.md section 3 from a value source.
 
 It lets the daemon, mbpoll and the demo run against the same wire protocol as the plant
-without hardware. Simulated time runs `speed` times faster than the wall clock; the PLC clock
-registers hold whole simulated seconds and every value is computed at exactly that second, so
-a client can recompute what it should have read.
+without hardware. Two sources feed the same server: the plant simulator running a scenario
+(`PlantSource`), and a recorded log (`furnace_daq.logplayer.LogPlayer`). Simulated time runs
+`speed` times faster than the wall clock; the PLC clock registers hold whole simulated seconds
+and every value is the source's at exactly that second, so a client can recompute what it
+should have read.
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
+from dataclasses import dataclass
+from typing import Protocol
 
 import can
 import numpy as np
@@ -58,25 +62,87 @@ def flame_frame(states: list[bool]) -> bytes:
     return value.to_bytes(4, "little")
 
 
-class SimPLC:
-    """A running simulated PLC; `await start()`, then `port`; `await stop()` releases all."""
+@dataclass
+class PlcValues:
+    """What the PLC shows at one second, in engineering units."""
 
-    def __init__(self, scenario: Scenario, *, speed: float = 3600.0, host: str = "127.0.0.1",
-                 port: int = 5020, manual: bool = False, seed: int = 0, scan_s: float = 0.1,
-                 can_channel: str | None = None, can_interface: str = "virtual"):
-        if speed <= 0 or scan_s <= 0:
-            raise ValueError("speed and scan_s must be positive")
-        self.scenario, self.speed, self.host, self.manual = scenario, speed, host, manual
-        self.scan_s = scan_s
-        self.port = port
+    thermocouples: list[float]
+    """Six readings in SENSORS order, degC; NaN = open circuit (served as 32767)."""
+    t_air: float
+    burners: list[bool]
+    """Flame-on state of the 26 burners: soak 0-9, heat 10-17, preheat 18-25."""
+
+
+class ValueSource(Protocol):
+    """Where the simulated PLC's values come from; the server adds clock and heartbeat."""
+
+    end_s: int | None
+    """The last PLC second with values of its own (None: never ends)."""
+
+    def values_at(self, plc_seconds: int) -> PlcValues:
+        """The values at `plc_seconds`; called with non-decreasing seconds."""
+        ...
+
+
+class PlantSource:
+    """The plant simulator running a scenario: burners follow its schedule or, in manual
+    mode, the commands the server passes on from the coils."""
+
+    end_s: int | None = None
+
+    def __init__(self, scenario: Scenario, *, seed: int = 0, manual: bool = False):
+        self.scenario, self.manual = scenario, manual
         self.plant = Plant.from_scenario(scenario, seed=seed)
         self.stepper = self.plant.stepper(scenario.initial_c, scenario.burners_at(0.0),
                                           scenario.t_air_c)
-        self.states = states_from_counts(scenario.burners_at(0.0))
+        self._commands: list[bool] | None = None
+
+    def command(self, states: list[bool]) -> None:
+        """Burner commands written by a client, applied from the next second served."""
+        self._commands = [bool(s) for s in states]
+
+    def values_at(self, plc_seconds: int) -> PlcValues:
+        target = plc_seconds / 60.0
+        if self.manual:
+            self.stepper.advance(target)
+            if self._commands is not None:
+                self.stepper.set_inputs(burners=counts_from_states(self._commands))
+        else:
+            steps = self.scenario.steps_t
+            for at in steps[(steps > self.stepper.t) & (steps <= target)]:
+                self.stepper.advance(float(at))
+                self.stepper.set_inputs(burners=self.scenario.burners_at(float(at)))
+            self.stepper.advance(target)
+        states = (list(self._commands) if self.manual and self._commands is not None
+                  else states_from_counts(self.stepper.burners))
+        return PlcValues(list(self.stepper.readings()), self.stepper.t_air, states)
+
+
+class SimPLC:
+    """A running simulated PLC; `await start()`, then `port`; `await stop()` releases all.
+
+    `source` is a ValueSource, or a Scenario for the plant simulator (then `seed` and `manual`
+    apply). When a source ends (a log played to its end) the PLC stops: registers keep their
+    last values, clock and heartbeat included, and `ended` is set."""
+
+    def __init__(self, source: ValueSource | Scenario, *, speed: float = 3600.0,
+                 host: str = "127.0.0.1", port: int = 5020, manual: bool = False, seed: int = 0,
+                 scan_s: float = 0.1, can_channel: str | None = None,
+                 can_interface: str = "virtual"):
+        if speed <= 0 or scan_s <= 0:
+            raise ValueError("speed and scan_s must be positive")
+        if isinstance(source, Scenario):
+            source = PlantSource(source, seed=seed, manual=manual)
+        self.source = source
+        self.manual = bool(getattr(source, "manual", False))
+        self.speed, self.host, self.port, self.scan_s = speed, host, port, scan_s
+        self.values = source.values_at(0)
         self.open_sensors: set[str] = set()
         """Sensors to report as open circuit (sentinel), for fault drills."""
         self.frozen = False
         """A PLC whose program stopped: registers keep their last values, heartbeat included."""
+        self.ended = asyncio.Event()
+        """Set once the source has no more values (end of a log)."""
         self.plc_seconds = 0
         self.heartbeat = 0
         self.scans = 0
@@ -86,12 +152,16 @@ class SimPLC:
         self._task: asyncio.Task | None = None
         self._t0 = 0.0
 
+    @property
+    def states(self) -> list[bool]:
+        return self.values.burners
+
     # -- life cycle ---------------------------------------------------------------------------
     async def start(self) -> None:
-        bits = [SimData(0, values=list(self.states), datatype=DataType.BITS)]
+        states = list(self.values.burners)
         device = SimDevice(0, simdata=(
-            [SimData(0, values=list(self.states), datatype=DataType.BITS)],  # coils
-            bits,                                                             # discrete inputs
+            [SimData(0, values=states, datatype=DataType.BITS)],              # coils
+            [SimData(0, values=states, datatype=DataType.BITS)],              # discrete inputs
             [SimData(0, values=[0], datatype=DataType.REGISTERS)],            # holding
             [SimData(0, values=[0] * N_INPUT_REGISTERS, datatype=DataType.REGISTERS)],
         ))
@@ -127,41 +197,37 @@ class SimPLC:
                 k += int(-delay // self.scan_s) + 1
                 delay = self._t0 + k * self.scan_s - time.monotonic()
             await asyncio.sleep(delay)
-            if not self.frozen:
+            if not self.frozen and not self.ended.is_set():
                 await self.scan()
 
     # -- one PLC scan --------------------------------------------------------------------------
     async def scan(self) -> None:
-        """Advance the plant to the current simulated second and publish every register."""
+        """Take the source's values at the current simulated second and publish every
+        register; past the source's end, publish its last second once and stop."""
         assert self._server is not None
         sim_s = int((time.monotonic() - self._t0) * self.speed)
-        target = sim_s / 60.0
+        end = self.source.end_s
+        if end is not None and sim_s >= end:
+            sim_s = end
+            self.ended.set()
         if self.manual:
             coils = await self._server.async_getValues(0, FUNCTION_CODE["coil"], 0, N_BURNERS)
-            self.stepper.advance(target)
-            self.states = [bool(c) for c in coils]
-            self.stepper.set_inputs(burners=counts_from_states(self.states))
-        else:
-            steps = self.scenario.steps_t
-            for at in steps[(steps > self.stepper.t) & (steps <= target)]:
-                self.stepper.advance(float(at))
-                self.stepper.set_inputs(burners=self.scenario.burners_at(float(at)))
-            self.stepper.advance(target)
-            self.states = states_from_counts(self.stepper.burners)
+            self.source.command([bool(c) for c in coils])
+        self.values = self.source.values_at(sim_s)
         self.plc_seconds = sim_s
         self.heartbeat = (self.heartbeat + 1) & 0xFFFF
-        readings = self.stepper.readings()
         regs = [tenths(np.nan if s in self.open_sensors else v) & 0xFFFF
-                for s, v in zip(SENSORS, readings, strict=True)]
-        regs.append(tenths(self.stepper.t_air) & 0xFFFF)
+                for s, v in zip(SENSORS, self.values.thermocouples, strict=True)]
+        regs.append(tenths(self.values.t_air) & 0xFFFF)
         regs += encode(sim_s & 0xFFFFFFFF, "uint32", "big")
         regs.append(self.heartbeat)
+        states = list(self.values.burners)
         await self._server.async_setValues(0, FUNCTION_CODE["input"], 0, regs)
-        await self._server.async_setValues(0, FUNCTION_CODE["discrete"], 0, self.states)
+        await self._server.async_setValues(0, FUNCTION_CODE["discrete"], 0, states)
         if not self.manual:
-            await self._server.async_setValues(0, FUNCTION_CODE["coil"], 0, self.states)
+            await self._server.async_setValues(0, FUNCTION_CODE["coil"], 0, states)
         if self._bus is not None:
             with contextlib.suppress(can.CanError):  # a full bus must not stop the PLC scan
-                self._bus.send(can.Message(arbitration_id=CAN_ID, data=flame_frame(self.states),
+                self._bus.send(can.Message(arbitration_id=CAN_ID, data=flame_frame(states),
                                            is_extended_id=False))
         self.scans += 1

@@ -73,7 +73,7 @@ def test_manual_mode_follows_coils_and_broadcasts_flames_on_can():
         await client.write_coils(0, wanted, device_id=1)
         await asyncio.sleep(0.3)
         _, bits = await read_all(client)
-        counts = plc.stepper.burners.tolist()
+        counts = plc.source.stepper.burners.tolist()
         frames = []
         while (msg := listener.recv(timeout=0)) is not None:
             frames.append(msg)

@@ -1,5 +1,6 @@
-"""`furnace-daq sim-plc`: serve a scenario's plant as a Modbus TCP PLC (default map of
-CONTRACTS.md section 3), optionally broadcasting flame states on a CAN bus."""
+"""`furnace-daq sim-plc`: a Modbus TCP PLC on the default map of CONTRACTS.md section 3,
+serving either a scenario's simulated plant (`--scenario`) or recorded logs (`--from-log`),
+optionally broadcasting flame states on a CAN bus."""
 
 from __future__ import annotations
 
@@ -12,20 +13,28 @@ from pathlib import Path
 from furnace_model.errors import FurnaceError
 from furnace_model.scenario import load_scenario
 
-from ..simplc import SimPLC
+from ..logplayer import LogPlayer
+from ..simplc import SimPLC, ValueSource
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sim-plc", help="run the simulated furnace PLC (Modbus TCP server)",
                        description=__doc__)
-    p.add_argument("--scenario", required=True, type=Path, help="scenario YAML")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--scenario", type=Path, help="scenario YAML: serve the simulated plant")
+    what.add_argument("--from-log", type=Path, nargs="+", metavar="LOG",
+                      help="MCAP log file(s) of the daemon: serve the recorded values")
     p.add_argument("--speed", type=float, default=3600.0,
                    help="simulated seconds per wall second (default 3600)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=5020, help="TCP port (default 5020; 0 = any free)")
     p.add_argument("--manual", action="store_true",
-                   help="burners follow coil writes from a client instead of the schedule")
-    p.add_argument("--seed", type=int, default=0, help="sensor noise seed (default 0)")
+                   help="burners follow coil writes from a client instead of the schedule "
+                        "(--scenario only)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="sensor noise seed (default 0; --scenario only)")
+    p.add_argument("--loop", action="store_true",
+                   help="start the log again at its end instead of stopping (--from-log only)")
     p.add_argument("--scan-s", type=float, default=0.1, help="PLC scan period, s (default 0.1)")
     p.add_argument("--can-channel", help="also send flame states as CAN frames on this channel")
     p.add_argument("--can-interface", default="virtual",
@@ -39,12 +48,23 @@ def run(args: argparse.Namespace) -> int:
         raise FurnaceError("--speed and --scan-s must be positive")
     if not 0 <= args.port <= 65535:
         raise FurnaceError(f"--port must be 0-65535, got {args.port}")
-    scenario = load_scenario(args.scenario)
-    return asyncio.run(_serve(scenario, args))
+    source: ValueSource
+    if args.from_log:
+        if args.manual:
+            raise FurnaceError("--manual works with --scenario only: a log's burners are recorded")
+        source = LogPlayer(args.from_log, loop=args.loop)
+        what = f"{', '.join(map(str, args.from_log))}: {source.describe()}"
+    else:
+        if args.loop:
+            raise FurnaceError("--loop works with --from-log only")
+        scenario = load_scenario(args.scenario)
+        source = scenario
+        what = f"{scenario.name}: {'manual' if args.manual else 'schedule'} burners"
+    return asyncio.run(_serve(source, what, args))
 
 
-async def _serve(scenario, args: argparse.Namespace) -> int:
-    plc = SimPLC(scenario, speed=args.speed, host=args.host, port=args.port, manual=args.manual,
+async def _serve(source, what: str, args: argparse.Namespace) -> int:
+    plc = SimPLC(source, speed=args.speed, host=args.host, port=args.port, manual=args.manual,
                  seed=args.seed, scan_s=args.scan_s, can_channel=args.can_channel,
                  can_interface=args.can_interface)
     try:
@@ -59,12 +79,19 @@ async def _serve(scenario, args: argparse.Namespace) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
     print(f"listening on {args.host}:{plc.port}", flush=True)
-    print(f"{scenario.name}: {args.speed:g}x, {'manual' if args.manual else 'schedule'} burners",
-          file=sys.stderr, flush=True)
+    print(f"{what}; {args.speed:g}x", file=sys.stderr, flush=True)
+
+    async def tell_end() -> None:
+        await plc.ended.wait()
+        print(f"end of log at PLC second {plc.plc_seconds}: no new values; the last ones stay "
+              "on the registers, heartbeat stopped", flush=True)
+
+    teller = asyncio.create_task(tell_end())
     try:
         await asyncio.wait_for(stop.wait(), args.duration)
     except TimeoutError:
         pass
     finally:
+        teller.cancel()
         await plc.stop()
     return 0

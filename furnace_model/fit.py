@@ -533,3 +533,22 @@ def score(params: dict, experiments: list[Experiment],
     prob = _Problem(experiments, structure, values, {}, zone_offsets)
     z, _, _, _ = prob.polish(prob.start(np.zeros(0)), None)
     return _per_zone(prob, z)
+
+
+def predict_held_out(params: dict, experiments: list[Experiment],
+                     structure: ModelStructure | None = None,
+                     zone_offsets: bool = False) -> list[np.ndarray]:
+    """What the thermocouples would read (N, 3) per experiment under fixed parameters, each
+    experiment's initial state (and with `zone_offsets` its offsets, which are included)
+    estimated from its own data: held-out records are scored this way, because the furnace's
+    starting temperatures and a new campaign's thermocouple biases are not the model's to
+    predict."""
+    structure = structure or ModelStructure()
+    values = {n: float(params[n]) for n in structure.names}
+    out = []
+    for exp in experiments:
+        prob = _Problem([exp], structure, values, {}, zone_offsets)
+        z, _, _, _ = prob.polish(prob.start(np.zeros(0)), None)
+        y = prob.predict(0, prob.values(np.zeros((1, 0))), prob.x0_of(z, 0)[None])[0]
+        out.append(y + prob.offsets_of(z, 0))
+    return out

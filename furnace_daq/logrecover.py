@@ -9,14 +9,17 @@ end is detected (its length runs past the end of the file) and dropped, never ha
 
 from __future__ import annotations
 
+import fcntl
 import os
 import struct
 import zlib
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
+from mcap.reader import make_reader
 from mcap.records import Channel, Footer, Header, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
@@ -175,3 +178,92 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
     times = [m.log_time for m in got.messages]
     return Recovered(path, target, len(got.messages), min(times), max(times), got.complete,
                      got.cut)
+
+
+# -- at daemon start ----------------------------------------------------------------------
+
+
+def lock_log_dir(log_dir: str | Path, prefix: str) -> int:
+    """Take the log directory for this writer (an exclusive `flock` held until the process
+    ends) and return the lock's descriptor. Recovery at start deletes `.part` files, which is
+    safe only when no other daemon is writing one: a second `furnace-daq run` on the same
+    directory and prefix is refused instead."""
+    lock = Path(log_dir) / f".{prefix}.lock"
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o640)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise DataError(str(lock), "another furnace-daq run is logging to this directory "
+                        "with this prefix") from None
+    return fd
+
+
+def recover_leftovers(log_dir: str | Path, prefix: str) -> list[str]:
+    """Turn every `<prefix>-*.mcap.part` a dead writer left in `log_dir` into a complete
+    `.recovered.mcap` (which retention then counts like any finished file) and delete the
+    `.part` once the copy is on disk and reads back whole. A `.part` with nothing in it (cut
+    before its first message) is deleted; one that is not MCAP at all is left where it is.
+    Returns one line per file for the journal. Interrupted at any point, it is redone at the
+    next start without loss: the `.part` goes only after its copy is complete."""
+    log_dir = Path(log_dir)
+    notes = []
+    for tmp in sorted(log_dir.glob(f"{prefix}-*.recovered.mcap.tmp")):
+        tmp.unlink(missing_ok=True)  # a copy cut short; its .part is still there
+    for part in sorted(log_dir.glob(f"{prefix}-*.mcap.part")):
+        notes.append(_recover_leftover(part))
+    if notes:
+        _fsync_dir(log_dir)
+    return notes
+
+
+def _recover_leftover(part: Path) -> str:
+    target = default_output(part)
+    try:
+        if target.exists() and has_footer(target):
+            saved = _count_messages(target)  # copied by an earlier start that died after it
+            note = f"{part.name}: recovered earlier to {target.name} ({saved} messages)"
+        else:
+            target.unlink(missing_ok=True)
+            try:
+                r = recover(part, target)
+            except DataError as exc:
+                if not _holds_nothing(part):
+                    return f"{part.name}: NOT recovered, left in place: {exc}"
+                part.unlink()
+                return f"{part.name}: deleted, the writer died before its first message"
+            saved = _count_messages(target)
+            if saved != r.messages:
+                return (f"{part.name}: NOT deleted: its copy {target.name} reads back "
+                        f"{saved} of {r.messages} messages")
+            note = (f"{part.name}: recovered {saved} messages from {_iso(r.start_ns)} to "
+                    f"{_iso(r.end_ns)} into {target.name} ({r.cut})")
+        part.unlink()
+        return note
+    except (OSError, McapError) as exc:
+        return f"{part.name}: NOT recovered, left in place: {exc}"
+
+
+def _holds_nothing(part: Path) -> bool:
+    try:
+        return not salvage(part).messages
+    except DataError as exc:  # empty, or cut inside the header: bytes of nothing
+        return str(exc).endswith(("empty file: not an MCAP log",
+                                  "truncated in the header: not a usable MCAP file"))
+
+
+def _count_messages(path: Path) -> int:
+    with path.open("rb") as f:
+        return sum(1 for _ in make_reader(f).iter_messages())
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _iso(ns: int) -> str:
+    return datetime.fromtimestamp(ns / 1e9, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")

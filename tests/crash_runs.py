@@ -1,0 +1,180 @@
+"""Kill the real daemon process at random moments and count what it lost: shared by
+tests/test_crash.py and bench/bench_reliability.py.
+
+The loss is judged against what the PLC served, not against a clock: a loopback proxy
+between the daemon and `sim-plc` counts every thermocouple read (Modbus FC4 response) it
+passes to the daemon, and the log must hold all but the polls of the last flush interval.
+A daemon starved of CPU polls less and loses no more, so a busy machine cannot fail this."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import random
+import select
+import signal
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+from daq_processes import ROOT, furnace_daq, stop
+
+from furnace_daq.logschema import THERMOCOUPLES
+from furnace_daq.mcaplog import read_messages
+
+PERIOD_S = 0.05
+FLUSH_S = 0.5
+THERMOCOUPLE_FC = 4
+
+
+class CountingProxy:
+    """Loopback TCP proxy that counts complete Modbus TCP responses of one function code
+    on their way from the PLC to the client. Runs its own event loop in a thread."""
+
+    def __init__(self, target_port: int, function_code: int = THERMOCOUPLE_FC):
+        self.target_port, self.fc = target_port, function_code
+        self.port = 0
+        self._count = 0
+        self._lock = threading.Lock()
+        self._loop = asyncio.new_event_loop()
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._server: asyncio.Server | None = None
+
+    def __enter__(self) -> CountingProxy:
+        self._thread.start()
+        if not self._ready.wait(10):
+            raise RuntimeError("proxy did not start")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(10)
+
+    def take(self) -> int:
+        """Responses counted since the last call."""
+        with self._lock:
+            n, self._count = self._count, 0
+        return n
+
+    def _run(self) -> None:
+        asyncio.set_event_loop(self._loop)
+        self._server = self._loop.run_until_complete(
+            asyncio.start_server(self._handle, "127.0.0.1", 0))
+        self.port = self._server.sockets[0].getsockname()[1]
+        self._ready.set()
+        self._loop.run_forever()
+        self._server.close()
+        for task in asyncio.all_tasks(self._loop):
+            task.cancel()
+        with contextlib.suppress(Exception):
+            self._loop.run_until_complete(asyncio.sleep(0))
+        self._loop.close()
+
+    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            up_r, up_w = await asyncio.open_connection("127.0.0.1", self.target_port)
+        except OSError:
+            writer.close()
+            return
+        await asyncio.gather(self._forward(reader, up_w), self._responses(up_r, writer),
+                             return_exceptions=True)
+        for w in (writer, up_w):
+            w.close()
+
+    @staticmethod
+    async def _forward(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+        with contextlib.suppress(OSError):
+            while data := await r.read(4096):
+                w.write(data)
+                await w.drain()
+        w.close()
+
+    async def _responses(self, r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+        with contextlib.suppress(OSError, asyncio.IncompleteReadError):
+            while True:
+                head = await r.readexactly(7)  # MBAP: transaction, protocol, length, unit
+                body = await r.readexactly(int.from_bytes(head[4:6], "big") - 1)
+                w.write(head + body)
+                await w.drain()
+                if body[0] == self.fc:
+                    with self._lock:
+                        self._count += 1
+        w.close()
+
+
+def daemon_config(directory: Path, flush_s: float = FLUSH_S, period_s: float = PERIOD_S) -> Path:
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["poll_period_s"] = period_s
+    doc["plc"]["timeout_s"] = 0.5
+    doc["plc"]["reconnect"] = {"initial_s": 0.1, "max_s": 0.5, "factor": 2.0}
+    doc["log"]["flush_interval_s"] = flush_s
+    path = directory / "daq.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def good_readings(files: list[Path]) -> int:
+    """Thermocouple messages read from the PLC (not comm errors) in these files, finished
+    or not."""
+    return sum(1 for _, m, _, _ in read_messages(sorted(files), [THERMOCOUPLES])
+               if m["quality"]["soak_1"] != "comm_error")
+
+
+@dataclass
+class Kill:
+    after_s: float  # from the process start
+    served: int  # thermocouple reads the PLC answered to this daemon
+    logged: int  # of them, readable from the files it left
+
+    @property
+    def lost(self) -> int:
+        return self.served - self.logged
+
+
+def kill_runs(log_dir: Path, proxy: CountingProxy, config: Path, n: int, seed: int,
+              max_after_s: float = 2.0) -> list[Kill]:
+    """Start `furnace-daq run` n times on one log directory and SIGKILL it at a random moment
+    (one in five during start-up, the others up to `max_after_s` into polling). Each start recovers the `.part`
+    the previous kill left; the last kill's `.part` stays for the caller."""
+    rng = random.Random(seed)
+    kills = []
+    for _ in range(n):
+        before = set(log_dir.iterdir())
+        proc = furnace_daq("run", "--config", str(config), "--plc", f"127.0.0.1:{proxy.port}",
+                           "--log-dir", str(log_dir))
+        t_start = time.monotonic()
+        if rng.random() < 0.2:  # during start-up: imports, recovery of the last kill's file
+            time.sleep(rng.uniform(0.0, 1.0))
+        else:
+            wait_polling(proc)
+            time.sleep(rng.uniform(0.05, max_after_s))
+        after_s = time.monotonic() - t_start
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+        stop(proc)
+        time.sleep(0.05)  # the proxy sees the connection close
+        served = proxy.take()
+        new = [p for p in set(log_dir.iterdir()) - before if p.name.endswith((".part", ".mcap"))
+               and ".recovered." not in p.name]
+        kills.append(Kill(after_s, served, good_readings(new) if new else 0))
+    return kills
+
+
+def wait_polling(proc, timeout: float = 30.0) -> None:
+    """Until the daemon says it polls (its log and recovery are set up by then)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stderr], [], [], 0.2)
+        if ready:
+            line = proc.stderr.readline()
+            if line.startswith("polling ") or not line:
+                return
+    raise RuntimeError("furnace-daq run did not start polling")
+
+
+def max_loss_polls(flush_s: float = FLUSH_S, period_s: float = PERIOD_S) -> int:
+    """Polls one flush interval can hold, plus the poll in flight and the one being written."""
+    return int(flush_s / period_s) + 2

@@ -34,6 +34,8 @@ class Sample:
     heartbeat: float | None = None
     burners: dict[str, list[bool]] | None = None
     burner_quality: str = OK
+    errors: list[str] = field(default_factory=list)
+    """Blocks the PLC refused in this read (their points are comm_error)."""
 
 
 class Source(ABC):
@@ -106,20 +108,28 @@ class ModbusSource(Source):
         methods = {"input": client.read_input_registers, "holding": client.read_holding_registers,
                    "discrete": client.read_discrete_inputs, "coil": client.read_coils}
         device_id = self.config.plc.device_id
+        refused: list[str] = []
         for req in self.requests:
             try:
                 rr = await methods[req.table](req.address, count=req.count, device_id=device_id)
             except ModbusException as exc:
                 raise SourceError(f"{req.table} {req.address}+{req.count}: {exc}") from None
             if rr.isError():
-                raise SourceError(f"{req.table} {req.address}+{req.count}: Modbus exception "
-                                  f"code {getattr(rr, 'exception_code', '?')}")
+                # The PLC answered, refusing one block: the link is fine and the other
+                # blocks stay good; this block's points decode as comm_error.
+                refused.append(f"{req.table} {req.address}+{req.count}: Modbus exception "
+                               f"code {getattr(rr, 'exception_code', '?')}")
+                continue
             values = rr.bits if req.table in ("discrete", "coil") else rr.registers
             if len(values) < req.count:
                 raise SourceError(f"{req.table} {req.address}+{req.count}: short response "
                                   f"({len(values)} values)")
             image.put(req, values)
-        return self.decode(image)
+        if refused and len(refused) == len(self.requests):
+            raise SourceError("; ".join(refused))
+        sample = self.decode(image)
+        sample.errors = refused
+        return sample
 
     def decode(self, image: Image) -> Sample:
         """Engineering values and qualities from one scan's words and bits."""
@@ -144,6 +154,7 @@ class ModbusSource(Source):
             for bits in cfg.burner_bits:
                 got = image.words(bits)
                 if got is None:
+                    sample.burner_quality = COMM_ERROR
                     break
                 burners[bits.name] = bits.states([bool(b) for b in got])
             else:

@@ -1,13 +1,28 @@
-"""Starting and stopping the real `furnace-daq` processes from tests."""
+"""Starting and stopping the real `furnace-daq` pieces from tests: the CLI processes, and
+the daemon and simulated PLC inside the test's own event loop (fast, on loopback)."""
 
 from __future__ import annotations
 
+import asyncio
 import os
 import select
+import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
+import yaml
+
+from furnace_daq.daemon import Daemon
+from furnace_daq.daqconfig import DaqConfig, parse_config
+from furnace_daq.mcaplog import LogWriter, read_messages
+from furnace_daq.simplc import SimPLC
+from furnace_daq.sources import ModbusSource
+from furnace_model.config import Node
+from furnace_model.plant import Plant
+from furnace_model.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"
@@ -50,3 +65,48 @@ def stop(proc: subprocess.Popen, timeout: float = 10.0) -> int:
         if stream:
             stream.close()
     return proc.returncode
+
+
+# -- in-process daemon and simulated PLC ----------------------------------------------------
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def config(port: int, **changes) -> DaqConfig:
+    """The shipped gateway map, sped up: 20 Hz polls, 0.2 s timeout, backoff capped at 0.4 s."""
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["poll_period_s"] = 0.05
+    doc["stale_after_s"] = 0.5
+    doc["plc"].update(host="127.0.0.1", port=port, timeout_s=0.2, max_consecutive_errors=2,
+                      reconnect={"initial_s": 0.1, "max_s": 0.4, "factor": 2.0})
+    doc.update(changes)
+    return parse_config(Node(doc, "test.yaml"))
+
+
+def start_daemon(cfg: DaqConfig, log_dir: Path, duration: float, **kw) -> tuple[Daemon, asyncio.Task]:
+    daemon = Daemon(cfg, LogWriter(log_dir, flush_interval_s=0.5), plc=ModbusSource(cfg), **kw)
+    return daemon, asyncio.create_task(daemon.run(duration))
+
+
+def messages(log_dir: Path) -> list[tuple[str, dict, int]]:
+    """(topic, message, log_time_ns) of every file in `log_dir`, in log-time order."""
+    return [(t, m, lt) for t, m, lt, _ in read_messages(sorted(log_dir.glob("*.mcap")))]
+
+
+async def sim(port: int, **kw) -> SimPLC:
+    """The noise-free test plant at 600x, scanned every 0.05 s."""
+    plc = SimPLC(load_scenario(SCENARIO), speed=600, port=port, scan_s=0.05, **kw)
+    await plc.start()
+    return plc
+
+
+def plant_readings(plc_seconds) -> np.ndarray:
+    """What the noise-free test plant's six thermocouple registers hold at each PLC second,
+    in degC (0.1 degC counts), so a test can check every logged value."""
+    scenario = load_scenario(SCENARIO)
+    seconds, back = np.unique(np.asarray(plc_seconds, dtype=float), return_inverse=True)
+    run = Plant.from_scenario(scenario).run(scenario.inputs(), seconds / 60.0, scenario.initial_c)
+    return (np.round(run.tc * 10) / 10)[back]

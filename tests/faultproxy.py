@@ -35,7 +35,8 @@ import random
 import socket
 import struct
 import threading
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass, field, replace
 
 MODES = ("pass", "drop", "refuse", "stall", "delay", "truncate", "reset", "garbage")
 READ_FUNCTION_CODES = frozenset({1, 2, 3, 4})
@@ -51,6 +52,8 @@ class Frame:
     unit: int
     pdu: bytes
     raw: bytes
+    at: float = 0.0
+    """Monotonic time it reached the proxy (a response: when it was forwarded)."""
 
     @property
     def function_code(self) -> int:
@@ -90,7 +93,7 @@ async def _read_frame(reader: asyncio.StreamReader, conn: int) -> Frame | None:
         body = await reader.readexactly(max(length - 1, 0))
     except (asyncio.IncompleteReadError, ConnectionError, OSError):
         return None
-    return Frame(conn, tid, unit, body, head + body)
+    return Frame(conn, tid, unit, body, head + body, time.monotonic())
 
 
 def _reset(writer: asyncio.StreamWriter) -> None:
@@ -166,11 +169,14 @@ class FaultProxy:
         """Every function code a client sent, in any mode."""
         return {f.function_code for f in self.requests}
 
-    def answered_registers(self, function_code: int = 4, address: int = 0) -> list[list[int]]:
-        """The words of each intact response to a register read starting at `address`."""
+    def answered_registers(self, function_code: int = 4, address: int = 0,
+                           within_s: float = float("inf")) -> list[list[int]]:
+        """The words of each intact response to a register read starting at `address` that
+        was forwarded within `within_s` of its request (a later one the client gave up on)."""
         return [resp.registers for req, resp in self.answered
                 if req.function_code == function_code and req.address_count is not None
-                and req.address_count[0] == address and resp.function_code == function_code]
+                and req.address_count[0] == address and resp.function_code == function_code
+                and resp.at - req.at <= within_s]
 
     # -- internals ----------------------------------------------------------------------------
     async def _listen(self) -> None:
@@ -277,7 +283,7 @@ class FaultProxy:
             else:
                 conn.client.write(frame.raw)
                 self.counts["forwarded"] += 1
-                self.answered.append((request, frame))
+                self.answered.append((request, replace(frame, at=time.monotonic())))
             await conn.client.drain()
 
 

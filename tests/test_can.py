@@ -7,8 +7,7 @@ import asyncio
 import uuid
 
 import can
-from daq_processes import SCENARIO
-from test_daemon_faults import config, messages, sim, start_daemon
+from daq_processes import SCENARIO, config, messages, sim, start_daemon
 
 from furnace_daq.logschema import BURNERS, DAQ_EVENTS
 from furnace_daq.simplc import SimPLC, flame_frame

@@ -7,8 +7,7 @@ import signal
 import socket
 import time
 
-from daq_processes import ROOT, furnace_daq
-from test_daemon_faults import free_port
+from daq_processes import ROOT, free_port, furnace_daq
 
 from furnace_daq.logschema import DAQ_STATUS
 from furnace_daq.mcaplog import read_messages

@@ -78,6 +78,25 @@ class LogConfig:
 
 
 @dataclass(frozen=True)
+class RefitConfig:
+    """Online identification on a sliding window of the data clock (docs/operations.md).
+
+    Windows are cut on the PLC clock (publish time), never the host clock, so a replay of the
+    log gives the same windows as the live daemon."""
+
+    period_s: float = 900.0
+    window_s: float = 86400.0
+    step_s: float = 60.0
+    budget_s: float = 30.0
+    max_gap_fraction: float = 0.2
+    min_burner_steps: int = 1
+    drift_windows: int = 2
+    drift_min_change: float = 0.03
+    queue_max: int = 4
+    state_dir: Path = Path("state")
+
+
+@dataclass(frozen=True)
 class DaqConfig:
     plc: PlcConfig
     poll_period_s: float
@@ -94,6 +113,8 @@ class DaqConfig:
     status_interval_s: float
     log: LogConfig
     file: str = ""
+    refit: RefitConfig | None = None
+    """None when online identification is off (no `refit:` section or `enabled: false`)."""
 
     def modbus_items(self) -> list[Point | BitRange]:
         """Everything read over Modbus, in the order of the config file."""
@@ -174,6 +195,34 @@ def _log(node: Node) -> LogConfig:
         file_mode=file_mode)
 
 
+def _refit(node: Node) -> RefitConfig | None:
+    node.mapping({"enabled", "period_s", "window_s", "step_s", "budget_s", "max_gap_fraction",
+                  "min_burner_steps", "drift_windows", "drift_min_change", "queue_max",
+                  "state_dir"})
+    if not node.get_bool("enabled", True):
+        return None
+    step = node.get_number("step_s", 60.0, lo=0.001, hi=86400.0)
+    period = node.get_number("period_s", 900.0, lo=step, hi=86400.0 * 365)
+    window = node.get_number("window_s", 86400.0, lo=step, hi=86400.0 * 365)
+    for key, value in (("period_s", period), ("window_s", window)):
+        if abs(value / step - round(value / step)) > 1e-9:
+            raise node.child(key).error(f"must be a whole multiple of step_s ({step:g} s): "
+                                        "windows are cut on the resampling grid")
+    if window / step < 10:
+        raise node.child("window_s").error(f"holds only {window / step:g} samples of "
+                                           f"step_s; at least 10 are needed to fit")
+    default_dir = os.environ.get("STATE_DIRECTORY", "state").split(":")[0]
+    return RefitConfig(
+        period_s=period, window_s=window, step_s=step,
+        budget_s=node.get_number("budget_s", 30.0, lo=0.01, hi=86400.0),
+        max_gap_fraction=node.get_number("max_gap_fraction", 0.2, lo=0.0, hi=1.0),
+        min_burner_steps=node.get_integer("min_burner_steps", 1, lo=0, hi=100000),
+        drift_windows=node.get_integer("drift_windows", 2, lo=1, hi=1000),
+        drift_min_change=node.get_number("drift_min_change", 0.03, lo=0.0, hi=10.0),
+        queue_max=node.get_integer("queue_max", 4, lo=1, hi=10000),
+        state_dir=Path(node.get_string("state_dir", default_dir)))
+
+
 def load_config(path: str | Path) -> DaqConfig:
     """Read and check a daemon config; every error names the file and key path."""
     return parse_config(load_yaml(path))
@@ -181,7 +230,8 @@ def load_config(path: str | Path) -> DaqConfig:
 
 def parse_config(root: Node) -> DaqConfig:
     root.mapping({"plc", "poll_period_s", "thermocouples", "ambient", "ambient_default_c",
-                  "clock", "heartbeat", "stale_after_s", "burners", "status_interval_s", "log"})
+                  "clock", "heartbeat", "stale_after_s", "burners", "status_interval_s", "log",
+                  "refit"})
 
     plc_node = root.child("plc", {}).mapping(
         {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
@@ -231,7 +281,8 @@ def parse_config(root: Node) -> DaqConfig:
         burner_source=source, burner_bits=bits, can=can,
         disagreement_polls=bn.get_integer("disagreement_polls", 2, lo=1, hi=10000),
         status_interval_s=root.get_number("status_interval_s", 10.0, lo=0.1, hi=86400.0),
-        log=_log(root.child("log", {})), file=root.file)
+        log=_log(root.child("log", {})), file=root.file,
+        refit=_refit(root.child("refit")) if root.has("refit") else None)
     _check_overlaps(root, config)
     return config
 

@@ -32,6 +32,129 @@ from .logschema import AMBIENT, BURNERS, THERMOCOUPLES
 from .mcaplog import read_messages
 
 
+class Resampler:
+    """The binning of the module docstring, fed one message at a time: `logs export` feeds it
+    a whole log, the online refit and replay feed it as data arrive and cut windows out of
+    it. One implementation, so an exported table and a refit window agree bin for bin.
+
+    Messages are buffered as plain lists and binned in one vectorised pass when a table is
+    asked for; `forget` drops what no later window can need, so a daemon running for months
+    holds one window of bins."""
+
+    def __init__(self, step_ns: int, origin_ns: int = 0):
+        self.step_ns = int(step_ns)
+        self.origin_ns = int(origin_ns)
+        self._tc_t: list[int] = []
+        self._tc_v: list[list[float]] = []
+        self._air_t: list[int] = []
+        self._air_v: list[float] = []
+        self._seen_t: list[int] = []  # burner messages: they mark their bin as logged
+        # per bin: sums and counts of the 6 thermocouples and t_air, and whether logged
+        self._bins = np.zeros(0, dtype=np.int64)
+        self._sum = np.zeros((0, 7))
+        self._cnt = np.zeros((0, 7))
+        # burner changes (time, counts) per source; unchanged repeats are not kept
+        self._burners: dict[bool, tuple[list[int], list[tuple[float, float, float]]]] = {
+            True: ([], []), False: ([], [])}
+        self._unsorted = False
+
+    def add(self, topic: str, msg: dict, pub_ns: int) -> None:
+        if topic == THERMOCOUPLES:
+            quality = msg.get("quality") or {}
+            self._tc_t.append(pub_ns)
+            self._tc_v.append([_number(msg.get(s)) if quality.get(s) == "ok" else math.nan
+                               for s in SENSORS])
+        elif topic == BURNERS:
+            counts = tuple(_counts(msg))
+            times, states = self._burners[msg.get("source") == "modbus"]
+            self._seen_t.append(pub_ns)
+            if times and pub_ns >= times[-1]:
+                if states[-1] == counts:
+                    return
+            elif times:
+                self._unsorted = True
+            times.append(pub_ns)
+            states.append(counts)
+        elif topic == AMBIENT:
+            self._air_t.append(pub_ns)
+            self._air_v.append(_number(msg.get("t_air"))
+                               if msg.get("quality", "ok") == "ok" else math.nan)
+
+    def _consolidate(self) -> None:
+        if not (self._tc_t or self._air_t or self._seen_t):
+            return
+        n_tc, n_air = len(self._tc_t), len(self._air_t)
+        values = np.full((n_tc + n_air + len(self._seen_t), 7), np.nan)
+        values[:n_tc, :6] = np.asarray(self._tc_v, dtype=float).reshape(-1, 6)
+        values[n_tc:n_tc + n_air, 6] = self._air_v
+        t = np.asarray(self._tc_t + self._air_t + self._seen_t, dtype=np.int64)
+        good = np.isfinite(values)
+        keys = np.concatenate([self._bins, (t - self.origin_ns) // self.step_ns])
+        sums = np.concatenate([self._sum, np.where(good, values, 0.0)])
+        counts = np.concatenate([self._cnt, good.astype(float)])
+        bins, pos = np.unique(keys, return_inverse=True)
+        self._bins = bins
+        self._sum = np.zeros((bins.size, 7))
+        self._cnt = np.zeros((bins.size, 7))
+        np.add.at(self._sum, pos, sums)
+        np.add.at(self._cnt, pos, counts)
+        for buf in (self._tc_t, self._tc_v, self._air_t, self._air_v, self._seen_t):
+            buf.clear()
+
+    def _burner_timeline(self) -> tuple[np.ndarray, np.ndarray]:
+        times, states = self._burners[True] if self._burners[True][0] else self._burners[False]
+        bt = np.asarray(times, dtype=np.int64)
+        bc = np.asarray(states, dtype=float).reshape(-1, 3)
+        if self._unsorted:
+            order = np.argsort(bt, kind="stable")
+            bt, bc = bt[order], bc[order]
+        return bt, bc
+
+    def table(self, lo_ns: int | None = None, hi_ns: int | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(bin start times ns, thermocouple means (n, 6), burner counts (n, 3), t_air (n,))
+        for the logged bins whose start lies in [lo_ns, hi_ns) and whose burner state is known.
+        """
+        self._consolidate()
+        m = self._in_range(lo_ns, hi_ns)
+        starts = self.origin_ns + self._bins[m] * self.step_ns
+        total, count = self._sum[m], self._cnt[m]
+        bt, bc = self._burner_timeline()
+        last = np.searchsorted(bt, starts + self.step_ns, side="left") - 1
+        known = last >= 0
+        starts, total, count, last = starts[known], total[known], count[known], last[known]
+        means = np.full(total.shape, np.nan)
+        np.divide(total, count, out=means, where=count > 0)
+        return starts, means[:, :6], bc[last].astype(int), means[:, 6]
+
+    def logged_bins(self, lo_ns: int | None = None, hi_ns: int | None = None) -> int:
+        """How many bins in [lo_ns, hi_ns) hold any message, burner state known or not."""
+        self._consolidate()
+        return int(np.count_nonzero(self._in_range(lo_ns, hi_ns)))
+
+    def _in_range(self, lo_ns: int | None, hi_ns: int | None) -> np.ndarray:
+        starts = self.origin_ns + self._bins * self.step_ns
+        m = np.ones(starts.size, dtype=bool)
+        if lo_ns is not None:
+            m &= starts >= lo_ns
+        if hi_ns is not None:
+            m &= starts < hi_ns
+        return m
+
+    def forget(self, before_ns: int) -> None:
+        """Drop the bins that start before `before_ns`, keeping the burner state in force."""
+        self._consolidate()
+        keep = self.origin_ns + self._bins * self.step_ns >= before_ns
+        self._bins, self._sum, self._cnt = self._bins[keep], self._sum[keep], self._cnt[keep]
+        for times, states in self._burners.values():
+            if self._unsorted or not times:
+                continue
+            cut = int(np.searchsorted(np.asarray(times, dtype=np.int64), before_ns, "left")) - 1
+            if cut > 0:
+                del times[:cut]
+                del states[:cut]
+
+
 def export_frame(paths: Iterable[str | Path], period_s: float = 60.0,
                  start: pd.Timestamp | None = None, end: pd.Timestamp | None = None
                  ) -> pd.DataFrame:
@@ -42,81 +165,32 @@ def export_frame(paths: Iterable[str | Path], period_s: float = 60.0,
     period_ns = int(round(period_s * 1e9))
     lo = None if start is None else start.value
     hi = None if end is None else end.value
-    origin = lo if lo is not None else 0
-
-    tc_bins, tc_vals = [], []
-    air_bins, air_vals = [], []
-    burner_t, burner_counts, burner_plc = [], [], []
-    seen_bins: set[int] = set()
+    binner = Resampler(period_ns, lo if lo is not None else 0)
     for topic, msg, _log_ns, pub_ns in read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT)):
-        inside = (lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)
-        b = (pub_ns - origin) // period_ns
-        if topic == BURNERS:
-            burner_t.append(pub_ns)
-            burner_counts.append(_counts(msg))
-            burner_plc.append(msg.get("source") == "modbus")
-        elif topic == THERMOCOUPLES and inside:
-            tc_bins.append(b)
-            tc_vals.append(_good_readings(msg))
-        elif topic == AMBIENT and inside:
-            air_bins.append(b)
-            air_vals.append(_number(msg.get("t_air"))
-                            if msg.get("quality", "ok") == "ok" else math.nan)
-        if inside:
-            seen_bins.add(b)
-    if not seen_bins:
-        raise DataError(", ".join(map(str, paths)),
-                        "no furnace data (thermocouples, burners, ambient) in the chosen time range")
+        if topic == BURNERS or ((lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)):
+            binner.add(topic, msg, pub_ns)
+    where = ", ".join(map(str, paths))
+    starts, tc, burners, air = binner.table(lo, hi)
+    if starts.size == 0:
+        if binner.logged_bins(lo, hi) == 0:
+            raise DataError(where, "no furnace data (thermocouples, burners, ambient) in the "
+                                   "chosen time range")
+        raise DataError(where, "no burner state logged on /furnace/burners up to the chosen "
+                               "range")
+    return table_frame(starts, tc, burners, air)
 
-    bins = np.array(sorted(seen_bins), dtype=np.int64)
-    bin_end = origin + (bins + 1) * period_ns
-    bt = np.asarray(burner_t, dtype=np.int64)
-    bc = np.asarray(burner_counts, dtype=float).reshape(-1, 3)
-    plc = np.asarray(burner_plc, dtype=bool)
-    if plc.any():  # one source of truth per poll
-        bt, bc = bt[plc], bc[plc]
-    order = np.argsort(bt, kind="stable")
-    bt, bc = bt[order], bc[order]
-    last = np.searchsorted(bt, bin_end, side="left") - 1  # last state strictly before the end
-    known = last >= 0
-    if not known.any():
-        raise DataError(", ".join(map(str, paths)),
-                        "no burner state logged on /furnace/burners up to the chosen range")
-    bins, last = bins[known], last[known]
 
-    tc = _bin_means(np.asarray(tc_bins, dtype=np.int64), np.asarray(tc_vals).reshape(-1, 6), bins)
-    air = _bin_means(np.asarray(air_bins, dtype=np.int64),
-                     np.asarray(air_vals, dtype=float).reshape(-1, 1), bins)[:, 0]
-    stamps = pd.to_datetime(origin + bins * period_ns, unit="ns", utc=True)
+def table_frame(starts: np.ndarray, tc: np.ndarray, burners: np.ndarray,
+                air: np.ndarray) -> pd.DataFrame:
+    """Resampled arrays as the tabular contract (CONTRACTS.md section 1)."""
+    stamps = pd.to_datetime(starts, unit="ns", utc=True)
     frame = pd.DataFrame({"timestamp": stamps.strftime("%Y-%m-%dT%H:%M:%S.%f").str[:-3] + "Z"})
     for j, c in enumerate(TC_COLUMNS):
         frame[c] = tc[:, j]
     for j, c in enumerate(BURNER_COLUMNS):
-        frame[c] = bc[last, j].astype(int)
+        frame[c] = burners[:, j].astype(int)
     frame["t_air"] = air
     return frame
-
-
-def _bin_means(keys: np.ndarray, values: np.ndarray, bins: np.ndarray) -> np.ndarray:
-    """Mean of the finite values per bin, NaN for a bin with none."""
-    out = np.full((bins.size, values.shape[1]), np.nan)
-    if keys.size == 0:
-        return out
-    pos = np.searchsorted(bins, keys)
-    hit = (pos < bins.size) & (bins[np.minimum(pos, bins.size - 1)] == keys)
-    pos, values = pos[hit], values[hit]
-    good = np.isfinite(values)
-    total = np.zeros_like(out)
-    count = np.zeros_like(out)
-    np.add.at(total, pos, np.where(good, values, 0.0))
-    np.add.at(count, pos, good)
-    np.divide(total, count, out=out, where=count > 0)
-    return out
-
-
-def _good_readings(msg: dict) -> list[float]:
-    quality = msg.get("quality") or {}
-    return [_number(msg.get(s)) if quality.get(s) == "ok" else math.nan for s in SENSORS]
 
 
 def _counts(msg: dict) -> list[float]:

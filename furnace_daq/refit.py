@@ -1,0 +1,298 @@
+"""Online identification as a pure pipeline: windows cut on the data clock, one warm-started
+fit per window, the /model/parameters message and any /model/events (drift).
+
+Why a chain. Window k is fitted starting from the result of window k-1, so the result of a
+window depends only on the data and on the windows before it, never on when the host got
+round to fitting it. The live daemon and `furnace-daq replay` each hold one `RefitChain` and
+push the same windows through it in the same order: the same log gives the same timeline.
+No I/O here; the worker process (refitworker) runs `run_fit`, the daemon and replay move
+messages.
+
+Windows. A refit is due at every multiple of `period_s` of the PLC clock (publish time,
+aligned to the Unix epoch); its window is the `window_s` of data before that instant,
+resampled to `step_s` exactly as `logs export` does (logexport.Resampler).
+
+Drift. Each parameter has a reference: its value and 95% interval in the first model fitted,
+or at its last drift event. A window's value moves away from the reference when (1) it lies
+outside the reference interval, (2) the distance on the log scale exceeds the two intervals'
+half-widths combined in quadrature (overlapping noisy windows scatter within that), and (3) the
+relative change is at least `drift_min_change` (3 %: smaller changes are not worth an alarm
+even when the data resolve them). `drift_windows` successive fitted windows moving away in the
+same direction raise one drift event, and the new value becomes the reference.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from furnace_model import ZONES
+from furnace_model.experiment import Experiment
+from furnace_model.fit import fit
+
+from .daqconfig import RefitConfig
+from .logexport import Resampler
+from .logschema import PARAM_NAMES
+from .mcaplog import iso_time
+
+FITTING_SEED = 0
+"""Seed of the first (cold) fit's search: fixed, so that replay repeats it exactly."""
+
+
+@dataclass
+class Window:
+    """One refit window: [start_ns, end_ns) on the data clock and the data it holds."""
+
+    start_ns: int
+    end_ns: int
+    experiment: Experiment | None
+    expected_bins: int
+    complete_bins: int
+    burner_steps: int
+
+    @property
+    def gap_fraction(self) -> float:
+        return 1.0 - self.complete_bins / self.expected_bins if self.expected_bins else 1.0
+
+
+def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
+               t_air_default: float, name: str = "window") -> Window:
+    """The window's resampled rows as an Experiment (None when no row has a burner state)."""
+    starts, tc, burners, air = resampler.table(start_ns, end_ns)
+    expected = int(round((end_ns - start_ns) / step_ns))
+    if starts.size == 0:
+        return Window(start_ns, end_ns, None, expected, 0, 0)
+    # As logs export -> load: a missing ambient holds the last reading, the default before any.
+    air = pd.Series(air).ffill().fillna(t_air_default).to_numpy()
+    t0 = int(starts[0])
+    exp = Experiment(name, (starts - t0) / 60e9, tc, burners, air,
+                     pd.Timestamp(t0, unit="ns", tz="UTC"), name)
+    complete = int(np.all(np.isfinite(exp.zone_temp), axis=1).sum())
+    return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps)
+
+
+@dataclass(frozen=True)
+class FitJob:
+    """What the worker process needs for one fit: picklable, no state of the chain."""
+
+    experiment: Experiment
+    init: dict[str, float] | None
+    budget_s: float
+
+
+def run_fit(job: FitJob) -> dict:
+    """One window's fit as a plain dict (the worker sends it back through a pipe). A fit that
+    runs out of its time budget has status `failed`: a truncated search depends on the
+    host's speed, and a result that depends on the host is not one to keep."""
+    t0 = time.perf_counter()
+    res = fit([job.experiment], init=job.init, seed=FITTING_SEED, zone_offsets=True,
+              time_budget_s=job.budget_s)
+    over = any(w.startswith("time budget") for w in res.warnings)
+    return {
+        "status": "failed" if over else "ok",
+        "detail": "; ".join(res.warnings),
+        "params": dict(res.params),
+        "ci95": {k: [float(v[0]), float(v[1])] for k, v in res.ci95.items()},
+        "rmse_c": {z: float(res.per_zone[z]["rmse_c"]) for z in ZONES},
+        "combinations": res.combinations,
+        "determined_combinations": list(res.determined_combinations),
+        "undetermined": list(res.undetermined),
+        "zone_offsets_c": (res.zone_offsets_c or [None])[0],
+        "sigma_c": float(res.sigma_c),
+        "elapsed_s": time.perf_counter() - t0,
+    }
+
+
+@dataclass
+class _Reference:
+    value: float
+    ci95: tuple[float, float]
+    window_end: str
+    streak: int = 0
+    direction: int = 0
+
+
+@dataclass
+class RefitChain:
+    """The sequence of models: the current one, what each parameter is compared with for
+    drift, and the messages every window produces. See the module docstring."""
+
+    config: RefitConfig
+    t_air_default: float = 30.0
+    model: dict | None = None
+    """The model in force: the last window fitted with status ok (its message)."""
+    references: dict[str, _Reference] = field(default_factory=dict)
+
+    def check(self, window: Window) -> str | None:
+        """Why the window cannot identify the model, or None when it can be fitted."""
+        cfg = self.config
+        if window.experiment is None or len(window.experiment) < 10:
+            n = 0 if window.experiment is None else len(window.experiment)
+            return f"too short: {n} samples of {cfg.step_s:g} s with a burner state in the window"
+        if window.gap_fraction > cfg.max_gap_fraction:
+            return (f"{100 * window.gap_fraction:.1f}% of the window's {window.expected_bins} "
+                    f"samples are missing or lack a zone (limit "
+                    f"{100 * cfg.max_gap_fraction:g}%)")
+        if window.burner_steps < cfg.min_burner_steps:
+            return (f"{window.burner_steps} burner change(s) in the window (at least "
+                    f"{cfg.min_burner_steps} needed)")
+        return None
+
+    def job(self, window: Window) -> FitJob:
+        assert window.experiment is not None
+        init = None if self.model is None else {p: self.model[p] for p in PARAM_NAMES}
+        return FitJob(window.experiment, init, self.config.budget_s)
+
+    def process(self, window: Window, fitter: Callable[[FitJob], dict] = run_fit
+                ) -> tuple[dict, list[dict]]:
+        """Check, fit in this process, accept: replay without a worker, and the tests."""
+        reason = self.check(window)
+        if reason is not None:
+            return self.kept(window, "insufficient_excitation", reason), []
+        try:
+            outcome = fitter(self.job(window))
+        except Exception as exc:  # noqa: BLE001 - any failure of a fit is a failed refit
+            return self.kept(window, "failed", f"fit raised {type(exc).__name__}: {exc}"), []
+        return self.accept(window, outcome)
+
+    # -- messages --------------------------------------------------------------------------
+
+    def _base(self, window: Window, status: str, detail: str) -> dict:
+        exp = window.experiment
+        return {"status": status, "detail": detail,
+                "window_start": iso_time(window.start_ns), "window_end": iso_time(window.end_ns),
+                "n_samples": 0 if exp is None else len(exp),
+                "gap_fraction": round(window.gap_fraction, 6),
+                "burner_steps": window.burner_steps}
+
+    def kept(self, window: Window, status: str, detail: str) -> dict:
+        """The message of a window that did not change the model: the model in force (or
+        nulls before the first), with the reason."""
+        msg = self._base(window, status, detail)
+        m = self.model
+        for p in PARAM_NAMES:
+            msg[p] = None if m is None else m[p]
+        msg["ci95"] = {} if m is None else m["ci95"]
+        msg["rmse_c"] = {} if m is None else m["rmse_c"]
+        if m is not None:
+            msg["model_window_start"] = m["window_start"]
+            msg["model_window_end"] = m["window_end"]
+            msg["determined_combinations"] = m["determined_combinations"]
+            msg["combinations"] = m["combinations"]
+        return msg
+
+    def accept(self, window: Window, outcome: dict) -> tuple[dict, list[dict]]:
+        """The worker's outcome for `window` -> (the /model/parameters message, events)."""
+        if outcome.get("status") != "ok" or not _finite(outcome):
+            detail = outcome.get("detail") or "the fit returned non-finite values"
+            msg = self.kept(window, "failed", detail)
+            msg["elapsed_s"] = outcome.get("elapsed_s")
+            return msg, []
+        msg = self._base(window, "ok", outcome["detail"])
+        msg.update({p: outcome["params"][p] for p in PARAM_NAMES})
+        msg.update({k: outcome[k] for k in ("ci95", "rmse_c", "combinations",
+                                            "determined_combinations", "undetermined",
+                                            "zone_offsets_c", "sigma_c", "elapsed_s")})
+        msg["model_window_start"] = msg["window_start"]
+        msg["model_window_end"] = msg["window_end"]
+        events = self._drift(msg)
+        self.model = msg
+        return msg, events
+
+    def _drift(self, msg: dict) -> list[dict]:
+        cfg = self.config
+        events = []
+        for p in PARAM_NAMES:
+            new, (lo, hi) = float(msg[p]), msg["ci95"][p]
+            ref = self.references.get(p)
+            if ref is None:
+                self.references[p] = _Reference(new, (lo, hi), msg["window_end"])
+                continue
+            direction = _moved(ref, new, (lo, hi), cfg.drift_min_change)
+            if direction == 0 or direction != ref.direction:
+                ref.streak = 0
+            ref.direction = direction
+            if direction == 0:
+                continue
+            ref.streak += 1
+            if ref.streak < cfg.drift_windows:
+                continue
+            change = new / ref.value - 1.0
+            events.append({
+                "kind": "drift", "parameter": p,
+                "detail": (f"{p} {'rose' if change > 0 else 'fell'} {100 * abs(change):.1f}% "
+                           f"from {ref.value:.6g} [{ref.ci95[0]:.6g}, {ref.ci95[1]:.6g}] "
+                           f"(window to {ref.window_end}) to {new:.6g} [{lo:.6g}, {hi:.6g}] "
+                           f"over {ref.streak} windows"),
+                "old": ref.value, "old_ci95": list(ref.ci95), "old_window_end": ref.window_end,
+                "new": new, "new_ci95": [lo, hi], "relative_change": change,
+                "windows": ref.streak, "window_start": msg["window_start"],
+                "window_end": msg["window_end"], "parameters": {p: new}})
+            self.references[p] = _Reference(new, (lo, hi), msg["window_end"])
+        return events
+
+
+def _moved(ref: _Reference, new: float, ci: tuple[float, float], min_change: float) -> int:
+    """+1 / -1 when `new` has moved significantly up / down from the reference, else 0."""
+    if ref.ci95[0] <= new <= ref.ci95[1] or abs(new / ref.value - 1.0) < min_change:
+        return 0
+    half_ref = 0.5 * (math.log(ref.ci95[1]) - math.log(ref.ci95[0]))
+    half_new = 0.5 * (math.log(ci[1]) - math.log(ci[0]))
+    distance = math.log(new) - math.log(ref.value)
+    if abs(distance) <= math.hypot(half_ref, half_new):
+        return 0
+    return 1 if distance > 0 else -1
+
+
+def _finite(outcome: dict) -> bool:
+    values = [outcome["params"][p] for p in PARAM_NAMES]
+    values += [v for p in PARAM_NAMES for v in outcome["ci95"][p]]
+    return all(isinstance(v, float | int) and math.isfinite(v) and v > 0 for v in values)
+
+
+@dataclass
+class WindowCutter:
+    """Feeds messages into a resampler and says when a refit is due on the data clock.
+
+    `feed` returns the windows that became due before the message (normally none, one at a
+    period boundary). Messages must come in data-clock order, as the daemon logs them; a
+    message that arrives late (publish time behind the last due instant) still enters the
+    bins but no window already cut sees it."""
+
+    config: RefitConfig
+    t_air_default: float = 30.0
+    resampler: Resampler = field(init=False)
+    next_due_ns: int | None = None
+    _last_ns: int | None = None
+
+    def __post_init__(self) -> None:
+        self.step_ns = int(round(self.config.step_s * 1e9))
+        self.period_ns = int(round(self.config.period_s * 1e9))
+        self.window_ns = int(round(self.config.window_s * 1e9))
+        self.resampler = Resampler(self.step_ns, 0)
+
+    def feed(self, topic: str, msg: dict, pub_ns: int) -> list[Window]:
+        out: list[Window] = []
+        due = self.next_due_ns
+        if due is None:
+            self.next_due_ns = (pub_ns // self.period_ns + 1) * self.period_ns
+        elif pub_ns >= due:
+            while due <= pub_ns:
+                if self._last_ns is not None and due - self.window_ns > self._last_ns:
+                    # A silence longer than a window: the windows until now hold nothing.
+                    due = (pub_ns // self.period_ns + 1) * self.period_ns
+                    break
+                out.append(cut_window(self.resampler, due - self.window_ns, due, self.step_ns,
+                                      self.t_air_default))
+                due += self.period_ns
+            self.next_due_ns = due
+            self.resampler.forget(due - self.window_ns)
+        self.resampler.add(topic, msg, pub_ns)
+        if self._last_ns is None or pub_ns > self._last_ns:
+            self._last_ns = pub_ns
+        return out

@@ -1,0 +1,331 @@
+"""Known-truth cases for checking the diagnosis: the plant simulator with one effect (or none,
+or two, or a fault outside the effect library) switched on, seen the way a plant engineer
+would see it -- two heat-ups, noisy biased thermocouples, and nothing said about the effect.
+
+A case is two experiments like the paper's: each a cold heat-up of 3000-3500 minutes at
+1-minute samples, thermocouple noise sd 1.5 degC and a fixed bias per thermocouple (sd
+0.5 degC, drawn anew per experiment: thermocouples change between campaigns). The first is
+given to the diagnosis to fit, the second is held out. Burner schedules are random heat-ups
+(several steps, the total mostly rising); in the fitted experiment the heating- and
+preheating-zone burners fire for part of the run, so that an effect tied to them can show.
+
+The effect belongs to the furnace, so its parameters are the same in both experiments; times
+(a fuel switch, the start of a drift) count from each heat-up's start: the switch comes at
+the same point of the heat-up procedure. Strengths are drawn from physically meaningful
+ranges (`RANGES`), not from what the diagnosis finds easy: a draw whose effect the baseline
+absorbs is the selfcheck's to report, not to avoid.
+
+`form="other"` draws the effect in a formulation the diagnosis's candidate does not use (a
+second- or third-order sensor lag, a radiation law with another exponent or reference
+temperature, a power-law burner curve, a wall in one zone only, losses from one zone only),
+so that the check does not merely find our own equations back.
+
+Two perturbations lie outside the library (`OUT_OF_LIBRARY`), and no candidate can express
+them; the honest verdict for them is `unexplained`, with the zone or sensor located:
+
+- `door_open`: a furnace door stands open for an hour in one zone, once in each heat-up: the
+  zone loses heat to ambient at rate g_door (1/min) for 60 minutes. Simulated with the
+  library's own pieces: the plant up to the opening, the same plant with a wall loss in that
+  zone (for preheating: a larger e) for the hour, then the plant again from the state reached.
+- `tc_reads_low`: one thermocouple intermittently reads low (a loose junction): in a handful
+  of episodes of 5-40 minutes its reading drops by 15-60 degC. Applied to the recorded
+  readings after the plant run, since the furnace itself is unaffected.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from . import BURNERS_PER_ZONE, SENSORS, ZONES
+from .effects import EFFECTS, Effect
+from .experiment import Experiment
+from .parameters import PAPER_TABLE_V
+from .plant import Plant, PlantRun
+from .scenario import SensorSpec
+from .structure import Inputs, ModelStructure
+
+OUT_OF_LIBRARY = ("door_open", "tc_reads_low")
+"""Perturbations no candidate expresses: the diagnosis should say `unexplained`."""
+
+FORMS = ("candidate", "other")
+
+SENSORS_SPEC = SensorSpec(noise_sd_c=1.5, bias_sd_c=0.5)
+SAMPLE_MIN = 1.0
+DURATION_MIN = (3000.0, 3500.0)
+T_MAX_C = 1350.0
+"""A schedule that would drive a zone past this is redrawn: no reheating furnace runs there."""
+
+RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    "zone_burners": {"f_heat": (0.5, 5.0), "f_preheat": (0.5, 5.0)},
+    "zone_losses": {"g": (0.002, 0.01)},
+    "sensor_lag": {"tau_lag": (4.0, 20.0)},
+    "dead_time": {"theta_dead": (5.0, 45.0)},
+    "wall_storage": {"k_gw": (0.02, 0.2), "k_wg": (0.001, 0.01)},
+    "radiation": {"rad_share": (0.2, 0.8)},
+    "burner_nonlinearity": {"k_nl": (0.01, 0.03)},  # magnitude; sign drawn (mostly falling)
+    "fuel_change": {"t_fuel_frac": (0.3, 0.8), "fuel_ratio": (0.65, 0.9)},
+    "sensor_drift": {"drift_rate": (0.005, 0.03), "t_drift_frac": (0.15, 0.6)},
+    "door_open": {"soak": (0.0005, 0.0015), "heat": (0.005, 0.02), "preheat": (0.1, 0.3)},
+    "tc_reads_low": {"drop_c": (15.0, 60.0), "episodes": (4, 10), "minutes": (5.0, 40.0)},
+}
+"""Strength and timing ranges of each effect, in its own parameters (times as a fraction of
+the shorter heat-up). Rates compare with the furnace's own: a = 0.02/min couples the soaking
+and heating zones, e = 0.73/min is the preheating zone's loss to ambient."""
+
+
+@dataclass
+class Case:
+    """Two experiments with a known truth, and what the diagnosis should conclude."""
+
+    fit: list[Experiment]
+    holdout: list[Experiment]
+    truth: dict[str, dict]
+    """Effect (or perturbation) name -> its drawn parameters and options; {} for a control."""
+    description: str
+    form: str = "candidate"
+    effects: tuple[str, ...] = field(default=())
+
+    @property
+    def expected_status(self) -> str:
+        if not self.effects:
+            return "no_gap"
+        if any(e in OUT_OF_LIBRARY for e in self.effects):
+            return "unexplained"
+        return "explained"
+
+    @property
+    def library_effects(self) -> tuple[str, ...]:
+        return tuple(e for e in self.effects if e in EFFECTS)
+
+
+def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
+              form: str = "candidate") -> Case:
+    """A random two-experiment case with `effect` (a contract name, one of OUT_OF_LIBRARY,
+    several of them, or None for a control) switched on in the plant."""
+    names: tuple[str, ...] = () if effect is None else (
+        (effect,) if isinstance(effect, str) else tuple(effect))
+    unknown = [n for n in names if n not in EFFECTS and n not in OUT_OF_LIBRARY]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {unknown}; expected names from "
+                         f"{list(EFFECTS) + list(OUT_OF_LIBRARY)}")
+    if form not in FORMS:
+        raise ValueError(f"form must be one of {FORMS}, not {form!r}")
+    durations = np.round(rng.uniform(*DURATION_MIN, 2))
+    t_air = float(rng.uniform(15.0, 35.0))
+    start = pd.Timestamp("2026-01-05T06:00:00Z") + pd.Timedelta(days=int(rng.integers(0, 300)))
+    starts = [start, start + pd.Timedelta(days=int(rng.integers(3, 15)))]
+
+    effects: list[Effect] = []
+    values: dict[str, float] = dict(PAPER_TABLE_V)
+    truth: dict[str, dict] = {}
+    for name in names:
+        if name in EFFECTS:
+            eff, vals, info = _draw_effect(name, rng, form, float(durations.min()))
+            effects.append(eff)
+            values.update(vals)
+            truth[name] = {**vals, **info}
+    structure = ModelStructure(effects)
+
+    door = _draw_door(rng, durations) if "door_open" in names else None
+    low = _draw_low_readings(rng, durations) if "tc_reads_low" in names else None
+    if door:
+        truth["door_open"] = door
+    if low:
+        truth["tc_reads_low"] = low
+
+    exps = []
+    for j in range(2):
+        t = np.arange(0.0, durations[j] + SAMPLE_MIN / 2, SAMPLE_MIN)
+        x0 = np.full(3, t_air)
+        inputs = _draw_schedule(rng, structure, values, t, x0, t_air, spread=(j == 0))
+        plant = Plant(structure, values, SENSORS_SPEC, seed=int(rng.integers(2**31)))
+        run = _run_with_door(plant, inputs, t, x0, door, j) if door else plant.run(inputs, t, x0)
+        run.start_time = starts[j]
+        if low:
+            run.tc[:, SENSORS.index(low["sensor"])] -= _low_episodes(t, low["episodes"][j])
+        exps.append(run.to_experiment(f"exp{j + 1}"))
+    description = (", ".join(f"{n}({_short(truth[n])})" for n in names) or "no effect") + \
+        f"; form {form}; durations {durations[0]:g} and {durations[1]:g} min"
+    return Case(fit=[exps[0]], holdout=[exps[1]], truth=truth, description=description,
+                form=form, effects=names)
+
+
+def _short(info: dict) -> str:
+    parts = []
+    for k, v in info.items():
+        if isinstance(v, float):
+            parts.append(f"{k}={v:.4g}")
+        elif isinstance(v, (str, int)):
+            parts.append(f"{k}={v}")
+    return " ".join(parts)
+
+
+def _u(rng: np.random.Generator, name: str, key: str) -> float:
+    lo, hi = RANGES[name][key]
+    return float(rng.uniform(lo, hi))
+
+
+def _draw_effect(name: str, rng: np.random.Generator, form: str,
+                 duration: float) -> tuple[Effect, dict[str, float], dict]:
+    """The effect object, its parameter values and its options (for the truth record)."""
+    other = form == "other"
+    cls = EFFECTS[name]
+    if name == "zone_burners":
+        eff = cls()
+        vals = {"f_heat": _u(rng, name, "f_heat"), "f_preheat": _u(rng, name, "f_preheat")}
+    elif name == "zone_losses":
+        zones = (("soak",), ("heat",))[int(rng.integers(2))] if other else ("soak", "heat")
+        eff = cls(zones=zones)
+        vals = {f"g_{z}": _u(rng, name, "g") for z in zones}
+    elif name == "sensor_lag":
+        eff = cls(order=int(rng.integers(2, 4)) if other else 1)
+        vals = {"tau_lag": _u(rng, name, "tau_lag")}
+    elif name == "dead_time":
+        eff = cls()
+        vals = {"theta_dead": _u(rng, name, "theta_dead")}
+    elif name == "wall_storage":
+        eff = cls(zones=(ZONES[int(rng.integers(3))],) if other else ZONES)
+        vals = {"k_gw": _u(rng, name, "k_gw"), "k_wg": _u(rng, name, "k_wg")}
+    elif name == "radiation":
+        if other:
+            eff = cls(exponent=float(rng.choice([3.0, 5.0])),
+                      t_ref_c=float(rng.uniform(600.0, 1100.0)))
+        else:
+            eff = cls()
+        vals = {"rad_share": _u(rng, name, "rad_share")}
+    elif name == "burner_nonlinearity":
+        eff = cls(form="power" if other else "linear")
+        sign = -1.0 if rng.uniform() < 0.75 else 1.0
+        vals = {"k_nl": sign * _u(rng, name, "k_nl")}
+    elif name == "fuel_change":
+        eff = cls()
+        vals = {"t_fuel": round(_u(rng, name, "t_fuel_frac") * duration),
+                "fuel_ratio": _u(rng, name, "fuel_ratio")}
+    elif name == "sensor_drift":
+        eff = cls(sensor=SENSORS[int(rng.integers(len(SENSORS)))])
+        sign = 1.0 if rng.uniform() < 0.5 else -1.0
+        vals = {"drift_rate": sign * _u(rng, name, "drift_rate"),
+                "t_drift": round(_u(rng, name, "t_drift_frac") * duration)}
+    else:  # pragma: no cover - EFFECTS and this list are kept in step by test_selfcheck
+        raise ValueError(name)
+    info = {k: (list(v) if isinstance(v, tuple) else v) for k, v in eff.options.items()}
+    return eff, {k: float(v) for k, v in vals.items()}, info
+
+
+def _draw_schedule(rng: np.random.Generator, structure: ModelStructure, values: dict,
+                   t: np.ndarray, x0: np.ndarray, t_air: float, spread: bool) -> Inputs:
+    """A random heat-up: 4-7 burner steps, the total mostly rising, redrawn until no zone
+    passes T_MAX_C. With `spread` the burners are shared among the zones for part of the run
+    (heating- and preheating-zone burners fire); otherwise zones are filled soaking first,
+    as in the paper, with a random chance of a spread step."""
+    for _ in range(200):
+        k = int(rng.integers(4, 8))
+        gaps = rng.uniform(1.0, 2.0, k)
+        times = np.concatenate(([0.0], np.cumsum(gaps[:-1]) / gaps.sum() * (t[-1] - 100.0)))
+        times = np.round(times)
+        totals = np.round(np.sort(rng.uniform(2.0, rng.uniform(8.0, 20.0), k)))
+        totals[0] = rng.integers(2, 5)
+        if rng.uniform() < 0.3 and k > 4:  # a step down now and then: the crew trims the firing
+            i = int(rng.integers(2, k))
+            totals[i] = max(2.0, totals[i] - rng.integers(2, 5))
+        counts = np.zeros((k, 3))
+        spread_from = int(rng.integers(1, k - 1))
+        for i, total in enumerate(totals.astype(int)):
+            if (spread and i >= spread_from) or (not spread and rng.uniform() < 0.2):
+                share = rng.dirichlet([2.0, 1.5, 1.5])
+                c = np.minimum(np.floor(share * total), BURNERS_PER_ZONE)
+                c[0] += total - c.sum()
+                c = _fit_counts(c)
+            else:
+                c = _fill_soak_first(total)
+            counts[i] = c
+        if spread and not np.any((counts[:, 1] > 0) & (counts[:, 2] > 0)):
+            continue
+        inputs = Inputs(times, counts, np.full(k, t_air))
+        y = structure.simulate(values, inputs, t, x0)[0]
+        if np.nanmax(y) < T_MAX_C:
+            return inputs
+    raise RuntimeError("no burner schedule below the temperature limit was found")
+
+
+def _fill_soak_first(total: int) -> np.ndarray:
+    c = np.zeros(3)
+    left = total
+    for i, cap in enumerate(BURNERS_PER_ZONE):
+        c[i] = min(left, cap)
+        left -= c[i]
+    return c
+
+
+def _fit_counts(c: np.ndarray) -> np.ndarray:
+    """Move burners that exceed a zone's count to the next zone with room."""
+    c = c.copy()
+    caps = np.array(BURNERS_PER_ZONE, dtype=float)
+    extra = np.maximum(c - caps, 0.0).sum()
+    c = np.minimum(c, caps)
+    for i in range(3):
+        add = min(extra, caps[i] - c[i])
+        c[i] += add
+        extra -= add
+    return c
+
+
+def _draw_door(rng: np.random.Generator, durations: np.ndarray) -> dict:
+    zone = ZONES[int(rng.integers(3))]
+    opens = [float(np.round(rng.uniform(0.3, 0.9) * d)) for d in durations]
+    return {"zone": zone, "g_door": _u(rng, "door_open", zone), "t_open": opens,
+            "minutes": 60.0}
+
+
+def _run_with_door(plant: Plant, inputs: Inputs, t: np.ndarray, x0: np.ndarray, door: dict,
+                   j: int) -> PlantRun:
+    """The plant with a door open for an hour: three runs of the library's simulator joined
+    at the states reached, then read by the plant's own thermocouples."""
+    lo = door["t_open"][j]
+    hi = lo + door["minutes"]
+    zone, g = door["zone"], door["g_door"]
+    base, values = plant.structure, plant.values
+    if zone == "preheat":  # a loss to ambient from zone 3 is a larger e
+        door_structure, door_values = base, {**values, "e": values["e"] + g}
+    else:
+        door_structure = ModelStructure([*base.effects, EFFECTS["zone_losses"](zones=(zone,))])
+        door_values = {**values, f"g_{zone}": g}
+    states = np.empty((t.size, base.n_states))
+    x = base.full_state(x0)[0]
+    t_from = float(t[0])
+    for structure, vals, end in ((base, values, lo), (door_structure, door_values, hi),
+                                 (base, values, float(t[-1]) + 1.0)):
+        idx = np.nonzero((t >= t_from) & (t < end))[0]
+        grid = np.append(t[idx], min(end, float(t[-1]) + 1.0))
+        piece = structure.simulate(vals, inputs, grid, x[None], t0=t_from, states=True)[0]
+        states[idx] = piece[:-1]
+        x, t_from = piece[-1], end
+    C = base.system(base.theta(values)).C[0]
+    j_in = np.searchsorted(inputs.t, t, side="right") - 1
+    return PlantRun(t, states[:, :3], plant.read(states @ C.T, t), inputs.burners[j_in],
+                    inputs.t_air[j_in])
+
+
+def _draw_low_readings(rng: np.random.Generator, durations: np.ndarray) -> dict:
+    sensor = SENSORS[int(rng.integers(len(SENSORS)))]
+    lo_n, hi_n = RANGES["tc_reads_low"]["episodes"]
+    episodes = []
+    for d in durations:
+        n = int(rng.integers(lo_n, hi_n + 1))
+        starts = np.sort(rng.uniform(0.1 * d, 0.95 * d, n))
+        lengths = rng.uniform(*RANGES["tc_reads_low"]["minutes"], n)
+        drops = rng.uniform(*RANGES["tc_reads_low"]["drop_c"], n)
+        episodes.append([(float(s), float(s + m), float(c))
+                         for s, m, c in zip(np.round(starts), np.round(lengths), drops,
+                                            strict=True)])
+    return {"sensor": sensor, "episodes": episodes}
+
+
+def _low_episodes(t: np.ndarray, episodes: list[tuple[float, float, float]]) -> np.ndarray:
+    drop = np.zeros(t.size)
+    for lo, hi, c in episodes:
+        drop[(t >= lo) & (t < hi)] = c
+    return drop

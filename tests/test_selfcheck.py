@@ -1,0 +1,128 @@
+"""The selfcheck's known-truth cases: what the plant simulator draws, and (further down) the
+diagnosis run on them with the effect withheld."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from furnace_model import SENSORS, ZONES
+from furnace_model.effects import EFFECTS
+from furnace_model.parameters import PAPER_TABLE_V
+from furnace_model.selfcheck import OUT_OF_LIBRARY, draw_case
+from furnace_model.structure import ModelStructure
+
+
+def _rng(seed: int = 0) -> np.random.Generator:
+    return np.random.default_rng(seed)
+
+
+def test_case_shape_and_sensors_like_the_paper():
+    case = draw_case(None, _rng(1))
+    assert case.truth == {} and case.expected_status == "no_gap"
+    assert len(case.fit) == 1 and len(case.holdout) == 1
+    for exp in case.fit + case.holdout:
+        assert 3000 <= exp.t_min[-1] <= 3500
+        np.testing.assert_allclose(np.diff(exp.t_min), 1.0)
+        assert exp.burner_steps >= 3
+        assert exp.start_time is not None
+        # the pair difference of a zone is noise (sd 1.5 each) plus the two fixed biases
+        pairs = exp.tc.reshape(-1, 3, 2)
+        diff = pairs[:, :, 0] - pairs[:, :, 1]
+        assert np.all(np.abs(diff.std(axis=0) - 1.5 * np.sqrt(2)) < 0.15)
+    # heating- and preheating-zone burners fire together in the fitted experiment
+    b = case.fit[0].burners
+    assert np.any((b[:, 1] > 0) & (b[:, 2] > 0))
+    assert case.holdout[0].start_time > case.fit[0].start_time
+
+
+def test_same_seed_same_case_and_different_seeds_differ():
+    a, b, c = draw_case("dead_time", _rng(5)), draw_case("dead_time", _rng(5)), \
+        draw_case("dead_time", _rng(6))
+    np.testing.assert_array_equal(a.fit[0].tc, b.fit[0].tc)
+    assert a.truth == b.truth
+    assert a.truth != c.truth
+
+
+def test_control_is_the_paper_model_plus_sensor_noise():
+    exp = draw_case(None, _rng(2)).fit[0]
+    model = ModelStructure().simulate(PAPER_TABLE_V, exp.inputs(), exp.t_min,
+                                      np.full(3, exp.t_air[0]))[0]
+    resid = exp.zone_temp - model
+    # zone mean of two thermocouples: noise 1.5/sqrt(2), plus a bias of sd 0.5/sqrt(2)
+    assert np.all(np.abs(resid.std(axis=0) - 1.5 / np.sqrt(2)) < 0.1)
+    assert np.all(np.abs(resid.mean(axis=0)) < 2.0)
+
+
+@pytest.mark.parametrize("name", list(EFFECTS))
+@pytest.mark.parametrize("form", ["candidate", "other"])
+def test_every_effect_changes_the_furnace_and_records_its_truth(name, form):
+    case = draw_case(name, _rng(3), form=form)
+    assert set(case.truth) == {name} and case.expected_status == "explained"
+    # the recorded truth rebuilds the furnace: the data are it plus sensor noise and bias
+    cls = EFFECTS[name]
+    truth = case.truth[name]
+    effect = cls(**{k: tuple(v) if isinstance(v, list) else v
+                    for k, v in truth.items() if k in cls.option_kinds})
+    structure = ModelStructure([effect])
+    values = {**PAPER_TABLE_V, **{p.name: truth[p.name] for p in effect.params}}
+    exp = case.fit[0]
+    x0 = np.full(3, exp.t_air[0])
+    model = structure.simulate(values, exp.inputs(), exp.t_min, x0)[0]
+    drift = structure.sensor_offsets(values, exp.t_min)[0].reshape(-1, 3, 2).mean(axis=2)
+    resid = exp.zone_temp - model - drift
+    assert np.all(np.abs(resid.std(axis=0) - 1.5 / np.sqrt(2)) < 0.1)
+    base = ModelStructure().simulate(PAPER_TABLE_V, exp.inputs(), exp.t_min, x0)[0]
+    assert np.max(np.abs(model + drift - base)) > 3.0
+    assert np.nanmax(exp.tc) < 1400.0
+
+
+def test_other_forms_differ_from_the_candidate():
+    lag = draw_case("sensor_lag", _rng(4), form="other").truth["sensor_lag"]
+    assert lag["order"] in (2, 3)
+    rad = draw_case("radiation", _rng(4), form="other").truth["radiation"]
+    assert rad["exponent"] != 4.0
+    nl = draw_case("burner_nonlinearity", _rng(4), form="other").truth["burner_nonlinearity"]
+    assert nl["form"] == "power"
+
+
+def test_door_open_cools_its_zone_for_an_hour():
+    case = draw_case("door_open", _rng(7))
+    door = case.truth["door_open"]
+    assert case.expected_status == "unexplained"
+    z = ZONES.index(door["zone"])
+    for j, exp in enumerate(case.fit + case.holdout):
+        clean = ModelStructure().simulate(PAPER_TABLE_V, exp.inputs(), exp.t_min,
+                                          np.full(3, exp.t_air[0]))[0]
+        gap = clean[:, z] - exp.zone_temp[:, z]
+        t_open = door["t_open"][j]
+        before = exp.t_min < t_open
+        assert np.all(np.abs(gap[before]) < 7.0)
+        during = (exp.t_min > t_open + 40) & (exp.t_min < t_open + 60)
+        assert gap[during].mean() > 8.0
+
+
+def test_thermocouple_reading_low_in_episodes():
+    case = draw_case("tc_reads_low", _rng(8))
+    low = case.truth["tc_reads_low"]
+    i = SENSORS.index(low["sensor"])
+    partner = i ^ 1
+    for j, exp in enumerate(case.fit + case.holdout):
+        diff = exp.tc[:, partner] - exp.tc[:, i]
+        inside = np.zeros(exp.t_min.size, dtype=bool)
+        for lo, hi, _drop in low["episodes"][j]:
+            inside |= (exp.t_min >= lo) & (exp.t_min < hi)
+        assert inside.any()
+        assert diff[inside].mean() > 12.0
+        assert abs(diff[~inside].mean()) < 2.5
+
+
+def test_two_effects_at_once_and_unknown_names():
+    case = draw_case(("zone_burners", "sensor_lag"), _rng(9))
+    assert set(case.truth) == {"zone_burners", "sensor_lag"}
+    assert case.library_effects == ("zone_burners", "sensor_lag")
+    assert set(OUT_OF_LIBRARY).isdisjoint(EFFECTS)
+    with pytest.raises(ValueError, match="unknown effect"):
+        draw_case("door_opened", _rng(0))
+    with pytest.raises(ValueError, match="form"):
+        draw_case("dead_time", _rng(0), form="odd")

@@ -208,6 +208,8 @@ class FaultProxy:
         self._tasks.add(task)
         try:
             await self._serve(reader, writer)
+        except asyncio.CancelledError:
+            pass  # stop(): asyncio's stream callback would report a cancelled handler
         finally:
             self._tasks.discard(task)
 

@@ -1,0 +1,154 @@
+"""The daemon behind a fault-injecting proxy: the link drops, refuses, stalls, slows down,
+cuts a response short, resets, or delivers garbage. Whatever happens on the wire the daemon
+keeps its schedule, records the outage on /daq/status, is back within the backoff cap once
+the link heals, and logs every sample the PLC answered in time, with the PLC's exact values
+and nothing else."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from daq_processes import config, free_port, messages, plant_readings, sim, start_daemon
+from faultproxy import FaultProxy
+
+from furnace_daq.logschema import DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model import SENSORS
+
+PERIOD, TIMEOUT, BACKOFF_CAP = 0.05, 0.2, 0.4  # as daq_processes.config sets them
+WARM, FAULT, AFTER = 0.6, 1.0, 1.0
+# Once the link heals: at most one backoff wait, one poll timing out on a dead request,
+# one period to the next tick, and scheduling slack on a shared 2-core machine.
+RECOVERY_BOUND_S = BACKOFF_CAP + TIMEOUT + PERIOD + 0.3
+
+
+@dataclass
+class Run:
+    counters: object
+    proxy: FaultProxy
+    fault_ns: int
+    healed_ns: int
+    msgs: list
+
+
+def run_with_fault(tmp_path, mode: str, **mode_args) -> Run:
+    async def scenario():
+        plc = await sim(free_port())
+        proxy = FaultProxy(plc.port)
+        await proxy.start()
+        daemon, task = start_daemon(config(proxy.port), tmp_path, WARM + FAULT + AFTER)
+        try:
+            await asyncio.sleep(WARM)
+            fault_ns = time.time_ns()
+            await proxy.set_mode(mode, **mode_args)
+            await asyncio.sleep(FAULT)
+            healed_ns = time.time_ns()
+            await proxy.set_mode("pass")
+            counters = await asyncio.wait_for(task, WARM + FAULT + AFTER + 5)
+        finally:
+            await proxy.stop()
+            await plc.stop()
+        return Run(counters, proxy, fault_ns, healed_ns, [])
+
+    run = asyncio.run(scenario())
+    run.msgs = messages(tmp_path)
+    return run
+
+
+def answered_polls(proxy: FaultProxy) -> Counter:
+    """PLC seconds of every poll whose two responses (input registers 0-9, then the burner
+    bits) reached the daemon intact and within its poll timeout."""
+    by_tid = {(req.conn, req.tid): (req, resp) for req, resp in proxy.answered}
+    out: Counter = Counter()
+    for (conn, tid), (req, resp) in by_tid.items():
+        bits = by_tid.get((conn, tid + 1))
+        if req.function_code == 4 and req.address_count == (0, 10) and bits is not None \
+                and bits[0].function_code == 2 and bits[1].at - req.at <= TIMEOUT:
+            regs = resp.registers
+            out[(regs[7] << 16) | regs[8]] += 1
+    return out
+
+
+def logged_ok(msgs) -> list[tuple[dict, int]]:
+    return [(m, lt) for t, m, lt in msgs
+            if t == THERMOCOUPLES and all(q == "ok" for q in m["quality"].values())]
+
+
+def check_every_answer_logged(run: Run) -> list[tuple[dict, int]]:
+    ok = logged_ok(run.msgs)
+    answered = answered_polls(run.proxy)
+    assert sum(answered.values()) >= 20, answered
+    assert Counter(m["plc_seconds"] for m, _ in ok) == answered
+    seconds = [m["plc_seconds"] for m, _ in ok]
+    logged = np.array([[m[s] for s in SENSORS] for m, _ in ok], dtype=float)
+    np.testing.assert_allclose(logged, plant_readings(seconds), atol=0.1 + 1e-9)
+    return ok
+
+
+def check_schedule(run: Run) -> None:
+    """Ticks stay on their grid: every period is either polled or counted as skipped."""
+    c = run.counters
+    expected = (WARM + FAULT + AFTER) / PERIOD
+    assert abs(c.polls + c.skipped_ticks - expected) <= 0.1 * expected, (c, expected)
+
+
+OUTAGES = {
+    "drop": {},
+    "refuse": {},
+    "stall": {},
+    "truncate": {},
+    "reset": {},
+    "garbage": {},
+    "delay": {"delay_s": TIMEOUT + 0.15},  # slower than the poll timeout: every answer too late
+}
+
+
+@pytest.mark.parametrize("mode", list(OUTAGES))
+def test_outage_recorded_and_recovered_with_nothing_answered_lost(tmp_path, mode):
+    run = run_with_fault(tmp_path, mode, **OUTAGES[mode])
+    check_schedule(run)
+    ok = check_every_answer_logged(run)
+
+    status = [(m, lt) for t, m, lt in run.msgs if t == DAQ_STATUS]
+    lost = [m for m, lt in status if m["state"] == "disconnected"
+            and run.fault_ns <= lt <= run.healed_ns + int(TIMEOUT * 2e9)]
+    assert lost and all(m["detail"] for m in lost), status
+    assert run.counters.disconnects >= 1
+    assert status[-2][0]["state"] == "connected" and status[-1][0]["detail"] == "stopping"
+
+    # no good sample while the fault lasts, the first one soon after it heals
+    assert not [lt for _, lt in ok if run.fault_ns + int(TIMEOUT * 1e9) < lt < run.healed_ns]
+    first_back = min(lt for _, lt in ok if lt > run.healed_ns)
+    assert (first_back - run.healed_ns) / 1e9 < RECOVERY_BOUND_S, mode
+    assert sum(lt < run.fault_ns for _, lt in ok) >= 0.6 * WARM / PERIOD
+
+
+def test_stall_is_comm_error_at_the_poll_timeout_and_one_missed_tick_event(tmp_path):
+    run = run_with_fault(tmp_path, "stall")
+    assert run.counters.comm_errors >= 2 and run.counters.skipped_ticks >= 2
+    errors = [lt for t, m, lt in run.msgs if t == THERMOCOUPLES
+              and m["quality"]["soak_1"] == "comm_error"]
+    assert errors and (errors[0] - run.fault_ns) / 1e9 < TIMEOUT + PERIOD + 0.15
+    # while stalled, no silence in the thermocouple topic longer than timeout + period
+    tc_times = [lt for t, m, lt in run.msgs if t == THERMOCOUPLES]
+    during = [b - a for a, b in zip(tc_times, tc_times[1:], strict=False)
+              if run.fault_ns <= a < run.fault_ns + int(2 * TIMEOUT * 1e9)]
+    assert during and max(during) / 1e9 < TIMEOUT + PERIOD + 0.1
+    missed = [m for t, m, _ in run.msgs if t == DAQ_EVENTS and m["kind"] == "missed_tick"]
+    assert len(missed) == 1 and missed[0]["skipped"] >= 1, "one event per status interval"
+
+
+def test_latency_below_the_timeout_loses_nothing(tmp_path):
+    """20 ms per response, two responses a poll: inside the 50 ms period, no fault at all."""
+    run = run_with_fault(tmp_path, "delay", delay_s=0.02)
+    c = run.counters
+    assert c.comm_errors == 0 and c.disconnects == 0 and c.skipped_ticks <= 2, c
+    check_schedule(run)
+    ok = check_every_answer_logged(run)
+    assert len(ok) >= 0.9 * (WARM + FAULT + AFTER) / PERIOD
+    assert {m["state"] for t, m, _ in run.msgs if t == DAQ_STATUS} == {"connected",
+                                                                         "disconnected"}

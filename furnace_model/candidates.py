@@ -1,0 +1,234 @@
+"""Candidate extensions of the paper's model: each fitted on the fit data, warm-started from
+the baseline, and scored on held-out data, by an information criterion and by whether the
+data determine the effect at all.
+
+A candidate earns credit only when its own parameters are determined and away from the
+value at which the effect vanishes: an extension that improves the fit with an interval
+reaching "no effect" has merely bent to the noise or to another effect.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import ZONES
+from .effects import EFFECTS, Effect
+from .errors import FurnaceError
+from .experiment import Experiment
+from .fit import FitResult, fit, predict, predict_held_out
+from .residuals import lag1
+from .structure import ModelStructure
+
+NULL: dict[str, dict[str, float]] = {
+    "zone_losses": {"g_soak": 0.0, "g_heat": 0.0},
+    "sensor_lag": {"tau_lag": 0.0},
+    "dead_time": {"theta_dead": 0.0},
+    "wall_storage": {"k_gw": 0.0},
+    "radiation": {"rad_share": 0.0},
+    "burner_nonlinearity": {"k_nl": 0.0},
+    "fuel_change": {"fuel_ratio": 1.0},
+    "sensor_drift": {"drift_rate": 0.0},
+    "zone_burners": {"f_heat": float("nan"), "f_preheat": float("nan")},
+}
+"""Each effect's strength parameters and the value at which the effect vanishes (NaN: the
+baseline is not nested in the extension; the parameter must merely be determined)."""
+
+MAX_RATIO = 4.0
+"""A positive strength parameter counts as determined when its 95% interval spans less than
+this factor: one that could be anything from a trace to a flood is not an estimate."""
+
+BUDGET_S = {"radiation": 25.0}
+DEFAULT_BUDGET_S = 15.0
+
+
+@dataclass
+class CandidateResult:
+    effects: tuple[str, ...]
+    params: dict[str, float]
+    ci95: dict[str, tuple[float, float]]
+    rmse_fit_c: dict[str, float]
+    rmse_holdout_c: dict[str, float]
+    shrink_pct: float = 0.0
+    delta_bic: float = 0.0
+    identifiable: bool = True
+    note: str = ""
+    fit_pred: list[np.ndarray] = field(default_factory=list)
+    holdout_pred: list[np.ndarray] = field(default_factory=list)
+    # added fields (the JSON may carry them)
+    options: dict[str, dict] = field(default_factory=dict)
+    sse_fit: float = float("nan")
+    n_obs: int = 0
+    n_params: int = 0
+    rho1: float = 0.0  # lag-1 autocorrelation of the fit residual
+    gap_closed_pct: float = 0.0
+    elapsed_s: float = 0.0
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def label(self) -> str:
+        return "+".join(self.effects) or "baseline"
+
+    def rmse_holdout_pooled(self) -> float:
+        return pooled(self.rmse_holdout_c)
+
+    def n_eff(self) -> float:
+        """Effective sample size of the fit residual: autocorrelated samples carry less
+        information than independent ones (AR(1) reading, n (1 - rho) / (1 + rho))."""
+        return float(np.clip(self.n_obs * (1 - self.rho1) / (1 + self.rho1),
+                             self.n_params + 10, max(self.n_obs, self.n_params + 10)))
+
+
+def pooled(per_zone: dict[str, float]) -> float:
+    v = [x for x in per_zone.values() if np.isfinite(x)]
+    return float(np.sqrt(np.mean(np.square(v)))) if v else float("nan")
+
+
+@dataclass
+class Task:
+    """One candidate to fit: picklable, so a process pool can take it."""
+
+    effects: tuple[str, ...]
+    options: dict[str, dict]
+    fit_data: list[Experiment]
+    holdout: list[Experiment]
+    tail_of: list[int | None]  # per holdout: index of the fit experiment it continues
+    init: dict[str, float] | None
+    seed: int
+    budget_s: float | None
+
+
+def structure_of(effects: tuple[str, ...], options: dict[str, dict]) -> ModelStructure:
+    items: list[Effect] = [EFFECTS[n](**options.get(n, {})) for n in effects]
+    return ModelStructure(items)
+
+
+def run_task(task: Task) -> CandidateResult:
+    t0 = time.perf_counter()
+    structure = structure_of(task.effects, task.options)
+    init = None
+    if task.init is not None:
+        init = {k: v for k, v in task.init.items() if k in structure.names}
+    fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
+             time_budget_s=task.budget_s)
+    fit_pred = fitted_predictions(fr, task.fit_data)
+    hold_pred = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of)
+    res = [e.zone_temp - p for e, p in zip(task.fit_data, fit_pred, strict=True)]
+    ident, note = identifiable(fr, task.effects)
+    return CandidateResult(
+        effects=task.effects, params=dict(fr.params),
+        ci95={k: (float(v[0]), float(v[1])) for k, v in fr.ci95.items()},
+        rmse_fit_c=rmse_per_zone(task.fit_data, fit_pred),
+        rmse_holdout_c=rmse_per_zone(task.holdout, hold_pred),
+        identifiable=ident, note=note, fit_pred=fit_pred, holdout_pred=hold_pred,
+        options={n: dict(task.options.get(n, {})) for n in task.effects},
+        sse_fit=fr.sse, n_obs=fr.n_obs,
+        n_params=len(structure.names) + 6 * len(task.fit_data),
+        rho1=lag1(res), elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
+
+
+def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray]:
+    """The fitted model as the thermocouples read it, its zone offsets included."""
+    out = []
+    for j, exp in enumerate(data):
+        y = predict(fr.params, exp, fr.structure, fr.x0[j])
+        off = np.array([fr.zone_offsets_c[j][z] for z in ZONES]) if fr.zone_offsets_c else 0.0
+        out.append(y + off)
+    return out
+
+
+def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Experiment],
+                        tail_of: list[int | None]) -> list[np.ndarray]:
+    """Held-out predictions with the parameters fixed. A whole held-out experiment gets
+    its own initial state and offsets from its data; a tail cut from a fitted experiment
+    continues the fitted run (same start, same thermocouples): nothing is estimated on it."""
+    out: list[np.ndarray | None] = [None] * len(holdout)
+    whole = [i for i, j in enumerate(tail_of) if j is None]
+    if whole:
+        preds = predict_held_out(fr.params, [holdout[i] for i in whole], fr.structure,
+                                 zone_offsets=True)
+        for i, p in zip(whole, preds, strict=True):
+            out[i] = p
+    for i, j in enumerate(tail_of):
+        if j is None:
+            continue
+        joined = join(data[j], holdout[i])
+        y = predict(fr.params, joined, fr.structure, fr.x0[j])
+        off = np.array([fr.zone_offsets_c[j][z] for z in ZONES]) if fr.zone_offsets_c else 0.0
+        out[i] = (y + off)[len(data[j]):]
+    return [p for p in out if p is not None]
+
+
+def join(head: Experiment, tail: Experiment) -> Experiment:
+    return Experiment(head.name, np.concatenate([head.t_min, tail.t_min]),
+                      np.concatenate([head.tc, tail.tc]),
+                      np.concatenate([head.burners, tail.burners]),
+                      np.concatenate([head.t_air, tail.t_air]), head.start_time, head.source)
+
+
+def rmse_per_zone(data: list[Experiment], preds: list[np.ndarray]) -> dict[str, float]:
+    if not data:
+        return {z: float("nan") for z in ZONES}
+    r = np.concatenate([e.zone_temp - p for e, p in zip(data, preds, strict=True)])
+    out = {}
+    for w, z in enumerate(ZONES):
+        v = r[:, w][np.isfinite(r[:, w])]
+        out[z] = float(np.sqrt(np.mean(v * v))) if v.size else float("nan")
+    return out
+
+
+def identifiable(fr: FitResult, effects: tuple[str, ...]) -> tuple[bool, str]:
+    """Whether every effect has a strength parameter that the data determine away from the
+    value at which it vanishes; else the reason, in words."""
+    notes = []
+    for name in effects:
+        effect = next(e for e in fr.structure.effects if e.name == name)
+        box = {p.name: p for p in effect.params}
+        ok_any, why = False, []
+        for pname, null in NULL[name].items():
+            if pname not in box:
+                continue
+            p, (lo, hi), v = box[pname], fr.ci95[pname], fr.params[pname]
+            at_edge = lo <= p.lo * (1 + 1e-6) or hi >= p.hi * (1 - 1e-6) if p.log else \
+                lo <= p.lo + 1e-9 * (p.hi - p.lo) or hi >= p.hi - 1e-9 * (p.hi - p.lo)
+            if p.log:
+                wide = not (lo > 0 and hi / lo < MAX_RATIO)
+            else:
+                wide = not np.isnan(null) and lo <= null <= hi
+            if wide or at_edge:
+                why.append(f"{pname} = {v:.4g} with 95% interval [{lo:.3g}, {hi:.3g}]"
+                           + (" reaching its search bound" if at_edge and not wide else ""))
+            else:
+                ok_any = True
+        if not ok_any:
+            notes.append(f"{name}: the data do not determine it ({'; '.join(why)})")
+    return not notes, "; ".join(notes)
+
+
+def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, float]) -> None:
+    """Fill the candidate's comparison with the baseline: held-out RMSE shrink (pooled over
+    zones), the share of the baseline's held-out gap above the noise floor it closes, and
+    the change of BIC on the fitted data with an effective sample size."""
+    rb, rc = base.rmse_holdout_pooled(), c.rmse_holdout_pooled()
+    c.shrink_pct = float(100.0 * (1.0 - rc / rb)) if rb > 0 else 0.0
+    fl2 = float(np.mean([floor[z] ** 2 for z in ZONES]))
+    excess = rb * rb - fl2
+    c.gap_closed_pct = float(100.0 * (rb * rb - rc * rc) / excess) if excess > 0 else 0.0
+    n = c.n_obs
+    if n and c.sse_fit > 0 and base.sse_fit > 0:
+        neff = c.n_eff()
+        c.delta_bic = float(neff * np.log(c.sse_fit / base.sse_fit)
+                            + (c.n_params - base.n_params) * np.log(neff))
+    else:
+        c.delta_bic = 0.0
+
+
+def check_effects(names) -> tuple[str, ...]:
+    names = tuple(names)
+    bad = [n for n in names if n not in EFFECTS]
+    if bad:
+        raise FurnaceError(f"unknown effect(s) {', '.join(bad)}: expected names from "
+                           f"{', '.join(EFFECTS)}")
+    return names

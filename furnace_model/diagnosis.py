@@ -1,0 +1,411 @@
+"""Diagnosis of the sim-to-real gap: where the paper's model errs, which unmodelled effect
+explains it, and how far the error shrinks once the effect is added, judged on data the
+fit has not seen.
+
+The baseline is eq. 11 fitted with a constant offset per zone and experiment (thermocouple
+bias). Held-out data are scored with the model's parameters fixed; only what belongs to the
+record and not to the furnace is estimated on it (initial temperatures, thermocouple
+offsets). The noise floor comes from the data themselves (the thermocouple pairs), so that
+"no gap" means: the baseline already predicts the held-out data as well as the sensors allow.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import ZONES
+from .candidates import (
+    BUDGET_S,
+    DEFAULT_BUDGET_S,
+    CandidateResult,
+    Task,
+    check_effects,
+    pooled,
+    run_task,
+    score_against,
+)
+from .effects import EFFECTS
+from .errors import FurnaceError
+from .experiment import Experiment
+from .residuals import (
+    ZONE_WORDS,
+    error_spans,
+    iso,
+    regime,
+    residual_tests,
+    sensor_faults,
+    sensor_noise,
+    zone_noise_floor,
+)
+
+__all__ = ["CandidateResult", "Diagnosis", "Located", "Verdict", "diagnose"]
+
+TAIL_SHARE = 0.3
+"""Share of a lone experiment held out (its last part) when no holdout is given."""
+MIN_FIT_SAMPLES = 100
+MIN_HOLDOUT_SAMPLES = 30
+GAP_RATIO = 1.25
+"""A zone's held-out RMSE above this multiple of its noise floor is a gap."""
+NEAR_RATIO = 1.5
+"""An extension whose held-out RMSE is within this multiple of the floor in every zone
+explains the gap."""
+MIN_GAP_CLOSED = 50.0
+"""Percent of the baseline's held-out error above the floor an effect must remove to count;
+for a further effect in a stepwise combination, of the error the kept ones leave."""
+MAX_EFFECTS = 3
+STEP_TRIES = 4
+"""Further effects tried at each step of the combination search: the next best singles."""
+WORKERS = 2
+
+
+@dataclass
+class Located:
+    zone: str
+    sensor: str | None
+    experiment: str
+    start_min: float
+    end_min: float
+    start: str | None
+    end: str | None
+    share_of_error: float
+    regime: str
+
+
+@dataclass
+class Verdict:
+    status: str  # no_gap | explained | unexplained
+    effects: list[str]
+    shrink_pct: float
+    sentence: str
+
+
+@dataclass
+class Diagnosis:
+    fit_data: list[Experiment]
+    holdout: list[Experiment]
+    holdout_how: str
+    baseline: CandidateResult
+    noise_floor_c: dict[str, float]
+    where: list[Located]
+    residual_tests: dict
+    candidates: list[CandidateResult]
+    verdict: Verdict
+    elapsed_s: float
+    gap_zones: tuple[str, ...] = ()
+    sensor_noise_c: dict[str, float] | None = None
+
+    def best(self) -> CandidateResult | None:
+        if self.verdict.status == "explained":
+            for c in self.candidates:
+                if list(c.effects) == self.verdict.effects:
+                    return c
+        return self.candidates[0] if self.candidates else None
+
+    def to_json(self) -> dict:
+        """CONTRACTS.md section 6, plus the detail behind it."""
+        def cand(c: CandidateResult) -> dict:
+            return {"effect": "+".join(c.effects), "effects": list(c.effects),
+                    "params": _round(c.params), "ci95": {k: [_r(v[0]), _r(v[1])]
+                                                         for k, v in c.ci95.items()},
+                    "options": _plain(c.options),
+                    "rmse_fit_c": _round(c.rmse_fit_c), "rmse_holdout_c": _round(c.rmse_holdout_c),
+                    "shrink_pct": _r(c.shrink_pct), "gap_closed_pct": _r(c.gap_closed_pct),
+                    "delta_bic": _r(c.delta_bic), "identifiable": c.identifiable,
+                    "note": c.note, "elapsed_s": _r(c.elapsed_s)}
+
+        b = self.baseline
+        return {
+            "baseline": {"rmse_fit_c": _round(b.rmse_fit_c),
+                         "rmse_holdout_c": _round(b.rmse_holdout_c),
+                         "noise_floor_c": _round(self.noise_floor_c),
+                         "params": _round(b.params),
+                         "ci95": {k: [_r(v[0]), _r(v[1])] for k, v in b.ci95.items()},
+                         "gap_zones": list(self.gap_zones)},
+            "where": [{"zone": w.zone, "sensor": w.sensor, "start": w.start, "end": w.end,
+                       "share_of_error": _r(w.share_of_error), "regime": w.regime,
+                       "experiment": w.experiment, "start_min": _r(w.start_min),
+                       "end_min": _r(w.end_min)} for w in self.where],
+            "candidates": [cand(c) for c in self.candidates],
+            "verdict": {"status": self.verdict.status, "effects": list(self.verdict.effects),
+                        "shrink_pct": _r(self.verdict.shrink_pct),
+                        "sentence": self.verdict.sentence},
+            "holdout_how": self.holdout_how,
+            "data": [e.source or e.name for e in self.fit_data],
+            "holdout": [e.source or e.name for e in self.holdout],
+            "sensor_noise_c": _round(self.sensor_noise_c or {}),
+            "residual_tests": self.residual_tests,
+            "elapsed_s": _r(self.elapsed_s),
+        }
+
+
+def _r(x: float) -> float | None:
+    x = float(x)
+    return round(x, 6) if np.isfinite(x) else None
+
+
+def _round(d: dict) -> dict:
+    return {k: _r(v) for k, v in d.items()}
+
+
+def _plain(d: dict) -> dict:
+    return {k: {o: list(v) if isinstance(v, tuple) else v for o, v in opts.items()}
+            for k, opts in d.items()}
+
+
+def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
+             effects: Sequence[str] | None = None, seed: int = 0,
+             progress: Callable[[str, float], None] | None = None) -> Diagnosis:
+    """Fit the baseline, locate its error, try every effect as an extension, and judge."""
+    t_start = time.perf_counter()
+    say = progress or (lambda _s, _f: None)
+    names = check_effects(EFFECTS if effects is None else effects)
+    fit_data, hold, tail_of, how = split(data, holdout)
+    say("baseline", 0.0)
+    base = run_task(Task((), {}, fit_data, hold, tail_of, None, seed, None))
+    every = fit_data + hold
+    floor = zone_noise_floor(every)
+    tc_noise = sensor_noise(every)
+    base_res = [e.zone_temp - p for e, p in zip(every, base.fit_pred + base.holdout_pred,
+                                                strict=True)]
+    faults = sensor_faults(every, base.fit_pred + base.holdout_pred, tc_noise)
+    where = locate(every, base_res, floor, faults)
+    tests = residual_tests(hold, [e.zone_temp - p for e, p in
+                                  zip(hold, base.holdout_pred, strict=True)])
+    gap = tuple(z for z in ZONES if base.rmse_holdout_c[z] > GAP_RATIO * floor[z])
+
+    options = {"sensor_drift": {"sensor": drift_sensor(faults, every, base, tc_noise)}}
+    say("candidates", 0.1)
+    tasks = [Task((n,), {n: options.get(n, {})} if n in options else {}, fit_data, hold,
+                  tail_of, base.params, seed, BUDGET_S.get(n, DEFAULT_BUDGET_S)) for n in names]
+    singles = _run_all(tasks, lambda f: say("candidates", 0.1 + 0.6 * f))
+    for c in singles:
+        score_against(c, base, floor)
+    singles.sort(key=_rank)
+    combos, kept = stepwise(singles, base, floor, fit_data, hold, tail_of, seed, options, gap,
+                            lambda f: say("combinations", 0.7 + 0.3 * f))
+    candidates = sorted(singles + combos, key=_rank)
+    verdict = judge(base, kept, candidates, floor, gap, where)
+    say("done", 1.0)
+    return Diagnosis(fit_data, hold, how, base, floor, where, tests, candidates, verdict,
+                     time.perf_counter() - t_start, gap, tc_noise)
+
+
+def _credit(c: CandidateResult, min_closed: float = MIN_GAP_CLOSED) -> bool:
+    return c.identifiable and c.delta_bic < 0 and c.gap_closed_pct >= min_closed
+
+
+def _rank(c: CandidateResult) -> tuple:
+    return (not _credit(c), c.rmse_holdout_pooled())
+
+
+def _near(c: CandidateResult, floor: dict[str, float]) -> bool:
+    return all(c.rmse_holdout_c[z] <= NEAR_RATIO * floor[z] for z in ZONES)
+
+
+def _run_all(tasks: list[Task], progress: Callable[[float], None]) -> list[CandidateResult]:
+    if not tasks:
+        return []
+    out: list[CandidateResult] = []
+    if WORKERS > 1 and len(tasks) > 1:
+        ctx = multiprocessing.get_context("fork")
+        # longest first, so that the slow nonlinear fit does not finish last alone
+        order = sorted(range(len(tasks)), key=lambda i: -(tasks[i].budget_s or 0.0))
+        with ProcessPoolExecutor(max_workers=WORKERS, mp_context=ctx) as pool:
+            futures = {i: pool.submit(run_task, tasks[i]) for i in order}
+            results = {}
+            for k, i in enumerate(order):
+                results[i] = futures[i].result()
+                progress((k + 1) / len(tasks))
+        return [results[i] for i in range(len(tasks))]
+    for k, t in enumerate(tasks):
+        out.append(run_task(t))
+        progress((k + 1) / len(tasks))
+    return out
+
+
+def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[str, float],
+             fit_data, hold, tail_of, seed: int, options: dict, gap: tuple[str, ...],
+             progress: Callable[[float], None]
+             ) -> tuple[list[CandidateResult], CandidateResult | None]:
+    """Combinations tried, and the set kept: the best single with credit, then one effect
+    added at a time while the kept set leaves a clear gap and a further effect removes most
+    of what is left (and is itself determined by the data)."""
+    if not gap or not singles or not _credit(singles[0]):
+        return [], None
+    kept = singles[0]
+    tried: list[CandidateResult] = []
+    for _step in range(MAX_EFFECTS - 1):
+        if all(kept.rmse_holdout_c[z] <= 1.1 * floor[z] for z in ZONES):
+            break
+        others = [c.effects[0] for c in singles if c.effects[0] not in kept.effects][:STEP_TRIES]
+        tasks = []
+        for n in others:
+            effs = (*kept.effects, n)
+            opts = {k: v for k, v in options.items() if k in effs}
+            tasks.append(Task(effs, opts, fit_data, hold, tail_of, kept.params, seed,
+                              max(BUDGET_S.get(e, DEFAULT_BUDGET_S) for e in effs)))
+        step = _run_all(tasks, progress)
+        for c in step:
+            score_against(c, base, floor)
+        tried += step
+        fl2 = float(np.mean([floor[z] ** 2 for z in ZONES]))
+        left = kept.rmse_holdout_pooled() ** 2 - fl2
+
+        def closes(c: CandidateResult, left=left, kept=kept) -> bool:
+            gain = kept.rmse_holdout_pooled() ** 2 - c.rmse_holdout_pooled() ** 2
+            bic = c.n_eff() * np.log(c.sse_fit / kept.sse_fit) + \
+                (c.n_params - kept.n_params) * np.log(c.n_eff())
+            return c.identifiable and left > 0 and gain >= MIN_GAP_CLOSED / 100 * left and bic < 0
+
+        good = [c for c in step if closes(c)]
+        if not good:
+            break
+        kept = min(good, key=lambda c: c.rmse_holdout_pooled())
+    return tried, kept
+
+
+def judge(base: CandidateResult, kept: CandidateResult | None,
+          candidates: list[CandidateResult], floor: dict[str, float],
+          gap: tuple[str, ...], where: list[Located]) -> Verdict:
+    fl = ", ".join(f"{z} {floor[z]:.1f}" for z in ZONES)
+    rb = ", ".join(f"{z} {base.rmse_holdout_c[z]:.1f}" for z in ZONES)
+    if not gap:
+        return Verdict("no_gap", [], 0.0,
+                       f"The paper's model already predicts the held-out data as well as the "
+                       f"thermocouples allow (held-out RMSE {rb} degC against a noise floor of "
+                       f"{fl} degC): there is no model error to explain.")
+    if kept is not None and _near(kept, floor):
+        best = kept
+        physics = "; and ".join(EFFECTS[n].physics for n in best.effects)
+        worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / floor[z])
+        return Verdict(
+            "explained", list(best.effects), best.shrink_pct,
+            f"The model's error comes from an effect it leaves out: {physics} "
+            f"({', '.join(best.effects)}). Adding it cuts the held-out error in the "
+            f"{ZONE_WORDS[worst]} zone from {base.rmse_holdout_c[worst]:.1f} to "
+            f"{best.rmse_holdout_c[worst]:.1f} degC (pooled over zones {best.shrink_pct:.0f}% "
+            f"smaller), down to about the thermocouple noise of {floor[worst]:.1f} degC.")
+    worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / floor[z])
+    place = ""
+    if where:
+        w = where[0]
+        who = f"thermocouple {w.sensor}" if w.sensor else f"the {ZONE_WORDS[w.zone]} zone"
+        place = (f" It lies mainly in {who}, {w.start_min:.0f}-{w.end_min:.0f} min of "
+                 f"{w.experiment} ({w.regime}).")
+    best = candidates[0] if candidates else None
+    tried = (f" The best candidate, {best.label}, only reaches {best.rmse_holdout_pooled():.1f} "
+             f"degC." if best is not None else "")
+    return Verdict(
+        "unexplained", [], 0.0,
+        f"The model's held-out error is real ({base.rmse_holdout_c[worst]:.1f} degC in the "
+        f"{ZONE_WORDS[worst]} zone against a noise floor of {floor[worst]:.1f} degC), but "
+        f"none of the candidate effects brings it down to the noise.{place}{tried}")
+
+
+def split(data: list[Experiment], holdout: list[Experiment] | None
+          ) -> tuple[list[Experiment], list[Experiment], list[int | None], str]:
+    """Fit data, held-out data, which fit experiment each held-out tail continues, and how
+    the holdout was chosen. Refuses, with what is missing, data that cannot be diagnosed."""
+    if not data:
+        raise FurnaceError("no data to diagnose")
+    for e in [*data, *(holdout or [])]:
+        for w, z in enumerate(ZONES):
+            if not np.isfinite(e.zone_temp[:, w]).any():
+                raise FurnaceError(f"{e.source or e.name}: zone '{z}' has no thermocouple "
+                                   "readings: every zone needs at least one")
+        if len(e) < 2:
+            raise FurnaceError(f"{e.source or e.name}: only {len(e)} sample(s)")
+    if holdout:
+        fit_data, hold, tail_of, how = list(data), list(holdout), [None] * len(holdout), "given"
+    elif len(data) > 1:
+        fit_data, hold, tail_of = list(data[:-1]), [data[-1]], [None]
+        how = f"whole experiments: {data[-1].name} held out"
+    else:
+        e = data[0]
+        t0, t1 = float(e.t_min[0]), float(e.t_min[-1])
+        cut = t0 + (1 - TAIL_SHARE) * (t1 - t0)
+        head, tail = e.between(t0, cut), e.between(cut, np.inf)
+        if len(head) < MIN_FIT_SAMPLES or len(tail) < MIN_HOLDOUT_SAMPLES:
+            raise FurnaceError(
+                f"{e.source or e.name}: too short to hold out part of it ({len(e)} samples; "
+                f"its first {100 * (1 - TAIL_SHARE):.0f}% needs at least {MIN_FIT_SAMPLES} "
+                f"and the rest {MIN_HOLDOUT_SAMPLES}): give a second experiment or --holdout")
+        if head.burner_steps == 0:
+            raise FurnaceError(
+                f"{e.source or e.name}: only one experiment and no burner change in its first "
+                f"{100 * (1 - TAIL_SHARE):.0f}% (up to {cut:.0f} min), which would be fitted "
+                "while the rest is held out: nothing identifies the model; give a second "
+                "experiment or --holdout")
+        fit_data, hold, tail_of = [head], [tail], [0]
+        how = f"last {100 * TAIL_SHARE:.0f}% of {e.name} (from {cut:.0f} min)"
+    if all(e.burner_steps == 0 for e in fit_data):
+        raise FurnaceError(
+            f"no burner change in the data to fit ({', '.join(e.source or e.name for e in fit_data)}): "
+            "too little excitation to identify the model; the data need at least one step in "
+            "the number of burners firing")
+    return fit_data, hold, tail_of, how
+
+
+def locate(experiments: list[Experiment], residuals: list[np.ndarray],
+           floor: dict[str, float], faults) -> list[Located]:
+    """The located error: thermocouples at fault first, then the spans that hold most of
+    the baseline's squared error above the floor."""
+    total = {z: 0.0 for z in ZONES}
+    for r in residuals:
+        for w, z in enumerate(ZONES):
+            v = r[:, w]
+            total[z] += float(np.nansum(v * v))
+    out: list[Located] = []
+    for f in faults:
+        exp, r = experiments[f.experiment], residuals[f.experiment]
+        z = f.sensor.rsplit("_", 1)[0]
+        w = ZONES.index(z)
+        share = float(np.nansum(r[f.i0:f.i1, w] ** 2)) / total[z] if total[z] > 0 else 0.0
+        what = (f"{f.sensor} drifts {f.size_c:+.1f} degC from its partner" if f.kind == "drift"
+                else f"{f.sensor} departs by about {f.size_c:.0f} degC from its partner at times")
+        out.append(_located(exp, z, f.sensor, f.i0, f.i1, share, what))
+    for s in error_spans(experiments, residuals, floor):
+        exp = experiments[s.experiment]
+        share = s.sse / total[s.zone] if total[s.zone] > 0 else 0.0
+        out.append(_located(exp, s.zone, None, s.i0, s.i1, share,
+                            regime(exp, s.i0, s.i1, s.zone)))
+    return out
+
+
+def _located(exp: Experiment, zone: str, sensor: str | None, i0: int, i1: int, share: float,
+             words: str) -> Located:
+    a, b = float(exp.t_min[i0]), float(exp.t_min[max(i1 - 1, i0)])
+    return Located(zone, sensor, exp.name, a, b, iso(exp, a), iso(exp, b), share, words)
+
+
+def drift_sensor(faults, experiments: list[Experiment], base: CandidateResult,
+                 tc_noise: dict[str, float]) -> str:
+    """The thermocouple a drift candidate is tried on: one found drifting, else the one of
+    the pair whose difference changes most (for the zone mean either of a pair is the same
+    candidate, with the sign of the rate flipped)."""
+    for f in faults:
+        if f.kind == "drift":
+            return f.sensor
+    best, name = -1.0, "heat_2"
+    for w, z in enumerate(ZONES):
+        for e in experiments:
+            pair = e.tc[:, 2 * w:2 * w + 2]
+            ok = np.all(np.isfinite(pair), axis=1)
+            if ok.sum() < 50:
+                continue
+            d = pair[ok, 0] - pair[ok, 1]
+            n = d.size // 5
+            change = abs(np.median(d[-n:]) - np.median(d[:n]))
+            if change > best:
+                best, name = change, f"{z}_2"
+    return name
+
+
+def pooled_floor(floor: dict[str, float]) -> float:
+    return pooled(floor)

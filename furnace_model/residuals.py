@@ -1,0 +1,313 @@
+"""Where a model's error lies: the noise floor the data allow, the time spans and operating
+regimes that hold the error, thermocouples that disagree with their partner, and the
+whiteness and input cross-correlation tests of the residual (as MATLAB's `resid` draws them).
+
+Everything here reads measured data and a model's predictions; nothing is fitted except
+straight lines and hinges to the difference of a thermocouple pair.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from . import SENSORS, ZONES
+from .experiment import Experiment
+
+MAD_TO_SD = 1.482602218505602
+Z99 = 2.5758293035489004
+MAX_LAG = 25
+"""Lags (in samples) of the whiteness and cross-correlation tests, MATLAB's default."""
+MIN_SPAN = 5
+"""Samples: a shorter run of large residuals is a spike, not a span."""
+ZONE_WORDS = {"soak": "soaking", "heat": "heating", "preheat": "preheating"}
+
+
+def robust_sd(x: np.ndarray) -> float:
+    x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size < 3:
+        return float("nan")
+    return float(MAD_TO_SD * np.median(np.abs(x - np.median(x))))
+
+
+def sensor_noise(experiments: list[Experiment]) -> dict[str, float]:
+    """Noise sd (degC) of single thermocouple readings per zone, from the data alone.
+
+    The two thermocouples of a zone see the same gas, so their difference holds only their
+    noise (plus biases and drifts, which change slowly); its first difference removes the
+    slow part, and a median-based scale ignores the odd spike or loose junction. With
+    equal white noise sd s on both, the first difference of the pair difference has sd 2 s.
+    A zone with one working thermocouple falls back on the second difference of its own
+    reading (sd sqrt(6) s for a signal smooth at the sample rate).
+    """
+    out: dict[str, float] = {}
+    for w, zone in enumerate(ZONES):
+        vals, weights = [], []
+        for exp in experiments:
+            pair = exp.tc[:, 2 * w:2 * w + 2]
+            both = np.all(np.isfinite(pair), axis=1)
+            if both.sum() > 20:
+                d = pair[:, 0] - pair[:, 1]
+                dd = np.diff(d)[both[1:] & both[:-1]]
+                vals.append(robust_sd(dd) / 2.0)
+                weights.append(dd.size)
+                continue
+            y = exp.zone_temp[:, w]
+            d2 = np.diff(y, 2)
+            d2 = d2[np.isfinite(d2)]
+            if d2.size > 20:
+                vals.append(robust_sd(d2) / np.sqrt(6.0))
+                weights.append(d2.size)
+        good = [(v, n) for v, n in zip(vals, weights, strict=True) if np.isfinite(v)]
+        out[zone] = (float(np.average([v for v, _ in good], weights=[n for _, n in good]))
+                     if good else float("nan"))
+    return out
+
+
+def zone_noise_floor(experiments: list[Experiment]) -> dict[str, float]:
+    """Noise sd (degC) of the zone temperature (the mean of the zone's good thermocouples):
+    the RMSE a perfect model would reach. Where a zone has both thermocouples in most
+    samples, averaging divides the variance by two."""
+    per_tc = sensor_noise(experiments)
+    out = {}
+    for w, zone in enumerate(ZONES):
+        counts = np.concatenate([np.isfinite(e.tc[:, 2 * w:2 * w + 2]).sum(axis=1)
+                                 for e in experiments])
+        counts = counts[counts > 0]
+        mean_inv = float(np.mean(1.0 / counts)) if counts.size else 1.0
+        out[zone] = per_tc[zone] * np.sqrt(mean_inv)
+    return out
+
+
+@dataclass
+class Span:
+    """A contiguous stretch of one zone's residual in one experiment."""
+
+    zone: str
+    experiment: int  # index into the experiments given
+    i0: int
+    i1: int  # exclusive
+    sse: float
+    excess: float  # squared error above the noise floor
+
+
+def error_spans(experiments: list[Experiment], residuals: list[np.ndarray],
+                floor: dict[str, float], max_spans: int = 6) -> list[Span]:
+    """The stretches that hold most of the error above the noise floor, largest first.
+
+    Per zone and experiment, the maximum-sum run of (r^2 - 4 floor^2) is a stretch where
+    the residual stays well above the noise (noise-level samples count against it), found
+    in one pass; it is taken out and the search repeated for a second and third stretch.
+    """
+    spans: list[Span] = []
+    for j, r in enumerate(residuals):
+        for w, zone in enumerate(ZONES):
+            rz = r[:, w]
+            sq = np.where(np.isfinite(rz), rz * rz, 0.0)
+            fl2 = floor[zone] ** 2 if np.isfinite(floor[zone]) else 0.0
+            gain = sq - 4.0 * fl2
+            used = np.zeros(sq.size, dtype=bool)
+            for _ in range(3):
+                g = np.where(used, -np.inf, gain)
+                i0, i1, total = _max_subarray(g)
+                if total <= 0 or i1 - i0 < MIN_SPAN:
+                    break
+                used[i0:i1] = True
+                spans.append(Span(zone, j, i0, i1, float(sq[i0:i1].sum()),
+                                  float((sq[i0:i1] - fl2).sum())))
+    spans.sort(key=lambda s: -s.excess)
+    return spans[:max_spans]
+
+
+def _max_subarray(g: np.ndarray) -> tuple[int, int, float]:
+    """(start, end exclusive, sum) of the maximum-sum contiguous run (Kadane)."""
+    best, best_i0, best_i1 = 0.0, 0, 0
+    run, run_i0 = 0.0, 0
+    for i, v in enumerate(g):
+        if not np.isfinite(v):
+            run, run_i0 = 0.0, i + 1
+            continue
+        if run <= 0:
+            run, run_i0 = v, i
+        else:
+            run += v
+        if run > best:
+            best, best_i0, best_i1 = run, run_i0, i + 1
+    return best_i0, best_i1, best
+
+
+def regime(exp: Experiment, i0: int, i1: int, zone: str) -> str:
+    """The operating regime of samples i0:i1 in plain words: which zones' burners fire,
+    burner steps inside, and the zone's temperature band."""
+    b = exp.burners[i0:i1]
+    firing = [ZONE_WORDS[z] for k, z in enumerate(ZONES) if np.mean(b[:, k] > 0) >= 0.5]
+    if not firing:
+        words = ["no burners firing"]
+    elif len(firing) == 1:
+        words = [f"{firing[0]}-zone burners firing"]
+    else:
+        words = [f"{', '.join(firing[:-1])} and {firing[-1]}-zone burners firing"]
+    total = b.sum(axis=1)
+    steps = np.nonzero(np.diff(total) != 0)[0]
+    if steps.size:
+        k = steps[0]
+        words.append(f"burners {int(total[k])} -> {int(total[k + 1])} at "
+                     f"{exp.t_min[i0 + k + 1]:.0f} min"
+                     + (f" (+{steps.size - 1} more step{'s' if steps.size > 2 else ''})"
+                        if steps.size > 1 else ""))
+    else:
+        words.append(f"{int(total[0])} burners on" if total.size else "")
+    y = exp.zone_temp[i0:i1, ZONES.index(zone)]
+    if np.isfinite(y).any():
+        lo, hi = np.nanmin(y), np.nanmax(y)
+        band = 100.0 if hi - lo > 150 else 50.0
+        words.append(f"{np.floor(lo / band) * band:.0f}-{np.ceil(hi / band) * band:.0f} C")
+    return "; ".join(w for w in words if w)
+
+
+def iso(exp: Experiment, t_min: float) -> str | None:
+    if exp.start_time is None:
+        return None
+    ts = pd.Timestamp(exp.start_time) + pd.Timedelta(minutes=float(t_min))
+    return ts.tz_convert("UTC").strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+@dataclass
+class SensorFault:
+    """A thermocouple that disagrees with its partner in a way noise cannot explain."""
+
+    sensor: str
+    experiment: int
+    i0: int
+    i1: int
+    kind: str  # "drift" | "episodes"
+    size_c: float  # drift over the span, or the typical departure in the episodes
+
+
+def sensor_faults(experiments: list[Experiment], predictions: list[np.ndarray],
+                  tc_noise: dict[str, float]) -> list[SensorFault]:
+    """Pairs whose difference grows over the record (a drifting thermocouple) or jumps away
+    for episodes (a loose junction): the sensor, not the furnace, is to blame there.
+
+    Which of the two is at fault: the one whose reading departs more from the model's
+    prediction over the span (the model may be wrong too, but equally for both)."""
+    out: list[SensorFault] = []
+    for j, exp in enumerate(experiments):
+        pred = predictions[j]
+        for w, zone in enumerate(ZONES):
+            pair = exp.tc[:, 2 * w:2 * w + 2]
+            both = np.all(np.isfinite(pair), axis=1)
+            s = tc_noise.get(zone, float("nan"))
+            if both.sum() < 50 or not np.isfinite(s) or s <= 0:
+                continue
+            t = exp.t_min[both]
+            d = pair[both, 0] - pair[both, 1]
+            sd_d = s * np.sqrt(2.0)
+            dev = (pair - pred[:, w:w + 1]) - np.nanmedian(pair - pred[:, w:w + 1], axis=0)
+            # episodes: readings far outside the pair's noise band
+            far = np.abs(d - np.median(d)) > 6.0 * sd_d
+            if far.sum() >= 3:
+                idx = np.nonzero(both)[0][far]
+                culprit = int(np.argmax(np.nanmean(np.abs(dev[idx]), axis=0)))
+                out.append(SensorFault(SENSORS[2 * w + culprit], j, int(idx[0]), int(idx[-1]) + 1,
+                                       "episodes", float(np.median(np.abs(d[far] - np.median(d))))))
+                continue
+            t0, change = _hinge(t, d)
+            if abs(change) > max(8.0 * sd_d / np.sqrt(max(1.0, (t >= t0).sum() / 50.0)), 2.0):
+                i0 = int(np.searchsorted(exp.t_min, t0))
+                late = slice(i0, None)
+                culprit = int(np.argmax(np.nanmean(np.abs(dev[late]), axis=0)))
+                out.append(SensorFault(SENSORS[2 * w + culprit], j, i0, len(exp), "drift",
+                                       float(change if culprit == 0 else -change)))
+    return out
+
+
+def _hinge(t: np.ndarray, d: np.ndarray, n_grid: int = 40) -> tuple[float, float]:
+    """Best fit of d = a + b max(t - t0, 0) over a grid of onsets: (t0, change to the end)."""
+    best = (float(t[0]), 0.0, np.inf)
+    for t0 in np.linspace(t[0], t[0] + 0.9 * (t[-1] - t[0]), n_grid):
+        x = np.maximum(t - t0, 0.0)
+        X = np.column_stack([np.ones_like(x), x])
+        coef, *_ = np.linalg.lstsq(X, d, rcond=None)
+        sse = float(np.sum((d - X @ coef) ** 2))
+        if sse < best[2]:
+            best = (float(t0), float(coef[1] * (t[-1] - t0)), sse)
+    return best[0], best[1]
+
+
+def _xcorr(a: np.ndarray, b: np.ndarray, lags: np.ndarray) -> np.ndarray:
+    """Normalised cross-correlation E[a(t+k) b(t)] for each lag k."""
+    n = a.size
+    sa, sb = np.sqrt(np.mean(a * a)), np.sqrt(np.mean(b * b))
+    if sa == 0 or sb == 0:
+        return np.zeros(lags.size)
+    out = np.empty(lags.size)
+    for i, k in enumerate(lags):
+        out[i] = (np.sum(a[k:] * b[:n - k]) if k >= 0 else np.sum(a[:n + k] * b[-k:])) / n
+    return out / (sa * sb)
+
+
+def residual_tests(experiments: list[Experiment], residuals: list[np.ndarray],
+                   max_lag: int = MAX_LAG) -> dict:
+    """Per zone: autocorrelation of the residual with its 99% band (whiteness), and its
+    cross-correlation with each input (burners per zone and their changes) with a 99% band
+    that allows for the input's own autocorrelation (Bartlett), as `resid` does.
+
+    A residual outside the band at lag k > 0 of an input says the model misses how the
+    furnace responds to that input k samples later."""
+    inputs = {}
+    for k, z in enumerate(ZONES):
+        inputs[f"burners_{z}"] = [e.burners[:, k].astype(float) for e in experiments]
+        inputs[f"d_burners_{z}"] = [np.diff(e.burners[:, k].astype(float), prepend=e.burners[0, k])
+                                    for e in experiments]
+    lags_a = np.arange(max_lag + 1)
+    lags_x = np.arange(-max_lag, max_lag + 1)
+    out: dict = {}
+    for w, zone in enumerate(ZONES):
+        parts = []
+        for r in residuals:
+            e = r[:, w]
+            e = np.where(np.isfinite(e), e - np.nanmean(e), 0.0)
+            parts.append(e)
+        e = np.concatenate(parts)
+        n = e.size
+        acf = _xcorr(e, e, lags_a)
+        bound = Z99 / np.sqrt(max(n, 1))
+        zone_out = {"n": int(n), "lags": lags_a.tolist(),
+                    "autocorr": np.round(acf, 5).tolist(), "autocorr_bound": float(bound),
+                    "white": bool(np.all(np.abs(acf[1:]) <= bound)), "xcorr": {}}
+        for name, series in inputs.items():
+            u = np.concatenate([s - s.mean() for s in series])
+            if not np.any(u):
+                continue
+            cc = _xcorr(e, u, lags_x)
+            acf_u = _xcorr(u, u, lags_a)
+            # var of the sample cross-correlation of independent series: sum of the
+            # products of their autocorrelations over all lags, divided by n
+            var = (1.0 + 2.0 * np.sum(acf[1:] * acf_u[1:])) / n
+            b = float(Z99 * np.sqrt(max(var, 1.0 / n)))
+            k = int(np.argmax(np.abs(cc)))
+            zone_out["xcorr"][name] = {"lags": lags_x.tolist(), "values": np.round(cc, 5).tolist(),
+                                       "bound": b, "max_abs": float(abs(cc[k])),
+                                       "at_lag": int(lags_x[k]),
+                                       "independent": bool(np.all(np.abs(cc) <= b))}
+        out[zone] = zone_out
+    return out
+
+
+def lag1(residuals: list[np.ndarray]) -> float:
+    """Mean lag-1 autocorrelation of the residual over zones and experiments."""
+    vals = []
+    for r in residuals:
+        for w in range(r.shape[1]):
+            e = r[:, w]
+            e = e[np.isfinite(e)]
+            if e.size > 10:
+                e = e - e.mean()
+                den = float(e @ e)
+                if den > 0:
+                    vals.append(float(e[1:] @ e[:-1]) / den)
+    return float(np.clip(np.mean(vals), 0.0, 0.999)) if vals else 0.0

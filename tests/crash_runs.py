@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import random
 import select
 import signal
@@ -163,16 +164,21 @@ def kill_runs(log_dir: Path, proxy: CountingProxy, config: Path, n: int, seed: i
     return kills
 
 
-def wait_polling(proc, timeout: float = 30.0) -> None:
-    """Until the daemon says it polls (its log and recovery are set up by then)."""
+def wait_polling(proc, timeout: float = 30.0) -> str:
+    """Until the daemon says it polls (its log and recovery are set up by then); what it
+    wrote on stderr so far. Reads the raw pipe: a buffered readline would hide lines from
+    select."""
     deadline = time.monotonic() + timeout
+    seen = b""
+    fd = proc.stderr.fileno()
     while time.monotonic() < deadline:
-        ready, _, _ = select.select([proc.stderr], [], [], 0.2)
+        ready, _, _ = select.select([fd], [], [], 0.2)
         if ready:
-            line = proc.stderr.readline()
-            if line.startswith("polling ") or not line:
-                return
-    raise RuntimeError("furnace-daq run did not start polling")
+            chunk = os.read(fd, 65536)
+            seen += chunk
+            if b"\npolling " in b"\n" + seen or not chunk:
+                return seen.decode(errors="replace")
+    raise RuntimeError(f"furnace-daq run did not start polling: {seen!r}")
 
 
 def max_loss_polls(flush_s: float = FLUSH_S, period_s: float = PERIOD_S) -> int:

@@ -1,0 +1,103 @@
+"""`furnace-model diagnose`: where the paper's model errs on these data, which unmodelled
+effect explains the error, and how far the held-out error shrinks once it is added.
+
+Without --holdout the last experiment is held out (one experiment: its last 30%)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .. import ZONES
+from ..diagnosis import Diagnosis, diagnose
+from ..effects import EFFECTS
+from ..errors import FurnaceError
+from ..experiment import load_experiment
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("diagnose", help="explain the model's error: where, which effect, how far",
+                       description=__doc__)
+    p.add_argument("data", nargs="+", type=Path, help="CSV or Parquet files to fit")
+    p.add_argument("--holdout", nargs="+", type=Path, metavar="DATA",
+                   help="files to score on, never fitted (default: the last file given, or "
+                        "the last 30%% of a lone file)")
+    p.add_argument("--json", type=Path, metavar="OUT", help="write the diagnosis as JSON")
+    p.add_argument("--report", type=Path, metavar="OUT.html",
+                   help="write a self-contained HTML report")
+    p.add_argument("--effects", type=_effect_list, metavar="a,b",
+                   help=f"candidates to try (default all: {','.join(EFFECTS)})")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the searches (default 0)")
+    p.set_defaults(run=run)
+
+
+def _effect_list(text: str) -> tuple[str, ...]:
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if n not in EFFECTS]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(
+            f"unknown effect(s) {', '.join(bad) or '(none given)'}; expected names from "
+            f"{', '.join(EFFECTS)}")
+    return names
+
+
+def run(args: argparse.Namespace) -> int:
+    data = [load_experiment(p) for p in args.data]
+    hold = [load_experiment(p) for p in args.holdout] if args.holdout else None
+    result = diagnose(data, hold, effects=args.effects, seed=args.seed)
+    print(summary(result))
+    if args.json:
+        _write(args.json, json.dumps(result.to_json(), indent=1, allow_nan=False) + "\n")
+    if args.report:
+        try:
+            from ..report import write_report
+        except ImportError:
+            raise FurnaceError("the HTML report is not available in this installation") from None
+        try:
+            write_report(result, args.report)
+        except OSError as exc:
+            raise FurnaceError(f"{args.report}: cannot write the report: {exc}") from None
+    print(f"diagnosed in {result.elapsed_s:.1f} s", file=sys.stderr)
+    return 0
+
+
+def _write(path: Path, text: str) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    except OSError as exc:
+        raise FurnaceError(f"{path}: cannot write: {exc}") from None
+
+
+def summary(d: Diagnosis) -> str:
+    b = d.baseline
+    lines = [f"Fitted: {', '.join(e.name for e in d.fit_data)}; held out: {d.holdout_how}", "",
+             "Baseline (the paper's model, eq. 11):",
+             "| zone | RMSE fit (degC) | RMSE held out (degC) | noise floor (degC) | gap |",
+             "|---|---|---|---|---|"]
+    for z in ZONES:
+        lines.append(f"| {z} | {b.rmse_fit_c[z]:.2f} | {b.rmse_holdout_c[z]:.2f} | "
+                     f"{d.noise_floor_c[z]:.2f} | {'yes' if z in d.gap_zones else 'no'} |")
+    if d.where:
+        lines += ["", "Where the error lies:"]
+        for w in d.where:
+            who = f"thermocouple {w.sensor}" if w.sensor else f"{w.zone} zone"
+            lines.append(f"- {who}, {w.experiment} {w.start_min:.0f}-{w.end_min:.0f} min"
+                         + (f" ({w.start} to {w.end})" if w.start else "")
+                         + f": {100 * w.share_of_error:.0f}% of the zone's squared error; "
+                         f"{w.regime}")
+    if d.candidates:
+        lines += ["", "Candidates, best first (held-out RMSE per zone soak/heat/preheat):",
+                  "| effect(s) | held out (degC) | shrink % | gap closed % | dBIC | credit |",
+                  "|---|---|---|---|---|---|"]
+        for c in d.candidates:
+            ho = "/".join(f"{c.rmse_holdout_c[z]:.2f}" for z in ZONES)
+            credit = "yes" if c.identifiable else "no: not determined"
+            lines.append(f"| {c.label} | {ho} | {c.shrink_pct:.0f} | {c.gap_closed_pct:.0f} | "
+                         f"{c.delta_bic:.0f} | {credit} |")
+    v = d.verdict
+    lines += ["", f"Verdict: {v.status}" + (f" ({', '.join(v.effects)})" if v.effects else ""),
+              v.sentence]
+    return "\n".join(lines)

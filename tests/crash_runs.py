@@ -1,26 +1,24 @@
 """Kill the real daemon process at random moments and count what it lost: shared by
 tests/test_crash.py and bench/bench_reliability.py.
 
-The loss is judged against what the PLC served, not against a clock: a loopback proxy
-between the daemon and `sim-plc` counts every thermocouple read (Modbus FC4 response) it
-passes to the daemon, and the log must hold all but the polls of the last flush interval.
+The loss is judged against what the PLC served, not against a clock: the fault proxy
+between the daemon and `sim-plc` (in pass mode) records every thermocouple read it passes to
+the daemon, and the log must hold all but the polls of the last flush interval.
 A daemon starved of CPU polls less and loses no more, so a busy machine cannot fail this."""
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import os
 import random
 import select
 import signal
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 from daq_processes import ROOT, furnace_daq, stop
+from faultproxy import ThreadedFaultProxy
 
 from furnace_daq.logschema import THERMOCOUPLES
 from furnace_daq.mcaplog import read_messages
@@ -30,80 +28,19 @@ FLUSH_S = 0.5
 THERMOCOUPLE_FC = 4
 
 
-class CountingProxy:
-    """Loopback TCP proxy that counts complete Modbus TCP responses of one function code
-    on their way from the PLC to the client. Runs its own event loop in a thread."""
+class ServedReads:
+    """Thermocouple reads (FC4 responses at address 0) the proxy passed to the daemon, counted
+    since the last call."""
 
-    def __init__(self, target_port: int, function_code: int = THERMOCOUPLE_FC):
-        self.target_port, self.fc = target_port, function_code
-        self.port = 0
-        self._count = 0
-        self._lock = threading.Lock()
-        self._loop = asyncio.new_event_loop()
-        self._ready = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._server: asyncio.Server | None = None
-
-    def __enter__(self) -> CountingProxy:
-        self._thread.start()
-        if not self._ready.wait(10):
-            raise RuntimeError("proxy did not start")
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._loop.call_soon_threadsafe(self._loop.stop)
-        self._thread.join(10)
+    def __init__(self, proxy: ThreadedFaultProxy):
+        self.proxy, self._seen = proxy, 0
 
     def take(self) -> int:
-        """Responses counted since the last call."""
-        with self._lock:
-            n, self._count = self._count, 0
-        return n
-
-    def _run(self) -> None:
-        asyncio.set_event_loop(self._loop)
-        self._server = self._loop.run_until_complete(
-            asyncio.start_server(self._handle, "127.0.0.1", 0))
-        self.port = self._server.sockets[0].getsockname()[1]
-        self._ready.set()
-        self._loop.run_forever()
-        self._server.close()
-        for task in asyncio.all_tasks(self._loop):
-            task.cancel()
-        with contextlib.suppress(Exception):
-            self._loop.run_until_complete(asyncio.sleep(0))
-        self._loop.close()
-
-    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        try:
-            up_r, up_w = await asyncio.open_connection("127.0.0.1", self.target_port)
-        except OSError:
-            writer.close()
-            return
-        await asyncio.gather(self._forward(reader, up_w), self._responses(up_r, writer),
-                             return_exceptions=True)
-        for w in (writer, up_w):
-            w.close()
-
-    @staticmethod
-    async def _forward(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
-        with contextlib.suppress(OSError):
-            while data := await r.read(4096):
-                w.write(data)
-                await w.drain()
-        w.close()
-
-    async def _responses(self, r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
-        with contextlib.suppress(OSError, asyncio.IncompleteReadError):
-            while True:
-                head = await r.readexactly(7)  # MBAP: transaction, protocol, length, unit
-                body = await r.readexactly(int.from_bytes(head[4:6], "big") - 1)
-                w.write(head + body)
-                await w.drain()
-                if body[0] == self.fc:
-                    with self._lock:
-                        self._count += 1
-        w.close()
+        answered = self.proxy.answered[:]  # appended to by the proxy's thread
+        new, self._seen = answered[self._seen:], len(answered)
+        return sum(1 for req, resp in new if req.function_code == THERMOCOUPLE_FC
+                   and req.address_count is not None and req.address_count[0] == 0
+                   and resp.function_code == THERMOCOUPLE_FC)
 
 
 def daemon_config(directory: Path, flush_s: float = FLUSH_S, period_s: float = PERIOD_S) -> Path:
@@ -135,7 +72,8 @@ class Kill:
         return self.served - self.logged
 
 
-def kill_runs(log_dir: Path, proxy: CountingProxy, config: Path, n: int, seed: int,
+def kill_runs(log_dir: Path, proxy: ThreadedFaultProxy, served: ServedReads, config: Path,
+              n: int, seed: int,
               max_after_s: float = 2.0) -> list[Kill]:
     """Start `furnace-daq run` n times on one log directory and SIGKILL it at a random moment
     (one in five during start-up, the others up to `max_after_s` into polling). Each start recovers the `.part`
@@ -157,10 +95,10 @@ def kill_runs(log_dir: Path, proxy: CountingProxy, config: Path, n: int, seed: i
         proc.wait(10)
         stop(proc)
         time.sleep(0.05)  # the proxy sees the connection close
-        served = proxy.take()
+        n_served = served.take()
         new = [p for p in set(log_dir.iterdir()) - before if p.name.endswith((".part", ".mcap"))
                and ".recovered." not in p.name]
-        kills.append(Kill(after_s, served, good_readings(new) if new else 0))
+        kills.append(Kill(after_s, n_served, good_readings(new) if new else 0))
     return kills
 
 

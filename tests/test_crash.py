@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from crash_runs import (
     FLUSH_S,
-    CountingProxy,
+    ServedReads,
     daemon_config,
     good_readings,
     kill_runs,
@@ -20,6 +20,7 @@ from crash_runs import (
     wait_polling,
 )
 from daq_processes import furnace_daq, start_simplc, stop
+from faultproxy import ThreadedFaultProxy
 from mcap.reader import make_reader
 
 from furnace_daq.logrecover import has_footer, lock_log_dir, recover_leftovers
@@ -41,8 +42,9 @@ def _sigkill_series(tmp_path: Path, kills: int, seed: int) -> None:
     config = daemon_config(tmp_path)
     sim, port = start_simplc("--speed", "600", "--scan-s", "0.05")
     try:
-        with CountingProxy(port) as proxy:
-            runs = kill_runs(logs, proxy, config, kills, seed)
+        with ThreadedFaultProxy(port) as proxy:
+            served = ServedReads(proxy)
+            runs = kill_runs(logs, proxy, served, config, kills, seed)
             # The last kill's .part: rescued by hand, as an operator would ...
             parts = list(logs.glob("*.mcap.part"))
             assert len(parts) <= 1, parts
@@ -57,7 +59,7 @@ def _sigkill_series(tmp_path: Path, kills: int, seed: int) -> None:
                               "--log-dir", str(logs), "--duration", "1.0")
             _, err = daq.communicate(timeout=60)
             assert daq.returncode == 0, err
-            last_served = proxy.take()
+            last_served = served.take()
     finally:
         stop(sim)
     report = [(round(k.after_s, 2), k.served, k.logged) for k in runs]
@@ -87,7 +89,7 @@ def test_sigterm_closes_the_file_with_nothing_lost(tmp_path: Path) -> None:
     logs = tmp_path / "logs"
     sim, port = start_simplc("--speed", "600", "--scan-s", "0.05")
     try:
-        with CountingProxy(port) as proxy:
+        with ThreadedFaultProxy(port) as proxy:
             daq = furnace_daq("run", "--config", str(daemon_config(tmp_path)), "--plc",
                               f"127.0.0.1:{proxy.port}", "--log-dir", str(logs))
             wait_polling(daq)
@@ -95,7 +97,7 @@ def test_sigterm_closes_the_file_with_nothing_lost(tmp_path: Path) -> None:
             daq.send_signal(signal.SIGTERM)
             _, err = daq.communicate(timeout=30)
             time.sleep(0.05)
-            served = proxy.take()
+            served = ServedReads(proxy).take()
     finally:
         stop(sim)
     assert daq.returncode == 0, err

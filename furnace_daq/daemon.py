@@ -13,7 +13,17 @@ connection and hands it back to the connector. Every change of state is one mess
 
 Time. log_time is host UTC at acquisition. publish_time is the PLC's clock when the map has
 one: epoch + PLC seconds, the epoch given in the config or anchored at the first reading (and
-re-anchored, with an event, when the PLC clock jumps back after a PLC restart).
+re-anchored, with an event, when the PLC clock jumps back after a PLC restart). A step of
+the host clock never reorders the log: log time follows a step forward and absorbs a step
+back by running slow until the host clock catches up (logclock.LogClock); each step is a
+clock_step event on /daq/events.
+
+Refits. With a `refit:` section every furnace message the daemon logs is also fed to a
+RefitRunner (refitworker), which cuts windows on the PLC clock and fits them in a worker
+process; the loop only checks for finished fits once per tick. Results go to /model/* with
+log_time = host time of the result and publish_time = the window's end on the data clock,
+to `on_model`, and atomically to <state_dir>/model.json (written from a thread: a slow disk
+must not delay a poll).
 """
 
 from __future__ import annotations
@@ -22,16 +32,23 @@ import asyncio
 import contextlib
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from typing import Protocol
 
 from furnace_model import SENSORS, ZONES
 
 from .daqconfig import DaqConfig
-from .logschema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
+from .logclock import LogClock
+from .logschema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
+from .refitworker import RefitRunner
 from .registers import COMM_ERROR, OK, STALE
 from .sdnotify import Notifier
 from .sources import CanSource, ModbusSource, Sample, Source, SourceError
+from .statefile import write_json_atomic
+
+MODEL_FILE = "model.json"
+FURNACE_TOPICS = frozenset((THERMOCOUPLES, BURNERS, AMBIENT))
 
 
 class Log(Protocol):
@@ -61,7 +78,8 @@ class Counters:
 class Daemon:
     def __init__(self, config: DaqConfig, log: Log, *, plc: Source | None = None,
                  flame: Source | None = None, notifier: Notifier | None = None,
-                 wall_ns: Callable[[], int] = time.time_ns):
+                 wall_ns: Callable[[], int] = time.time_ns,
+                 on_model: Callable[[dict], None] | None = None):
         self.config = config
         self.log = log
         self.plc = plc if plc is not None else ModbusSource(config)
@@ -69,7 +87,7 @@ class Daemon:
         if flame is None and config.burner_source in ("can", "both") and config.can is not None:
             self.flame = CanSource(config.can)
         self.notifier = notifier or Notifier({})
-        self.wall_ns = wall_ns
+        self.wall_ns = LogClock(wall_ns)
         self.counters = Counters()
         self.state = "disconnected"
         self.detail = "starting"
@@ -88,6 +106,15 @@ class Daemon:
         self._disagree: tuple[frozenset[str], int] = (frozenset(), 0)
         self._reported_disagreement: frozenset[str] = frozenset()
         self._last_status_mono = float("-inf")
+        self.on_model = on_model
+        self.refit: RefitRunner | None = None
+        if config.refit is not None:
+            self.refit = RefitRunner(config.refit, self._model_message,
+                                     t_air_default=config.ambient_default_c,
+                                     max_queue=config.refit.queue_max)
+        self._state_writer: ThreadPoolExecutor | None = None
+        self._state_error: str | None = None  # set by the writer thread
+        self._state_reported: str | None = None
 
     # -- life cycle ----------------------------------------------------------------------------
     def stop(self) -> None:
@@ -99,6 +126,9 @@ class Daemon:
         where = f"{getattr(self.plc, 'host', '?')}:{getattr(self.plc, 'port', '?')}"
         self.notifier.ready(f"polling {where} every {self.config.poll_period_s:g} s")
         self._status("disconnected", f"starting; dialling PLC at {where}")
+        if self.refit is not None:
+            self.refit.start()
+            self._state_writer = ThreadPoolExecutor(1, thread_name_prefix="state-writer")
         tasks = [asyncio.create_task(self._connector(self.plc), name="plc connector")]
         if self.flame is not None:
             tasks.append(asyncio.create_task(self._open_flame(), name="can connector"))
@@ -119,6 +149,7 @@ class Daemon:
             await self.plc.close()
             if self.flame is not None:
                 await self.flame.close()
+            await self._finish_refits()
             self._status("disconnected", "stopping")
             self.log.close()
             self.notifier.close()
@@ -166,6 +197,10 @@ class Daemon:
         c = self.counters
         c.polls += 1
         log_ns = self.wall_ns()
+        step = self.wall_ns.take_step()
+        if step is not None:
+            self._write(DAQ_EVENTS, {"kind": "clock_step", "detail": self.wall_ns.describe(step),
+                                     "step_s": step / 1e9}, log_ns, log_ns)
         plc_sample: Sample | None = None
         if self._connected.is_set() and not self.plc.connected:
             self._lost("connection closed by the PLC")
@@ -189,6 +224,8 @@ class Daemon:
                 self._write(BURNERS, self._burner_message(flame_sample, "can"), log_ns, log_ns)
         if plc_sample is not None and flame_sample is not None:
             self._compare_burners(plc_sample, flame_sample, log_ns)
+        if self.refit is not None:
+            self._pump_refits()
         now = time.monotonic()
         if now - self._last_status_mono >= self.config.status_interval_s:
             self._status(self.state, self.detail)
@@ -352,3 +389,74 @@ class Daemon:
 
     def _write(self, topic: str, message: dict, log_ns: int, pub_ns: int) -> None:
         self.log.write(topic, message, log_ns, pub_ns)
+        if self.refit is not None and topic in FURNACE_TOPICS:
+            self._guarded(self.refit.feed, topic, message, pub_ns)
+
+    # -- refits -----------------------------------------------------------------------------------
+    def _guarded(self, call: Callable, *args) -> None:
+        """Online identification is a guest of the acquisition: whatever goes wrong in it is
+        an event, never the end of polling."""
+        try:
+            call(*args)
+        except Exception as exc:  # noqa: BLE001
+            now = self.wall_ns()
+            self.log.write(DAQ_EVENTS, {"kind": "refit_error",
+                                        "detail": f"refit pipeline: {type(exc).__name__}: {exc}"},
+                           now, now)
+
+    def _pump_refits(self) -> None:
+        assert self.refit is not None
+        self._guarded(self.refit.pump)
+        self._report_state_error()
+
+    def _report_state_error(self) -> None:
+        error = self._state_error
+        if error != self._state_reported:
+            self._state_reported = error
+            if error is not None:
+                now = self.wall_ns()
+                self.log.write(DAQ_EVENTS, {"kind": "state_write_failed",
+                                            "detail": f"latest model not saved: {error}"},
+                               now, now)
+
+    def _model_message(self, topic: str, message: dict, pub_ns: int) -> None:
+        self.log.write(topic, message, self.wall_ns(), pub_ns)
+        if topic != MODEL_PARAMETERS:
+            return
+        if self.on_model is not None:
+            try:
+                self.on_model(message)
+            except Exception as exc:  # noqa: BLE001 - a consumer's bug is not ours to die of
+                now = self.wall_ns()
+                self.log.write(DAQ_EVENTS, {"kind": "on_model_error",
+                                            "detail": f"{type(exc).__name__}: {exc}"}, now, now)
+        if self._state_writer is not None and self.config.refit is not None:
+            path = self.config.refit.state_dir / MODEL_FILE
+            self._state_writer.submit(self._write_state, path, message)
+
+    def _write_state(self, path, message: dict) -> None:
+        """In the writer thread; a failure is remembered and reported once per kind."""
+        try:
+            write_json_atomic(path, message)
+        except (OSError, ValueError, TypeError) as exc:
+            self._state_error = f"{path}: {getattr(exc, 'strerror', None) or exc}"
+        else:
+            self._state_error = None
+
+    async def _finish_refits(self) -> None:
+        """At stop: give the windows already cut their fit (bounded), then end the worker."""
+        if self.refit is None:
+            return
+        deadline = time.monotonic() + self.refit.kill_after_s
+        while self.refit.busy() and time.monotonic() < deadline:
+            self._pump_refits()
+            await asyncio.sleep(0.01)
+        left = len(self.refit.queue) + (self.refit.in_flight is not None)
+        if left:
+            now = self.wall_ns()
+            self.log.write(DAQ_EVENTS, {"kind": "refit_abandoned", "detail":
+                                        f"{left} refit window(s) not fitted at stop"}, now, now)
+        self.refit.close()
+        if self._state_writer is not None:
+            self._state_writer.shutdown(wait=True)
+        self._report_state_error()

@@ -124,25 +124,57 @@ _DAQ_EVENTS = _object(
     ("kind", "detail"),
 )
 
+_CI95 = _object({p: {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2,
+                     "description": f"95% interval of {p}: [lo, hi]"} for p in PARAM_NAMES},
+                "95% confidence intervals")
+_COMBINATIONS = {"type": "object", "description": "the combinations the window determines "
+                 "(e.g. 'd/e', 'b/c'): {name: {value, ci95}}"}
+
 _MODEL_PARAMETERS = _object(
     {
-        **{p: _number(f"parameter {p} of the paper's eq. 11") for p in PARAM_NAMES},
-        "ci95": _object({p: {"type": "array", "items": {"type": "number"}, "minItems": 2,
-                             "maxItems": 2, "description": f"95% interval of {p}: [lo, hi]"}
-                         for p in PARAM_NAMES}, "95% confidence intervals"),
-        "window_start": _string("start of the data window of the fit, ISO 8601 UTC"),
-        "window_end": _string("end of the data window of the fit, ISO 8601 UTC"),
+        **{p: _number(f"parameter {p} of the paper's eq. 11 in force after this window; null "
+                      "before the first model") for p in PARAM_NAMES},
+        "ci95": _CI95,
+        "window_start": _string("start of the data window of the fit, ISO 8601 UTC (PLC clock)"),
+        "window_end": _string("end of the data window of the fit, ISO 8601 UTC (PLC clock)"),
         "rmse_c": _object({z: _number(f"fit RMSE of the {z} zone in degC") for z in ZONES},
                           "fit RMSE per zone"),
-        "status": _string("outcome of the refit", MODEL_STATUSES),
+        "status": _string("outcome of the refit; unless ok, the previous model is kept",
+                          MODEL_STATUSES),
+        "detail": _string("why a window was not fitted, or the fit's warnings"),
+        "model_window_start": _string("start of the window the model in force was fitted on"),
+        "model_window_end": _string("end of the window the model in force was fitted on"),
+        "n_samples": {"type": "integer", "description": "resampled rows in the window"},
+        "gap_fraction": _number("share of the window's rows missing or without every zone"),
+        "burner_steps": {"type": "integer", "description": "burner pattern changes in the window"},
+        "elapsed_s": _number("wall time of the fit in s"),
+        "sigma_c": _number("residual standard deviation of the fit in degC"),
+        "determined_combinations": {"type": "array", "items": {"type": "string"},
+                                    "description": "what the window's data determine"},
+        "undetermined": {"type": "array", "items": {"type": "string"},
+                         "description": "parameters with a 95% interval wider than +-5%"},
+        "combinations": _COMBINATIONS,
+        "zone_offsets_c": _object({z: _number(f"fitted thermocouple offset of the {z} zone")
+                                   for z in ZONES}, "fitted thermocouple bias per zone"),
     },
-    "an online refit of the three-zone model",
-    (*PARAM_NAMES, "status"),
+    "an online refit of the three-zone model over one window of the data clock",
+    (*PARAM_NAMES, "ci95", "window_start", "window_end", "rmse_c", "status"),
 )
 
 _MODEL_EVENTS = _object(
-    {"kind": _string("what happened, e.g. drift"),
+    {"kind": _string("what happened: drift, window_dropped"),
      "detail": _string("the event in words"),
+     "parameter": _string("drift: the parameter that moved"),
+     "old": _number("drift: its reference value"),
+     "old_ci95": {"type": "array", "items": {"type": "number"}, "description": "drift: the "
+                  "reference's 95% interval"},
+     "new": _number("drift: its value now"),
+     "new_ci95": {"type": "array", "items": {"type": "number"}, "description": "drift: the new "
+                  "95% interval"},
+     "relative_change": _number("drift: new / old - 1"),
+     "windows": {"type": "integer", "description": "drift: windows in a row that moved"},
+     "window_start": _string("the window that raised the event"),
+     "window_end": _string("the window that raised the event"),
      "parameters": _params_object("the parameters involved and their new values")},
     "model events such as parameter drift",
     ("kind", "detail"),

@@ -18,7 +18,11 @@ outside the reference interval, (2) the distance on the log scale exceeds the tw
 half-widths combined in quadrature (overlapping noisy windows scatter within that), and (3) the
 relative change is at least `drift_min_change` (3 %: smaller changes are not worth an alarm
 even when the data resolve them). `drift_windows` successive fitted windows moving away in the
-same direction raise one drift event, and the new value becomes the reference.
+same direction raise one drift event, and the new value becomes the reference. Only a
+parameter the data determine (95% interval within +-5%, see docs/identification.md) is
+judged: at 1-minute sampling b, c, d and e are not, and their intervals, linearised around
+a long curved valley, are not to be trusted for an alarm. A reference that was itself not
+determined is replaced by the next value.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from furnace_model.fit import fit
 
 from .daqconfig import RefitConfig
 from .logexport import Resampler
-from .logschema import PARAM_NAMES
+from .logschema import AMBIENT, PARAM_NAMES, THERMOCOUPLES
 from .mcaplog import iso_time
 
 FITTING_SEED = 0
@@ -113,6 +117,7 @@ class _Reference:
     value: float
     ci95: tuple[float, float]
     window_end: str
+    determined: bool = True
     streak: int = 0
     direction: int = 0
 
@@ -209,11 +214,12 @@ class RefitChain:
         events = []
         for p in PARAM_NAMES:
             new, (lo, hi) = float(msg[p]), msg["ci95"][p]
+            determined = p not in msg["undetermined"]
             ref = self.references.get(p)
-            if ref is None:
-                self.references[p] = _Reference(new, (lo, hi), msg["window_end"])
+            if ref is None or not ref.determined:
+                self.references[p] = _Reference(new, (lo, hi), msg["window_end"], determined)
                 continue
-            direction = _moved(ref, new, (lo, hi), cfg.drift_min_change)
+            direction = _moved(ref, new, (lo, hi), cfg.drift_min_change) if determined else 0
             if direction == 0 or direction != ref.direction:
                 ref.streak = 0
             ref.direction = direction
@@ -233,7 +239,7 @@ class RefitChain:
                 "new": new, "new_ci95": [lo, hi], "relative_change": change,
                 "windows": ref.streak, "window_start": msg["window_start"],
                 "window_end": msg["window_end"], "parameters": {p: new}})
-            self.references[p] = _Reference(new, (lo, hi), msg["window_end"])
+            self.references[p] = _Reference(new, (lo, hi), msg["window_end"], determined)
         return events
 
 
@@ -277,6 +283,11 @@ class WindowCutter:
         self.resampler = Resampler(self.step_ns, 0)
 
     def feed(self, topic: str, msg: dict, pub_ns: int) -> list[Window]:
+        """Only readings move the data clock: a failed poll is stamped with the host's time
+        and burner states may come from CAN on the host's clock; both still enter the bins."""
+        if topic == THERMOCOUPLES and "error" in msg or topic not in (THERMOCOUPLES, AMBIENT):
+            self.resampler.add(topic, msg, pub_ns)
+            return []
         out: list[Window] = []
         due = self.next_due_ns
         if due is None:

@@ -10,7 +10,7 @@ import sys
 
 from furnace_model.errors import FurnaceError
 
-COMMANDS: tuple[str, ...] = ("simplc", "run", "logs")
+COMMANDS: tuple[str, ...] = ("simplc", "run", "logs", "replay")
 """Subcommand modules of this package, in the order `--help` lists them."""
 
 

@@ -1,0 +1,231 @@
+"""Refits in a separate process, so that the poll loop never waits on a fit, and a fit that
+hangs, crashes or eats memory can be killed without touching acquisition.
+
+`RefitWorker` is one child process (started with 'spawn': no inherited event loop, sockets
+or locks) reading jobs from a pipe and sending back results. `RefitRunner` is what the daemon
+and replay hold: it cuts windows (refit.WindowCutter), keeps them in a FIFO, hands them one
+at a time to the worker, feeds the outcomes to the chain (refit.RefitChain) and emits the
+messages. One window in flight at a time: window k + 1 warm-starts from window k.
+
+Failures. A worker that dies, or runs past `KILL_FACTOR` x budget (+ `KILL_MARGIN_S`) of wall
+time, is killed and started anew; that window is published with status `failed` and the
+model in force is kept. When windows arrive faster than they are fitted, the queue holds
+`max_queue` of them; beyond that the oldest is dropped with a /model/events message
+(kind `window_dropped`). Replay passes `max_queue=None` and waits instead, since it can.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+from collections import deque
+from collections.abc import Callable
+from multiprocessing.connection import Connection
+
+from .daqconfig import RefitConfig
+from .logschema import MODEL_EVENTS, MODEL_PARAMETERS
+from .mcaplog import iso_time
+from .refit import FitJob, RefitChain, Window, WindowCutter, run_fit
+
+KILL_FACTOR = 3.0
+KILL_MARGIN_S = 5.0
+START_TIMEOUT_S = 120.0
+"""A worker that has not imported numpy and scipy after this long is declared dead."""
+
+Emit = Callable[[str, dict, int], None]
+"""emit(topic, message, publish time ns on the data clock)"""
+
+
+def _serve(conn: Connection) -> None:
+    """The worker process: import once, then fit jobs until the pipe closes."""
+    import furnace_model.fit  # noqa: F401 - paid once at start, not by the first window
+
+    conn.send(("ready", None))
+    while True:
+        try:
+            job = conn.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            conn.send(("ok", run_fit(job)))
+        except Exception as exc:  # noqa: BLE001 - reported as a failed refit
+            conn.send(("error", f"{type(exc).__name__}: {exc}"))
+
+
+class RefitWorker:
+    """One fitting process behind a pipe."""
+
+    def __init__(self) -> None:
+        self._ctx = mp.get_context("spawn")
+        self.proc: mp.process.BaseProcess | None = None
+        self.conn: Connection | None = None
+        self.ready = False
+        self.started_at = 0.0
+
+    def start(self) -> None:
+        parent, child = self._ctx.Pipe(duplex=True)
+        self.proc = self._ctx.Process(target=_serve, args=(child,), name="furnace-refit",
+                                      daemon=True)
+        self.proc.start()
+        child.close()
+        self.conn = parent
+        self.ready = False
+        self.started_at = time.monotonic()
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.is_alive()
+
+    def send(self, job: FitJob) -> None:
+        assert self.conn is not None and self.ready
+        self.conn.send(job)
+
+    def receive(self, timeout: float = 0.0) -> tuple[str, object] | None:
+        """The next reply, or None when there is none within `timeout`; ('died', exit code)
+        when the process is gone."""
+        if self.conn is None:
+            return None
+        try:
+            if not self.conn.poll(timeout):
+                if self.proc is not None and not self.proc.is_alive():
+                    return "died", self.proc.exitcode
+                return None
+            kind, value = self.conn.recv()
+        except (EOFError, OSError):
+            self.stop(kill=True)
+            return "died", None if self.proc is None else self.proc.exitcode
+        if kind == "ready":
+            self.ready = True
+        return kind, value
+
+    def stop(self, kill: bool = False) -> None:
+        if self.conn is not None:
+            self.conn.close()
+            self.conn = None
+        if self.proc is not None:
+            if kill:
+                self.proc.kill()
+            self.proc.join(5.0)
+            if self.proc.is_alive():
+                self.proc.kill()
+                self.proc.join(5.0)
+            self.proc = None
+        self.ready = False
+
+
+class RefitRunner:
+    """Windows in, /model messages out, fits in a worker process; see the module docstring.
+    Not thread-safe: call everything from one thread (the event loop, or replay's loop)."""
+
+    def __init__(self, config: RefitConfig, emit: Emit, *, t_air_default: float = 30.0,
+                 max_queue: int | None = None):
+        self.config = config
+        self.emit = emit
+        self.max_queue = max_queue
+        self.cutter = WindowCutter(config, t_air_default)
+        self.chain = RefitChain(config, t_air_default)
+        self.queue: deque[Window] = deque()
+        self.in_flight: tuple[Window, float] | None = None
+        self.worker = RefitWorker()
+        self.kill_after_s = KILL_FACTOR * config.budget_s + KILL_MARGIN_S
+        self.windows = 0
+        self.dropped = 0
+        self.failures = 0
+        self._restart_delay = 0.0
+        self._start_at = 0.0  # monotonic time of the next worker start while there is none
+
+    def start(self) -> None:
+        self.worker.start()
+
+    def feed(self, topic: str, msg: dict, pub_ns: int) -> None:
+        """One logged message; cuts and queues the windows that became due."""
+        for window in self.cutter.feed(topic, msg, pub_ns):
+            self.windows += 1
+            self.queue.append(window)
+            if self.max_queue is not None and len(self.queue) > self.max_queue:
+                old = self.queue.popleft()
+                self.dropped += 1
+                self.emit(MODEL_EVENTS, {
+                    "kind": "window_dropped",
+                    "detail": f"refits fall behind: window to {iso_time(old.end_ns)} dropped "
+                              f"unfitted ({self.max_queue} windows queued)",
+                    "window_end": iso_time(old.end_ns)}, old.end_ns)
+        self.pump()
+
+    def busy(self) -> bool:
+        return self.in_flight is not None or bool(self.queue)
+
+    def pump(self, timeout: float = 0.0) -> None:
+        """Collect a finished fit (waiting up to `timeout`), check the one in flight, hand
+        out the next window. Cheap when nothing happened: call it on every poll tick."""
+        now = time.monotonic()
+        if self.worker.proc is None:
+            if now < self._start_at:
+                return
+            self.worker.start()
+        reply = self.worker.receive(timeout) if (self.in_flight or not self.worker.ready) \
+            else None
+        if reply is not None:
+            kind, value = reply
+            if kind == "died":
+                self._restart(f"the refit worker process died (exit code {value})")
+            elif kind in ("ok", "error") and self.in_flight is not None:
+                window, _ = self.in_flight
+                self.in_flight = None
+                if kind == "ok":
+                    self._restart_delay = 0.0
+                    msg, events = self.chain.accept(window, value)
+                else:
+                    msg, events = self.chain.kept(window, "failed", f"fit raised {value}"), []
+                self._publish(window, msg, events)
+        now = time.monotonic()
+        if self.in_flight is not None and now - self.in_flight[1] > self.kill_after_s:
+            self._restart(f"the fit ran past {self.kill_after_s:g} s of wall time "
+                          f"(budget {self.config.budget_s:g} s); worker killed")
+        elif self.worker.proc is not None and not self.worker.ready \
+                and now - self.worker.started_at > START_TIMEOUT_S:
+            self._restart(f"the refit worker did not start within {START_TIMEOUT_S:g} s")
+        while self.in_flight is None and self.queue:
+            window = self.queue[0]
+            reason = self.chain.check(window)
+            if reason is not None:
+                self.queue.popleft()
+                self._publish(window, self.chain.kept(window, "insufficient_excitation", reason),
+                              [])
+                continue
+            if not self.worker.ready:
+                return
+            self.queue.popleft()
+            self.worker.send(self.chain.job(window))
+            self.in_flight = (window, time.monotonic())
+
+    def _restart(self, why: str) -> None:
+        """Kill the worker; a new one starts at the next pump, later after each failure in a
+        row (a worker that cannot start must not cost a process start per poll tick)."""
+        self.worker.stop(kill=True)
+        if self.in_flight is not None:
+            window, _ = self.in_flight
+            self.in_flight = None
+            self._publish(window, self.chain.kept(window, "failed", why), [])
+        self._start_at = time.monotonic() + self._restart_delay
+        self._restart_delay = min(60.0, max(1.0, 2 * self._restart_delay))
+
+    def _publish(self, window: Window, msg: dict, events: list[dict]) -> None:
+        if msg["status"] == "failed":
+            self.failures += 1
+        self.emit(MODEL_PARAMETERS, msg, window.end_ns)
+        for event in events:
+            self.emit(MODEL_EVENTS, event, window.end_ns)
+
+    def drain(self, timeout: float) -> bool:
+        """Fit what is queued, waiting at most `timeout` seconds; True when all is done."""
+        deadline = time.monotonic() + timeout
+        while self.busy():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            self.pump(min(left, 0.05))
+        return True
+
+    def close(self) -> None:
+        self.worker.stop(kill=True)

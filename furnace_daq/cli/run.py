@@ -27,6 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", required=True, type=Path, help="daemon YAML (config/gateway.yaml)")
     p.add_argument("--plc", metavar="HOST:PORT", help="PLC address, overrides plc.host/port")
     p.add_argument("--log-dir", type=Path, help="MCAP directory, overrides log.dir")
+    p.add_argument("--state-dir", type=Path,
+                   help="where the latest model (model.json) is kept, overrides refit.state_dir")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (exit 0)")
     p.set_defaults(run=run)
 
@@ -45,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, plc=replace(config.plc, host=host, port=port))
     if args.log_dir:
         config = replace(config, log=replace(config.log, dir=args.log_dir))
+    if args.state_dir and config.refit is not None:
+        config = replace(config, refit=replace(config.refit, state_dir=args.state_dir))
     if args.duration is not None and args.duration <= 0:
         raise ConfigError("--duration", "", f"must be positive, got {args.duration:g}")
     # Connection trouble is reported on /daq/status; the client library's own log lines

@@ -1,0 +1,205 @@
+"""Online refits on simulated runs with known truth: accuracy once the window holds burner
+steps, windows on the data clock, excitation checks, failures that keep the previous model,
+the refit: config section and the atomic state file."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+
+import numpy as np
+import pandas as pd
+import pytest
+from refit_helpers import scenario, simulate, through_pipeline
+
+from furnace_daq.daqconfig import RefitConfig, parse_config
+from furnace_daq.logschema import MODEL_PARAMETERS, PARAM_NAMES
+from furnace_daq.plantlog import run_messages
+from furnace_daq.refit import RefitChain, WindowCutter
+from furnace_daq.refitworker import RefitRunner
+from furnace_daq.statefile import write_json_atomic
+from furnace_model.config import Node
+from furnace_model.errors import ConfigError
+from furnace_model.fit import fit
+
+HOUR = 3600.0
+
+
+def combos(p: dict) -> dict[str, float]:
+    """What 1-minute data determine (docs/identification.md): a, f, b/c, d/e."""
+    return {"a": p["a"], "f": p["f"], "b/c": p["b"] / p["c"], "d/e": p["d"] / p["e"]}
+
+
+def test_online_refits_recover_the_plant_within_3_percent():
+    s = scenario("week_steps", duration_min=3 * 1440)
+    cfg = RefitConfig(period_s=3 * HOUR, window_s=24 * HOUR)
+    params, events = through_pipeline(simulate(s), cfg)
+    truth = combos(s.params)
+    assert len(params) == 3 * 8  # one per period of the data clock, none skipped
+    ends = [pd.Timestamp(m["window_end"]) for m in params]
+    assert all((e - s.start_time) / pd.Timedelta(hours=3) % 1 == 0 for e in ends)
+    assert all(pd.Timestamp(m["window_end"]) - pd.Timestamp(m["window_start"])
+               == pd.Timedelta(hours=24) for m in params)
+    ok = [m for m in params if m["status"] == "ok"]
+    # the first day's windows are not yet full: more than 20% of their samples are missing
+    assert [m["status"] for m in params[:6]] == ["insufficient_excitation"] * 6
+    assert len(ok) >= 16
+    for m in ok:
+        assert m["burner_steps"] >= 2
+        got = combos(m)
+        for name, want in truth.items():
+            assert abs(got[name] / want - 1) < 0.03, (m["window_end"], name, got[name], want)
+        assert all(0.8 < v < 1.4 for v in m["rmse_c"].values()), m["rmse_c"]  # noise 1.5/sqrt 2
+        for p in PARAM_NAMES:
+            lo, hi = m["ci95"][p]
+            assert lo <= m[p] <= hi
+    assert events == [], "a steady plant raises no event"
+
+
+def test_windows_follow_the_data_clock_and_a_static_window_keeps_the_model():
+    """Burners frozen for the last 8 h: those windows have no step, the model stays."""
+    s = scenario("week_steps", duration_min=20 * 60)
+    keep = s.steps_t < 12 * 60
+    s.steps_t, s.steps_burners = s.steps_t[keep], s.steps_burners[keep]
+    cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR)
+    cutter, chain = WindowCutter(cfg), RefitChain(cfg)
+    out = []
+    for topic, msg, t in run_messages(simulate(s)):
+        for w in cutter.feed(topic, msg, t):
+            out.append(chain.process(w)[0])
+    statuses = [m["status"] for m in out]
+    assert statuses[:2] == ["insufficient_excitation"] * 2  # window not yet full
+    last_ok = max(i for i, st in enumerate(statuses) if st == "ok")
+    static = [m for m in out if m["burner_steps"] == 0]
+    assert static, statuses
+    for m in static:
+        assert m["status"] == "insufficient_excitation"
+        assert "burner change" in m["detail"]
+        assert m["model_window_end"] == out[last_ok]["window_end"]
+        assert all(m[p] == out[last_ok][p] for p in PARAM_NAMES)
+
+
+def test_gaps_beyond_the_limit_are_insufficient_and_late_windows_recover():
+    s = scenario("week_steps", duration_min=18 * 60)
+    cfg = RefitConfig(period_s=3 * HOUR, window_s=6 * HOUR, max_gap_fraction=0.2)
+    msgs = [(tp, m, t) for tp, m, t in run_messages(simulate(s))]
+    t0 = msgs[0][2]
+    # the daemon was stopped from hour 7 to hour 9: windows holding that gap lack 2 of 6 h
+    lo, hi = t0 + int(7 * HOUR * 1e9), t0 + int(9 * HOUR * 1e9)
+    msgs = [x for x in msgs if not lo <= x[2] < hi]
+    cutter, chain = WindowCutter(cfg), RefitChain(cfg)
+    by_end = {}
+    for topic, msg, t in msgs:
+        for w in cutter.feed(topic, msg, t):
+            by_end[(w.end_ns - t0) / 3.6e12] = chain.process(w)[0]
+    assert by_end[6.0]["status"] == "ok"
+    for h in (9.0, 12.0):
+        assert by_end[h]["status"] == "insufficient_excitation"
+        assert "missing" in by_end[h]["detail"]
+        assert by_end[h]["a"] == by_end[6.0]["a"]
+    assert by_end[15.0]["status"] == "ok" and by_end[18.0]["status"] == "ok"
+
+
+def _collect(cfg: RefitConfig) -> tuple[RefitRunner, list[dict]]:
+    got: list[dict] = []
+    runner = RefitRunner(cfg, lambda topic, m, t: got.append(m) if topic == MODEL_PARAMETERS
+                         else None)
+    return runner, got
+
+
+def test_a_killed_worker_is_a_failed_window_and_refits_go_on():
+    s = scenario("week_steps", duration_min=16 * 60)
+    cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR)
+    runner, got = _collect(cfg)
+    runner.start()
+    killed = False
+    try:
+        for topic, msg, t in run_messages(simulate(s)):
+            runner.feed(topic, msg, t)
+            if runner.in_flight is not None and not killed and runner.chain.model is not None:
+                os.kill(runner.worker.proc.pid, signal.SIGKILL)
+                killed = True
+            while runner.busy():
+                runner.pump(0.05)
+    finally:
+        runner.close()
+    assert killed
+    failed = [i for i, m in enumerate(got) if m["status"] == "failed"]
+    assert len(failed) == 1, [(m["status"], m["detail"]) for m in got]
+    i = failed[0]
+    assert "died" in got[i]["detail"]
+    assert got[i]["model_window_end"] == got[i - 1]["model_window_end"]  # previous model kept
+    assert all(got[i][p] == got[i - 1][p] for p in PARAM_NAMES)
+    assert [m["status"] for m in got[i + 1:]].count("ok") >= 2  # a new worker took over
+
+
+def test_an_overrun_is_killed_and_a_spent_budget_fails():
+    s = scenario("week_steps", duration_min=8 * 60)
+    cfg = RefitConfig(period_s=2 * HOUR, window_s=4 * HOUR)
+    runner, got = _collect(cfg)
+    runner.kill_after_s = 0.0  # every fit outlives its allowance
+    runner.start()
+    try:
+        for topic, msg, t in run_messages(simulate(s)):
+            runner.feed(topic, msg, t)
+        assert runner.drain(60)
+    finally:
+        runner.close()
+    fitted = [m for m in got if m["status"] != "insufficient_excitation"]
+    assert fitted and all(m["status"] == "failed" and "wall time" in m["detail"]
+                          for m in fitted), got
+    assert all(m["a"] is None for m in got), "no model yet: nulls, never invented values"
+    # a fit that runs out of its own budget returns, but its result is not kept
+    cutter = WindowCutter(cfg)
+    chain = RefitChain(RefitConfig(period_s=2 * HOUR, window_s=4 * HOUR, budget_s=1e-3))
+    out = [chain.process(w)[0] for topic, msg, t in run_messages(simulate(s))
+           for w in cutter.feed(topic, msg, t)]
+    assert {m["status"] for m in out} == {"insufficient_excitation", "failed"}
+    assert any("time budget" in m["detail"] for m in out)
+
+
+def test_refit_config_section():
+    base = {"thermocouples": {s: {"address": i} for i, s in enumerate(
+        ("soak_1", "soak_2", "heat_1", "heat_2", "preheat_1", "preheat_2"))},
+        "burners": {"modbus": {"soak": {"address": 0}, "heat": {"address": 10},
+                               "preheat": {"address": 18}}}}
+    assert parse_config(Node(base, "c.yaml")).refit is None
+    cfg = parse_config(Node({**base, "refit": {"period_s": 600, "state_dir": "/tmp/s"}},
+                            "c.yaml")).refit
+    assert (cfg.period_s, cfg.window_s, cfg.step_s, cfg.drift_windows) == (600, 86400, 60, 2)
+    assert str(cfg.state_dir) == "/tmp/s"
+    assert parse_config(Node({**base, "refit": {"enabled": False}}, "c.yaml")).refit is None
+    with pytest.raises(ConfigError, match=r"c.yaml: refit.period_s: must be a whole multiple"):
+        parse_config(Node({**base, "refit": {"period_s": 90}}, "c.yaml"))
+    with pytest.raises(ConfigError, match=r"refit.window: unknown key"):
+        parse_config(Node({**base, "refit": {"window": 90}}, "c.yaml"))
+
+
+def test_state_file_is_replaced_whole_and_kept_on_failure(tmp_path):
+    path = tmp_path / "state" / "model.json"
+    write_json_atomic(path, {"a": 0.02, "n": np.int64(3)})
+    assert json.loads(path.read_text()) == {"a": 0.02, "n": 3}
+    write_json_atomic(path, {"a": 0.03})
+    assert json.loads(path.read_text()) == {"a": 0.03}
+    with pytest.raises(ValueError):
+        write_json_atomic(path, {"a": float("nan")})  # not JSON: refused, old file intact
+    assert json.loads(path.read_text()) == {"a": 0.03}
+    assert sorted(p.name for p in path.parent.iterdir()) == ["model.json"]
+
+
+def test_chain_warm_starts_from_the_previous_window():
+    """Window k's fit starts at window k-1's result: the same as fitting it by hand so."""
+    s = scenario("week_steps", duration_min=12 * 60)
+    cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR)
+    cutter, chain = WindowCutter(cfg), RefitChain(cfg)
+    windows, out = [], []
+    for topic, msg, t in run_messages(simulate(s)):
+        for w in cutter.feed(topic, msg, t):
+            windows.append(w)
+            out.append(chain.process(w)[0])
+    i = next(k for k in range(1, len(out)) if out[k]["status"] == "ok"
+             and out[k - 1]["status"] == "ok")
+    by_hand = fit([windows[i].experiment], init={p: out[i - 1][p] for p in PARAM_NAMES},
+                  zone_offsets=True, seed=0)
+    assert all(by_hand.params[p] == out[i][p] for p in PARAM_NAMES)

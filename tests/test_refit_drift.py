@@ -1,0 +1,39 @@
+"""Drift events: a fuel switch (natural gas to biogas, heat per burner -20%) shows up as a
+drift of f within two refit periods; a week of the same plant without it raises none."""
+
+from __future__ import annotations
+
+import pandas as pd
+from refit_helpers import scenario, simulate, through_pipeline
+
+from furnace_daq.daqconfig import RefitConfig
+
+HOUR = 3600.0
+CONFIG = RefitConfig(period_s=6 * HOUR, window_s=6 * HOUR)
+
+
+def test_fuel_switch_raises_one_drift_event_on_f_within_two_periods():
+    s = scenario("fuel_switch")
+    switch = s.start_time + pd.Timedelta(minutes=s.effect_values["t_fuel"])
+    params, events = through_pipeline(simulate(s), CONFIG)
+    assert len(params) == 7 * 4
+    drift = [e for e in events if e["kind"] == "drift"]
+    assert [e["parameter"] for e in drift] == ["f"], [e["detail"] for e in drift]
+    event = drift[0]
+    raised = pd.Timestamp(event["window_end"])
+    assert switch < raised <= switch + 2 * pd.Timedelta(seconds=CONFIG.period_s)
+    assert abs(event["new"] / event["old"] - 0.8) < 0.03  # the fuel's ratio
+    assert event["relative_change"] < -0.15
+    lo, hi = event["old_ci95"]
+    assert not lo <= event["new"] <= hi
+    assert event["parameters"] == {"f": event["new"]}
+    before = [m for m in params if pd.Timestamp(m["window_end"]) <= switch]
+    assert before and all(abs(m["f"] / s.params["f"] - 1) < 0.03 for m in before
+                          if m["status"] == "ok")
+
+
+def test_a_steady_week_raises_no_drift_event():
+    s = scenario("week_steps")
+    params, events = through_pipeline(simulate(s), CONFIG)
+    assert len(params) == 7 * 4 and sum(m["status"] == "ok" for m in params) >= 26
+    assert events == [], [e["detail"] for e in events]

@@ -21,6 +21,8 @@ TC_COLUMNS = tuple(f"tc_{s}" for s in SENSORS)
 BURNER_COLUMNS = tuple(f"burners_{z}" for z in ZONES)
 TIME_COLUMNS = ("timestamp", "t_min")
 DEFAULT_T_AIR_C = 30.0
+TEMPERATURE_RANGE_C = (-273.15, 3000.0)
+MAX_SPAN_MIN = 10 * 366 * 24 * 60.0
 
 
 @dataclass
@@ -168,10 +170,14 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         what = "duplicate time" if steps[bad[0]] == 0 else "time goes backwards"
         raise err(f"{what}: rows must be in strictly increasing time order", time_col, i)
 
+    if t_min[-1] - t_min[0] > MAX_SPAN_MIN:
+        raise err(f"time spans {t_min[-1] - t_min[0]:.3g} minutes, more than ten years: "
+                  "not one heat-up", time_col, len(frame) - 1)
+
     tc = np.full((len(frame), len(TC_COLUMNS)), np.nan)
     for j, c in enumerate(TC_COLUMNS):
         if c in cols:
-            tc[:, j] = _numbers(frame[c], c, err, allow_empty=True)
+            tc[:, j] = _temperatures(_numbers(frame[c], c, err, allow_empty=True), c, err)
 
     burners = np.empty((len(frame), 3), dtype=int)
     for j, c in enumerate(BURNER_COLUMNS):
@@ -189,7 +195,8 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         burners[:, j] = v.astype(int)
 
     if "t_air" in cols:
-        t_air = _numbers(frame["t_air"], "t_air", err, allow_empty=True)
+        t_air = _temperatures(_numbers(frame["t_air"], "t_air", err, allow_empty=True),
+                              "t_air", err)
         # Ambient changes slowly: an empty cell holds the last reading (the default before any).
         t_air = pd.Series(t_air).ffill().fillna(t_air_default).to_numpy()
     else:
@@ -216,6 +223,17 @@ def _numbers(col: pd.Series, name: str, err, allow_empty: bool) -> np.ndarray:
         raise err("not a finite number", name, int(inf[0]))
     if not allow_empty and empty.any():
         raise err("empty cell: a value is required here", name, int(np.nonzero(empty)[0][0]))
+    return v
+
+
+def _temperatures(v: np.ndarray, name: str, err) -> np.ndarray:
+    """A reading beyond what any thermocouple survives is a broken export or a unit mix-up
+    (kelvin, counts); fitting it would only overflow."""
+    out = np.nonzero((v < TEMPERATURE_RANGE_C[0]) | (v > TEMPERATURE_RANGE_C[1]))[0]
+    if out.size:
+        lo, hi = TEMPERATURE_RANGE_C
+        raise err(f"{v[out[0]]:g} degC is not a furnace temperature (expected {lo:g} to "
+                  f"{hi:g})", name, int(out[0]))
     return v
 
 

@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from furnace_model import SENSORS, ZONES
+from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
 from furnace_model.errors import DataError
 from furnace_model.experiment import BURNER_COLUMNS, TC_COLUMNS
 
 from .logschema import AMBIENT, BURNERS, THERMOCOUPLES
-from .mcaplog import read_messages
+from .mcaplog import iso_time, read_messages
 
 
 class Resampler:
@@ -60,7 +60,8 @@ class Resampler:
 
     def add(self, topic: str, msg: dict, pub_ns: int) -> None:
         if topic == THERMOCOUPLES:
-            quality = msg.get("quality") or {}
+            quality = msg.get("quality")
+            quality = quality if isinstance(quality, dict) else {}  # no quality: no good reading
             self._tc_t.append(pub_ns)
             self._tc_v.append([_number(msg.get(s)) if quality.get(s) == "ok" else math.nan
                                for s in SENSORS])
@@ -166,10 +167,13 @@ def export_frame(paths: Iterable[str | Path], period_s: float = 60.0,
     lo = None if start is None else start.value
     hi = None if end is None else end.value
     binner = Resampler(period_ns, lo if lo is not None else 0)
+    where = ", ".join(map(str, paths))
     for topic, msg, _log_ns, pub_ns in read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT)):
         if topic == BURNERS or ((lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)):
-            binner.add(topic, msg, pub_ns)
-    where = ", ".join(map(str, paths))
+            try:
+                binner.add(topic, msg, pub_ns)
+            except DataError as exc:  # the message's fault: say in which log and when
+                raise DataError(where, f"at {iso_time(pub_ns)} (publish time): {exc}") from None
     starts, tc, burners, air = binner.table(lo, hi)
     if starts.size == 0:
         if binner.logged_bins(lo, hi) == 0:
@@ -201,7 +205,10 @@ def _counts(msg: dict) -> list[float]:
             n = sum(bool(v) for v in msg[z])
         out.append(_number(n))
     if any(math.isnan(v) for v in out):
-        raise DataError("/furnace/burners", f"message without burner counts: {msg}")
+        raise DataError(BURNERS, f"message without burner counts: {str(msg)[:200]}")
+    for z, v, n in zip(ZONES, out, BURNERS_PER_ZONE, strict=True):
+        if not 0 <= v <= n:
+            raise DataError(BURNERS, f"burner count of zone {z} outside 0..{n}: {v:g}")
     return out
 
 

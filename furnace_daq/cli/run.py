@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 import sys
 import time
@@ -57,27 +58,36 @@ def run(args: argparse.Namespace) -> int:
     lc = config.log
     try:
         lc.dir.mkdir(parents=True, exist_ok=True)
-        recovered = _recover_at_start(lc.dir, lc.prefix)
         log = LogWriter(lc.dir, prefix=lc.prefix, flush_interval_s=lc.flush_interval_s,
                         rotate_s=lc.rotate_s, rotate_bytes=lc.rotate_bytes,
                         retention_files=lc.retention_files, file_mode=lc.file_mode)
+        lock, recovered = _recover_at_start(lc.dir, lc.prefix)
     except (OSError, ValueError) as exc:
         raise FurnaceError(f"log directory {lc.dir}: {exc}") from None
     for note in recovered:  # files of a daemon that died: in the journal and in the log
         print(f"log recovery: {note}", file=sys.stderr, flush=True)
         now = time.time_ns()
         log.write(DAQ_EVENTS, {"kind": "log_recovered", "detail": note}, now, now)
-    return asyncio.run(_main(config, log, args.duration))
-
-
-def _recover_at_start(log_dir: Path, prefix: str) -> list[str]:
-    """Recover what a dead daemon left. An unwritable directory (full, read-only) must not
-    stop the service: it then starts without recovery and reports the log error as usual."""
     try:
-        lock_log_dir(log_dir, prefix)  # held until exit
+        return asyncio.run(_main(config, log, args.duration))
+    finally:
+        if lock is not None:
+            os.close(lock)
+
+
+def _recover_at_start(log_dir: Path, prefix: str) -> tuple[int | None, list[str]]:
+    """Lock the log directory (held until the daemon stops) and recover what a dead daemon
+    left. An unwritable directory (full, read-only) must not stop the service: it then starts
+    without recovery and reports the log error as usual."""
+    try:
+        lock = lock_log_dir(log_dir, prefix)
     except OSError as exc:
-        return [f"skipped, the log directory is not writable: {exc.strerror or exc}"]
-    return recover_leftovers(log_dir, prefix)
+        return None, [f"skipped, the log directory is not writable: {exc.strerror or exc}"]
+    try:
+        return lock, recover_leftovers(log_dir, prefix)
+    except BaseException:
+        os.close(lock)
+        raise
 
 
 async def _main(config, log: LogWriter, duration: float | None) -> int:

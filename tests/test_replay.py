@@ -1,0 +1,162 @@
+"""The daemon refits online while it polls the simulated PLC at high speed; a replay of its
+log gives the same /model/parameters, message by message; polling keeps its period while
+fits run; the latest model is in the state directory."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from daq_processes import ROOT, start_daemon
+
+from furnace_daq.daqconfig import parse_config
+from furnace_daq.logschema import MODEL_PARAMETERS, PARAM_NAMES, THERMOCOUPLES
+from furnace_daq.mcaplog import read_messages
+from furnace_daq.replay import replay
+from furnace_daq.simplc import SimPLC
+from furnace_model.config import Node
+from furnace_model.scenario import load_scenario
+
+SCENARIO = ROOT / "config" / "scenarios" / "week_steps.yaml"
+PERIOD = 0.05          # one poll per two simulated minutes at 2400x
+SPEED = 2400.0
+HOURS = 14             # simulated; refits every 2 h over 6 h windows of 2-minute samples
+REFIT = {"period_s": 7200, "window_s": 21600, "step_s": 120, "max_gap_fraction": 0.3,
+         "budget_s": 20}
+
+
+def daemon_config(port: int, state_dir: Path):
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["poll_period_s"] = PERIOD
+    doc["stale_after_s"] = 1.0
+    doc["plc"].update(host="127.0.0.1", port=port, timeout_s=0.2)
+    doc["clock"]["epoch"] = "2026-03-02T00:00:00Z"  # the scenario's start: windows on its hours
+    doc["refit"] = {**REFIT, "state_dir": str(state_dir)}
+    return parse_config(Node(doc, "test.yaml"))
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("live")
+    seen: list[dict] = []
+
+    async def run():
+        plc = SimPLC(load_scenario(SCENARIO), speed=SPEED, port=0, seed=1, scan_s=0.05)
+        await plc.start()
+        try:
+            cfg = daemon_config(plc.port, tmp / "state")
+            daemon, task = start_daemon(cfg, tmp / "logs", HOURS * 3600 / SPEED + 0.5,
+                                        on_model=seen.append)
+            counters = await task
+        finally:
+            await plc.stop()
+        return cfg, counters
+
+    cfg, counters = asyncio.run(run())
+    logs = sorted((tmp / "logs").glob("*.mcap"))
+    msgs = list(read_messages(logs))
+    return {"config": cfg, "counters": counters, "logs": logs, "msgs": msgs, "seen": seen,
+            "tmp": tmp}
+
+
+def live_params(live) -> list[dict]:
+    return [m for t, m, _, _ in live["msgs"] if t == MODEL_PARAMETERS]
+
+
+def assert_same_timeline(got: list[dict], want: list[dict]) -> None:
+    assert len(got) == len(want)
+    for g, w in zip(got, want, strict=True):
+        assert (g["window_start"], g["window_end"], g["status"]) == \
+            (w["window_start"], w["window_end"], w["status"])
+        for p in PARAM_NAMES:
+            if w[p] is None:
+                assert g[p] is None
+            else:
+                assert g[p] == pytest.approx(w[p], rel=1e-6), (w["window_end"], p)
+        for z, v in w["rmse_c"].items():
+            assert g["rmse_c"][z] == pytest.approx(v, rel=1e-6)
+
+
+def test_live_refits_while_polling(live):
+    params = live_params(live)
+    assert len(params) == HOURS // 2 - 1 or len(params) == HOURS // 2, \
+        [m["window_end"] for m in params]
+    statuses = [m["status"] for m in params]
+    assert statuses[:2] == ["insufficient_excitation"] * 2  # 6-h windows still filling
+    assert statuses.count("ok") >= 3, [m.get("detail") for m in params]
+    assert [m["window_end"][11:16] for m in params[:3]] == ["02:00", "04:00", "06:00"]
+    assert live["seen"] == params  # on_model saw each message
+    state = json.loads((live["tmp"] / "state" / "model.json").read_text())
+    assert state == params[-1]
+    # publish time = window end on the data clock; log time = host time of the result
+    pubs = [(pub, m) for t, m, _, pub in live["msgs"] if t == MODEL_PARAMETERS]
+    assert all(np.datetime64(m["window_end"].rstrip("Z"), "ns").astype(np.int64) == pub
+               for pub, m in pubs)
+
+
+def test_polling_keeps_its_period_while_fits_run(live):
+    msgs = live["msgs"]
+    ticks = np.array([lt for t, m, lt, _ in msgs if t == THERMOCOUPLES], dtype=np.int64)
+    fits = [(lt - m["elapsed_s"] * 1e9, lt) for t, m, lt, _ in msgs
+            if t == MODEL_PARAMETERS and m["status"] == "ok"]
+    assert fits
+    during = np.zeros(ticks.size, dtype=bool)
+    for lo, hi in fits:
+        during |= (ticks >= lo) & (ticks <= hi)
+    # tick times against the grid of the period (median offset removed), as bench_poll does
+    k = np.round((ticks - ticks[0]) / (PERIOD * 1e9))
+    offset = (ticks - ticks[0]) - k * PERIOD * 1e9
+    jitter = np.abs(offset - np.median(offset)) / 1e6  # ms
+    assert during.sum() >= 10, "ticks fell inside fits"
+    print("jitter p50/p99/max during fits", np.percentile(jitter[during], [50, 99, 100]),
+          "outside", np.percentile(jitter[~during], [50, 99, 100]))
+    assert np.percentile(jitter[during], 99) < 20.0, np.percentile(jitter[during], [50, 99, 100])
+    assert live["counters"].skipped_ticks <= 0.01 * live["counters"].polls
+
+
+def test_replay_of_the_log_equals_the_live_parameters(live, tmp_path):
+    out = tmp_path / "replay.mcap"
+    got = replay(live["logs"], live["config"], out)
+    assert_same_timeline(got, live_params(live))
+    written = [m for t, m, _, _ in read_messages([out]) if t == MODEL_PARAMETERS]
+    assert written == got
+
+
+def test_replay_command_prints_one_line_per_refit(live, tmp_path):
+    cfg = tmp_path / "daq.yaml"
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["refit"] = REFIT
+    cfg.write_text(yaml.safe_dump(doc))
+    out = tmp_path / "cli.mcap"
+    proc = subprocess.run([sys.executable, "-m", "furnace_daq.cli", "replay",
+                           *map(str, reversed(live["logs"])), "--config", str(cfg),
+                           "--out", str(out), "--fast"],
+                          capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    want = live_params(live)
+    assert len(lines) == len(want)
+    assert lines[-1].startswith(want[-1]["window_end"]) and want[-1]["status"] in lines[-1]
+    assert f"-> {out}" in proc.stderr
+    assert_same_timeline([m for t, m, _, _ in read_messages([out]) if t == MODEL_PARAMETERS],
+                         want)
+
+
+def test_replay_refuses_bad_input(tmp_path):
+    bad = tmp_path / "junk.mcap"
+    bad.write_bytes(b"not an mcap file at all")
+    proc = subprocess.run([sys.executable, "-m", "furnace_daq.cli", "replay", str(bad)],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 1
+    assert proc.stderr.startswith("furnace-daq replay: error:") and str(bad) in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "junk.model.mcap").exists()
+    proc = subprocess.run([sys.executable, "-m", "furnace_daq.cli", "replay", str(bad),
+                           "--speed", "0"], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 1 and "--speed" in proc.stderr

@@ -35,6 +35,8 @@ def load_yaml(path: str | Path) -> Node:
 def parse_yaml(text: str, file: str = "<string>") -> Node:
     try:
         value = yaml.safe_load(text)
+    except RecursionError:
+        raise ConfigError(file, "", "not valid YAML: nested too deeply") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
@@ -101,7 +103,10 @@ class Node:
         v = self.value
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise self.error(f"expected a number, got {_kind(v)}")
-        v = float(v)
+        try:
+            v = float(v)
+        except OverflowError:
+            raise self.error(f"expected a finite number, got {_show(v)}") from None
         if not math.isfinite(v):
             raise self.error(f"expected a finite number, got {v}")
         if lo is not None and v < lo:
@@ -115,9 +120,9 @@ class Node:
         if isinstance(v, bool) or not isinstance(v, int):
             raise self.error(f"expected a whole number, got {_kind(v)}")
         if lo is not None and v < lo:
-            raise self.error(f"must be at least {lo}, got {v}")
+            raise self.error(f"must be at least {lo}, got {_show(v)}")
         if hi is not None and v > hi:
-            raise self.error(f"must be at most {hi}, got {v}")
+            raise self.error(f"must be at most {hi}, got {_show(v)}")
         return v
 
     def boolean(self) -> bool:
@@ -160,12 +165,20 @@ class Node:
         return node.boolean()
 
 
+def _show(v: int) -> str:
+    """A whole number short enough for a one-line message."""
+    text = str(v)
+    return text if len(text) <= 24 else f"{text[:12]}...({len(text)} digits)"
+
+
 def _kind(v: Any) -> str:
     if v is None:
         return "nothing (null)"
     if isinstance(v, bool):
         return f"a boolean ({v})"
-    if isinstance(v, (int, float)):
+    if isinstance(v, int):
+        return f"a number ({_show(v)})"
+    if isinstance(v, float):
         return f"a number ({v})"
     if isinstance(v, str):
         short = v if len(v) <= 40 else v[:37] + "..."

@@ -212,7 +212,102 @@ def _modal_sum(lam: np.ndarray, tau: np.ndarray, G: np.ndarray, H: np.ndarray) -
 
 
 def _superposed(lam, z, w, s, dw, t_start, t):
-    """Per-parameter step times: sum the step responses, each exact (linearity)."""
+    """Per-parameter step times (a fitted dead time or fuel-change instant).
+
+    With steady = -w/lam the modal state is (z - steady) exp(lam tau) + steady, and a step
+    dw at s adds (dw/lam)(exp(lam (t - s)) - 1) from s on. Both are a constant part plus an
+    exponential that starts at the first sample on or after its step time: an impulse into
+    the first-order recursion y_i = exp(lam (t_i - t_{i-1})) y_{i-1} + impulse_i, whose size
+    carries the fraction of a sample period between the step and that sample. The recursion
+    runs blockwise (`_scan`), so a call costs a few passes over the (P, n, N) result instead
+    of one exponential per sample and step. Parameter sets with a (numerically) zero
+    eigenvalue, where dw/lam does not exist, take `_superposed_direct`.
+    """
+    P, n = lam.shape
+    if s.ndim == 1:
+        s = np.broadcast_to(s, (P, s.size))
+    span = max(float(t[-1] - t_start), 1.0) if t.size else 1.0
+    flat = np.any(np.abs(lam) * span <= 1e-6, axis=1)
+    dtype = np.result_type(lam, z, w, dw, float)
+    Z = np.empty((P, n, t.size), dtype)
+    if flat.any():
+        f = np.nonzero(flat)[0]
+        Z[f] = _superposed_direct(lam[f], z[f], w[f], s[f], dw[f], t_start, t)
+    ok = np.nonzero(~flat)[0]
+    if ok.size == 0 or t.size == 0:
+        return Z
+    active = np.nonzero(np.any(dw != 0, axis=(0, 2)))[0]  # steps that change nothing cost nothing
+    if ok.size == P <= _BLOCK:
+        return _impulse_response(lam, z, w, s[:, active], dw[:, active], t_start, t, dtype)
+    for p0 in range(0, ok.size, _BLOCK):
+        blk = ok[p0:p0 + _BLOCK]
+        Z[blk] = _impulse_response(lam[blk], z[blk], w[blk], s[blk][:, active],
+                                   dw[blk][:, active], t_start, t, dtype)
+    return Z
+
+
+def _impulse_response(lam, z, w, s, dw, t_start, t, dtype):
+    """Modal states (P, n, N) as a sum of impulses: impulse k at sample i_k adds
+    alpha_k exp(lam (t_i - t_ik)) + beta_k to every sample i >= i_k.
+
+    Samples are cut into M blocks of L (both about sqrt(N)). With S_m the exponential part
+    and B_m the constant part of the impulses before block m, sample l of block m is
+    S_m G[m, l] + B_m (G = exp(lam (t_l - t_block_start))), plus the impulses that fall
+    inside the block itself. S_m follows block to block in M small steps; the dense part is
+    one broadcast product, and each impulse touches only its own block.
+    """
+    P, n = lam.shape
+    N = t.size
+    L = max(1, int(np.ceil(np.sqrt(N))))
+    M = -(-N // L)
+    tt = np.concatenate([t, np.full(M * L - N, t[-1])]).reshape(M, L)
+    steady = -w / lam
+    # impulses: (sample index (P,), alpha (P, n), beta (P, n)); the first is the start state
+    imps = [(np.zeros(P, dtype=int), (z - steady) * np.exp(lam * (t[0] - t_start)), steady)]
+    for k in range(s.shape[1]):
+        first = np.searchsorted(t, s[:, k], side="left")  # first sample on or after the step
+        a = dw[:, k] / lam
+        alpha = a * np.exp(lam * np.maximum(t[np.minimum(first, N - 1)] - s[:, k], 0.0)[:, None])
+        imps.append((first, alpha, -a))
+    rows = np.arange(P)
+    into = np.zeros((P, n, M + 1), dtype)  # exponential part carried to each block's start
+    level = np.zeros((P, n, M + 1), dtype)  # constant part added inside each block
+    start = tt[:, 0]
+    nxt = np.append(start[1:], start[-1])
+    local = []
+    for i, alpha, beta in imps:
+        inside = i < N
+        p, i = rows[inside], i[inside]
+        m, l0 = i // L, i % L
+        after = np.arange(L)[None, :] >= l0[:, None]  # (P', L)
+        grow = np.exp(lam[p][:, :, None] * np.where(after, tt[m] - t[i][:, None], 0.0)[:, None])
+        local.append((p, m, np.where(after[:, None, :], alpha[p][:, :, None] * grow
+                                     + beta[p][:, :, None], 0.0)))
+        into[p, :, m + 1] += alpha[p] * np.exp(lam[p] * (nxt[m] - t[i])[:, None])
+        level[p, :, m + 1] += beta[p]
+    SB = np.empty((P, n, M, 2), dtype)  # exponential and constant part at each block's start
+    SB[:, :, 0, 0] = 0.0
+    hop = np.exp(lam[:, :, None] * (nxt - start)[None, None, :])  # block start to the next
+    for m in range(1, M):
+        SB[:, :, m, 0] = hop[:, :, m - 1] * SB[:, :, m - 1, 0] + into[:, :, m]
+    SB[:, :, :, 1] = np.cumsum(level[:, :, :M], axis=2)
+    d = np.diff(t)
+    G1 = np.ones((P, n, 2, L), dtype)  # [exp(lam (t_l - t_block_start)); 1]
+    if N > 2 and d[0] > 0 and np.ptp(d) <= 1e-12 * d[0] * N:
+        G1[:, :, 0, :] = np.exp(lam[:, :, None] * (tt[0] - tt[0, 0]))  # the same in every block
+        y = SB @ G1
+    else:
+        G1 = np.broadcast_to(G1[:, :, None], (P, n, M, 2, L)).copy()
+        G1[:, :, :, 0, :] = np.exp(lam[:, :, None, None] * (tt - start[:, None]))
+        y = (SB[:, :, :, None, :] @ G1)[:, :, :, 0, :]
+    for p, m, add in local:
+        y[p, :, m, :] += add
+    return y.reshape(P, n, M * L)[:, :, :N]
+
+
+def _superposed_direct(lam, z, w, s, dw, t_start, t):
+    """Sum the step responses, one exponential per sample and step: exact also where an
+    eigenvalue is zero (phi(tau) = tau there)."""
     if s.ndim == 1:  # shared steps sent here because an eigenvalue is (numerically) zero
         s = np.broadcast_to(s, (lam.shape[0], s.size))
     lam3 = lam[:, :, None]

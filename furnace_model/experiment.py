@@ -7,6 +7,8 @@ a missing reading, not a zero, and a burner count must be a whole number within 
 
 from __future__ import annotations
 
+import contextlib
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -86,11 +88,20 @@ def write_table(frame: pd.DataFrame, path: str | Path) -> None:
     """Write the tabular contract as CSV or Parquet, chosen by the file's suffix."""
     path = Path(path)
     kind = _kind(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if kind == "csv":
-        frame.to_csv(path, index=False, float_format="%.3f")
-    else:
-        frame.to_parquet(path, index=False)
+    # Written aside and renamed: a full disk or a kill never leaves half a table, nor
+    # destroys the file being replaced.
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if kind == "csv":
+            frame.to_csv(tmp, index=False, float_format="%.3f")
+        else:
+            frame.to_parquet(tmp, index=False)
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise DataError(str(path), f"cannot write: {exc.strerror or exc}") from None
 
 
 def _kind(path: Path) -> str:

@@ -7,9 +7,13 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..errors import ConfigError
 from ..experiment import write_table
 from ..plant import Plant
 from ..scenario import load_scenario
+
+MAX_ROWS = 10_000_000
+"""About 1 GB of CSV: beyond it a scenario's sampling is a typo, not a data set."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,6 +27,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
+    if scenario.duration_min / scenario.sample_min > MAX_ROWS:
+        raise ConfigError(str(args.scenario), "sample_min",
+                          f"{scenario.duration_min:g} min sampled every {scenario.sample_min:g} "
+                          f"min is more than {MAX_ROWS:,} rows: sample less often")
     result = Plant.from_scenario(scenario, seed=args.seed).run_scenario(scenario)
     write_table(result.to_frame(), args.out)
     print(f"{scenario.name}: {result.t_min.size} samples over {scenario.duration_min:g} min "

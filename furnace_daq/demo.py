@@ -1,11 +1,12 @@
-"""`make demo`: the main job on the embedded default, in one command.
+"""`make demo`: the whole product in one command, on the embedded default.
 
 The simulated PLC runs the paper's first heat-up (Table V parameters, two noisy and slightly
 biased thermocouples per zone) at high speed on 127.0.0.1; the acquisition daemon polls it
-over Modbus TCP once per simulated minute and logs to MCAP; the log is exported to the
-tabular contract and the model is identified from it alone. At the end the identified
-parameters are printed next to the simulator's truth, with what the data do and do not
-determine, and where the log, the data and the plots are.
+over Modbus TCP once per simulated minute, logs MCAP and refits the model online on a sliding
+window of the PLC clock, in its worker process, as on a gateway. The terminal follows the
+simulated time, the logged temperatures and burners, and each refit. At the end the last
+online model is printed next to the simulator's truth and next to one fit of the whole run
+from the exported log, with what 1-minute data do and do not determine.
 """
 
 from __future__ import annotations
@@ -14,31 +15,31 @@ import argparse
 import asyncio
 import json
 import logging
+import math
+import re
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
+import pandas as pd
+
+from furnace_model import SENSORS, ZONES
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import experiment_from_frame, write_table
-from furnace_model.fit import FitResult, fit
+from furnace_model.fit import FitResult, fit, predict
 from furnace_model.plots import plot_fit
 from furnace_model.scenario import Scenario, load_scenario
 
 from .daemon import Daemon
-from .daqconfig import load_config
+from .daqconfig import RefitConfig, load_config
 from .logexport import export_frame
+from .logschema import BURNERS, PARAM_NAMES, THERMOCOUPLES
 from .mcaplog import LogWriter
-from .simplc import SimPLC
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SCENARIO = ROOT / "config" / "scenarios" / "paper_exp1.yaml"
 DEFAULT_CONFIG = ROOT / "config" / "gateway.yaml"
-
-
-def _bar(frac: float, width: int = 30) -> str:
-    done = int(round(frac * width))
-    return "[" + "#" * done + "." * (width - done) + f"] {frac * 100:5.1f}%"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -46,8 +47,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO)
     ap.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
     ap.add_argument("--out", type=Path, default=Path("out/demo"))
-    ap.add_argument("--speed", type=float, default=6000.0,
-                    help="simulated seconds per wall second (default 6000)")
+    ap.add_argument("--speed", type=float, default=5000.0,
+                    help="simulated seconds per wall second (default 5000)")
+    ap.add_argument("--refit-period-h", type=float, default=6.0,
+                    help="a refit every this many simulated hours (default 6)")
+    ap.add_argument("--refit-window-h", type=float, default=36.0,
+                    help="each refit fits the last this many simulated hours (default 36)")
+    ap.add_argument("--polls-per-minute", type=float, default=2.0,
+                    help="daemon polls per simulated minute (default 2: every one-minute "
+                         "sample of the refit holds a reading)")
+    ap.add_argument("--every", type=float, default=2.0,
+                    help="a progress line every this many wall seconds (default 2)")
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args(argv)
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
@@ -59,102 +69,227 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not (args.speed > 0 and args.every > 0 and args.polls_per_minute > 0):
+        raise FurnaceError("--speed, --polls-per-minute and --every must be positive")
     scenario = load_scenario(args.scenario)
     log_dir = args.out / "logs"
     for old in log_dir.glob("*.mcap*"):
         old.unlink()
     print(f"1. Simulated PLC: {scenario.name}: {scenario.description}")
-    steps = ", ".join(f"{int(n.sum())} from min {t:g}"
+    steps = ", ".join(f"{int(n.sum())} from {t / 60:g} h"
                       for t, n in zip(scenario.steps_t, scenario.steps_burners, strict=True))
-    print(f"   burners on: {steps}; {scenario.duration_min:g} simulated minutes at "
+    print(f"   burners on: {steps}; {scenario.duration_min / 60:.1f} simulated hours at "
           f"{args.speed:g}x ({scenario.duration_min * 60 / args.speed:.0f} s)")
-    asyncio.run(_acquire(scenario, args, log_dir))
-
+    refits = asyncio.run(_acquire(scenario, args, log_dir))
     logs = sorted(log_dir.glob("*.mcap"))
+    print(f"   MCAP log: {', '.join(map(str, logs))}")
+
+    print("\n3. The whole run, exported from the log and fitted once (for comparison)")
     frame = export_frame(logs, period_s=60.0)
     data = args.out / f"{scenario.name}.csv"
     write_table(frame, data)
     exp = experiment_from_frame(frame, str(data))
-    print(f"   log: {', '.join(str(p) for p in logs)}")
-    print(f"   exported {len(exp)} one-minute rows -> {data}")
-
-    print("3. Identification of a..f from the logged readings (GA + least-squares polish)")
-    tty = sys.stdout.isatty()
     t0 = time.perf_counter()
-
-    def progress(frac: float) -> None:
-        if tty:
-            print("\r   " + _bar(frac), end="", flush=True)
-
-    result = fit([exp], method="fast", seed=args.seed, progress=progress)
-    if tty:
-        print()
-    print(f"   done in {time.perf_counter() - t0:.2f} s\n")
-    _report(result, scenario)
+    whole = fit([exp], method="fast", seed=args.seed, zone_offsets=True)
+    print(f"   {len(exp)} one-minute rows -> {data}; fitted in {time.perf_counter() - t0:.2f} s")
     out_json = args.out / "fit.json"
-    out_json.write_text(json.dumps(result.to_json([str(data)]), indent=2))
-    print(f"\n   fit -> {out_json}")
-    for path in plot_fit(exp, result.predict(exp, result.x0[0]), args.out):
-        print(f"   plot -> {path}")
+    out_json.write_text(json.dumps(whole.to_json([str(data)]), indent=2))
+
+    good = [m for m in refits if m.get("status") == "ok"]
+    print("\n4. Identified parameters against the simulator's truth")
+    if not good:
+        print("   no online refit succeeded: see /model/parameters in the log for why",
+              file=sys.stderr)
+        return 1
+    last = good[-1]
+    start = scenario.start_time
+    print(f"   last online refit: window {_hours(last['window_start'], start)}-"
+          f"{_hours(last['window_end'], start)} h; whole run: 0-{scenario.duration_min / 60:.1f} h")
+    _report(last, whole, scenario)
+    label = f"online model of {_hours(last['window_end'], start)} h"
+    plots = plot_fit(exp, predict({p: last[p] for p in PARAM_NAMES}, exp), args.out, label)
+    print(f"\n   MCAP log:   {', '.join(map(str, logs))}")
+    state = args.out / "state" / "model.json"
+    if state.exists():
+        print(f"   model:      {state} (the latest refit, as the daemon keeps it)")
+    print(f"   whole run:  {data}, {out_json}")
+    for path in plots:
+        print(f"   plot:       {path}")
     return 0
 
 
-async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) -> None:
-    """The simulated PLC and the daemon, as on a gateway but in one process."""
-    plc = SimPLC(scenario, speed=args.speed, port=0, seed=args.seed, scan_s=0.005)
-    await plc.start()
+class _Tap:
+    """The daemon's log, seen in passing: the display shows what was acquired and logged."""
+
+    def __init__(self, log: LogWriter):
+        self.inner = log
+        self.latest: dict[str, dict] = {}
+
+    @property
+    def error(self) -> str | None:
+        return self.inner.error
+
+    def write(self, topic: str, message: dict, log_time_ns: int,
+              publish_time_ns: int | None = None) -> None:
+        if topic in (THERMOCOUPLES, BURNERS) and "error" not in message:
+            self.latest[topic] = message
+        self.inner.write(topic, message, log_time_ns, publish_time_ns)
+
+    def maybe_flush(self, now_monotonic: float) -> None:
+        self.inner.maybe_flush(now_monotonic)
+
+    def close(self) -> None:
+        self.inner.close()
+
+
+async def _start_plc(args: argparse.Namespace, scan_s: float
+                     ) -> tuple[asyncio.subprocess.Process, int]:
+    """`furnace-daq sim-plc` in its own process, as the PLC is its own device on a plant."""
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "furnace_daq.cli", "sim-plc", "--scenario", str(args.scenario),
+        "--speed", f"{args.speed:g}", "--seed", str(args.seed), "--scan-s", f"{scan_s:g}",
+        "--port", "0", stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+    try:
+        line = (await asyncio.wait_for(proc.stdout.readline(), 60.0)).decode()
+    except TimeoutError:
+        line = ""
+    if not line.startswith("listening on "):
+        if proc.returncode is None:
+            proc.kill()
+        err = (await proc.stderr.read()).decode().strip()
+        await proc.wait()
+        raise FurnaceError(f"the simulated PLC did not start: {err or line or 'no answer'}")
+    return proc, int(line.rsplit(":", 1)[1])
+
+
+async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) -> list[dict]:
+    """The simulated PLC, the daemon and its refit worker: three processes, as on a gateway
+    polling a PLC. Returns the /model/parameters messages."""
+    poll_s = 60.0 / args.polls_per_minute / args.speed
+    plc, port = await _start_plc(args, poll_s / 2)
     config = load_config(args.config)
-    minute_s = 60.0 / args.speed  # poll once per simulated minute, the paper's sampling
+    refit = replace(config.refit or RefitConfig(), period_s=args.refit_period_h * 3600.0,
+                    window_s=args.refit_window_h * 3600.0, step_s=60.0,
+                    state_dir=args.out / "state")
     config = replace(
-        config, poll_period_s=minute_s, stale_after_s=max(config.stale_after_s, 1.0),
-        plc=replace(config.plc, host=plc.host, port=plc.port),
+        config, poll_period_s=poll_s, stale_after_s=max(config.stale_after_s, 1.0),
+        plc=replace(config.plc, host="127.0.0.1", port=port),
         clock=replace(config.clock, epoch=scenario.start_time) if config.clock else None,
-        log=replace(config.log, dir=log_dir))
+        log=replace(config.log, dir=log_dir), refit=refit)
     log_dir.mkdir(parents=True, exist_ok=True)
-    log = LogWriter(log_dir, prefix=config.log.prefix, flush_interval_s=1.0,
-                    file_mode=config.log.file_mode)
-    daemon = Daemon(config, log)
-    print(f"2. Daemon polling {plc.host}:{plc.port} every {minute_s * 1e3:.1f} ms "
-          f"(one simulated minute), logging MCAP to {log_dir}")
-    duration = scenario.duration_min * 60.0 / args.speed + 3 * minute_s
+    log = _Tap(LogWriter(log_dir, prefix=config.log.prefix, flush_interval_s=1.0,
+                         file_mode=config.log.file_mode))
+    refits: list[dict] = []
+
+    def on_model(msg: dict) -> None:
+        refits.append(msg)
+        print(_refit_line(msg, scenario.start_time), flush=True)
+
+    daemon = Daemon(config, log, on_model=on_model)
+    print(f"2. Daemon polling 127.0.0.1:{port} every {poll_s * 1e3:.1f} ms "
+          f"({60 / args.polls_per_minute:g} simulated seconds), logging MCAP to {log_dir}; "
+          f"a refit of the last {args.refit_window_h:g} h every {args.refit_period_h:g} h "
+          "of PLC time")
+    print(f"   {'PLC time':>7}  {'thermocouples, C':^53}  burners")
+    print(f"   {'':7}  " + " ".join(f"{s:>8}" for s in SENSORS) + "  soak/heat/preheat")
+    duration = scenario.duration_min * 60.0 / args.speed + 3 * poll_s
 
     async def show() -> None:
         while True:
-            await asyncio.sleep(2.0)
-            temps = "  ".join(f"{z} {t:7.1f} C" for z, t in
-                              zip(("soak", "heat", "preheat"), plc.source.stepper.zone_true(),
-                                  strict=True))
-            c = daemon.counters
-            print(f"   t = {plc.plc_seconds / 60:6.0f} min  {temps}  burners "
-                  f"{int(plc.source.stepper.burners.sum()):2d}  polls {c.ok_polls}", flush=True)
+            await asyncio.sleep(args.every)
+            print(_progress_line(log.latest), flush=True)
 
     shower = asyncio.create_task(show())
     try:
         counters = await daemon.run(duration)
     finally:
         shower.cancel()
-        await plc.stop()
+        if plc.returncode is None:
+            plc.terminate()
+        await plc.wait()
+    print(_progress_line(log.latest))
     print(f"   {counters.ok_polls} of {counters.polls} polls answered, "
-          f"{counters.skipped_ticks} ticks skipped")
+          f"{counters.skipped_ticks} ticks skipped; {len(refits)} refits, "
+          f"{sum(m.get('status') == 'ok' for m in refits)} ok")
+    return refits
 
 
-def _report(result: FitResult, scenario: Scenario) -> None:
+def _progress_line(latest: dict[str, dict]) -> str:
+    tc, burners = latest.get(THERMOCOUPLES), latest.get(BURNERS)
+    if tc is None:
+        return "   (no reading yet)"
+    hours = tc.get("plc_seconds", math.nan) / 3600.0
+    temps = " ".join(f"{v:8.1f}" if isinstance(v, int | float) else f"{'-':>8}"
+                     for v in (tc.get(s) for s in SENSORS))
+    fired = "/".join(str(burners[f"count_{z}"]) for z in ZONES) if burners else "?"
+    return f"   {hours:5.1f} h  {temps}  {fired}"
+
+
+def _hours(iso: str, start: pd.Timestamp | None) -> str:
+    if start is None:
+        return iso
+    return f"{(pd.Timestamp(iso) - start).total_seconds() / 3600.0:g}"
+
+
+def _refit_line(msg: dict, start: pd.Timestamp | None) -> str:
+    window = f"{_hours(msg['window_start'], start)}-{_hours(msg['window_end'], start)} h"
+    status = msg.get("status")
+    head = f"   refit of {window:>10}: {status}"
+    if status != "ok":
+        kept = "previous model kept" if msg.get("a") is not None else "no model yet"
+        return f"{head} ({msg.get('detail', '')}); {kept}"
+    params = " ".join(f"{p} {msg[p]:.4g}" for p in PARAM_NAMES)
+    rmse = "/".join(f"{msg['rmse_c'][z]:.2f}" for z in ZONES)
+    took = f", {msg['elapsed_s']:.2f} s" if isinstance(msg.get("elapsed_s"), float) else ""
+    return f"{head}: {params}; RMSE {rmse} C{took}"
+
+
+def combination_value(name: str, params: dict[str, float]) -> float:
+    """The value at `params` of a combination as the fit names it: 'd/e', 'b*c',
+    'a^0.5*c/b', 'b^0.5*e/(c*d)'."""
+    num, _, den = name.partition("/")
+    den = den[1:-1] if den.startswith("(") and den.endswith(")") else den
+    value = 1.0
+    for part, sign in ((num, 1.0), (den, -1.0)):
+        for term in filter(None, part.split("*")):
+            if term == "1":
+                continue
+            m = re.fullmatch(r"([a-z]\w*)(?:\^([0-9.]+))?", term)
+            if m is None or m.group(1) not in params:
+                raise ValueError(f"not a combination of parameters: {name!r}")
+            value *= params[m.group(1)] ** (sign * float(m.group(2) or 1.0))
+    return value
+
+
+def _report(online: dict, whole: FitResult, scenario: Scenario) -> None:
     truth = scenario.values()
-    print(f"   {'':3}{'truth':>10}{'fitted':>10}{'95% interval':>26}{'error':>9}")
-    for name in result.structure.names:
-        lo, hi = result.ci95[name]
-        err = (result.params[name] / truth[name] - 1) * 100
-        flag = "  (not determined)" if name in result.undetermined else ""
-        print(f"   {name:3}{truth[name]:10.5f}{result.params[name]:10.5f}"
-              f"{f'[{lo:.4g}, {hi:.4g}]':>26}{err:8.2f}%{flag}")
-    print()
-    for zone, m in result.per_zone.items():
-        print(f"   {zone:8} RMSE {m['rmse_c']:5.2f} C   MAE {m['mae_c']:5.2f} C   "
-              f"fit {m['fit_pct']:6.2f}%")
-    if result.determined_combinations:
-        print(f"   the data determine: {', '.join(result.determined_combinations)}")
-    for w in result.warnings:
-        print(f"   note: {w}")
+    print(f"   {'':10}{'truth':>10}  {'last online refit':>28}  {'whole run':>28}")
+    undetermined = set(online.get("undetermined") or ())
+    for name in PARAM_NAMES:
+        lo, hi = online["ci95"][name]
+        note = "  not determined alone (online)" if name in undetermined else ""
+        print(f"   {name:10}{truth[name]:10.5g}  {_cell(online[name], truth[name], lo, hi)}  "
+              f"{_cell(whole.params[name], truth[name], *whole.ci95[name])}{note}")
+    combos = [c for c in online.get("determined_combinations", []) if c not in PARAM_NAMES]
+    combos += [c for c in whole.determined_combinations if c not in PARAM_NAMES + tuple(combos)]
+    if combos:
+        print("   determined combinations:")
+    for name in combos:
+        want = combination_value(name, truth)
+        cells = []
+        for combos_of in (online.get("combinations") or {}, whole.combinations):
+            c = combos_of.get(name)
+            cells.append(_cell(c["value"], want, *c["ci95"]) if c else f"{'-':>28}")
+        print(f"   {name:10}{want:10.5g}  {cells[0]}  {cells[1]}")
+    rmse = lambda m: "/".join(f"{m[z]:.2f}" for z in ZONES)  # noqa: E731
+    print(f"   {'RMSE, C':10}{'':10}  {rmse(online['rmse_c']):>28}  "
+          f"{rmse({z: whole.per_zone[z]['rmse_c'] for z in ZONES}):>28}")
+
+
+def _cell(value: float, truth: float, lo: float, hi: float) -> str:
+    """Value, error against the truth in %, and the 95% interval's half-width in %."""
+    half = 50.0 * (hi - lo) / value if value else math.nan
+    return f"{value:10.5g} {100 * (value / truth - 1):+7.2f}% (±{half:.2g}%)".rjust(28)
 
 
 if __name__ == "__main__":

@@ -97,7 +97,11 @@ def run(args: argparse.Namespace) -> int:
         offsets = result.zone_offsets_c or [dict.fromkeys(ZONES, 0.0)] * len(experiments)
         for exp, x0, off in zip(experiments, result.x0, offsets, strict=True):
             model = result.predict(exp, x0) + np.array([off[z] for z in ZONES])
-            plot_fit(exp, model, args.plot, label=result.method)
+            try:
+                plot_fit(exp, model, args.plot, label=result.method)
+            except OSError as exc:
+                raise FurnaceError(f"{args.plot}: cannot write plots: "
+                                   f"{exc.strerror or exc}") from None
     return 0
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -42,6 +43,8 @@ def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
     if not isinstance(doc, dict) or not isinstance(doc.get("params"), dict):
         raise FurnaceError(f"{path}: no 'params' object (expected the JSON of furnace-model fit)")
     effects = []
+    if not isinstance(doc.get("effects") or [], list):
+        raise FurnaceError(f"{path}: effects: expected a list, got {type(doc['effects']).__name__}")
     for i, e in enumerate(doc.get("effects") or []):
         name = e.get("name") if isinstance(e, dict) else None
         if name not in EFFECTS:
@@ -53,11 +56,16 @@ def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
             raise FurnaceError(f"{path}: effects[{i}]: {exc}") from None
     structure = ModelStructure(effects)
     params = {}
-    for k in structure.names:
-        v = doc["params"].get(k)
+    for p in structure.params:
+        v = doc["params"].get(p.name)
         if isinstance(v, bool) or not isinstance(v, int | float):
-            raise FurnaceError(f"{path}: params.{k}: expected a number, got {v!r}")
-        params[k] = float(v)
+            raise FurnaceError(f"{path}: params.{p.name}: expected a number, got {v!r}")
+        # the fit never leaves these bounds: a value beyond them is a hand-edited or foreign file
+        tol = 1e-9 * max(abs(p.lo), abs(p.hi))
+        if not (math.isfinite(v) and p.lo - tol <= v <= p.hi + tol):
+            raise FurnaceError(f"{path}: params.{p.name}: {v:g} is outside the range a fit "
+                               f"searches, {p.lo:g} to {p.hi:g}")
+        params[p.name] = float(v)
     return params, structure
 
 
@@ -87,6 +95,10 @@ def run(args: argparse.Namespace) -> int:
         from ..plots import plot_fit
 
         for exp in experiments:
-            plot_fit(exp, predict(params, exp, structure), args.plot, label="validation")
+            try:
+                plot_fit(exp, predict(params, exp, structure), args.plot, label="validation")
+            except OSError as exc:
+                raise FurnaceError(f"{args.plot}: cannot write plots: "
+                                   f"{exc.strerror or exc}") from None
     print(f"scored {len(experiments)} file(s)", file=sys.stderr)
     return 0

@@ -39,7 +39,8 @@ class Notifier:
         try:
             if self._sock is None:
                 self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
-            self._sock.sendto(text.encode(), self.address)
+            # Never wait: a full notify queue must not stall the poll loop that sends.
+            self._sock.sendto(text.encode(), socket.MSG_DONTWAIT, self.address)
             return True
         except OSError:
             return False

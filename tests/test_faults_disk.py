@@ -1,0 +1,106 @@
+"""A full disk (ENOSPC) or an unwritable log directory (EACCES) while the daemon runs: it
+says so on /daq/status, in systemd's STATUS and on stderr (the journal), keeps polling,
+writes again when the disk is back, with nothing it buffered lost, and still exits 0."""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import os
+import socket
+import time
+from pathlib import Path
+
+import pytest
+from daq_processes import config, free_port, sim, start_daemon
+
+from furnace_daq import mcaplog
+from furnace_daq.logschema import DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
+from furnace_daq.mcaplog import LogWriter, read_messages
+from furnace_daq.sdnotify import Notifier
+
+WARM, BROKEN, AFTER = 0.6, 1.2, 1.0
+
+
+def all_messages(log_dir: Path) -> list[tuple[str, dict, int]]:
+    """Every message once, from finished files and the ones abandoned during the outage."""
+    seen, out = set(), []
+    for t, m, lt, _ in read_messages(sorted(log_dir.glob("*.mcap*"))):
+        key = (t, lt, repr(sorted(m.items())))
+        if key not in seen:
+            seen.add(key)
+            out.append((t, m, lt))
+    return out
+
+
+@pytest.mark.parametrize("err", [errno.ENOSPC, errno.EACCES], ids=["ENOSPC", "EACCES"])
+def test_log_outage_while_running(tmp_path, monkeypatch, err):
+    log_dir = tmp_path / "logs"
+    sock_path = tmp_path / "notify.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(sock_path))
+    sock.setblocking(False)
+    broken = False
+    real_open, real_fsync = os.open, os.fsync
+
+    def failing_open(path, flags, mode=0o777, *a, **k):
+        if broken and str(path).startswith(str(log_dir)):
+            raise OSError(err, os.strerror(err), str(path))
+        return real_open(path, flags, mode, *a, **k)
+
+    def failing_fsync(fd):
+        if broken:
+            raise OSError(err, os.strerror(err))
+        return real_fsync(fd)
+
+    monkeypatch.setattr(mcaplog.os, "open", failing_open)
+    monkeypatch.setattr(mcaplog.os, "fsync", failing_fsync)
+
+    notes: list[str] = []
+
+    async def listen():
+        loop = asyncio.get_running_loop()
+        while True:
+            notes.append((await loop.sock_recv(sock, 4096)).decode())
+
+    async def scenario():
+        nonlocal broken
+        listener = asyncio.create_task(listen())
+        plc = await sim(free_port())
+        cfg = config(plc.port, status_interval_s=0.3)
+        log = LogWriter(log_dir, flush_interval_s=0.2, retry_s=0.2)
+        daemon, task = start_daemon(cfg, log_dir, WARM + BROKEN + AFTER,
+                                    notifier=Notifier({"NOTIFY_SOCKET": str(sock_path)}))
+        daemon.log = log
+        await asyncio.sleep(WARM)
+        t_broken = time.time_ns()
+        broken = True
+        await asyncio.sleep(BROKEN)
+        error_while_broken = log.error
+        broken = False
+        t_fixed = time.time_ns()
+        counters = await task
+        await plc.stop()
+        listener.cancel()
+        return counters, error_while_broken, t_broken, t_fixed
+
+    try:
+        counters, error_while_broken, t_broken, t_fixed = asyncio.run(scenario())
+    finally:
+        sock.close()
+    text = os.strerror(err)
+    assert error_while_broken and text in error_while_broken
+    # kept polling throughout
+    assert counters.disconnects == 0 and counters.ok_polls >= 0.9 * counters.polls
+    msgs = all_messages(log_dir)
+    ok = [lt for t, m, lt in msgs if t == THERMOCOUPLES and m["quality"]["soak_1"] == "ok"]
+    assert len(ok) == counters.ok_polls, "every sample polled during the outage was kept"
+    assert sum(t_broken < lt < t_fixed for lt in ok) >= 0.8 * BROKEN / 0.05
+    # said so on /daq/status while it lasted, and in the STATUS line systemd shows
+    told = [m for t, m, lt in msgs if t == DAQ_STATUS and text in m.get("log_error", "")]
+    assert told
+    status_lines = [n for n in notes if n.startswith("STATUS=")]
+    assert any("LOG:" in n and text in n for n in status_lines), status_lines
+    assert "LOG:" not in status_lines[-1]
+    gaps = [m for t, m, _ in msgs if t == DAQ_EVENTS and m["kind"] == "log_gap"]
+    assert len(gaps) == 1 and text in gaps[0]["error"] and gaps[0]["dropped"] == 0

@@ -40,7 +40,7 @@ MAX_RATIO = 4.0
 """A positive strength parameter counts as determined when its 95% interval spans less than
 this factor: one that could be anything from a trace to a flood is not an estimate."""
 
-BUDGET_S = {"radiation": 25.0}
+BUDGET_S = {"radiation": 20.0}
 DEFAULT_BUDGET_S = 15.0
 
 
@@ -98,6 +98,10 @@ class Task:
     init: dict[str, float] | None
     seed: int
     budget_s: float | None
+    cold_too: bool = False
+    """Also search from scratch: worth it when the baseline bent far to absorb the effect
+    (seen with strong zone burners: a = 1, d = 11), which can hold a warm start in a side
+    valley."""
 
 
 def structure_of(effects: tuple[str, ...], options: dict[str, dict]) -> ModelStructure:
@@ -111,8 +115,17 @@ def run_task(task: Task) -> CandidateResult:
     init = None
     if task.init is not None:
         init = {k: v for k, v in task.init.items() if k in structure.names}
+        if not structure.linear:
+            # Integrated, not closed form: no evolutionary search, only the polish from the
+            # baseline with the effect at its default strength.
+            init = {**structure.defaults(), **init}
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
              time_budget_s=task.budget_s)
+    if init is not None and structure.linear and task.cold_too:
+        cold = fit(task.fit_data, structure, seed=task.seed + 1, zone_offsets=True,
+                   time_budget_s=task.budget_s)
+        if cold.sse < fr.sse:
+            fr = cold
     fit_pred = fitted_predictions(fr, task.fit_data)
     hold_pred = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of)
     res = [e.zone_temp - p for e, p in zip(task.fit_data, fit_pred, strict=True)]

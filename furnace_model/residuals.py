@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.ndimage import median_filter
 
 from . import SENSORS, ZONES
 from .experiment import Experiment
@@ -20,6 +21,8 @@ MAD_TO_SD = 1.482602218505602
 Z99 = 2.5758293035489004
 MAX_LAG = 25
 """Lags (in samples) of the whiteness and cross-correlation tests, MATLAB's default."""
+EPISODE_WINDOW = 121
+"""Samples of the running median a thermocouple pair's difference is compared with."""
 MIN_SPAN = 5
 """Samples: a shorter run of large residuals is a spike, not a span."""
 ZONE_WORDS = {"soak": "soaking", "heat": "heating", "preheat": "preheating"}
@@ -207,16 +210,18 @@ def sensor_faults(experiments: list[Experiment], predictions: list[np.ndarray],
             d = pair[both, 0] - pair[both, 1]
             sd_d = s * np.sqrt(2.0)
             dev = (pair - pred[:, w:w + 1]) - np.nanmedian(pair - pred[:, w:w + 1], axis=0)
-            # episodes: readings far outside the pair's noise band
-            far = np.abs(d - np.median(d)) > 6.0 * sd_d
+            # episodes: readings far from the pair's running median (which follows a slow
+            # drift but not a departure of minutes), outside its noise band
+            smooth = median_filter(d, size=EPISODE_WINDOW, mode="nearest")
+            far = np.abs(d - smooth) > 6.0 * sd_d
             if far.sum() >= 3:
                 idx = np.nonzero(both)[0][far]
                 culprit = int(np.argmax(np.nanmean(np.abs(dev[idx]), axis=0)))
                 out.append(SensorFault(SENSORS[2 * w + culprit], j, int(idx[0]), int(idx[-1]) + 1,
-                                       "episodes", float(np.median(np.abs(d[far] - np.median(d))))))
-                continue
-            t0, change = _hinge(t, d)
-            if abs(change) > max(8.0 * sd_d / np.sqrt(max(1.0, (t >= t0).sum() / 50.0)), 2.0):
+                                       "episodes", float(np.median(np.abs(d - smooth)[far]))))
+            t0, change = _hinge(t[~far], d[~far])
+            late_n = max(1.0, float((t >= t0).sum()) / 50.0)
+            if abs(change) > max(8.0 * sd_d / np.sqrt(late_n), 2.0):
                 i0 = int(np.searchsorted(exp.t_min, t0))
                 late = slice(i0, None)
                 culprit = int(np.argmax(np.nanmean(np.abs(dev[late]), axis=0)))
@@ -254,7 +259,9 @@ def residual_tests(experiments: list[Experiment], residuals: list[np.ndarray],
                    max_lag: int = MAX_LAG) -> dict:
     """Per zone: autocorrelation of the residual with its 99% band (whiteness), and its
     cross-correlation with each input (burners per zone and their changes) with a 99% band
-    that allows for the input's own autocorrelation (Bartlett), as `resid` does.
+    that allows for the input's own autocorrelation (Bartlett), as `resid` does. The bands
+    are pointwise, for drawing; the verdicts `white` and `independent` use the band that
+    holds for all lags at once.
 
     A residual outside the band at lag k > 0 of an input says the model misses how the
     furnace responds to that input k samples later."""
@@ -276,9 +283,10 @@ def residual_tests(experiments: list[Experiment], residuals: list[np.ndarray],
         n = e.size
         acf = _xcorr(e, e, lags_a)
         bound = Z99 / np.sqrt(max(n, 1))
+        z_a, z_x = _simultaneous_z(max_lag), _simultaneous_z(lags_x.size)
         zone_out = {"n": int(n), "lags": lags_a.tolist(),
                     "autocorr": np.round(acf, 5).tolist(), "autocorr_bound": float(bound),
-                    "white": bool(np.all(np.abs(acf[1:]) <= bound)), "xcorr": {}}
+                    "white": bool(np.all(np.abs(acf[1:]) <= bound * z_a / Z99)), "xcorr": {}}
         for name, series in inputs.items():
             u = np.concatenate([s - s.mean() for s in series])
             if not np.any(u):
@@ -293,9 +301,18 @@ def residual_tests(experiments: list[Experiment], residuals: list[np.ndarray],
             zone_out["xcorr"][name] = {"lags": lags_x.tolist(), "values": np.round(cc, 5).tolist(),
                                        "bound": b, "max_abs": float(abs(cc[k])),
                                        "at_lag": int(lags_x[k]),
-                                       "independent": bool(np.all(np.abs(cc) <= b))}
+                                       "independent": bool(np.all(np.abs(cc) <= b * z_x / Z99))}
         out[zone] = zone_out
     return out
+
+
+def _simultaneous_z(m: int) -> float:
+    """Normal quantile that m lags all stay within with 99% probability when the residual
+    is white (Bonferroni): the pointwise 99% band, drawn as `resid` draws it, is crossed
+    somewhere among 25 or 51 lags far more often than one time in a hundred."""
+    from scipy.stats import norm
+
+    return float(norm.ppf(1.0 - 0.01 / (2.0 * max(m, 1))))
 
 
 def lag1(residuals: list[np.ndarray]) -> float:

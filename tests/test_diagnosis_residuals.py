@@ -1,0 +1,120 @@
+"""Locating a model's error: noise floor from thermocouple pairs, error spans, sensor faults,
+whiteness and input cross-correlation tests. Known-truth arrays, no fitting."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from furnace_model.experiment import Experiment
+from furnace_model.residuals import (
+    error_spans,
+    regime,
+    residual_tests,
+    sensor_faults,
+    sensor_noise,
+    zone_noise_floor,
+)
+
+
+def _experiment(rng, n=3000, noise=(1.5, 1.0, 2.0), truth=None, burners=None) -> Experiment:
+    t = np.arange(n, dtype=float)
+    if truth is None:
+        truth = np.column_stack([300 + 0.2 * t, 250 + 0.15 * t, 100 + 0.05 * t])
+    tc = np.empty((n, 6))
+    for w in range(3):
+        for k in range(2):
+            tc[:, 2 * w + k] = truth[:, w] + rng.normal(0, noise[w], n) + rng.normal(0, 0.5)
+    if burners is None:
+        burners = np.zeros((n, 3), dtype=int)
+        burners[:, 0] = 4
+        burners[n // 2:, 0] = 8
+        burners[2 * n // 3:, 1] = 3
+    return Experiment("exp", t, tc, burners, np.full(n, 30.0))
+
+
+def test_noise_floor_recovers_sensor_noise_per_zone():
+    rng = np.random.default_rng(1)
+    exps = [_experiment(rng), _experiment(rng)]
+    per_tc = sensor_noise(exps)
+    for zone, sd in zip(("soak", "heat", "preheat"), (1.5, 1.0, 2.0), strict=True):
+        assert per_tc[zone] == pytest.approx(sd, rel=0.05)
+    floor = zone_noise_floor(exps)
+    assert floor["heat"] == pytest.approx(1.0 / np.sqrt(2), rel=0.05)
+
+
+def test_noise_floor_ignores_a_loose_junction_and_uses_a_lone_thermocouple():
+    rng = np.random.default_rng(2)
+    e = _experiment(rng)
+    e.tc[100:140, 2] -= 40.0  # heat_1 reads low for a while
+    e.tc[:, 5] = np.nan  # preheat_2 dead: one thermocouple left
+    per_tc = sensor_noise([e])
+    assert per_tc["heat"] == pytest.approx(1.0, rel=0.08)
+    assert per_tc["preheat"] == pytest.approx(2.0, rel=0.1)
+    assert zone_noise_floor([e])["preheat"] == pytest.approx(2.0, rel=0.1)
+
+
+def test_error_span_found_where_the_residual_is_large():
+    rng = np.random.default_rng(3)
+    e = _experiment(rng)
+    r = rng.normal(0, 1.0, (len(e), 3))
+    r[1200:1500, 1] += 8.0 * np.sin(np.linspace(0, np.pi, 300))
+    spans = error_spans([e], [r], {"soak": 1.0, "heat": 1.0, "preheat": 1.0})
+    top = spans[0]
+    assert top.zone == "heat"
+    assert 1180 <= top.i0 <= 1260 and 1440 <= top.i1 <= 1520
+    assert all(s.excess < 0.05 * top.excess for s in spans[1:])
+
+
+def test_regime_words():
+    rng = np.random.default_rng(4)
+    e = _experiment(rng)
+    words = regime(e, 2100, 2900, "heat")
+    assert "soaking and heating-zone burners firing" in words
+    assert "11 burners on" in words and "->" not in words
+    assert "C" in words.split("; ")[-1]
+    assert "burners 4 -> 8 at 1500 min" in regime(e, 1400, 1600, "soak")
+
+
+@pytest.mark.parametrize("culprit", [2, 3])
+def test_drifting_thermocouple_is_named(culprit):
+    rng = np.random.default_rng(5)
+    e = _experiment(rng)
+    t = e.t_min
+    e.tc[:, culprit] += 0.02 * np.maximum(t - 1000, 0.0)
+    truth_pred = np.column_stack([300 + 0.2 * t, 250 + 0.15 * t, 100 + 0.05 * t])
+    faults = sensor_faults([e], [truth_pred], sensor_noise([e]))
+    assert [f.sensor for f in faults] == [("heat_1", "heat_2")[culprit - 2]]
+    assert faults[0].kind == "drift"
+    assert 800 <= t[faults[0].i0] <= 1200
+
+
+def test_episodes_of_low_readings_are_named_and_a_clean_pair_is_not():
+    rng = np.random.default_rng(6)
+    e = _experiment(rng)
+    for lo in (500, 1300, 2200):
+        e.tc[lo:lo + 20, 1] -= 30.0  # soak_2 reads low at times
+    t = e.t_min
+    truth_pred = np.column_stack([300 + 0.2 * t, 250 + 0.15 * t, 100 + 0.05 * t])
+    faults = sensor_faults([e], [truth_pred], sensor_noise([e]))
+    assert [(f.sensor, f.kind) for f in faults] == [("soak_2", "episodes")]
+    assert faults[0].size_c == pytest.approx(30.0, rel=0.2)
+
+
+def test_whiteness_and_input_correlation():
+    rng = np.random.default_rng(7)
+    e = _experiment(rng)
+    white = rng.normal(0, 1.0, (len(e), 3))
+    out = residual_tests([e], [white])
+    assert all(out[z]["white"] for z in out)
+    assert all(x["independent"] for z in out for x in out[z]["xcorr"].values())
+    # a residual that answers the heating-zone burner step: coloured and tied to the input
+    resp = white.copy()
+    step = np.zeros(len(e))
+    k = 2 * len(e) // 3
+    step[k:] = 10.0 * np.exp(-np.arange(len(e) - k) / 30.0)
+    resp[:, 1] += step
+    out = residual_tests([e], [resp])
+    assert not out["heat"]["white"]
+    assert not out["heat"]["xcorr"]["d_burners_heat"]["independent"]
+    assert out["heat"]["xcorr"]["d_burners_heat"]["at_lag"] >= 0

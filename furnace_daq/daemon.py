@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -106,6 +107,7 @@ class Daemon:
         self._disagree: tuple[frozenset[str], int] = (frozenset(), 0)
         self._reported_disagreement: frozenset[str] = frozenset()
         self._last_status_mono = float("-inf")
+        self._log_error_told: str | None = None
         self.on_model = on_model
         self.refit: RefitRunner | None = None
         if config.refit is not None:
@@ -230,6 +232,10 @@ class Daemon:
         if now - self._last_status_mono >= self.config.status_interval_s:
             self._status(self.state, self.detail)
         self.log.maybe_flush(now)
+        if self.log.error != self._log_error_told:  # a full disk is news at once, journal too
+            self._log_error_told = self.log.error
+            print(f"log: {self.log.error or 'writing again'}", file=sys.stderr, flush=True)
+            self._status(self.state, self.detail)
         self.notifier.watchdog(now)
 
     async def _poll_failed(self, log_ns: int, reason: str) -> None:

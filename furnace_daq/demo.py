@@ -166,7 +166,7 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
     """The simulated PLC, the daemon and its refit worker: three processes, as on a gateway
     polling a PLC. Returns the /model/parameters messages."""
     poll_s = 60.0 / args.polls_per_minute / args.speed
-    plc, port = await _start_plc(args, poll_s / 2)
+    plc, port = await _start_plc(args, poll_s)
     config = load_config(args.config)
     refit = replace(config.refit or RefitConfig(), period_s=args.refit_period_h * 3600.0,
                     window_s=args.refit_window_h * 3600.0, step_s=60.0,
@@ -211,6 +211,10 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
     print(f"   {counters.ok_polls} of {counters.polls} polls answered, "
           f"{counters.skipped_ticks} ticks skipped; {len(refits)} refits, "
           f"{sum(m.get('status') == 'ok' for m in refits)} ok")
+    skipped = counters.skipped_ticks / max(counters.polls + counters.skipped_ticks, 1)
+    if skipped > 0.1:
+        print(f"   note: {100 * skipped:.0f}% of the poll ticks were skipped: this host is too "
+              f"busy for {args.speed:g}x, so windows miss samples; a lower --speed helps")
     return refits
 
 
@@ -238,7 +242,12 @@ def _refit_line(msg: dict, start: pd.Timestamp | None) -> str:
     if status != "ok":
         kept = "previous model kept" if msg.get("a") is not None else "no model yet"
         return f"{head} ({msg.get('detail', '')}); {kept}"
-    params = " ".join(f"{p} {msg[p]:.4g}" for p in PARAM_NAMES)
+    combos = msg.get("combinations") or {}
+    named = [c for c in msg.get("determined_combinations") or () if c in combos]
+    params = " ".join(f"{c} {combos[c]['value']:.5g}" for c in named)
+    loose = [p for p in PARAM_NAMES if p not in named]
+    if loose:
+        params += "; not determined: " + " ".join(f"{p} {msg[p]:.3g}" for p in loose)
     rmse = "/".join(f"{msg['rmse_c'][z]:.2f}" for z in ZONES)
     took = f", {msg['elapsed_s']:.2f} s" if isinstance(msg.get("elapsed_s"), float) else ""
     return f"{head}: {params}; RMSE {rmse} C{took}"

@@ -112,7 +112,8 @@ def _read(paths: Iterable[Path], names: str) -> tuple[list, list, list]:
     for topic, msg, log_ns, pub_ns in read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT)):
         where = f"{names}: {topic} at {iso_time(log_ns)}"
         if topic == THERMOCOUPLES:
-            quality = msg.get("quality") or {}
+            quality = msg.get("quality")
+            quality = quality if isinstance(quality, dict) else {}
             if all(quality.get(s) == COMM_ERROR for s in SENSORS):
                 continue
             tc.append((pub_ns, [_number(msg.get(s)) for s in SENSORS]))

@@ -113,6 +113,9 @@ def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str 
     try:
         _feed(runner, first, messages, refit, speed)
         runner.drain(float("inf"))
+    except DataError as exc:  # a message the windows cannot take: say in which logs
+        names = ", ".join(map(str, paths))
+        raise (exc if names in str(exc) else DataError(names, str(exc))) from None
     finally:
         runner.close()
         log.close()

@@ -7,12 +7,19 @@ from __future__ import annotations
 import asyncio
 import errno
 import os
+import re
+import select
+import shutil
+import signal
 import socket
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import pytest
-from daq_processes import config, free_port, sim, start_daemon
+import yaml
+from daq_processes import ROOT, config, free_port, sim, start_daemon, start_simplc, stop
 
 from furnace_daq import mcaplog
 from furnace_daq.logschema import DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
@@ -20,6 +27,7 @@ from furnace_daq.mcaplog import LogWriter, read_messages
 from furnace_daq.sdnotify import Notifier
 
 WARM, BROKEN, AFTER = 0.6, 1.2, 1.0
+RETRY_S = 5.0  # LogWriter's default retry interval after a failure
 
 
 def all_messages(log_dir: Path) -> list[tuple[str, dict, int]]:
@@ -34,7 +42,7 @@ def all_messages(log_dir: Path) -> list[tuple[str, dict, int]]:
 
 
 @pytest.mark.parametrize("err", [errno.ENOSPC, errno.EACCES], ids=["ENOSPC", "EACCES"])
-def test_log_outage_while_running(tmp_path, monkeypatch, err):
+def test_log_outage_while_running(tmp_path, monkeypatch, capsys, err):
     log_dir = tmp_path / "logs"
     sock_path = tmp_path / "notify.sock"
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
@@ -104,3 +112,79 @@ def test_log_outage_while_running(tmp_path, monkeypatch, err):
     assert "LOG:" not in status_lines[-1]
     gaps = [m for t, m, _ in msgs if t == DAQ_EVENTS and m["kind"] == "log_gap"]
     assert len(gaps) == 1 and text in gaps[0]["error"] and gaps[0]["dropped"] == 0
+    # stderr (the journal under systemd): when it breaks (again if the error changes, not at
+    # every retry), and once when it heals
+    told = [line for line in capsys.readouterr().err.splitlines() if line.startswith("log: ")]
+    assert 2 <= len(told) <= 4 and all(text in line for line in told[:-1]), told
+    assert told[-1] == "log: writing again"
+
+
+def unprivileged(cmd: list[str]) -> list[str]:
+    """Root ignores directory permissions; without CAP_DAC_OVERRIDE (and friends) it obeys
+    them like any user, which is how the service runs (DynamicUser)."""
+    if os.geteuid() != 0:
+        return cmd
+    if shutil.which("setpriv") is None:
+        pytest.skip("running as root without setpriv: cannot make a directory unwritable")
+    return ["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner",
+            "--inh-caps=-all", *cmd]
+
+
+def wait_for_line(proc: subprocess.Popen, start: str, timeout: float = 30.0) -> str:
+    """stderr up to and including the first line that starts with `start`."""
+    seen, deadline = "", time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if select.select([proc.stderr], [], [], 0.2)[0]:
+            line = proc.stderr.readline()
+            seen += line
+            if line.startswith(start) or not line:
+                return seen
+    return seen
+
+
+def test_unwritable_log_dir_at_start_never_stops_the_service(tmp_path):
+    """The log directory exists but is read-only when the service starts (EACCES): the
+    daemon runs, polls, says why nothing is written, writes once the directory is fixed,
+    and exits 0 on SIGTERM. A service that exited instead would be restarted by systemd
+    into the same error, again and again."""
+    log_dir = tmp_path / "logs"
+    log_dir.mkdir()
+    log_dir.chmod(0o500)
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["poll_period_s"] = 0.05
+    doc["status_interval_s"] = 0.5
+    doc["log"]["flush_interval_s"] = 0.2
+    cfg = tmp_path / "daq.yaml"
+    cfg.write_text(yaml.safe_dump(doc))
+    plc, port = start_simplc("--speed", "600")
+    daq = None
+    try:
+        daq = subprocess.Popen(
+            unprivileged([sys.executable, "-m", "furnace_daq.cli", "run", "--config", str(cfg),
+                          "--plc", f"127.0.0.1:{port}", "--log-dir", str(log_dir)]),
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        early = wait_for_line(daq, "polling ")
+        time.sleep(1.0)
+        assert daq.poll() is None, daq.communicate()
+        assert not list(log_dir.iterdir())
+        log_dir.chmod(0o750)
+        time.sleep(RETRY_S + 1.0)             # the writer retries every 5 s
+        daq.send_signal(signal.SIGTERM)
+        _, err = daq.communicate(timeout=20)
+        err = early + err
+        assert daq.returncode == 0, err
+    finally:
+        log_dir.chmod(0o750)
+        if daq is not None:
+            stop(daq)
+        stop(plc)
+    assert "Permission denied" in err and "log: writing again" in err, err
+    files = sorted(log_dir.glob("*.mcap"))
+    assert files and not list(log_dir.glob("*.part")), sorted(log_dir.iterdir())
+    msgs = [(t, m) for t, m, _, _ in read_messages(files)]
+    (gap,) = [m for t, m in msgs if t == DAQ_EVENTS and m["kind"] == "log_gap"]
+    assert "Permission denied" in gap["error"] and gap["dropped"] == 0
+    ok_polls = int(re.search(r"stopped: (\d+)/\d+ polls ok", err).group(1))
+    logged = [m for t, m in msgs if t == THERMOCOUPLES and m["quality"]["soak_1"] == "ok"]
+    assert ok_polls > 100 and len(logged) == ok_polls, "the samples of the outage were kept"

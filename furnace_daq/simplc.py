@@ -128,7 +128,7 @@ class SimPLC:
     def __init__(self, source: ValueSource | Scenario, *, speed: float = 3600.0,
                  host: str = "127.0.0.1", port: int = 5020, manual: bool = False, seed: int = 0,
                  scan_s: float = 0.1, can_channel: str | None = None,
-                 can_interface: str = "virtual"):
+                 can_interface: str = "virtual", holding_registers: int = 1):
         if speed <= 0 or scan_s <= 0:
             raise ValueError("speed and scan_s must be positive")
         if isinstance(source, Scenario):
@@ -136,6 +136,8 @@ class SimPLC:
         self.source = source
         self.manual = bool(getattr(source, "manual", False))
         self.speed, self.host, self.port, self.scan_s = speed, host, port, scan_s
+        self.holding_registers = holding_registers
+        """Holding registers 0.. the PLC offers for writing (model write-back drills)."""
         self.values = source.values_at(0)
         self.open_sensors: set[str] = set()
         """Sensors to report as open circuit (sentinel), for fault drills."""
@@ -162,7 +164,8 @@ class SimPLC:
         device = SimDevice(0, simdata=(
             [SimData(0, values=states, datatype=DataType.BITS)],              # coils
             [SimData(0, values=states, datatype=DataType.BITS)],              # discrete inputs
-            [SimData(0, values=[0], datatype=DataType.REGISTERS)],            # holding
+            [SimData(0, values=[0] * self.holding_registers,
+                     datatype=DataType.REGISTERS)],                           # holding
             [SimData(0, values=[0] * N_INPUT_REGISTERS, datatype=DataType.REGISTERS)],
         ))
         self._server = ModbusTcpServer(device, address=(self.host, self.port))

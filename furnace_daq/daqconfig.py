@@ -16,6 +16,7 @@ from furnace_model.config import Node, load_yaml
 from furnace_model.errors import ConfigError
 
 from .registers import BIT_TABLES, DATA_TYPES, ORDERS, TABLES, BitRange, Point, overlaps
+from .writeback import WriteBackConfig, parse_write_back
 
 BURNER_SOURCES = ("modbus", "can", "both")
 
@@ -114,6 +115,7 @@ class DaqConfig:
     log: LogConfig
     file: str = ""
     refit: RefitConfig | None = None
+    write_back: WriteBackConfig | None = None
     """None when online identification is off (no `refit:` section or `enabled: false`)."""
 
     def modbus_items(self) -> list[Point | BitRange]:
@@ -231,7 +233,7 @@ def load_config(path: str | Path) -> DaqConfig:
 def parse_config(root: Node) -> DaqConfig:
     root.mapping({"plc", "poll_period_s", "thermocouples", "ambient", "ambient_default_c",
                   "clock", "heartbeat", "stale_after_s", "burners", "status_interval_s", "log",
-                  "refit"})
+                  "refit", "write_back"})
 
     plc_node = root.child("plc", {}).mapping(
         {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
@@ -282,7 +284,8 @@ def parse_config(root: Node) -> DaqConfig:
         disagreement_polls=bn.get_integer("disagreement_polls", 2, lo=1, hi=10000),
         status_interval_s=root.get_number("status_interval_s", 10.0, lo=0.1, hi=86400.0),
         log=_log(root.child("log", {})), file=root.file,
-        refit=_refit(root.child("refit")) if root.has("refit") else None)
+        refit=_refit(root.child("refit")) if root.has("refit") else None,
+        write_back=parse_write_back(root.child("write_back", None)))
     _check_overlaps(root, config)
     return config
 

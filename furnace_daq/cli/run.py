@@ -21,6 +21,7 @@ from ..logrecover import lock_log_dir, recover_leftovers
 from ..logschema import DAQ_EVENTS
 from ..mcaplog import LogWriter
 from ..sdnotify import Notifier
+from ..writeback import WriteBack
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -91,13 +92,25 @@ def _recover_at_start(log_dir: Path, prefix: str) -> tuple[int | None, list[str]
 
 
 async def _main(config, log: LogWriter, duration: float | None) -> int:
-    daemon = Daemon(config, log, notifier=Notifier())
+    write_back = None
+    if config.write_back is not None:  # off unless the config enables it
+        def event(message: dict) -> None:
+            now = time.time_ns()
+            log.write(DAQ_EVENTS, message, now, now)
+        write_back = WriteBack(config.write_back, config.plc.host, config.plc.port,
+                               device_id=config.plc.device_id, timeout_s=config.plc.timeout_s,
+                               events=event)
+    daemon = Daemon(config, log, notifier=Notifier(),
+                    on_model=None if write_back is None else write_back.on_model)
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, daemon.stop)
     print(f"polling {daemon.plc.host}:{daemon.plc.port} every {config.poll_period_s:g} s, "
           f"logging to {config.log.dir}", file=sys.stderr, flush=True)
     counters = await daemon.run(duration)
+    if write_back is not None:
+        write_back.events = None  # the log is closed
+        await write_back.close()
     print(f"stopped: {counters.ok_polls}/{counters.polls} polls ok, {counters.comm_errors} "
           f"errors, {counters.skipped_ticks} skipped ticks, {counters.disconnects} drops",
           file=sys.stderr, flush=True)

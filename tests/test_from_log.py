@@ -8,9 +8,11 @@ import asyncio
 import select
 import subprocess
 import time
+import uuid
 from dataclasses import astuple, replace
 from pathlib import Path
 
+import can
 import numpy as np
 import pytest
 import yaml
@@ -23,7 +25,7 @@ from furnace_daq.logplayer import LogPlayer
 from furnace_daq.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
 from furnace_daq.mcaplog import LogWriter, read_messages
 from furnace_daq.registers import decode
-from furnace_daq.simplc import SimPLC
+from furnace_daq.simplc import CAN_ID, SimPLC
 from furnace_model import SENSORS, ZONES
 
 SPEED, PERIOD = 600.0, 0.05
@@ -238,3 +240,31 @@ def test_bad_logs_are_one_line_errors(tmp_path):
     done = furnace_daq("sim-plc", "--from-log", str(text), "--manual")
     _, err = done.communicate(timeout=30)
     assert done.returncode != 0 and "--manual" in err
+
+
+def test_served_log_sends_the_recorded_flames_on_can(tmp_path):
+    write_log(tmp_path, range(0, 900, 30))
+    channel = f"log-{uuid.uuid4().hex}"
+    player = LogPlayer(sorted(tmp_path.glob("*.mcap")))
+
+    async def serve() -> tuple[list[can.Message], list[bool]]:
+        listener = can.Bus(interface="virtual", channel=channel)
+        plc = SimPLC(player, speed=1200, port=0, scan_s=0.02, can_channel=channel)
+        await plc.start()
+        try:
+            await asyncio.wait_for(plc.ended.wait(), 10)
+            await asyncio.sleep(0.1)
+            frames = []
+            while (msg := listener.recv(timeout=0)) is not None:
+                frames.append(msg)
+            return frames, plc.states
+        finally:
+            await plc.stop()
+            listener.shutdown()
+
+    frames, last = asyncio.run(serve())
+    states = [[bool(int.from_bytes(bytes(f.data), "little") >> i & 1) for i in range(26)]
+              for f in frames if f.arbitration_id == CAN_ID]
+    assert states[0] == player.values_at(0).burners and states[-1] == last
+    assert last == player.values_at(870).burners and sum(last[:10]) == 7 and all(last[10:18])
+    assert len({tuple(s) for s in states}) == 2, "the recorded change at second 400"

@@ -49,6 +49,14 @@ def test_unit_declares_notify_watchdog_restart_and_directories():
     assert d["RestartPreventExitStatus"] == ["2"]  # config errors exit 2 (ConfigError)
 
 
+def test_unit_keeps_state_and_logs_and_never_listens():
+    d = directives(UNIT.read_text())
+    assert d["StateDirectory"] == ["furnace-daq"]  # model.json of the refits and write-back
+    assert d["LogsDirectory"] == ["furnace-daq"] and d["UMask"] == ["0027"]
+    assert d["DynamicUser"] == ["yes"] and d["SocketBindDeny"] == ["any"]
+    assert "time-sync.target" in d["After"][0].split()
+
+
 def test_verify(tmp_path):
     out = subprocess.run(["systemd-analyze", "verify", "--man=no", "--recursive-errors=yes",
                           str(local_copy(tmp_path))], capture_output=True, text=True, timeout=60)

@@ -9,6 +9,7 @@ import os
 import signal
 import socket
 import struct
+import threading
 import time
 from pathlib import Path
 
@@ -30,7 +31,8 @@ from faultproxy import READ_FUNCTION_CODES, FaultProxy
 from pymodbus.client import AsyncModbusTcpClient
 
 from furnace_daq.daqconfig import parse_config
-from furnace_daq.logschema import THERMOCOUPLES
+from furnace_daq.logschema import MODEL_PARAMETERS, THERMOCOUPLES
+from furnace_daq.mcaplog import read_messages
 from furnace_daq.registers import decode
 from furnace_daq.simplc import SimPLC
 from furnace_daq.writeback import (
@@ -336,3 +338,74 @@ def test_proxy_request_decoding_sanity():
     pdu = bytes([16]) + struct.pack(">HHB", 100, 2, 4) + b"\0" * 4
     frame = Frame(1, 7, 1, pdu, b"")
     assert frame.function_code == 16 and frame.address_count == (100, 2)
+
+
+# -- (b) the whole chain: refits in `furnace-daq run` reach the PLC through write_back ------------
+
+@pytest.mark.slow
+def test_run_writes_each_ok_model_to_allowed_registers_only(tmp_path):
+    """`furnace-daq run` with refits and write_back, behind the recording proxy, against a
+    simulated PLC with holding registers (in this process, on a loop of its own): the PLC
+    ends up holding the last ok model, and the only requests that are not reads are FC16
+    to allow-listed registers."""
+    speed, hours = 6000.0, 9
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+
+    def call(coro):
+        return asyncio.run_coroutine_threadsafe(coro, loop).result(30)
+
+    plc = SimPLC(load_scenario(ROOT / "config" / "scenarios" / "week_steps.yaml"), speed=speed,
+                 port=0, seed=1, scan_s=0.02, holding_registers=128)
+    call(plc.start())
+    proxy = FaultProxy(plc.port)
+    call(proxy.start())
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["poll_period_s"] = 0.02                  # one poll per 2 simulated minutes
+    doc["plc"]["timeout_s"] = 0.2
+    doc["clock"]["epoch"] = "2026-03-02T00:00:00Z"
+    doc["refit"] = {"period_s": 7200, "window_s": 21600, "step_s": 120,
+                    "max_gap_fraction": 0.3, "budget_s": 20, "state_dir": str(tmp_path / "state")}
+    doc["write_back"] = WB
+    cfg = tmp_path / "daq.yaml"
+    cfg.write_text(yaml.safe_dump(doc))
+    try:
+        daq = furnace_daq("run", "--config", str(cfg), "--plc", f"127.0.0.1:{proxy.port}",
+                          "--log-dir", str(tmp_path / "logs"),
+                          "--duration", str(hours * 3600 / speed))
+        _, err = daq.communicate(timeout=120)
+        assert daq.returncode == 0, err
+
+        async def holding():
+            reader = AsyncModbusTcpClient("127.0.0.1", port=plc.port, timeout=0.5, retries=0)
+            await reader.connect()
+            try:
+                return (await reader.read_holding_registers(100, count=21)).registers
+            finally:
+                reader.close()
+
+        words = call(holding())
+    finally:
+        call(proxy.stop())
+        call(plc.stop())
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(5)
+        loop.close()
+    models = [m for t, m, _, _ in read_messages(sorted((tmp_path / "logs").glob("*.mcap")),
+                                                 [MODEL_PARAMETERS])]
+    ok = [m for m in models if m["status"] == "ok"]
+    assert ok, [m.get("detail") for m in models]
+    last = ok[-1]
+    assert float32(words[0:2]) == pytest.approx(last["a"], rel=1e-6)
+    assert float32(words[2:4], "little") == pytest.approx(last["b"], rel=1e-6)
+    assert words[4] == round(last["c"] / 0.001)
+    for k, p in ((6, "d"), (8, "e"), (10, "f")):
+        assert float32(words[k:k + 2]) == pytest.approx(last[p], rel=1e-6)
+    assert 1 <= words[20] <= len(ok)  # the counter: one per complete write
+    writes = [f for f in proxy.requests if f.function_code not in READ_FUNCTION_CODES]
+    assert {f.function_code for f in writes} == {16}
+    allowed = frozenset([*range(100, 112), 120])
+    for f in writes:
+        start, count = f.address_count
+        assert set(range(start, start + count)) <= allowed

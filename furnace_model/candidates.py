@@ -63,6 +63,9 @@ class CandidateResult:
     n_obs: int = 0
     n_params: int = 0
     rho1: float = 0.0  # lag-1 autocorrelation of the fit residual
+    rho1_holdout: float = 0.0
+    n_holdout: int = 0
+    evidence: float = 0.0  # lower is better: delta_bic plus the held-out log-likelihood ratio
     gap_closed_pct: float = 0.0
     elapsed_s: float = 0.0
     warnings: list[str] = field(default_factory=list)
@@ -129,6 +132,8 @@ def run_task(task: Task) -> CandidateResult:
     fit_pred = fitted_predictions(fr, task.fit_data)
     hold_pred = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of)
     res = [e.zone_temp - p for e, p in zip(task.fit_data, fit_pred, strict=True)]
+    hold_res = [e.zone_temp - p for e, p in zip(task.holdout, hold_pred, strict=True)]
+    n_hold = int(sum(np.isfinite(r).sum() for r in hold_res))
     ident, note = identifiable(fr, task.effects)
     return CandidateResult(
         effects=task.effects, params=dict(fr.params),
@@ -139,7 +144,7 @@ def run_task(task: Task) -> CandidateResult:
         options={n: dict(task.options.get(n, {})) for n in task.effects},
         sse_fit=fr.sse, n_obs=fr.n_obs,
         n_params=len(structure.names) + 6 * len(task.fit_data),
-        rho1=lag1(res), elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
+        rho1=lag1(res), rho1_holdout=lag1(hold_res), n_holdout=n_hold, elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
 
 
 def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray]:
@@ -236,6 +241,12 @@ def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, fl
                             + (c.n_params - base.n_params) * np.log(neff))
     else:
         c.delta_bic = 0.0
+    # Held-out evidence: the Gaussian log-likelihood ratio on data the fit has not seen,
+    # counted in effective samples; with the fit's BIC it ranks candidates whose held-out
+    # errors are within noise of each other (a lag and a dead time both near the floor).
+    rho = c.rho1_holdout
+    n_ho = c.n_holdout * (1 - rho) / (1 + rho)
+    c.evidence = c.delta_bic + (n_ho * np.log(rc * rc / (rb * rb)) if rb > 0 and rc > 0 else 0.0)
 
 
 def check_effects(names) -> tuple[str, ...]:

@@ -59,8 +59,9 @@ MIN_GAP_CLOSED = 50.0
 """Percent of the baseline's held-out error above the floor an effect must remove to count;
 for a further effect in a stepwise combination, of the error the kept ones leave."""
 MAX_EFFECTS = 3
-STEP_TRIES = 4
-"""Further effects tried at each step of the combination search: the next best singles."""
+STEP_TRIES = 8
+"""Further effects tried at each step of the combination search, the best singles first: a
+second effect may show nothing alone while a larger one dominates the error."""
 WORKERS = 2
 
 
@@ -116,7 +117,8 @@ class Diagnosis:
                     "options": _plain(c.options),
                     "rmse_fit_c": _round(c.rmse_fit_c), "rmse_holdout_c": _round(c.rmse_holdout_c),
                     "shrink_pct": _r(c.shrink_pct), "gap_closed_pct": _r(c.gap_closed_pct),
-                    "delta_bic": _r(c.delta_bic), "identifiable": c.identifiable,
+                    "delta_bic": _r(c.delta_bic), "evidence": _r(c.evidence),
+                    "identifiable": c.identifiable,
                     "note": c.note, "elapsed_s": _r(c.elapsed_s)}
 
         b = self.baseline
@@ -209,7 +211,7 @@ def _credit(c: CandidateResult, min_closed: float = MIN_GAP_CLOSED) -> bool:
 
 
 def _rank(c: CandidateResult) -> tuple:
-    return (not _credit(c), c.rmse_holdout_pooled())
+    return (not _credit(c), c.evidence if _credit(c) else c.rmse_holdout_pooled())
 
 
 def _near(c: CandidateResult, floor: dict[str, float]) -> bool:
@@ -274,7 +276,7 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         good = [c for c in step if closes(c)]
         if not good:
             break
-        kept = min(good, key=lambda c: c.rmse_holdout_pooled())
+        kept = min(good, key=lambda c: c.evidence)
     return tried, kept
 
 

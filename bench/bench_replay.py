@@ -12,6 +12,7 @@ kept in a cache directory so a second run measures the replay only.
 from __future__ import annotations
 
 import argparse
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -60,26 +61,30 @@ def main() -> None:
     # The built-in refit settings are the benchmark's: every 15 min, 24-h windows, 1 min.
     assert RefitConfig() == RefitConfig(period_s=900.0, window_s=86400.0, step_s=60.0)
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     frame = export_frame(files, period_s=60.0)
-    t_read = time.perf_counter() - t0
+    t_read, c_read = time.perf_counter() - t0, time.process_time() - c0
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
+    w0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     msgs = replay(files, None, args.cache / "replay-out.mcap")
-    t_replay = time.perf_counter() - t0
+    t_replay, c_replay = time.perf_counter() - t0, time.process_time() - c0
+    w1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    c_worker = (w1.ru_utime + w1.ru_stime) - (w0.ru_utime + w0.ru_stime)
     ok = [m for m in msgs if m["status"] == "ok"]
     fit_s = sum(m["elapsed_s"] for m in ok)
 
     print(f"{days:g} simulated days at 1 Hz ({n} messages, {len(files)} hourly files, "
           f"{size / 2**20:.0f} MiB){'' if t_make == 0 else f'; written in {t_make:.0f} s'}\n")
-    print("| step | wall time | rate |")
-    print("|---|---|---|")
+    print("| step | wall time | CPU time | rate |")
+    print("|---|---|---|---|")
     print(f"| read + bin the logs (`logs export`, {len(frame)} rows) | {t_read:.1f} s | "
-          f"{t_read / n * 1e6:.1f} us per message |")
-    print(f"| fits alone (worker, sum of {len(ok)} fit times) | {fit_s:.1f} s | "
+          f"{c_read:.1f} s | {c_read / n * 1e6:.1f} us CPU per message |")
+    print(f"| fits alone (worker, sum of {len(ok)} fit times) | {fit_s:.1f} s | | "
           f"{fit_s / max(len(ok), 1) * 1e3:.0f} ms per fit |")
     print(f"| replay: {len(msgs)} windows ({len(ok)} fitted, "
           f"{len(msgs) - len(ok)} not yet full or failed) | {t_replay:.1f} s | "
+          f"{c_replay:.1f} s reading + {c_worker:.1f} s worker | "
           f"{len(msgs) / t_replay:.1f} refits/s |")
 
 

@@ -31,6 +31,8 @@ from furnace_model.experiment import BURNER_COLUMNS, TC_COLUMNS
 from .logschema import AMBIENT, BURNERS, THERMOCOUPLES
 from .mcaplog import iso_time, read_messages
 
+_ALL_OK = dict.fromkeys(SENSORS, "ok")
+
 
 class Resampler:
     """The binning of the module docstring, fed one message at a time: `logs export` feeds it
@@ -57,18 +59,28 @@ class Resampler:
         self._burners: dict[bool, tuple[list[int], list[tuple[float, float, float]]]] = {
             True: ([], []), False: ([], [])}
         self._unsorted = False
+        self._last_burner_msg: dict | None = None
+        self._last_burner_pub: int | None = None
 
     def add(self, topic: str, msg: dict, pub_ns: int) -> None:
         if topic == THERMOCOUPLES:
-            quality = msg.get("quality")
-            quality = quality if isinstance(quality, dict) else {}  # no quality: no good reading
             self._tc_t.append(pub_ns)
+            quality = msg.get("quality")
+            if quality == _ALL_OK:  # the usual case, checked in one comparison
+                values = [msg.get(s) for s in SENSORS]
+                if all(type(v) is float for v in values):
+                    self._tc_v.append(values)
+                    return
+            quality = quality if isinstance(quality, dict) else {}  # no quality: no good reading
             self._tc_v.append([_number(msg.get(s)) if quality.get(s) == "ok" else math.nan
                                for s in SENSORS])
         elif topic == BURNERS:
+            self._seen_t.append(pub_ns)
+            if msg is self._last_burner_msg and pub_ns >= (self._last_burner_pub or 0):
+                return  # read_messages hands repeated messages over as one dict
             counts = tuple(_counts(msg))
             times, states = self._burners[msg.get("source") == "modbus"]
-            self._seen_t.append(pub_ns)
+            self._last_burner_msg, self._last_burner_pub = msg, pub_ns
             if times and pub_ns >= times[-1]:
                 if states[-1] == counts:
                     return

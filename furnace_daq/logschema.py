@@ -127,8 +127,12 @@ _DAQ_EVENTS = _object(
 _CI95 = _object({p: {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2,
                      "description": f"95% interval of {p}: [lo, hi]"} for p in PARAM_NAMES},
                 "95% confidence intervals")
-_COMBINATIONS = {"type": "object", "description": "the combinations the window determines "
-                 "(e.g. 'd/e', 'b/c'): {name: {value, ci95}}"}
+_COMBINATIONS = _object(
+    {name: _object({"value": _number(f"value of {name}"),
+                    "ci95": {"type": "array", "items": {"type": "number"},
+                             "description": f"95% interval of {name}"}}, f"{name}")
+     for name in (*PARAM_NAMES, "b/c", "d/e")},
+    "what the window's data determine, {name: {value, ci95}}; other names may appear")
 
 _MODEL_PARAMETERS = _object(
     {

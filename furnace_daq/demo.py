@@ -22,6 +22,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from furnace_model import SENSORS, ZONES
@@ -108,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
     _report(last, whole, scenario)
     label = f"online model of {_hours(last['window_end'], start)} h"
     plots = plot_fit(exp, predict({p: last[p] for p in PARAM_NAMES}, exp), args.out, label)
+    plots.append(plot_refits(good, scenario, args.out / "refits.png"))
     print(f"\n   MCAP log:   {', '.join(map(str, logs))}")
     state = args.out / "state" / "model.json"
     if state.exists():
@@ -293,6 +295,46 @@ def _report(online: dict, whole: FitResult, scenario: Scenario) -> None:
     rmse = lambda m: "/".join(f"{m[z]:.2f}" for z in ZONES)  # noqa: E731
     print(f"   {'RMSE, C':10}{'':10}  {rmse(online['rmse_c']):>28}  "
           f"{rmse({z: whole.per_zone[z]['rmse_c'] for z in ZONES}):>28}")
+
+
+def plot_refits(refits: list[dict], scenario: Scenario, path: Path) -> Path:
+    """Each fitted window's a, f, b/c and d/e against the truth, with 95% intervals: what the
+    online identification did over the run, on one page."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    truth = scenario.values()
+    start = scenario.start_time
+    fig = Figure(figsize=(8, 4.5), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    ends = [float(_hours(m["window_end"], start)) if start is not None else k
+            for k, m in enumerate(refits)]
+    for k, name in enumerate(("a", "f", "b/c", "d/e")):
+        want = combination_value(name, truth)
+        x, y, err = [], [], []
+        for end, m in zip(ends, refits, strict=True):
+            c = (m.get("combinations") or {}).get(name)
+            if c is None:
+                continue
+            lo, hi = c["ci95"]
+            x.append(end + 0.25 * (k - 1.5))
+            y.append(100 * (c["value"] / want - 1))
+            err.append([100 * (c["value"] - lo) / want, 100 * (hi - c["value"]) / want])
+        if x:
+            ax.errorbar(x, y, yerr=np.array(err).T, fmt="o", ms=4, capsize=2, label=name)
+    for t in scenario.steps_t[1:]:
+        ax.axvline(t / 60.0, color="0.7", lw=0.8, ls="--")
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_xlabel("end of the refit window (h of the run); dashed: burner steps")
+    ax.set_ylabel("error against the truth (%)")
+    ax.set_title(f"{scenario.name}: online refits, 95% intervals")
+    ax.legend(loc="best")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, format="png")
+    return path
 
 
 def _cell(value: float, truth: float, lo: float, hi: float) -> str:

@@ -72,7 +72,7 @@ def check_run(done: subprocess.CompletedProcess, out: Path, min_ok: int) -> list
         assert abs(rows[name][1] / truth - 1) < 0.03, (name, rows[name])
     state = json.loads((out / "state" / "model.json").read_text())
     assert state["window_end"] == models[-1]["window_end"]
-    assert len(list(out.glob("*.png"))) == 3
+    assert len(list(out.glob("*.png"))) == 4  # three zones and the refit timeline
     return models
 
 

@@ -99,6 +99,7 @@ class Daemon:
         self._missed_unreported = 0
         self._last_missed_event = float("-inf")
         self._consecutive_errors = 0
+        self._dials_since_ok = 0  # dials since the last good poll: the backoff's step
         self._epoch_ns: int | None = None
         if config.clock is not None and config.clock.epoch is not None:
             self._epoch_ns = config.clock.epoch.value
@@ -214,7 +215,7 @@ class Daemon:
             except Exception as exc:  # a malformed reply must not end acquisition
                 await self._poll_failed(log_ns, f"{type(exc).__name__}: {exc}")
             else:
-                self._consecutive_errors = 0
+                self._consecutive_errors = self._dials_since_ok = 0
                 c.ok_polls += 1
                 self._log_plc(plc_sample, log_ns)
         flame_sample = None
@@ -336,21 +337,24 @@ class Daemon:
 
     # -- connections ------------------------------------------------------------------------------
     async def _connector(self, source: Source) -> None:
-        """Dial while disconnected, waiting longer after each failure (capped)."""
-        attempt = 0
+        """Dial while disconnected, waiting longer after each failure (capped). A connection
+        lost before one good poll counts as a failure too: a PLC that accepts and hangs up at
+        once (its connection limit reached) must not be redialled at every tick."""
+        delay = self.config.plc.reconnect.delay
         while not self._stop.is_set():
             if not self._need_dial.is_set():
-                attempt = 0
                 await self._need_dial.wait()
+                if self._dials_since_ok:
+                    await self._sleep(delay(self._dials_since_ok - 1))
                 continue
+            attempt = self._dials_since_ok
+            self._dials_since_ok += 1
             self.counters.connect_attempts += 1
             try:
                 await source.connect()
             except SourceError as exc:
-                self.detail = f"{exc}; retry {attempt + 1} in " \
-                              f"{self.config.plc.reconnect.delay(attempt):g} s"
-                await self._sleep(self.config.plc.reconnect.delay(attempt))
-                attempt += 1
+                self.detail = f"{exc}; retry {attempt + 1} in {delay(attempt):g} s"
+                await self._sleep(delay(attempt))
                 continue
             self.counters.connects += 1
             self._consecutive_errors = 0

@@ -118,6 +118,9 @@ def test_outage_recorded_and_recovered_with_nothing_answered_lost(tmp_path, mode
             and run.fault_ns <= lt <= run.healed_ns + int(TIMEOUT * 2e9)]
     assert lost and all(m["detail"] for m in lost), status
     assert run.counters.disconnects >= 1
+    # redials back off even when the link accepts and hangs up at once: 0.1, 0.2, 0.4, 0.4 s
+    # within the fault, not one per tick
+    assert run.counters.connect_attempts <= 7, run.counters
     assert status[-2][0]["state"] == "connected" and status[-1][0]["detail"] == "stopping"
 
     # no good sample while the fault lasts, the first one soon after it heals
@@ -143,10 +146,10 @@ def test_stall_is_comm_error_at_the_poll_timeout_and_one_missed_tick_event(tmp_p
 
 
 def test_latency_below_the_timeout_loses_nothing(tmp_path):
-    """20 ms per response, two responses a poll: inside the 50 ms period, no fault at all."""
-    run = run_with_fault(tmp_path, "delay", delay_s=0.02)
+    """10 ms per response, two responses a poll: well inside the 50 ms period, no fault."""
+    run = run_with_fault(tmp_path, "delay", delay_s=0.01)
     c = run.counters
-    assert c.comm_errors == 0 and c.disconnects == 0 and c.skipped_ticks <= 2, c
+    assert c.comm_errors == 0 and c.disconnects == 0 and c.skipped_ticks <= 0.05 * c.polls, c
     check_schedule(run)
     ok = check_every_answer_logged(run)
     assert len(ok) >= 0.9 * (WARM + FAULT + AFTER) / PERIOD

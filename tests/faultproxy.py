@@ -36,6 +36,7 @@ import socket
 import struct
 import threading
 import time
+from collections import Counter
 from dataclasses import dataclass, field, replace
 
 MODES = ("pass", "drop", "refuse", "stall", "delay", "truncate", "reset", "garbage")
@@ -177,6 +178,20 @@ class FaultProxy:
                 if req.function_code == function_code and req.address_count is not None
                 and req.address_count[0] == address and resp.function_code == function_code
                 and resp.at - req.at <= within_s]
+
+    def answered_polls(self, within_s: float) -> Counter:
+        """PLC seconds (input registers 7-8 of the default map) of every poll whose two reads,
+        input registers 0-9 and then the burner bits, reached the client intact within
+        `within_s` of the first request: the samples a daemon must have logged."""
+        pairs = {(req.conn, req.tid): (req, resp) for req, resp in self.answered[:]}
+        out: Counter = Counter()
+        for (conn, tid), (req, resp) in pairs.items():
+            bits = pairs.get((conn, tid + 1))
+            if req.function_code == 4 and req.address_count == (0, 10) and bits is not None \
+                    and bits[0].function_code == 2 and bits[1].at - req.at <= within_s:
+                regs = resp.registers
+                out[(regs[7] << 16) | regs[8]] += 1
+        return out
 
     # -- internals ----------------------------------------------------------------------------
     async def _listen(self) -> None:

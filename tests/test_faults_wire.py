@@ -59,20 +59,6 @@ def run_with_fault(tmp_path, mode: str, **mode_args) -> Run:
     return run
 
 
-def answered_polls(proxy: FaultProxy) -> Counter:
-    """PLC seconds of every poll whose two responses (input registers 0-9, then the burner
-    bits) reached the daemon intact and within its poll timeout."""
-    by_tid = {(req.conn, req.tid): (req, resp) for req, resp in proxy.answered}
-    out: Counter = Counter()
-    for (conn, tid), (req, resp) in by_tid.items():
-        bits = by_tid.get((conn, tid + 1))
-        if req.function_code == 4 and req.address_count == (0, 10) and bits is not None \
-                and bits[0].function_code == 2 and bits[1].at - req.at <= TIMEOUT:
-            regs = resp.registers
-            out[(regs[7] << 16) | regs[8]] += 1
-    return out
-
-
 def logged_ok(msgs) -> list[tuple[dict, int]]:
     return [(m, lt) for t, m, lt in msgs
             if t == THERMOCOUPLES and all(q == "ok" for q in m["quality"].values())]
@@ -80,7 +66,7 @@ def logged_ok(msgs) -> list[tuple[dict, int]]:
 
 def check_every_answer_logged(run: Run) -> list[tuple[dict, int]]:
     ok = logged_ok(run.msgs)
-    answered = answered_polls(run.proxy)
+    answered = run.proxy.answered_polls(TIMEOUT)
     assert sum(answered.values()) >= 20, answered
     assert Counter(m["plc_seconds"] for m, _ in ok) == answered
     seconds = [m["plc_seconds"] for m, _ in ok]

@@ -291,6 +291,8 @@ class Daemon:
         tc["quality"] = {s: quality.get(s, COMM_ERROR) for s in SENSORS}
         if sample.plc_seconds is not None:
             tc["plc_seconds"] = sample.plc_seconds
+        if sample.errors:  # blocks the PLC refused: why some points are comm_error
+            tc["error"] = "; ".join(sample.errors)
         self._write(THERMOCOUPLES, tc, log_ns, pub)
         if self.config.ambient is not None:
             amb = {"t_air": sample.values.get("t_air"), "quality": quality.get("t_air", COMM_ERROR)}

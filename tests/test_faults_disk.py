@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import errno
+import json
 import os
 import re
 import select
@@ -15,6 +16,7 @@ import socket
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -22,9 +24,14 @@ import yaml
 from daq_processes import ROOT, config, free_port, sim, start_daemon, start_simplc, stop
 
 from furnace_daq import mcaplog
-from furnace_daq.logschema import DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
+from furnace_daq.daemon import Daemon
+from furnace_daq.daqconfig import parse_config
+from furnace_daq.logschema import DAQ_EVENTS, DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
 from furnace_daq.mcaplog import LogWriter, read_messages
 from furnace_daq.sdnotify import Notifier
+from furnace_daq.simplc import SimPLC
+from furnace_model.config import Node
+from furnace_model.scenario import load_scenario
 
 WARM, BROKEN, AFTER = 0.6, 1.2, 1.0
 RETRY_S = 5.0  # LogWriter's default retry interval after a failure
@@ -188,3 +195,67 @@ def test_unwritable_log_dir_at_start_never_stops_the_service(tmp_path):
     ok_polls = int(re.search(r"stopped: (\d+)/\d+ polls ok", err).group(1))
     logged = [m for t, m in msgs if t == THERMOCOUPLES and m["quality"]["soak_1"] == "ok"]
     assert ok_polls > 100 and len(logged) == ok_polls, "the samples of the outage were kept"
+
+
+@pytest.mark.slow
+def test_refits_go_on_while_the_disk_is_full(tmp_path, monkeypatch):
+    """Nine simulated hours at 6000x with refits every 2 h over 6-h windows; the disk (log
+    and state directory alike) is full for the middle of the run. Every window is still fitted
+    and logged once the disk is back, and model.json holds the last one."""
+    speed, hours = 6000.0, 9
+    log_dir, state_dir = tmp_path / "logs", tmp_path / "state"
+    broken = False
+    real_open, real_fsync = os.open, os.fsync
+
+    def failing_open(path, flags, mode=0o777, *a, **k):
+        if broken and str(path).startswith(str(tmp_path)):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        return real_open(path, flags, mode, *a, **k)
+
+    def failing_fsync(fd):
+        if broken:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real_fsync(fd)
+
+    monkeypatch.setattr(mcaplog.os, "open", failing_open)
+    monkeypatch.setattr(mcaplog.os, "fsync", failing_fsync)
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["poll_period_s"] = 0.02                  # one poll per 2 simulated minutes
+    doc["plc"]["timeout_s"] = 0.2
+    doc["clock"]["epoch"] = "2026-03-02T00:00:00Z"
+    doc["refit"] = {"period_s": 7200, "window_s": 21600, "step_s": 120,
+                    "max_gap_fraction": 0.3, "budget_s": 20, "state_dir": str(state_dir)}
+    cfg = parse_config(Node(doc, "test.yaml"))
+    seen: list[dict] = []
+
+    async def scenario():
+        nonlocal broken
+        plc = SimPLC(load_scenario(ROOT / "config" / "scenarios" / "week_steps.yaml"),
+                     speed=speed, port=0, seed=1, scan_s=0.02)
+        await plc.start()
+        cfg_port = replace(cfg, plc=replace(cfg.plc, port=plc.port))
+        log = LogWriter(log_dir, flush_interval_s=0.2, retry_s=0.2)
+        daemon = Daemon(cfg_port, log, on_model=seen.append)
+        task = asyncio.create_task(daemon.run(hours * 3600 / speed))
+        await asyncio.sleep(3 * 3600 / speed)      # from 3 h to 7 h of plant time: full
+        broken = True
+        t_broken = time.time_ns()
+        await asyncio.sleep(4 * 3600 / speed)
+        broken = False
+        t_fixed = time.time_ns()
+        counters = await task
+        await plc.stop()
+        return counters, t_broken, t_fixed
+
+    counters, t_broken, t_fixed = asyncio.run(scenario())
+    assert counters.ok_polls >= 0.9 * counters.polls
+    msgs = all_messages(log_dir)
+    models = [(m, lt) for t, m, lt in msgs if t == MODEL_PARAMETERS]
+    assert [m["window_end"][11:16] for m, _ in models] == ["02:00", "04:00", "06:00", "08:00"]
+    assert [m for m, _ in models] == seen
+    assert any(t_broken < lt < t_fixed for _, lt in models), "a refit during the outage"
+    assert sum(m["status"] == "ok" for m, _ in models) >= 2
+    saved = json.loads((state_dir / "model.json").read_text())
+    assert saved["window_end"] == models[-1][0]["window_end"]
+    gaps = [m for t, m, _ in msgs if t == DAQ_EVENTS and m["kind"] == "log_gap"]
+    assert len(gaps) == 1 and gaps[0]["dropped"] == 0

@@ -21,7 +21,16 @@ from pathlib import Path
 
 import pytest
 import yaml
-from daq_processes import ROOT, config, free_port, sim, start_daemon, start_simplc, stop
+from daq_processes import (
+    ROOT,
+    config,
+    free_port,
+    furnace_daq,
+    sim,
+    start_daemon,
+    start_simplc,
+    stop,
+)
 
 from furnace_daq import mcaplog
 from furnace_daq.daemon import Daemon
@@ -259,3 +268,17 @@ def test_refits_go_on_while_the_disk_is_full(tmp_path, monkeypatch):
     assert saved["window_end"] == models[-1][0]["window_end"]
     gaps = [m for t, m, _ in msgs if t == DAQ_EVENTS and m["kind"] == "log_gap"]
     assert len(gaps) == 1 and gaps[0]["dropped"] == 0
+
+
+def test_log_dir_that_cannot_be_created_is_reported_not_fatal(tmp_path):
+    """A log directory that cannot even be created (here: below a regular file, which stops
+    root too) is an error on stderr and /daq/status, not an exit: under systemd an exit would
+    be restarted into the same error every few seconds."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    proc = furnace_daq("run", "--config", str(ROOT / "config" / "gateway.yaml"), "--plc",
+                       f"127.0.0.1:{free_port()}", "--log-dir", str(blocker / "logs"),
+                       "--duration", "1.5")
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert f"log: {blocker / 'logs'}: Not a directory" in err and "Traceback" not in err

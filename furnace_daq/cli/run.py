@@ -59,6 +59,9 @@ def run(args: argparse.Namespace) -> int:
     lc = config.log
     try:
         lc.dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # not fatal: the writer retries and /daq/status says why
+        print(f"log: {lc.dir}: {exc.strerror or exc}", file=sys.stderr, flush=True)
+    try:
         log = LogWriter(lc.dir, prefix=lc.prefix, flush_interval_s=lc.flush_interval_s,
                         rotate_s=lc.rotate_s, rotate_bytes=lc.rotate_bytes,
                         retention_files=lc.retention_files, file_mode=lc.file_mode)

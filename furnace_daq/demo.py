@@ -29,7 +29,6 @@ from furnace_model import SENSORS, ZONES
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import experiment_from_frame, write_table
 from furnace_model.fit import FitResult, fit, predict
-from furnace_model.plots import plot_fit
 from furnace_model.scenario import Scenario, load_scenario
 
 from .daemon import Daemon
@@ -67,6 +66,9 @@ def main(argv: list[str] | None = None) -> int:
     except FurnaceError as exc:
         print(f"demo: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except KeyboardInterrupt:
+        print("demo: interrupted", file=sys.stderr)
+        return 130
 
 
 def run(args: argparse.Namespace) -> int:
@@ -107,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"   last online refit: window {_hours(last['window_start'], start)}-"
           f"{_hours(last['window_end'], start)} h; whole run: 0-{scenario.duration_min / 60:.1f} h")
     _report(last, whole, scenario)
+    from furnace_model.plots import plot_fit  # matplotlib: not for the refit worker's import
+
     label = f"online model of {_hours(last['window_end'], start)} h"
     plots = plot_fit(exp, predict({p: last[p] for p in PARAM_NAMES}, exp), args.out, label)
     plots.append(plot_refits(good, scenario, args.out / "refits.png"))

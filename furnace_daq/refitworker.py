@@ -138,8 +138,12 @@ class RefitRunner:
         self.worker.start()
 
     def feed(self, topic: str, msg: dict, pub_ns: int) -> None:
-        """One logged message; cuts and queues the windows that became due."""
-        for window in self.cutter.feed(topic, msg, pub_ns):
+        """One logged message; cuts and queues the windows that became due (and hands the
+        first to the worker at once when it is idle)."""
+        windows = self.cutter.feed(topic, msg, pub_ns)
+        if not windows:
+            return
+        for window in windows:
             self.windows += 1
             self.queue.append(window)
             if self.max_queue is not None and len(self.queue) > self.max_queue:

@@ -76,8 +76,8 @@ def run(args: argparse.Namespace) -> int:
         raise FurnaceError("--speed, --polls-per-minute and --every must be positive")
     scenario = load_scenario(args.scenario)
     log_dir = args.out / "logs"
-    for old in log_dir.glob("*.mcap*"):
-        old.unlink()
+    for old in [*log_dir.glob("*.mcap*"), args.out / "state" / "model.json"]:
+        old.unlink(missing_ok=True)  # a previous run's results must not pass for this one's
     print(f"1. Simulated PLC: {scenario.name}: {scenario.description}")
     steps = ", ".join(f"{int(n.sum())} from {t / 60:g} h"
                       for t, n in zip(scenario.steps_t, scenario.steps_burners, strict=True))

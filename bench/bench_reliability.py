@@ -32,8 +32,7 @@ from crash_runs import (  # noqa: E402
 )
 from daq_processes import furnace_daq, start_simplc, stop  # noqa: E402
 from faultproxy import ThreadedFaultProxy  # noqa: E402
-from soak_run import BACKOFF_CAP_S, TIMEOUT_S, soak  # noqa: E402
-from soak_run import PERIOD_S as SOAK_PERIOD_S  # noqa: E402
+from soak_run import BACK_WITHIN_S, soak  # noqa: E402
 
 from furnace_daq.logrecover import has_footer  # noqa: E402
 
@@ -96,7 +95,6 @@ def table(crash: dict, term: dict, s, soak_min: float) -> str:
     back = defaultdict(list)
     for f in s.faults:
         back[f.mode].append(f.back_s if f.back_s is not None else float("inf"))
-    cap_bound = BACKOFF_CAP_S + TIMEOUT_S + SOAK_PERIOD_S
     rows = [
         "| what | promise | measured |",
         "|---|---|---|",
@@ -112,7 +110,7 @@ def table(crash: dict, term: dict, s, soak_min: float) -> str:
     ]
     for mode, times in sorted(back.items()):
         rows.append(f"| back to good data after `{mode}` ({len(times)}x, 0.6 s each) | within "
-                    f"backoff cap + timeout + period = {cap_bound:.2g} s | max {max(times):.2f} s, "
+                    f"2 x backoff cap + timeout + period = {BACK_WITHIN_S:.2g} s | max {max(times):.2f} s, "
                     f"median {statistics.median(times):.2f} s |")
     rows += [
         f"| soak: {soak_min:g} simulated minutes at {s.speed:g}x ({s.wall_s:.0f} s), refits on, "

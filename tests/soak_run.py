@@ -23,6 +23,10 @@ from furnace_daq.logschema import DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
 from furnace_daq.mcaplog import read_messages
 
 PERIOD_S, TIMEOUT_S, BACKOFF_CAP_S = 0.1, 0.3, 0.5
+BACK_WITHIN_S = 2 * BACKOFF_CAP_S + TIMEOUT_S + PERIOD_S
+"""Healing to the first good reading: a dial in the last moments of an outage fails and
+waits one more backoff, then a poll may time out on a request the outage swallowed, then
+one period to the next tick."""
 FAULTS: tuple[tuple[str, dict], ...] = (
     ("drop", {}), ("stall", {}), ("reset", {}), ("garbage", {}), ("truncate", {}),
     ("delay", {"delay_s": 0.05}), ("refuse", {}))
@@ -82,7 +86,8 @@ def config_file(directory: Path, refit: bool = True) -> Path:
         # PLC-clock windows of 10 min every 5 min, every one fitted: a refit every 2.5 s
         # of wall time at 120x, the first after 5 s.
         doc["refit"] = {"enabled": True, "period_s": 300, "window_s": 600, "step_s": 60,
-                        "budget_s": 5, "min_burner_steps": 0, "queue_max": 2,
+                        "budget_s": 5, "min_burner_steps": 0, "max_gap_fraction": 0.5,
+                        "queue_max": 2,
                         "state_dir": str(directory / "state")}
     else:
         doc.pop("refit", None)

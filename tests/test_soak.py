@@ -1,17 +1,15 @@
 """Soak: the real daemon process polls the simulated PLC at high speed through the fault
 proxy, with online refits and a fault every few simulated minutes. Memory stays flat, no
 descriptor leaks, every poll the PLC answered in time is in the log, and the daemon is back
-within the backoff cap after each fault. The 2-hour soak is slow; a half-hour one runs in
+within twice the backoff cap after each fault. The 2-hour soak is slow; a half-hour one runs in
 make test."""
 
 from __future__ import annotations
 
 import pytest
-from soak_run import BACKOFF_CAP_S, FAULTS, PERIOD_S, TIMEOUT_S, soak
+from soak_run import BACK_WITHIN_S, FAULTS, PERIOD_S, soak
 
-# Healing to the first good reading: one backoff wait at most, a poll timing out on a dead
-# request, one period, and scheduling slack on a busy 2-core machine.
-BACK_WITHIN_S = BACKOFF_CAP_S + TIMEOUT_S + PERIOD_S + 0.7
+SLACK_S = 0.3  # scheduling on a busy 2-core machine
 
 
 def _judge(result, min_faults: int, max_rss_growth: float) -> None:
@@ -31,7 +29,7 @@ def _judge(result, min_faults: int, max_rss_growth: float) -> None:
     assert result.fd_growth() <= 2, summary
     assert sum(result.refits.values()) >= 2, summary
     late = [(f.mode, f.back_s) for f in result.faults if f.back_s is None or
-            f.back_s > BACK_WITHIN_S]
+            f.back_s > BACK_WITHIN_S + SLACK_S]
     assert not late, summary
 
 

@@ -113,7 +113,23 @@ def structure_of(effects: tuple[str, ...], options: dict[str, dict]) -> ModelStr
 
 
 def run_task(task: Task) -> CandidateResult:
+    """Fit and score one candidate. A candidate whose fit fails (a parameter set the
+    simulator cannot integrate) is reported as failed, with the reason, and earns no
+    credit: one bad candidate must not end the diagnosis."""
     t0 = time.perf_counter()
+    try:
+        return _run_task(task, t0)
+    except Exception as exc:  # noqa: BLE001 - any failure of one candidate is reported as such
+        if not task.effects:
+            raise
+        nan = {z: float("nan") for z in ZONES}
+        return CandidateResult(task.effects, {}, {}, dict(nan), dict(nan), identifiable=False,
+                               note=f"fit failed: {type(exc).__name__}: {exc}",
+                               options={n: dict(task.options.get(n, {})) for n in task.effects},
+                               elapsed_s=time.perf_counter() - t0)
+
+
+def _run_task(task: Task, t0: float) -> CandidateResult:
     structure = structure_of(task.effects, task.options)
     init = None
     if task.init is not None:
@@ -233,6 +249,10 @@ def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, fl
     zones), the share of the baseline's held-out gap above the noise floor it closes, and
     the change of BIC on the fitted data with an effective sample size."""
     rb, rc = base.rmse_holdout_pooled(), c.rmse_holdout_pooled()
+    if not np.isfinite(rc):
+        c.shrink_pct = c.gap_closed_pct = c.delta_bic = float("nan")
+        c.evidence = float("inf")
+        return
     c.shrink_pct = float(100.0 * (1.0 - rc / rb)) if rb > 0 else 0.0
     fl2 = float(np.mean([floor[z] ** 2 for z in ZONES]))
     excess = rb * rb - fl2

@@ -211,7 +211,8 @@ def _credit(c: CandidateResult, min_closed: float = MIN_GAP_CLOSED) -> bool:
 
 
 def _rank(c: CandidateResult) -> tuple:
-    return (not _credit(c), c.evidence if _credit(c) else c.rmse_holdout_pooled())
+    r = c.rmse_holdout_pooled()
+    return (not _credit(c), c.evidence if _credit(c) else (r if np.isfinite(r) else np.inf))
 
 
 def _near(c: CandidateResult, floor: dict[str, float]) -> bool:
@@ -268,10 +269,12 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         left = kept.rmse_holdout_pooled() ** 2 - fl2
 
         def closes(c: CandidateResult, left=left, kept=kept) -> bool:
+            if not c.identifiable or not np.isfinite(c.sse_fit):
+                return False
             gain = kept.rmse_holdout_pooled() ** 2 - c.rmse_holdout_pooled() ** 2
             bic = c.n_eff() * np.log(c.sse_fit / kept.sse_fit) + \
                 (c.n_params - kept.n_params) * np.log(c.n_eff())
-            return c.identifiable and left > 0 and gain >= MIN_GAP_CLOSED / 100 * left and bic < 0
+            return left > 0 and gain >= MIN_GAP_CLOSED / 100 * left and bic < 0
 
         good = [c for c in step if closes(c)]
         if not good:

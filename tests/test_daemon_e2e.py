@@ -40,7 +40,7 @@ def test_sim_plc_to_mcap(tmp_path):
         assert daq.returncode == 0, err
     finally:
         assert stop(sim) == 0
-    files = sorted((tmp_path / "logs").iterdir())
+    files = sorted((tmp_path / "logs").glob("*.mcap*"))  # not the directory lock
     assert [f.suffix for f in files] == [".mcap"], files  # finished, with a footer
     msgs = list(read_messages(files))
     by_topic: dict[str, list] = {}

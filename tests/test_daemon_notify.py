@@ -47,7 +47,7 @@ def test_notify_watchdog_and_sigterm(tmp_path):
     assert sum(m == "WATCHDOG=1" for m in got) >= 3, "fed while the PLC is unreachable"
     assert any(m.startswith("STATUS=disconnected") for m in got)
     assert "STOPPING=1" in got
-    files = list((tmp_path / "logs").iterdir())
+    files = list((tmp_path / "logs").glob("*.mcap*"))  # not the directory lock
     assert len(files) == 1 and files[0].suffix == ".mcap", files
     status = [m for t, m, _, _ in read_messages(files) if t == DAQ_STATUS]
     assert status[-1]["detail"] == "stopping" and status[-1]["connect_attempts"] >= 2

@@ -192,11 +192,12 @@ class WriteBack:
 
     def plan(self, message: dict) -> list[tuple[int, list[int]]]:
         """(address, registers) of each request for a model message, in address order,
-        neighbouring points merged into one request."""
+        neighbouring points merged into one request. All or nothing: a PLC must never run on
+        a mix of two models' parameters."""
         words: dict[int, int] = {}
         for p in self.config.points:
-            if p.name not in message or message[p.name] is None:
-                continue
+            if message.get(p.name) is None:
+                raise WriteBackError(f"the model has no value for {p.name}: nothing written")
             for k, w in enumerate(p.registers(message[p.name])):
                 words[p.address + k] = w
         requests: list[tuple[int, list[int]]] = []
@@ -211,8 +212,6 @@ class WriteBack:
     async def write(self, message: dict) -> int:
         """Write one model's parameters (then the counter); the number of registers written."""
         requests = self.plan(message)
-        if not requests:
-            raise WriteBackError("none of the configured parameters is in the model message")
         if self.config.counter is not None:
             requests.append((self.config.counter, [(self.counter + 1) & 0xFFFF]))
         for address, values in requests:  # all checked before the first is sent

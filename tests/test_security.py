@@ -146,8 +146,9 @@ def float32(words: list[int], order: str = "big") -> float:
 
 def test_write_back_writes_only_allowed_registers_with_fc16(tmp_path):
     """Against the simulated PLC's holding registers, through the recording proxy: an ok
-    model lands where the map says; a failed one writes nothing; a map that names a register
-    off the list (here built past the parser) is refused before anything is sent."""
+    model lands where the map says; a failed or incomplete one writes nothing; a map that
+    names a register off the list (here built past the parser) is refused before anything is
+    sent."""
     async def scenario():
         plc = SimPLC(load_scenario(SCENARIO), speed=600, port=0, scan_s=0.05,
                      holding_registers=200)
@@ -167,6 +168,9 @@ def test_write_back_writes_only_allowed_registers_with_fc16(tmp_path):
             wb.on_model({**MODEL, "a": 0.0202})
             await asyncio.sleep(0.3)
             second = (await reader.read_holding_registers(100, count=21)).registers
+            wb.on_model({**MODEL, "a": 0.05, "c": None})     # incomplete: nothing written
+            await asyncio.sleep(0.3)
+            third = (await reader.read_holding_registers(100, count=21)).registers
             before = len(proxy.requests)
             rogue = WriteBackConfig(frozenset(range(100, 102)),
                                     (WritePoint("a", 100), WritePoint("b", 150)))
@@ -179,9 +183,9 @@ def test_write_back_writes_only_allowed_registers_with_fc16(tmp_path):
             reader.close()
             await proxy.stop()
             await plc.stop()
-        return proxy, wb, events, first, second, untouched, before, after
+        return proxy, wb, events, first, second, third, untouched, before, after
 
-    proxy, wb, events, first, second, untouched, before, after = asyncio.run(scenario())
+    proxy, wb, events, first, second, third, untouched, before, after = asyncio.run(scenario())
     assert float32(first[0:2]) == pytest.approx(0.0201, rel=1e-6)
     assert float32(first[2:4], "little") == pytest.approx(0.299, rel=1e-6)
     assert first[4] == 62  # c = 0.0615 / 0.001, rounded
@@ -196,7 +200,8 @@ def test_write_back_writes_only_allowed_registers_with_fc16(tmp_path):
     for f in writes:
         start, count = f.address_count
         assert set(range(start, start + count)) <= allowed, (start, count)
-    assert events == []
+    assert third == second and [e["kind"] for e in events] == ["write_back_failed"]
+    assert "no value for c" in events[0]["detail"]
 
 
 def test_write_back_failure_is_one_event_and_never_raises(tmp_path):

@@ -290,6 +290,12 @@ class WindowCutter:
             return []
         out: list[Window] = []
         due = self.next_due_ns
+        if self._last_ns is not None and pub_ns < self._last_ns - self.window_ns:
+            # The data clock went back by more than a window (a PLC restarted with its clock
+            # at zero and a fixed epoch): what was binned belongs to another time line.
+            self.resampler = Resampler(self.step_ns, 0)
+            self._last_ns = None
+            due = None
         if due is None:
             self.next_due_ns = (pub_ns // self.period_ns + 1) * self.period_ns
         elif pub_ns >= due:

@@ -203,3 +203,42 @@ def test_chain_warm_starts_from_the_previous_window():
     by_hand = fit([windows[i].experiment], init={p: out[i - 1][p] for p in PARAM_NAMES},
                   zone_offsets=True, seed=0)
     assert all(by_hand.params[p] == out[i][p] for p in PARAM_NAMES)
+
+
+def test_a_backed_up_queue_drops_the_oldest_window_with_an_event():
+    """Windows cut faster than they are fitted: beyond queue_max the oldest goes, said so."""
+    s = scenario("week_steps", duration_min=30 * 60)
+    cfg = RefitConfig(period_s=HOUR, window_s=4 * HOUR, queue_max=2)
+    out: list[tuple[str, dict]] = []
+    runner = RefitRunner(cfg, lambda topic, m, t: out.append((topic, m)), max_queue=2)
+    runner.start()  # the worker needs a second or more to start: windows pile up meanwhile
+    try:
+        for topic, msg, t in run_messages(simulate(s)):
+            runner.feed(topic, msg, t)
+        assert runner.drain(120)
+    finally:
+        runner.close()
+    dropped = [m for topic, m in out if topic != MODEL_PARAMETERS]
+    params = [m for topic, m in out if topic == MODEL_PARAMETERS]
+    assert runner.dropped > 0 and len(dropped) == runner.dropped
+    assert all(m["kind"] == "window_dropped" for m in dropped)
+    assert len(params) + len(dropped) == runner.windows == 30
+    ends = [m["window_end"] for m in params]
+    assert ends == sorted(ends) and not {m["window_end"] for m in dropped} & set(ends)
+
+
+def test_a_clock_that_jumps_back_starts_the_windows_afresh():
+    s = scenario("week_steps", duration_min=12 * 60)
+    cfg = RefitConfig(period_s=2 * HOUR, window_s=4 * HOUR)
+    msgs = list(run_messages(simulate(s)))
+    back = int(24 * HOUR * 1e9)  # the second half replayed a day earlier on the data clock
+    half = len(msgs) // 2
+    cutter = WindowCutter(cfg)
+    windows = [w for topic, msg, t in msgs[:half] for w in cutter.feed(topic, msg, t)]
+    n_before = len(windows)
+    windows += [w for topic, msg, t in msgs[half:] for w in cutter.feed(topic, msg, t - back)]
+    later = windows[n_before:]
+    assert later and all(w.end_ns < msgs[half][2] - back + 7 * HOUR * 1e9 for w in later)
+    # no window after the jump holds data from before it
+    assert all(w.experiment is None or w.experiment.start_time.value >= msgs[half][2] - back
+               for w in later)

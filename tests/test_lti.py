@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from furnace_model.effects import DeadTime, FuelChange, SensorLag, WallStorage, ZoneBurners
+from furnace_model.effects import (
+    DeadTime,
+    FuelChange,
+    Radiation,
+    SensorLag,
+    WallStorage,
+    ZoneBurners,
+)
 from furnace_model.parameters import PAPER_TABLE_V
 from furnace_model.structure import Inputs, ModelStructure
 
@@ -187,3 +194,71 @@ def test_many_per_parameter_step_times_in_blocks_equal_single_calls():
     for p in (0, 7, 150, 299):
         single = ms.simulate({k: v[p] for k, v in values.items()}, inputs, t, x0[p])
         np.testing.assert_allclose(batch[p], single[0], rtol=1e-9, atol=1e-8)
+
+
+def reference_nonlinear(structure: ModelStructure, values: dict, inputs: Inputs, t: np.ndarray,
+                        x0: np.ndarray) -> np.ndarray:
+    """Radau at tight tolerance on x' = A x + B u + the effects' nonlinear terms."""
+    theta = structure.theta(values)
+    sysm = structure.system(theta)
+    A, B = sysm.A[0], sysm.B[0]
+
+    def rhs(_t, x, u):
+        dx = A @ x + B @ u
+        for eff in structure.effects:
+            if not eff.linear:
+                dx = dx + eff.nonlinear_rhs(theta, x[None], sysm.A, sysm.B, u[None])[0]
+        return dx
+
+    x = structure.full_state(x0)[0]
+    out = np.empty((t.size, x.size))
+    out[t <= inputs.t[0]] = x
+    edges = np.concatenate((inputs.t, [t[-1]]))
+    for j, (lo, hi) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+        u = np.r_[inputs.burners[j], inputs.t_air[j]]
+        idx = np.nonzero((t > lo) & (t <= hi))[0]
+        sol = solve_ivp(rhs, (lo, hi), x, method="Radau", rtol=1e-12, atol=1e-10,
+                        t_eval=t[idx], args=(u,))
+        out[idx] = sol.y.T
+        x = sol.y[:, -1]
+    return out @ sysm.C[0].T
+
+
+@pytest.mark.parametrize("effects,values", [
+    ([Radiation()], {"rad_share": 0.8}),
+    ([Radiation(exponent=3.0, t_ref_c=650.0), ZoneBurners()],
+     {"rad_share": 0.9, "f_heat": 2.0, "f_preheat": 3.0}),
+    ([Radiation(exponent=5.0), SensorLag(order=2)], {"rad_share": 0.5, "tau_lag": 6.0}),
+], ids=["radiation", "cubic+zone_burners", "fifth+lag2"])
+def test_radiation_batched_integrator_against_tight_radau(effects, values):
+    """A heat-up from cold past 900 degC with a jump of 20 burners: the batched
+    exponential integrator stays within a hundredth of a degree (noise: 1.06) of Radau at
+    1e-12, for every set of a batch."""
+    ms = ModelStructure(effects)
+    inputs = Inputs(np.array([0.0, 700.0, 1500.0, 2300.0]),
+                    np.array([[2, 0, 0], [6, 2, 0], [4, 0, 0], [10, 6, 4.0]]), np.full(4, 25.0))
+    t = np.arange(0.0, 2601.0)
+    x0 = np.full(3, 25.0)
+    shares = np.array([0.1, values["rad_share"]])
+    y = ms.simulate({**PAPER_TABLE_V, **values, "rad_share": shares}, inputs, t, x0)
+    for p, share in enumerate(shares):
+        ref = reference_nonlinear(ms, {**PAPER_TABLE_V, **values, "rad_share": share}, inputs,
+                                  t, x0)
+        assert ref.max() > 900
+        assert np.max(np.abs(y[p] - ref)) < 0.01
+
+
+def test_radiation_with_per_set_step_times():
+    ms = ModelStructure([Radiation(), DeadTime()])
+    inputs = Inputs(np.array([0.0, 400.0, 900.0]), np.array([[2, 0, 0], [8, 0, 0], [5, 0, 0.0]]),
+                    np.full(3, 30.0))
+    t = np.arange(0.0, 1201.0, 2.0)
+    x0 = np.full(3, 30.0)
+    delays = np.array([3.3, 40.0])
+    y = ms.simulate({**PAPER_TABLE_V, "rad_share": 0.6, "theta_dead": delays}, inputs, t, x0)
+    for p, delay in enumerate(delays):
+        shifted = Inputs(np.array([0.0, 400.0 + delay, 900.0 + delay]), inputs.burners,
+                         inputs.t_air)
+        ref = reference_nonlinear(ModelStructure([Radiation()]),
+                                  {**PAPER_TABLE_V, "rad_share": 0.6}, shifted, t, x0)
+        assert np.max(np.abs(y[p] - ref)) < 0.01

@@ -1,0 +1,94 @@
+"""`furnace-model diagnose` as a user runs it: files in, summary and JSON out, and one clear
+line (never a traceback) for data that cannot be diagnosed."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from furnace_model.experiment import write_table
+from furnace_model.selfcheck import draw_case
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def cli(*args: str, timeout: float = 280) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "furnace_model.cli", "diagnose", *args],
+                          cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def case_files(tmp_path_factory) -> tuple[Path, Path, dict]:
+    case = draw_case("zone_burners", np.random.default_rng(21))
+    d = tmp_path_factory.mktemp("diag")
+    fit, hold = d / "exp1.csv", d / "exp2.parquet"
+    write_table(case.fit[0].to_frame(), fit)
+    write_table(case.holdout[0].to_frame(), hold)
+    return fit, hold, case.truth
+
+
+def test_diagnose_names_the_effect_and_writes_the_contract_json(case_files, tmp_path):
+    fit, hold, _truth = case_files
+    out = tmp_path / "d.json"
+    r = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,sensor_lag,dead_time",
+            "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "Verdict: explained (zone_burners)" in r.stdout
+    assert "| zone | RMSE fit (degC) | RMSE held out (degC) | noise floor (degC) | gap |" in r.stdout
+    doc = json.loads(out.read_text())
+    assert set(doc["baseline"]) >= {"rmse_fit_c", "rmse_holdout_c", "noise_floor_c"}
+    assert set(doc["baseline"]["rmse_holdout_c"]) == {"soak", "heat", "preheat"}
+    assert doc["verdict"]["status"] == "explained"
+    assert doc["verdict"]["effects"] == ["zone_burners"]
+    assert doc["verdict"]["shrink_pct"] >= 50
+    assert [c["effect"] for c in doc["candidates"]][0] == "zone_burners"
+    for c in doc["candidates"]:
+        assert set(c) >= {"effect", "params", "rmse_fit_c", "rmse_holdout_c", "shrink_pct",
+                          "delta_bic"}
+    for w in doc["where"]:
+        assert set(w) >= {"zone", "sensor", "start", "end", "share_of_error", "regime"}
+        assert w["start"].endswith("Z")
+    assert doc["holdout_how"] == "given"
+
+
+def test_one_short_file_is_refused_with_what_is_missing(case_files, tmp_path):
+    fit, _hold, _ = case_files
+    import pandas as pd
+
+    short = tmp_path / "short.csv"
+    pd.read_csv(fit).iloc[:80].to_csv(short, index=False)
+    r = cli(str(short))
+    assert r.returncode == 1
+    assert "too short to hold out" in r.stderr and "--holdout" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_no_excitation_and_missing_zone_are_one_line_errors(case_files, tmp_path):
+    fit, hold, _ = case_files
+    import pandas as pd
+
+    frame = pd.read_csv(fit)
+    steady = tmp_path / "steady.csv"
+    frame.assign(burners_soak=4, burners_heat=0, burners_preheat=0).to_csv(steady, index=False)
+    r = cli(str(steady), "--holdout", str(hold))
+    assert r.returncode == 1 and "no burner change" in r.stderr
+    assert "Traceback" not in r.stderr
+    blind = tmp_path / "blind.csv"
+    frame.drop(columns=["tc_heat_1", "tc_heat_2"]).to_csv(blind, index=False)
+    r = cli(str(fit), str(blind))
+    assert r.returncode == 1 and "zone 'heat' has no thermocouple column" in r.stderr
+    empty_zone = tmp_path / "empty_zone.csv"
+    frame.assign(tc_heat_1="", tc_heat_2="").to_csv(empty_zone, index=False)
+    r = cli(str(fit), str(empty_zone))
+    assert r.returncode == 1 and "zone 'heat' has no thermocouple readings" in r.stderr
+
+
+def test_unknown_effect_is_a_usage_error(case_files):
+    fit, hold, _ = case_files
+    r = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,warp_drive")
+    assert r.returncode == 2 and "warp_drive" in r.stderr

@@ -282,3 +282,64 @@ def test_log_dir_that_cannot_be_created_is_reported_not_fatal(tmp_path):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     assert f"log: {blocker / 'logs'}: Not a directory" in err and "Traceback" not in err
+
+
+def mount_tmpfs(path: Path, size: str) -> bool:
+    """A tiny tmpfs, to fill it for real; only root with CAP_SYS_ADMIN may mount."""
+    if os.geteuid() != 0 or shutil.which("mount") is None:
+        return False
+    path.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "tmpfs",
+                           str(path)], capture_output=True, timeout=10)
+    return done.returncode == 0
+
+
+def test_real_disk_full_on_a_tiny_tmpfs(tmp_path):
+    """The real thing where the machine allows it: the log directory's filesystem fills up
+    (a filler file takes every free block) while `furnace-daq run` writes, then space comes
+    back. Same promises as above, with the kernel's ENOSPC rather than a simulated one."""
+    log_dir = tmp_path / "disk"
+    if not mount_tmpfs(log_dir, "2m"):
+        pytest.skip("cannot mount a tmpfs here (needs root): the simulated ENOSPC test covers it")
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["poll_period_s"] = 0.05
+    doc["log"]["flush_interval_s"] = 0.2
+    cfg = tmp_path / "daq.yaml"
+    cfg.write_text(yaml.safe_dump(doc))
+    plc, port = start_simplc("--speed", "600")
+    daq = None
+    filler = log_dir / "filler"
+    try:
+        daq = furnace_daq("run", "--config", str(cfg), "--plc", f"127.0.0.1:{port}",
+                          "--log-dir", str(log_dir))
+        early = wait_for_line(daq, "polling ")
+        time.sleep(1.0)
+        with open(filler, "wb") as f:  # every free block, until the kernel says ENOSPC
+            try:
+                while True:
+                    f.write(b"\0" * 65536)
+                    f.flush()
+            except OSError as exc:
+                assert exc.errno == errno.ENOSPC
+        time.sleep(2.0)
+        assert daq.poll() is None
+        filler.unlink()
+        time.sleep(RETRY_S + 1.0)
+        daq.send_signal(signal.SIGTERM)
+        _, err = daq.communicate(timeout=20)
+        err = early + err
+        assert daq.returncode == 0, err
+        files = sorted(log_dir.glob("*.mcap*"))
+        msgs = all_messages(log_dir)
+    finally:
+        if daq is not None:
+            stop(daq)
+        stop(plc)
+        subprocess.run(["umount", "-l", str(log_dir)], capture_output=True, timeout=10)
+    assert "No space left on device" in err and "log: writing again" in err, err
+    assert files[-1].suffix == ".mcap", files  # the last file was finished at SIGTERM
+    (gap,) = [m for t, m, _ in msgs if t == DAQ_EVENTS and m["kind"] == "log_gap"]
+    assert "No space left" in gap["error"] and gap["dropped"] == 0
+    ok_polls = int(re.search(r"stopped: (\d+)/\d+ polls ok", err).group(1))
+    logged = [m for t, m, _ in msgs if t == THERMOCOUPLES and m["quality"]["soak_1"] == "ok"]
+    assert ok_polls > 100 and len(logged) == ok_polls, (ok_polls, len(logged))

@@ -9,6 +9,7 @@ log must hold each of those polls as a good reading."""
 from __future__ import annotations
 
 import signal
+import statistics
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -55,9 +56,6 @@ class Soak:
     exit_code: int | None = None
     stderr: str = ""
 
-    def after_warmup(self, series: list[tuple[float, int]], warm_s: float) -> list[int]:
-        return [v for t, v in series if t >= warm_s]
-
     def rss_growth(self, warm_fraction: float = 0.25) -> float:
         """Resident memory at the end against just after warm-up (means of 10% of the run)."""
         span = self.rss_kib[-1][0]
@@ -67,11 +65,13 @@ class Soak:
         return sum(end) / len(end) / (sum(warm) / len(warm)) - 1.0
 
     def fd_growth(self, warm_fraction: float = 0.25) -> int:
-        """Open descriptors at the end against the fewest seen after warm-up (sockets come and
-        go with faults; a leak only ever adds)."""
+        """Open descriptors at the end against just after warm-up (medians of 10% of the run:
+        a socket being redialled at one sample is not a leak; a leak grows with the faults)."""
         span = self.fds[-1][0]
-        after = [v for t, v in self.fds if t >= warm_fraction * span]
-        return after[-1] - min(after)
+        warm = [v for t, v in self.fds if warm_fraction * span <= t < (warm_fraction + 0.1)
+                * span]
+        end = [v for t, v in self.fds if t >= 0.9 * span]
+        return int(statistics.median(end) - statistics.median(warm))
 
 
 def config_file(directory: Path, refit: bool = True) -> Path:

@@ -26,7 +26,7 @@ def _judge(result, min_faults: int, max_rss_growth: float) -> None:
     assert not result.missing, summary
     assert result.logged_ok >= result.answered, summary
     assert result.rss_growth() < max_rss_growth, summary
-    assert result.fd_growth() <= 2, summary
+    assert result.fd_growth() <= 1, summary
     assert sum(result.refits.values()) >= 2, summary
     late = [(f.mode, f.back_s) for f in result.faults if f.back_s is None or
             f.back_s > BACK_WITHIN_S + SLACK_S]

@@ -226,7 +226,8 @@ def listening_sockets(pid: int) -> list[tuple[str, str]]:
     """(protocol, local address) of every listening TCP socket or bound UDP socket the
     process holds, from /proc/<pid>/fd and /proc/net/*: the view `ss -lnp` has."""
     inodes = set()
-    for fd in Path(f"/proc/{pid}/fd").iterdir():
+    fds = Path(f"/proc/{pid}/fd")
+    for fd in fds.iterdir() if fds.exists() else ():
         try:
             target = os.readlink(fd)
         except OSError:
@@ -309,10 +310,13 @@ def test_daemon_listens_on_nothing_and_logs_0640(tmp_path):
 
 def children(pid: int) -> list[int]:
     out = []
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        with open(task / "children") as f:
-            for child in f.read().split():
-                out += [int(child), *children(int(child))]
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            with open(task / "children") as f:  # a thread may end meanwhile
+                for child in f.read().split():
+                    out += [int(child), *children(int(child))]
+    except FileNotFoundError:
+        pass
     return out
 
 
@@ -379,6 +383,11 @@ def test_run_writes_each_ok_model_to_allowed_registers_only(tmp_path):
         daq = furnace_daq("run", "--config", str(cfg), "--plc", f"127.0.0.1:{proxy.port}",
                           "--log-dir", str(tmp_path / "logs"),
                           "--duration", str(hours * 3600 / speed))
+        deadline = time.monotonic() + 30       # the refit worker process: it listens on
+        while not children(daq.pid) and time.monotonic() < deadline:  # nothing either
+            time.sleep(0.1)
+        pids = [daq.pid, *children(daq.pid)]
+        listening = [s for pid in pids for s in listening_sockets(pid)]
         _, err = daq.communicate(timeout=120)
         assert daq.returncode == 0, err
 
@@ -401,6 +410,7 @@ def test_run_writes_each_ok_model_to_allowed_registers_only(tmp_path):
                                                  [MODEL_PARAMETERS])]
     ok = [m for m in models if m["status"] == "ok"]
     assert ok, [m.get("detail") for m in models]
+    assert len(pids) >= 2 and listening == [], (pids, listening)
     last = ok[-1]
     assert float32(words[0:2]) == pytest.approx(last["a"], rel=1e-6)
     assert float32(words[2:4], "little") == pytest.approx(last["b"], rel=1e-6)

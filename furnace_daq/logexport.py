@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -32,6 +33,19 @@ from .logschema import AMBIENT, BURNERS, THERMOCOUPLES
 from .mcaplog import iso_time, read_messages
 
 _ALL_OK = dict.fromkeys(SENSORS, "ok")
+
+
+class Binned(NamedTuple):
+    """Resampled rows: bin start (ns), thermocouple means (n, 6), burner counts in force at
+    the bin's end (n, 3), t_air mean (n,), and the mean time of the thermocouple messages
+    within the bin in seconds from its start (n,; NaN without one): the time an average of
+    1 Hz readings stands for is the middle of its bin, not its start."""
+
+    starts: np.ndarray
+    tc: np.ndarray
+    burners: np.ndarray
+    t_air: np.ndarray
+    tc_time_s: np.ndarray
 
 
 class Resampler:
@@ -53,8 +67,9 @@ class Resampler:
         self._seen_t: list[int] = []  # burner messages: they mark their bin as logged
         # per bin: sums and counts of the 6 thermocouples and t_air, and whether logged
         self._bins = np.zeros(0, dtype=np.int64)
-        self._sum = np.zeros((0, 7))
-        self._cnt = np.zeros((0, 7))
+        # columns: 6 thermocouples, t_air, time of the thermocouple messages within the bin
+        self._sum = np.zeros((0, 8))
+        self._cnt = np.zeros((0, 8))
         # burner changes (time, counts) per source; unchanged repeats are not kept
         self._burners: dict[bool, tuple[list[int], list[tuple[float, float, float]]]] = {
             True: ([], []), False: ([], [])}
@@ -97,18 +112,21 @@ class Resampler:
         if not (self._tc_t or self._air_t or self._seen_t):
             return
         n_tc, n_air = len(self._tc_t), len(self._air_t)
-        values = np.full((n_tc + n_air + len(self._seen_t), 7), np.nan)
+        values = np.full((n_tc + n_air + len(self._seen_t), 8), np.nan)
         values[:n_tc, :6] = np.asarray(self._tc_v, dtype=float).reshape(-1, 6)
         values[n_tc:n_tc + n_air, 6] = self._air_v
         t = np.asarray(self._tc_t + self._air_t + self._seen_t, dtype=np.int64)
+        new_keys = (t - self.origin_ns) // self.step_ns
+        within = (t[:n_tc] - self.origin_ns - new_keys[:n_tc] * self.step_ns) / 1e9
+        values[:n_tc, 7] = within
         good = np.isfinite(values)
-        keys = np.concatenate([self._bins, (t - self.origin_ns) // self.step_ns])
+        keys = np.concatenate([self._bins, new_keys])
         sums = np.concatenate([self._sum, np.where(good, values, 0.0)])
         counts = np.concatenate([self._cnt, good.astype(float)])
         bins, pos = np.unique(keys, return_inverse=True)
         self._bins = bins
-        self._sum = np.zeros((bins.size, 7))
-        self._cnt = np.zeros((bins.size, 7))
+        self._sum = np.zeros((bins.size, 8))
+        self._cnt = np.zeros((bins.size, 8))
         np.add.at(self._sum, pos, sums)
         np.add.at(self._cnt, pos, counts)
         for buf in (self._tc_t, self._tc_v, self._air_t, self._air_v, self._seen_t):
@@ -123,11 +141,9 @@ class Resampler:
             bt, bc = bt[order], bc[order]
         return bt, bc
 
-    def table(self, lo_ns: int | None = None, hi_ns: int | None = None
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(bin start times ns, thermocouple means (n, 6), burner counts (n, 3), t_air (n,))
-        for the logged bins whose start lies in [lo_ns, hi_ns) and whose burner state is known.
-        """
+    def table(self, lo_ns: int | None = None, hi_ns: int | None = None) -> Binned:
+        """The logged bins whose start lies in [lo_ns, hi_ns) and whose burner state is
+        known (see Binned)."""
         self._consolidate()
         m = self._in_range(lo_ns, hi_ns)
         starts = self.origin_ns + self._bins[m] * self.step_ns
@@ -138,7 +154,7 @@ class Resampler:
         starts, total, count, last = starts[known], total[known], count[known], last[known]
         means = np.full(total.shape, np.nan)
         np.divide(total, count, out=means, where=count > 0)
-        return starts, means[:, :6], bc[last].astype(int), means[:, 6]
+        return Binned(starts, means[:, :6], bc[last].astype(int), means[:, 6], means[:, 7])
 
     def logged_bins(self, lo_ns: int | None = None, hi_ns: int | None = None) -> int:
         """How many bins in [lo_ns, hi_ns) hold any message, burner state known or not."""
@@ -186,7 +202,7 @@ def export_frame(paths: Iterable[str | Path], period_s: float = 60.0,
                 binner.add(topic, msg, pub_ns)
             except DataError as exc:  # the message's fault: say in which log and when
                 raise DataError(where, f"at {iso_time(pub_ns)} (publish time): {exc}") from None
-    starts, tc, burners, air = binner.table(lo, hi)
+    starts, tc, burners, air, _ = binner.table(lo, hi)
     if starts.size == 0:
         if binner.logged_bins(lo, hi) == 0:
             raise DataError(where, "no furnace data (thermocouples, burners, ambient) in the "

@@ -242,3 +242,21 @@ def test_a_clock_that_jumps_back_starts_the_windows_afresh():
     # no window after the jump holds data from before it
     assert all(w.experiment is None or w.experiment.start_time.value >= msgs[half][2] - back
                for w in later)
+
+
+def test_1hz_polls_averaged_into_minutes_recover_b_and_c():
+    """Averages of 60 readings stand for the middle of their minute: timed at the bin start
+    they would lag the model by 30 s and bend b and c by 10-15%."""
+    s = scenario("week_steps", duration_min=30 * 60)
+    s.sample_min = 1.0 / 60.0
+    cfg = RefitConfig(period_s=3 * HOUR, window_s=24 * HOUR)
+    params, events = through_pipeline(simulate(s), cfg)
+    ok = [m for m in params if m["status"] == "ok"]
+    assert len(ok) == 4, [(m["window_end"], m["status"], m["detail"]) for m in params]
+    for m in ok:
+        for p in ("a", "b", "c", "f"):
+            assert abs(m[p] / s.params[p] - 1) < 0.03, (m["window_end"], p, m[p])
+            assert p not in m["undetermined"]
+        assert abs(m["d"] / m["e"] / (s.params["d"] / s.params["e"]) - 1) < 0.03
+        assert all(v < 0.2 for v in m["rmse_c"].values())  # 1.5 / sqrt(2 x 60) = 0.14
+    assert events == []

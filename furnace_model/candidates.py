@@ -102,6 +102,8 @@ class Task:
     seed: int
     budget_s: float | None
     cold_too: bool = False
+    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """Search boxes narrower than the effect's own: a time within the record, not 0-1e6 min."""
     """Also search from scratch: worth it when the baseline bent far to absorb the effect
     (seen with strong zone burners: a = 1, d = 11), which can hold a warm start in a side
     valley."""
@@ -138,14 +140,17 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
             # Integrated, not closed form: no evolutionary search, only the polish from the
             # baseline with the effect at its default strength.
             init = {**structure.defaults(), **init}
+    bounds = {k: v for k, v in task.bounds.items() if k in structure.names}
+    if init is not None:
+        init = {k: (float(np.clip(v, *bounds[k])) if k in bounds else v) for k, v in init.items()}
     # The baseline is cheap and everything is measured against it: three independent
     # searches, so that a side valley of eq. 11 is not mistaken for a gap.
     runs = 3 if not task.effects else 1
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
-             time_budget_s=task.budget_s, runs=runs)
+             time_budget_s=task.budget_s, runs=runs, bounds=bounds)
     if init is not None and structure.linear and task.cold_too:
         cold = fit(task.fit_data, structure, seed=task.seed + 1, zone_offsets=True,
-                   time_budget_s=task.budget_s)
+                   time_budget_s=task.budget_s, bounds=bounds)
         if cold.sse < fr.sse:
             fr = cold
     fit_pred = fitted_predictions(fr, task.fit_data)

@@ -58,6 +58,8 @@ explains the gap."""
 MIN_GAP_CLOSED = 50.0
 """Percent of the baseline's held-out error above the floor an effect must remove to count;
 for a further effect in a stepwise combination, of the error the kept ones leave."""
+MIN_SHARE = 0.02
+"""A located span holds at least this share of its zone's squared error."""
 MAX_EFFECTS = 3
 STEP_TRIES = 8
 """Further effects tried at each step of the combination search, the best singles first: a
@@ -190,15 +192,18 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                          time.perf_counter() - t_start, gap, tc_noise)
     bent = any(base.rmse_fit_c[z] > GAP_RATIO * floor[z] for z in ZONES)
     say("candidates", 0.1)
+    bounds = search_bounds(fit_data)
+    starts = effect_starts(faults, every)
     tasks = [Task((n,), {n: options.get(n, {})} if n in options else {}, fit_data, hold,
-                  tail_of, base.params, seed, BUDGET_S.get(n, DEFAULT_BUDGET_S), bent)
+                  tail_of, {**base.params, **starts.get(n, {})}, seed,
+                  BUDGET_S.get(n, DEFAULT_BUDGET_S), bent, bounds)
              for n in names]
     singles = _run_all(tasks, lambda f: say("candidates", 0.1 + 0.6 * f))
     for c in singles:
         score_against(c, base, floor)
     singles.sort(key=_rank)
-    combos, kept = stepwise(singles, base, floor, fit_data, hold, tail_of, seed, options, gap,
-                            lambda f: say("combinations", 0.7 + 0.3 * f))
+    combos, kept = stepwise(singles, base, floor, fit_data, hold, tail_of, seed, options,
+                            bounds, starts, gap, lambda f: say("combinations", 0.7 + 0.3 * f))
     candidates = sorted(singles + combos, key=_rank)
     verdict = judge(base, kept, candidates, floor, gap, where)
     say("done", 1.0)
@@ -241,7 +246,8 @@ def _run_all(tasks: list[Task], progress: Callable[[float], None]) -> list[Candi
 
 
 def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[str, float],
-             fit_data, hold, tail_of, seed: int, options: dict, gap: tuple[str, ...],
+             fit_data, hold, tail_of, seed: int, options: dict, bounds: dict, starts: dict,
+             gap: tuple[str, ...],
              progress: Callable[[float], None]
              ) -> tuple[list[CandidateResult], CandidateResult | None]:
     """Combinations tried, and the set kept: the best single with credit, then one effect
@@ -259,8 +265,10 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         for n in others:
             effs = (*kept.effects, n)
             opts = {k: v for k, v in options.items() if k in effs}
-            tasks.append(Task(effs, opts, fit_data, hold, tail_of, kept.params, seed,
-                              max(BUDGET_S.get(e, DEFAULT_BUDGET_S) for e in effs)))
+            tasks.append(Task(effs, opts, fit_data, hold, tail_of,
+                              {**kept.params, **starts.get(n, {})}, seed,
+                              max(BUDGET_S.get(e, DEFAULT_BUDGET_S) for e in effs),
+                              bounds=bounds))
         step = _run_all(tasks, progress)
         for c in step:
             score_against(c, base, floor)
@@ -387,6 +395,8 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
     for s in error_spans(experiments, residuals, floor):
         exp = experiments[s.experiment]
         share = s.sse / total[s.zone] if total[s.zone] > 0 else 0.0
+        if share < MIN_SHARE:
+            continue  # a burst of noise, not where the error lies
         out.append(_located(exp, s.zone, None, s.i0, s.i1, share,
                             regime(exp, s.i0, s.i1, s.zone)))
     return out
@@ -419,6 +429,27 @@ def drift_sensor(faults, experiments: list[Experiment], base: CandidateResult,
             if change > best:
                 best, name = change, f"{z}_2"
     return name
+
+
+def search_bounds(fit_data: list[Experiment]) -> dict[str, tuple[float, float]]:
+    """Times of a fuel switch or a drift's onset lie within the fitted records (minutes from
+    each record's start, as the effects count them); a drift faster than 0.2 degC/min
+    (12 degC an hour) is a broken thermocouple, not a drift."""
+    t_end = max(float(e.t_min[-1]) for e in fit_data)
+    t_lo = min(float(e.t_min[0]) for e in fit_data)
+    return {"t_fuel": (t_lo, t_end), "t_drift": (t_lo, t_end), "drift_rate": (-0.2, 0.2)}
+
+
+def effect_starts(faults, experiments: list[Experiment]) -> dict[str, dict[str, float]]:
+    """Starting values read off the data where they show directly: a drifting
+    thermocouple's onset and rate from the hinge fitted to its pair's difference."""
+    for f in faults:
+        if f.kind == "drift":
+            exp = experiments[f.experiment]
+            t0, t1 = float(exp.t_min[f.i0]), float(exp.t_min[-1])
+            rate = f.size_c / max(t1 - t0, 1.0)
+            return {"sensor_drift": {"t_drift": t0, "drift_rate": rate}}
+    return {}
 
 
 def pooled_floor(floor: dict[str, float]) -> float:

@@ -49,6 +49,8 @@ from .sources import CanSource, ModbusSource, Sample, Source, SourceError
 from .statefile import write_json_atomic
 
 MODEL_FILE = "model.json"
+STOP_WAIT_S = 10.0
+"""At stop, how long windows already cut may still be fitted."""
 FURNACE_TOPICS = frozenset((THERMOCOUPLES, BURNERS, AMBIENT))
 
 
@@ -459,9 +461,11 @@ class Daemon:
         """At stop: give the windows already cut their fit (bounded), then end the worker."""
         if self.refit is None:
             return
-        deadline = time.monotonic() + self.refit.kill_after_s
+        # systemd gives a stopping unit 30 s (TimeoutStopSec): a fit in hand gets part of it
+        deadline = time.monotonic() + min(self.refit.kill_after_s, STOP_WAIT_S)
         while self.refit.busy() and time.monotonic() < deadline:
             self._pump_refits()
+            self.notifier.watchdog()
             await asyncio.sleep(0.01)
         left = len(self.refit.queue) + (self.refit.in_flight is not None)
         if left:

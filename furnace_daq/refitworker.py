@@ -17,6 +17,7 @@ model in force is kept. When windows arrive faster than they are fitted, the que
 from __future__ import annotations
 
 import multiprocessing as mp
+import signal
 import time
 from collections import deque
 from collections.abc import Callable
@@ -37,7 +38,12 @@ Emit = Callable[[str, dict, int], None]
 
 
 def _serve(conn: Connection) -> None:
-    """The worker process: import once, then fit jobs until the pipe closes."""
+    """The worker process: import once, then fit jobs until the pipe closes. SIGTERM and
+    SIGINT (systemd stopping the unit's whole group, Ctrl-C in a terminal) are the parent's
+    to handle: it lets the fit in hand finish, then ends the worker; a parent that dies
+    closes the pipe, which ends the worker too."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     import furnace_model.fit  # noqa: F401 - paid once at start, not by the first window
 
     conn.send(("ready", None))
@@ -47,9 +53,13 @@ def _serve(conn: Connection) -> None:
         except (EOFError, OSError):
             return
         try:
-            conn.send(("ok", run_fit(job)))
+            reply = ("ok", run_fit(job))
         except Exception as exc:  # noqa: BLE001 - reported as a failed refit
-            conn.send(("error", f"{type(exc).__name__}: {exc}"))
+            reply = ("error", f"{type(exc).__name__}: {exc}")
+        try:
+            conn.send(reply)
+        except OSError:  # the parent is gone
+            return
 
 
 class RefitWorker:

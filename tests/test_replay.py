@@ -6,14 +6,16 @@ from __future__ import annotations
 
 import asyncio
 import json
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from daq_processes import ROOT, start_daemon
+from daq_processes import ROOT, furnace_daq, start_daemon, start_simplc, stop
 
 from furnace_daq.daqconfig import parse_config
 from furnace_daq.logschema import MODEL_PARAMETERS, PARAM_NAMES, THERMOCOUPLES
@@ -160,3 +162,62 @@ def test_replay_refuses_bad_input(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "furnace_daq.cli", "replay", str(bad),
                            "--speed", "0"], capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert proc.returncode == 1 and "--speed" in proc.stderr
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_daemon_process_refits_and_ends_its_worker_on_sigterm(tmp_path):
+    """The real `furnace-daq run` with a refit section: the worker is a child process, the
+    latest model lands in --state-dir, SIGTERM ends both and exits 0."""
+    sim, port = start_simplc("--speed", "600")
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["poll_period_s"] = 0.05
+    doc["plc"]["timeout_s"] = 0.5
+    doc["refit"] = {"period_s": 600, "window_s": 1200, "step_s": 60, "budget_s": 10}
+    cfg = tmp_path / "daq.yaml"
+    cfg.write_text(yaml.safe_dump(doc))
+    state = tmp_path / "state"
+    try:
+        daq = furnace_daq("run", "--config", str(cfg), "--plc", f"127.0.0.1:{port}",
+                          "--log-dir", str(tmp_path / "logs"), "--state-dir", str(state))
+        deadline = time.monotonic() + 60
+        while not (state / "model.json").exists() and time.monotonic() < deadline:
+            assert daq.poll() is None, daq.stderr.read()
+            time.sleep(0.2)
+        workers = _children(daq.pid)  # the fitter, and multiprocessing's resource tracker
+        cmdlines = [Path(f"/proc/{p}/cmdline").read_bytes() for p in workers]
+        assert sum(b"spawn_main" in c for c in cmdlines) == 1, cmdlines
+        daq.send_signal(signal.SIGTERM)
+        assert daq.wait(30) == 0, daq.stderr.read()
+    finally:
+        stop(daq)
+        stop(sim)
+    # the resource tracker ends when its pipe from the daemon closes; a child that ended but
+    # was not reaped (an orphan in a container whose PID 1 does not reap) is a zombie
+    deadline = time.monotonic() + 5
+    while [p for p in workers if _alive(p)] and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not [p for p in workers if _alive(p)], "a child outlived the daemon"
+    model = json.loads((state / "model.json").read_text())
+    assert model["status"] in ("ok", "insufficient_excitation") and "window_end" in model
+    params = [m for t, m, _, _ in read_messages(sorted((tmp_path / "logs").glob("*.mcap")))
+              if t == MODEL_PARAMETERS]
+    assert params and params[-1] == model

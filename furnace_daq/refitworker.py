@@ -175,6 +175,7 @@ class RefitRunner:
         now = time.monotonic()
         if self.worker.proc is None:
             if now < self._start_at:
+                time.sleep(min(timeout, self._start_at - now))  # a waiting caller waits here
                 return
             self.worker.start()
         reply = self.worker.receive(timeout) if (self.in_flight or not self.worker.ready) \

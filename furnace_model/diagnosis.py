@@ -86,6 +86,10 @@ class Verdict:
     effects: list[str]
     shrink_pct: float
     sentence: str
+    gap_closed_pct: float = 0.0
+    """Share of the baseline's held-out squared error above the noise floor that the kept
+    effects remove: 100 when they explain it all, whatever the noise level (shrink_pct, the
+    plain RMSE reduction, cannot pass 1 - floor / baseline RMSE)."""
 
 
 @dataclass
@@ -138,6 +142,7 @@ class Diagnosis:
             "candidates": [cand(c) for c in self.candidates],
             "verdict": {"status": self.verdict.status, "effects": list(self.verdict.effects),
                         "shrink_pct": _r(self.verdict.shrink_pct),
+                        "gap_closed_pct": _r(self.verdict.gap_closed_pct),
                         "sentence": self.verdict.sentence},
             "holdout_how": self.holdout_how,
             "data": [e.source or e.name for e in self.fit_data],
@@ -305,11 +310,14 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
     if kept is not None and _near(kept, floor):
         best = kept
         physics = "; and ".join(EFFECTS[n].physics for n in best.effects)
+        one = len(best.effects) == 1
+        what, it = ("an effect", "it") if one else (f"{len(best.effects)} effects", "them")
         worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / floor[z])
         return Verdict(
-            "explained", list(best.effects), best.shrink_pct,
-            f"The model's error comes from an effect it leaves out: {physics} "
-            f"({', '.join(best.effects)}). Adding it cuts the held-out error in the "
+            "explained", list(best.effects), best.shrink_pct, gap_closed_pct=best.gap_closed_pct,
+            sentence=
+            f"The model's error comes from {what} it leaves out: {physics} "
+            f"({', '.join(best.effects)}). Adding {it} cuts the held-out error in the "
             f"{ZONE_WORDS[worst]} zone from {base.rmse_holdout_c[worst]:.1f} to "
             f"{best.rmse_holdout_c[worst]:.1f} degC (pooled over zones {best.shrink_pct:.0f}% "
             f"smaller), down to about the thermocouple noise of {floor[worst]:.1f} degC.")

@@ -15,7 +15,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from daq_processes import ROOT, furnace_daq, start_daemon, start_simplc, stop
+from daq_processes import (
+    ROOT,
+    config,
+    free_port,
+    furnace_daq,
+    messages,
+    sim,
+    start_daemon,
+    start_simplc,
+    stop,
+)
 
 from furnace_daq.daqconfig import parse_config
 from furnace_daq.logschema import MODEL_PARAMETERS, PARAM_NAMES, THERMOCOUPLES
@@ -221,3 +231,33 @@ def test_daemon_process_refits_and_ends_its_worker_on_sigterm(tmp_path):
     params = [m for t, m, _, _ in read_messages(sorted((tmp_path / "logs").glob("*.mcap")))
               if t == MODEL_PARAMETERS]
     assert params and params[-1] == model
+
+
+def test_a_failing_state_write_or_consumer_is_an_event_not_a_stop(tmp_path):
+    """model.json cannot be written (its directory is a file) and the on_model consumer
+    raises: both are /daq/events, refits and polling go on."""
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("")
+
+    def consumer(message: dict) -> None:
+        raise RuntimeError("consumer bug")
+
+    async def run():
+        port = free_port()
+        plc = await sim(port)
+        try:
+            cfg = config(port, refit={"period_s": 600, "window_s": 1200, "step_s": 60,
+                                      "state_dir": str(blocker / "state")})
+            daemon, task = start_daemon(cfg, tmp_path / "logs", 5.0, on_model=consumer)
+            return await task
+        finally:
+            await plc.stop()
+
+    counters = asyncio.run(run())
+    msgs = messages(tmp_path / "logs")
+    kinds = [m["kind"] for t, m, _ in msgs if t == "/daq/events"]
+    params = [m for t, m, _ in msgs if t == MODEL_PARAMETERS]
+    assert len(params) >= 2
+    assert kinds.count("state_write_failed") == 1, kinds  # reported once, not per window
+    assert kinds.count("on_model_error") == len(params)
+    assert counters.ok_polls >= 0.9 * 5.0 / 0.05

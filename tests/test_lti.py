@@ -218,8 +218,8 @@ def reference_nonlinear(structure: ModelStructure, values: dict, inputs: Inputs,
         u = np.r_[inputs.burners[j], inputs.t_air[j]]
         idx = np.nonzero((t > lo) & (t <= hi))[0]
         sol = solve_ivp(rhs, (lo, hi), x, method="Radau", rtol=1e-12, atol=1e-10,
-                        t_eval=t[idx], args=(u,))
-        out[idx] = sol.y.T
+                        t_eval=np.append(t[idx[t[idx] < hi]], hi), args=(u,))
+        out[idx] = sol.y[:, :idx.size].T
         x = sol.y[:, -1]
     return out @ sysm.C[0].T
 
@@ -231,12 +231,12 @@ def reference_nonlinear(structure: ModelStructure, values: dict, inputs: Inputs,
     ([Radiation(exponent=5.0), SensorLag(order=2)], {"rad_share": 0.5, "tau_lag": 6.0}),
 ], ids=["radiation", "cubic+zone_burners", "fifth+lag2"])
 def test_radiation_batched_integrator_against_tight_radau(effects, values):
-    """A heat-up from cold past 900 degC with a jump of 20 burners: the batched
-    exponential integrator stays within a hundredth of a degree (noise: 1.06) of Radau at
+    """A heat-up from cold to 850-1450 degC with a jump of 9 burners: the batched
+    exponential integrator stays within 0.01 degC (noise: 1.06) of Radau at
     1e-12, for every set of a batch."""
     ms = ModelStructure(effects)
     inputs = Inputs(np.array([0.0, 700.0, 1500.0, 2300.0]),
-                    np.array([[2, 0, 0], [6, 2, 0], [4, 0, 0], [10, 6, 4.0]]), np.full(4, 25.0))
+                    np.array([[2, 0, 0], [6, 2, 0], [4, 0, 0], [8, 3, 2.0]]), np.full(4, 25.0))
     t = np.arange(0.0, 2601.0)
     x0 = np.full(3, 25.0)
     shares = np.array([0.1, values["rad_share"]])
@@ -244,7 +244,7 @@ def test_radiation_batched_integrator_against_tight_radau(effects, values):
     for p, share in enumerate(shares):
         ref = reference_nonlinear(ms, {**PAPER_TABLE_V, **values, "rad_share": share}, inputs,
                                   t, x0)
-        assert ref.max() > 900
+        assert 850 < ref.max() < 1450
         assert np.max(np.abs(y[p] - ref)) < 0.01
 
 

@@ -1,0 +1,391 @@
+"""The diagnosis as one self-contained HTML page for the people who must act on it: the
+verdict in a sentence first, then the evidence behind it, each figure an inline SVG.
+
+The page needs no network and no script: CSS inline, figures drawn by matplotlib on a
+private canvas (the caller's backend is never touched) and embedded as SVG markup. All
+numbers come from the `Diagnosis`; nothing is computed here but what a figure needs.
+"""
+
+from __future__ import annotations
+
+import html
+import io
+import re
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+from matplotlib.backends.backend_svg import FigureCanvasSVG
+from matplotlib.figure import Figure
+
+from . import ZONES
+from .candidates import CandidateResult
+from .diagnosis import Diagnosis
+from .experiment import Experiment
+from .residuals import ZONE_WORDS
+
+STATUS_WORDS = {"no_gap": "no gap", "explained": "explained", "unexplained": "unexplained"}
+STATUS_COLOURS = {"no_gap": "#2e7d32", "explained": "#1565c0", "unexplained": "#c62828"}
+
+CSS = """
+body { font-family: system-ui, -apple-system, "Segoe UI", Helvetica, Arial, sans-serif;
+       margin: 2em auto; max-width: 1100px; color: #222; line-height: 1.4; padding: 0 1em; }
+h1 { font-size: 1.6em; margin-bottom: 0.2em; }
+h2 { font-size: 1.25em; border-bottom: 1px solid #ccc; padding-bottom: 0.2em; margin-top: 2em; }
+.verdict { border-left: 8px solid; padding: 0.8em 1em; background: #f6f6f6; font-size: 1.1em; }
+.status { display: inline-block; color: white; padding: 0.1em 0.6em; border-radius: 0.3em;
+          font-weight: bold; margin-right: 0.5em; }
+.meta { color: #666; font-size: 0.9em; }
+table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.92em; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }
+th:first-child, td:first-child { text-align: left; }
+th { background: #eee; }
+td.no { color: #999; }
+figure { margin: 0.8em 0; }
+figure svg { max-width: 100%; height: auto; }
+figcaption { color: #555; font-size: 0.9em; }
+"""
+
+
+def write_report(diagnosis: Diagnosis, path: str | Path) -> Path:
+    """Write the report for `diagnosis` to `path` (one .html file) and return the path."""
+    path = Path(path)
+    page = render(diagnosis)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(page, encoding="utf-8")
+    return path
+
+
+def render(d: Diagnosis) -> str:
+    v = d.verdict
+    best = d.best() if v.status == "explained" else None
+    colour = STATUS_COLOURS.get(v.status, "#555")
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        "<title>Model error diagnosis</title>",
+        f"<style>{CSS}</style></head><body>",
+        "<h1>Why the furnace model errs: diagnosis</h1>",
+        f'<p class="verdict" style="border-color:{colour}">'
+        f'<span class="status" style="background:{colour}">{_e(STATUS_WORDS.get(v.status, v.status))}'
+        f"</span>{_e(v.sentence)}</p>",
+        f'<p class="meta">Fitted: {_e(", ".join(e.name for e in d.fit_data))}; held out: '
+        f"{_e(d.holdout_how)}. Diagnosed in {d.elapsed_s:.1f} s.</p>",
+        _section("Error per zone, before and after", _rmse_table(d, best),
+                 _figure(_fig_noise(d, best), "noise",
+                         "Held-out RMSE per zone against the noise floor the thermocouple pairs "
+                         "allow: the baseline (paper's model), the best extension, and the floor."),
+                 "Fit: the data the model was fitted to. Held out: data it never saw, scored "
+                 "with the model's parameters fixed. The noise floor is estimated from the "
+                 "data themselves (the two thermocouples of a zone); an RMSE near it is as "
+                 "good as the sensors allow."),
+        _section("Measured and modelled temperatures", "",
+                 _figure(_fig_traces(d, best), "traces",
+                         "Zone temperature measured (grey), the paper's model (red) and "
+                         + (f"the model with {_e(best.label)} (blue)" if best else
+                            "no extension (none explains the gap)")
+                         + "; fitted experiments first, held-out ones after."), ""),
+        _section("Where the error lies", _where_table(d),
+                 _figure(_fig_residuals(d), "residuals",
+                         "The paper's model's error over time per zone (measured minus model), "
+                         "with the spans that hold most of it shaded (orange: the furnace; "
+                         "purple: a thermocouple) and the noise floor as dashed lines."), ""),
+        _section("Residual tests", _tests_table(d),
+                 _figure(_fig_tests(d), "tests",
+                         "Autocorrelation of the baseline's held-out residual per zone with its "
+                         "99% band (a white residual stays inside): a model that leaves "
+                         "structure behind shows outside the band."), ""),
+        _section("Candidate effects", _candidate_table(d),
+                 _figure(_fig_ranking(d), "ranking",
+                         "Each candidate extension's held-out RMSE reduction against the "
+                         "baseline. Filled bars earned credit (parameters determined by the "
+                         "data, information criterion lower); hatched ones did not."),
+                 "Each candidate is fitted on the fit data (its parameters and the "
+                 "baseline's together) and scored on the held-out data. dBIC < 0 means the "
+                 "extension is worth its extra parameters on the fitted data."),
+        _section("Parameters", _param_table(d, best), "", ""),
+        "</body></html>",
+    ]
+    return "\n".join(parts) + "\n"
+
+
+# --- text --------------------------------------------------------------------------------
+
+def _e(text: object) -> str:
+    return html.escape(str(text), quote=True)
+
+
+def _section(title: str, body: str, figure: str, note: str) -> str:
+    note_html = f"<p>{_e(note)}</p>" if note else ""
+    return f"<section><h2>{_e(title)}</h2>{note_html}{body}{figure}</section>"
+
+
+def _f(x: float, digits: int = 2) -> str:
+    return f"{x:.{digits}f}" if np.isfinite(x) else "-"
+
+
+def _g(x: float) -> str:
+    return f"{x:.4g}" if np.isfinite(x) else "-"
+
+
+def _rmse_table(d: Diagnosis, best: CandidateResult | None) -> str:
+    b = d.baseline
+    head = ["zone", "noise floor (°C)", "baseline fit", "baseline held out"]
+    if best is not None:
+        head += [f"{best.label} fit", f"{best.label} held out"]
+    head.append("gap")
+    rows = []
+    for z in ZONES:
+        cells = [ZONE_WORDS[z], _f(d.noise_floor_c[z]), _f(b.rmse_fit_c[z]),
+                 _f(b.rmse_holdout_c[z])]
+        if best is not None:
+            cells += [_f(best.rmse_fit_c[z]), _f(best.rmse_holdout_c[z])]
+        cells.append("yes" if z in d.gap_zones else "no")
+        rows.append(cells)
+    caption = "RMSE per zone (°C)"
+    if best is not None:
+        caption += (f"; held-out error {best.shrink_pct:.0f}% smaller with {best.label} "
+                    f"({best.gap_closed_pct:.0f}% of the gap above the noise floor closed)")
+    return _table(head, rows, caption)
+
+
+def _where_table(d: Diagnosis) -> str:
+    if not d.where:
+        return "<p>No span holds a notable share of the error.</p>"
+    rows = []
+    for w in d.where:
+        who = f"thermocouple {w.sensor}" if w.sensor else f"{ZONE_WORDS[w.zone]} zone"
+        when = f"{w.start_min:.0f}-{w.end_min:.0f} min"
+        if w.start and w.end:
+            when += f" ({w.start} to {w.end})"
+        rows.append([who, w.experiment, when, f"{100 * w.share_of_error:.0f}%", w.regime])
+    return _table(["where", "experiment", "when", "share of the zone's squared error",
+                   "operating regime"], rows)
+
+
+def _tests_table(d: Diagnosis) -> str:
+    rows = []
+    for z in ZONES:
+        t = d.residual_tests.get(z)
+        if not t:
+            continue
+        worst = max(t.get("xcorr", {}).items(), key=lambda kv: kv[1]["max_abs"] / kv[1]["bound"],
+                    default=None)
+        if worst is None:
+            rows.append([ZONE_WORDS[z], "yes" if t["white"] else "no", "-", "-"])
+            continue
+        name, x = worst
+        rows.append([ZONE_WORDS[z], "yes" if t["white"] else "no",
+                     f"{name} (lag {x['at_lag']} min: {x['max_abs']:.2f}, band {x['bound']:.2f})",
+                     "yes" if x["independent"] else "no"])
+    if not rows:
+        return ""
+    return _table(["zone", "residual white", "input it correlates with most",
+                   "independent of the inputs"], rows,
+                  "The baseline's held-out residual, tested as MATLAB's resid does.")
+
+
+def _candidate_table(d: Diagnosis) -> str:
+    if not d.candidates:
+        return "<p>No candidate was tried: there is no gap to explain.</p>"
+    rows = []
+    for c in d.candidates:
+        ho = " / ".join(_f(c.rmse_holdout_c[z]) for z in ZONES)
+        credit = "yes" if _credited(c) else ("no: " + (c.note or "not better on the data"))
+        rows.append([c.label, ho, _f(c.shrink_pct, 0), _f(c.gap_closed_pct, 0),
+                     _f(c.delta_bic, 0), credit])
+    return _table(["effect(s)", "held-out RMSE soak / heat / preheat (°C)", "shrink %",
+                   "gap closed %", "dBIC", "credit"], rows, "Best first")
+
+
+def _param_table(d: Diagnosis, best: CandidateResult | None) -> str:
+    models = [("paper's model (baseline)", d.baseline)]
+    if best is not None:
+        models.append((f"with {best.label}", best))
+    out = []
+    for title, c in models:
+        rows = []
+        for name, value in c.params.items():
+            lo, hi = c.ci95.get(name, (np.nan, np.nan))
+            rows.append([name, _g(value), f"[{_g(lo)}, {_g(hi)}]"])
+        out.append(_table(["parameter", "value", "95% interval"], rows, title))
+    return "".join(out)
+
+
+def _table(head: list[str], rows: list[list[str]], caption: str = "") -> str:
+    cap = f"<caption>{_e(caption)}</caption>" if caption else ""
+    th = "".join(f"<th>{_e(h)}</th>" for h in head)
+    body = "".join("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table>{cap}<thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _credited(c: CandidateResult) -> bool:
+    return bool(c.identifiable and c.delta_bic < 0 and np.isfinite(c.shrink_pct))
+
+
+# --- figures -----------------------------------------------------------------------------
+
+def _figure(fig: Figure | None, name: str, caption: str) -> str:
+    if fig is None:
+        return ""
+    return f"<figure>{_svg(fig, name)}<figcaption>{caption}</figcaption></figure>"
+
+
+def _svg(fig: Figure, name: str) -> str:
+    """The figure as inline SVG markup: no XML prologue, DOCTYPE or metadata (they would
+    name external documents), ids salted by the figure's name so that several figures can
+    share one page."""
+    buf = io.StringIO()
+    with matplotlib.rc_context({"svg.hashsalt": f"report-{name}", "svg.fonttype": "none"}):
+        FigureCanvasSVG(fig)
+        fig.savefig(buf, format="svg", metadata={"Date": None})
+    text = buf.getvalue()
+    text = text[text.index("<svg"):]
+    text = re.sub(r"<metadata>.*?</metadata>", "", text, flags=re.S)
+    text = re.sub(r'\s+xmlns(:\w+)?="[^"]*"', "", text)
+    return text
+
+
+def _new(rows: int, cols: int, width: float, height: float,
+         sharex: str | bool = False) -> tuple[Figure, np.ndarray]:
+    fig = Figure(figsize=(width, height), dpi=72)
+    axes = np.atleast_2d(fig.subplots(rows, cols, squeeze=False, sharex=sharex))
+    return fig, axes
+
+
+def _records(d: Diagnosis) -> list[tuple[Experiment, str, int]]:
+    """(experiment, 'fit'|'held out', index into that list's predictions)."""
+    return ([(e, "fit", j) for j, e in enumerate(d.fit_data)]
+            + [(e, "held out", j) for j, e in enumerate(d.holdout)])
+
+
+def _pred(c: CandidateResult | None, kind: str, j: int) -> np.ndarray | None:
+    if c is None:
+        return None
+    preds = c.fit_pred if kind == "fit" else c.holdout_pred
+    return preds[j] if j < len(preds) else None
+
+
+def _fig_traces(d: Diagnosis, best: CandidateResult | None) -> Figure:
+    recs = _records(d)
+    fig, axes = _new(3, len(recs), 4.2 * len(recs) + 0.8, 8.0, sharex="col")
+    for k, (exp, kind, j) in enumerate(recs):
+        base, ext = _pred(d.baseline, kind, j), _pred(best, kind, j)
+        for w, z in enumerate(ZONES):
+            ax = axes[w, k]
+            ax.plot(exp.t_min, exp.zone_temp[:, w], "-", lw=2.2, color="0.7", label="measured")
+            if base is not None:
+                ax.plot(exp.t_min, base[:, w], "-", lw=1.0, color="C3", label="paper's model")
+            if ext is not None:
+                ax.plot(exp.t_min, ext[:, w], "--", lw=1.0, color="C0",
+                        label=f"with {best.label}")
+            ax.grid(alpha=0.3)
+            if w == 0:
+                ax.set_title(f"{exp.name} ({kind})", fontsize=10)
+            if k == 0:
+                ax.set_ylabel(f"{ZONE_WORDS[z]} (°C)")
+            if w == 2:
+                ax.set_xlabel("time (min)")
+    axes[0, 0].legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def _fig_residuals(d: Diagnosis) -> Figure:
+    recs = _records(d)
+    fig, axes = _new(3, len(recs), 4.2 * len(recs) + 0.8, 6.5, sharex="col")
+    for k, (exp, kind, j) in enumerate(recs):
+        base = _pred(d.baseline, kind, j)
+        for w, z in enumerate(ZONES):
+            ax = axes[w, k]
+            if base is not None:
+                ax.plot(exp.t_min, exp.zone_temp[:, w] - base[:, w], "-", lw=0.6, color="C3")
+            fl = d.noise_floor_c.get(z, np.nan)
+            if np.isfinite(fl):
+                for s in (-1, 1):
+                    ax.axhline(s * fl, color="k", lw=0.7, ls="--")
+            for loc in d.where:
+                if loc.experiment == exp.name and loc.zone == z:
+                    ax.axvspan(loc.start_min, max(loc.end_min, loc.start_min + 1),
+                               color="C4" if loc.sensor else "C1", alpha=0.3, lw=0)
+            ax.axhline(0.0, color="0.3", lw=0.6)
+            ax.grid(alpha=0.3)
+            if w == 0:
+                ax.set_title(f"{exp.name} ({kind})", fontsize=10)
+            if k == 0:
+                ax.set_ylabel(f"{ZONE_WORDS[z]} error (°C)")
+            if w == 2:
+                ax.set_xlabel("time (min)")
+    fig.tight_layout()
+    return fig
+
+
+def _fig_tests(d: Diagnosis) -> Figure | None:
+    zones = [z for z in ZONES if d.residual_tests.get(z)]
+    if not zones:
+        return None
+    fig, axes = _new(1, len(zones), 3.6 * len(zones) + 0.6, 2.8)
+    for k, z in enumerate(zones):
+        t = d.residual_tests[z]
+        ax = axes[0, k]
+        lags, acf, bound = np.asarray(t["lags"]), np.asarray(t["autocorr"]), t["autocorr_bound"]
+        ax.vlines(lags, 0, acf, color="C0", lw=1.5)
+        ax.axhspan(-bound, bound, color="C2", alpha=0.2, lw=0)
+        ax.axhline(0, color="0.3", lw=0.6)
+        ax.set_title(f"{ZONE_WORDS[z]}: " + ("white" if t["white"] else "not white"),
+                     fontsize=10)
+        ax.set_xlabel("lag (samples)")
+        if k == 0:
+            ax.set_ylabel("autocorrelation")
+    fig.tight_layout()
+    return fig
+
+
+def _fig_ranking(d: Diagnosis) -> Figure | None:
+    cands = d.candidates
+    if not cands:
+        return None
+    fig, axes = _new(1, 1, 8.5, 0.45 * len(cands) + 1.4)
+    ax = axes[0, 0]
+    y = np.arange(len(cands))[::-1]
+    kept = set(d.verdict.effects)
+    for yi, c in zip(y, cands, strict=True):
+        val = c.shrink_pct if np.isfinite(c.shrink_pct) else 0.0
+        credited = _credited(c)
+        chosen = d.verdict.status == "explained" and set(c.effects) == kept
+        ax.barh(yi, val, color="C0" if chosen else ("C2" if credited else "white"),
+                edgecolor="C2" if credited else "0.5", hatch=None if credited else "//")
+        mark = "" if c.identifiable else "  not determined"
+        dbic = f"dBIC {c.delta_bic:.0f}" if np.isfinite(c.delta_bic) else "failed"
+        ax.text(max(val, 0) + 1, yi, f"{dbic}{mark}", va="center", fontsize=8)
+    ax.set_yticks(y)
+    ax.set_yticklabels([c.label for c in cands], fontsize=8)
+    ax.axvline(0, color="0.3", lw=0.6)
+    ax.axvline(50, color="0.5", lw=0.6, ls=":")
+    hi = max([c.shrink_pct for c in cands if np.isfinite(c.shrink_pct)] + [10.0])
+    lo = min([c.shrink_pct for c in cands if np.isfinite(c.shrink_pct)] + [0.0])
+    ax.set_xlim(min(lo, 0) - 5, hi + 30)
+    ax.set_xlabel("held-out RMSE reduction against the paper's model (%)")
+    fig.tight_layout()
+    return fig
+
+
+def _fig_noise(d: Diagnosis, best: CandidateResult | None) -> Figure:
+    fig, axes = _new(1, 1, 6.5, 2.8)
+    ax = axes[0, 0]
+    x = np.arange(len(ZONES))
+    series = [("paper's model", d.baseline.rmse_holdout_c, "C3")]
+    if best is not None:
+        series.append((f"with {best.label}", best.rmse_holdout_c, "C0"))
+    series.append(("noise floor", d.noise_floor_c, "0.6"))
+    width = 0.8 / len(series)
+    for k, (label, vals, colour) in enumerate(series):
+        ax.bar(x + (k - (len(series) - 1) / 2) * width,
+               [vals.get(z, np.nan) for z in ZONES], width, label=label, color=colour)
+    ax.set_xticks(x)
+    ax.set_xticklabels([ZONE_WORDS[z] for z in ZONES])
+    ax.set_ylabel("held-out RMSE (°C)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    return fig

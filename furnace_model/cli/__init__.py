@@ -10,7 +10,7 @@ import sys
 
 from ..errors import FurnaceError
 
-COMMANDS = ("simulate", "fit", "validate", "diagnose")
+COMMANDS = ("simulate", "fit", "validate", "diagnose", "selfcheck")
 """Subcommand modules of this package, in the order `--help` lists them."""
 
 

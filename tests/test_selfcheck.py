@@ -3,13 +3,25 @@ diagnosis run on them with the effect withheld."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
 from furnace_model import SENSORS, ZONES
 from furnace_model.effects import EFFECTS
 from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.selfcheck import OUT_OF_LIBRARY, draw_case
+from furnace_model.selfcheck import (
+    ABSORBED_REASON,
+    OUT_OF_LIBRARY,
+    Outcome,
+    draw_case,
+    parse_label,
+    summarize,
+    table,
+)
 from furnace_model.structure import ModelStructure
 
 
@@ -126,3 +138,74 @@ def test_two_effects_at_once_and_unknown_names():
         draw_case("door_opened", _rng(0))
     with pytest.raises(ValueError, match="form"):
         draw_case("dead_time", _rng(0), form="odd")
+
+
+# --- the check itself --------------------------------------------------------------------
+
+def _outcome(label, k, status, correct, absorbed=False):
+    return Outcome(label, k, "", status, [], correct, absorbed,
+                   ABSORBED_REASON if absorbed else "", 80.0, 95.0, 1.0, {})
+
+
+def test_summary_counts_absorbed_draws_apart_and_applies_the_acceptance():
+    outs = ([_outcome("none", k, "no_gap", True) for k in range(3)]
+            + [_outcome("zone_losses", k, "no_gap", False, absorbed=True) for k in range(8)]
+            + [_outcome("zone_losses", 8, "explained", True),
+               _outcome("zone_losses", 9, "explained", False)]
+            + [_outcome("dead_time", k, "explained", k != 3) for k in range(10)]
+            + [_outcome("door_open", 0, "unexplained", True),
+               _outcome("door_open", 1, "explained", False)])
+    rows = {r.label: r for r in summarize(outs)}
+    assert rows["none"].passed and rows["none"].verdicts["no_gap"] == 3
+    # 2 counted draws, 1 correct: fewer than 9 in 10
+    assert rows["zone_losses"].absorbed == 8 and not rows["zone_losses"].passed
+    assert rows["dead_time"].correct == 9 and rows["dead_time"].passed
+    assert not rows["door_open"].passed  # outside the library: every draw must be right
+    text = table(list(rows.values()), outs)
+    assert "Absorbed (reported apart, not failures):" in text
+    assert text.count(ABSORBED_REASON) == 8
+    assert "| dead_time | 10 | 0 | 10 | 0 | 9 | 0 | 80 | 95 |" in text
+
+
+def test_labels_name_effects_combinations_and_faults():
+    assert parse_label("none") is None
+    assert parse_label("zone_burners+sensor_lag") == ("zone_burners", "sensor_lag")
+    assert parse_label("door_open") == "door_open"
+    with pytest.raises(ValueError, match="unknown effect"):
+        parse_label("zone_burner")
+    with pytest.raises(ValueError, match="unknown effect"):
+        parse_label("dead_time+")
+
+
+@pytest.mark.timeout(400)
+def test_selfcheck_command_on_a_small_set(tmp_path):
+    """The command end to end in its own process: a control, two effects and a faulty
+    thermocouple, one draw each, the diagnosis limited to three candidates (the full run,
+    ten draws of every effect against all nine, is docs/diagnosis.md's table)."""
+    out = tmp_path / "sc.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "furnace_model.cli", "selfcheck", "--draws", "1", "--effects",
+         "none", "zone_burners", "fuel_change", "tc_reads_low",
+         "--candidates", "zone_burners,sensor_lag,fuel_change", "--json", str(out)],
+        capture_output=True, text=True, timeout=380)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rows = [ln.split("|")[1].strip() for ln in proc.stdout.splitlines() if ln.startswith("| ")]
+    assert rows == ["effect", "none", "zone_burners", "fuel_change", "tc_reads_low"]
+    doc = json.loads(out.read_text())
+    cases = {c["label"]: c for c in doc["cases"]}
+    assert cases["none"]["status"] == "no_gap" and cases["none"]["correct"]
+    assert cases["zone_burners"]["named"] == ["zone_burners"] and cases["zone_burners"]["correct"]
+    assert cases["zone_burners"]["shrink_pct"] >= 50
+    assert cases["fuel_change"]["correct"] or cases["fuel_change"]["absorbed"]
+    assert cases["tc_reads_low"]["status"] == "unexplained" and cases["tc_reads_low"]["correct"]
+    assert all(r["passed"] for r in doc["rows"])
+
+
+def test_selfcheck_command_refuses_unknown_names():
+    proc = subprocess.run([sys.executable, "-m", "furnace_model.cli", "selfcheck", "--effects",
+                           "doors_open"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert "unknown effect(s) doors_open" in proc.stderr and "Traceback" not in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "furnace_model.cli", "selfcheck",
+                           "--candidates", "lag"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "unknown candidate(s) lag" in proc.stderr

@@ -27,14 +27,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("selfcheck", help="check the diagnosis on simulated data with known truth",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--draws", type=int, default=10, help="random cases per effect (default 10)")
-    p.add_argument("--effects", nargs="+", metavar="NAME",
+    p.add_argument("--effects", nargs="+", metavar="NAME", type=_label,
                    help="what to switch on: 'none' (control), effect names, a+b for two at "
                         f"once, or {', '.join(OUT_OF_LIBRARY)} (default: none and all nine)")
     p.add_argument("--all", action="store_true",
                    help=f"also {', '.join(EXTRA)}")
     p.add_argument("--form", choices=("candidate", "other"), default="candidate",
                    help="draw effects in the candidates' formulation or in another one")
-    p.add_argument("--candidates", metavar="a,b",
+    p.add_argument("--candidates", metavar="a,b", type=_candidates,
                    help="limit the diagnosis to these candidates (default all nine)")
     p.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
     p.add_argument("--json", type=Path, metavar="OUT", help="write every case and the table")
@@ -45,18 +45,7 @@ def run(args: argparse.Namespace) -> int:
     if args.draws < 1:
         raise FurnaceError("--draws must be at least 1")
     labels = list(args.effects or DEFAULT) + (list(EXTRA) if args.all else [])
-    candidates = None
-    try:
-        for label in labels:
-            parse_label(label)
-        if args.candidates:
-            candidates = tuple(n.strip() for n in args.candidates.split(",") if n.strip())
-            bad = [n for n in candidates if n not in EFFECTS]
-            if bad or not candidates:
-                raise ValueError(f"unknown candidate(s) {', '.join(bad) or '(none)'}; "
-                                 f"expected names from {', '.join(EFFECTS)}")
-    except ValueError as exc:
-        raise FurnaceError(str(exc)) from None
+    candidates = args.candidates
 
     def progress(o):
         mark = "absorbed" if o.absorbed else ("ok" if o.correct else "WRONG")
@@ -82,6 +71,24 @@ def run(args: argparse.Namespace) -> int:
         print(f"selfcheck: acceptance missed for {', '.join(failed)}", file=sys.stderr)
         return 1
     return 0
+
+
+def _label(text: str) -> str:
+    try:
+        parse_label(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def _candidates(text: str) -> tuple[str, ...]:
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if n not in EFFECTS]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(
+            f"unknown candidate(s) {', '.join(bad) or '(none given)'}; expected names from "
+            f"{', '.join(EFFECTS)}")
+    return names
 
 
 def _plain(x):

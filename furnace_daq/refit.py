@@ -23,6 +23,12 @@ parameter the data determine (95% interval within +-5%, see docs/identification.
 judged: at 1-minute sampling b, c, d and e are not, and their intervals, linearised around
 a long curved valley, are not to be trusted for an alarm. A reference that was itself not
 determined is replaced by the next value.
+
+After a drift event no window that still holds data from before the end of the event's
+window is judged (nor counts): with windows much longer than the period, a change inside
+the window gives a day of compromise fits (one parameter set for two furnaces) whose values
+swing, and an alarm for each swing would bury the one that matters. The next judgement
+compares a window wholly after the event with the references the event set.
 """
 
 from __future__ import annotations
@@ -150,6 +156,8 @@ class RefitChain:
     model: dict | None = None
     """The model in force: the last window fitted with status ok (its message)."""
     references: dict[str, _Reference] = field(default_factory=dict)
+    quiet_until: str | None = None
+    """Window end of the last drift event: later windows that overlap it are not judged."""
 
     def check(self, window: Window) -> str | None:
         """Why the window cannot identify the model, or None when it can be fitted."""
@@ -229,7 +237,9 @@ class RefitChain:
 
     def _drift(self, msg: dict) -> list[dict]:
         cfg = self.config
-        events = []
+        events: list[dict] = []
+        if self.quiet_until is not None and msg["window_start"] < self.quiet_until:
+            return events  # still holds data from before the last event: see module doc
         for p in PARAM_NAMES:
             new, (lo, hi) = float(msg[p]), msg["ci95"][p]
             determined = p not in msg["undetermined"]
@@ -258,6 +268,10 @@ class RefitChain:
                 "windows": ref.streak, "window_start": msg["window_start"],
                 "window_end": msg["window_end"], "parameters": {p: new}})
             self.references[p] = _Reference(new, (lo, hi), msg["window_end"], determined)
+        if events:
+            self.quiet_until = msg["window_end"]
+            for ref in self.references.values():
+                ref.streak, ref.direction = 0, 0
         return events
 
 

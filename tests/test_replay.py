@@ -261,3 +261,13 @@ def test_a_failing_state_write_or_consumer_is_an_event_not_a_stop(tmp_path):
     assert kinds.count("state_write_failed") == 1, kinds  # reported once, not per window
     assert kinds.count("on_model_error") == len(params)
     assert counters.ok_polls >= 0.9 * 5.0 / 0.05
+
+
+def test_replay_at_a_given_speed_is_paced_by_the_data_clock(live, tmp_path):
+    pubs = [pub for t, _, _, pub in live["msgs"] if t == THERMOCOUPLES]
+    span_s = (pubs[-1] - pubs[0]) / 1e9
+    speed = span_s / 3.0  # three seconds of wall time
+    t0 = time.monotonic()
+    got = replay(live["logs"], live["config"], tmp_path / "paced.mcap", speed=speed)
+    assert time.monotonic() - t0 >= 2.9
+    assert_same_timeline(got, live_params(live))

@@ -65,6 +65,11 @@ STEP_TRIES = 8
 """Further effects tried at each step of the combination search, the best singles first: a
 second effect may show nothing alone while a larger one dominates the error."""
 WORKERS = 2
+VARIANTS: dict[str, list[dict]] = {"radiation": [{"exponent": 3.0}, {"exponent": 4.0},
+                                                {"exponent": 5.0}]}
+"""Candidates tried in several laws, the best kept: a furnace's effective radiation exponent
+depends on its gas and walls, not only on Stefan-Boltzmann; a law between these points leaves
+a residual that the verdict sees."""
 
 
 @dataclass
@@ -199,13 +204,22 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     say("candidates", 0.1)
     bounds = search_bounds(fit_data)
     starts = effect_starts(faults, every)
-    tasks = [Task((n,), {n: options.get(n, {})} if n in options else {}, fit_data, hold,
-                  tail_of, {**base.params, **starts.get(n, {})}, seed,
+    tasks = [Task((n,), {n: opts}, fit_data, hold, tail_of,
+                  {**base.params, **starts.get(n, {})}, seed,
                   BUDGET_S.get(n, DEFAULT_BUDGET_S), bent, bounds)
-             for n in names]
-    singles = _run_all(tasks, lambda f: say("candidates", 0.1 + 0.6 * f))
-    for c in singles:
+             for n in names for opts in VARIANTS.get(n, [options.get(n, {})])]
+    fitted = _run_all(tasks, lambda f: say("candidates", 0.1 + 0.6 * f))
+    for c in fitted:
         score_against(c, base, floor)
+    singles = []
+    for n in names:
+        same = sorted((c for c in fitted if c.effects == (n,)), key=_rank)
+        if len(same) > 1:
+            chosen = same[0].options[n]
+            same[0].note = "; ".join(x for x in (same[0].note, "law chosen among " + ", ".join(
+                _opts_text(c.options[n]) for c in same)) if x)
+            options[n] = chosen
+        singles.append(same[0])
     singles.sort(key=_rank)
     combos, kept = stepwise(singles, base, floor, fit_data, hold, tail_of, seed, options,
                             bounds, starts, gap, lambda f: say("combinations", 0.7 + 0.3 * f))
@@ -437,6 +451,10 @@ def drift_sensor(faults, experiments: list[Experiment], base: CandidateResult,
             if change > best:
                 best, name = change, f"{z}_2"
     return name
+
+
+def _opts_text(opts: dict) -> str:
+    return ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in opts.items())
 
 
 def search_bounds(fit_data: list[Experiment]) -> dict[str, tuple[float, float]]:

@@ -44,7 +44,6 @@ import pandas as pd
 from furnace_model import ZONES
 from furnace_model.experiment import Experiment
 from furnace_model.fit import fit
-from furnace_model.structure import Inputs
 
 from .daqconfig import RefitConfig
 from .logexport import Resampler
@@ -71,36 +70,20 @@ class Window:
         return 1.0 - self.complete_bins / self.expected_bins if self.expected_bins else 1.0
 
 
-@dataclass
-class WindowExperiment(Experiment):
-    """A window's rows: each row is timed at the mean time of the readings averaged into it
-    (mid-bin for 1 Hz polls, the poll's time for one poll per bin), while the burner counts
-    change at the bin boundaries, where the resampler knows them. Timing the averages at the
-    bin start instead would shift the data half a bin against the model, which bends the
-    fast parameters (b and c by about 10% with 1 Hz polls in 1-minute bins)."""
-
-    input_t: np.ndarray | None = None
-
-    def inputs(self) -> Inputs:
-        t = self.t_min if self.input_t is None else self.input_t
-        return Inputs.from_samples(t, self.burners, self.t_air)
-
-
 def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
                t_air_default: float, name: str = "window") -> Window:
-    """The window's resampled rows as an experiment (None when no row has a burner state)."""
-    starts, tc, burners, air, tc_time_s = resampler.table(start_ns, end_ns)
+    """The window's resampled rows as an experiment (None when no row has a burner state):
+    the rows `logs export` writes for the same span, burner-change rows included."""
+    rows = resampler.table(start_ns, end_ns)
     expected = int(round((end_ns - start_ns) / step_ns))
-    if starts.size == 0:
+    if rows.t.size == 0:
         return Window(start_ns, end_ns, None, expected, 0, 0)
     # As logs export -> load: a missing ambient holds the last reading, the default before any.
-    air = pd.Series(air).ffill().fillna(t_air_default).to_numpy()
-    t0 = int(starts[0])
-    bin_min = (starts - t0) / 60e9
-    t_min = bin_min + np.nan_to_num(tc_time_s, nan=0.0) / 60.0
-    exp = WindowExperiment(name, t_min, tc, burners, air, pd.Timestamp(t0, unit="ns", tz="UTC"),
-                           name, input_t=bin_min)
-    complete = int(np.all(np.isfinite(exp.zone_temp), axis=1).sum())
+    air = pd.Series(rows.t_air).ffill().fillna(t_air_default).to_numpy()
+    t0 = int(rows.t[0])
+    exp = Experiment(name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
+                     pd.Timestamp(t0, unit="ns", tz="UTC"), name)
+    complete = int((np.all(np.isfinite(exp.zone_temp), axis=1) & rows.reading).sum())
     return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps)
 
 

@@ -69,48 +69,51 @@ def series(tmp_path: Path) -> list[Path]:
     return files
 
 
-BINS = [0, 1, 2, 3, 4, 5, 7]
+# Rows (seconds from 06:00, bin or None for a burner change, counts in force): a bin's row at
+# the mean time of its readings (bin 4 has none: its centre), a change at its own instant.
+ROWS = [(25, 0, (10, 0, 0)), (85, 1, (10, 0, 0)), (125, None, (5, 8, 0)), (145, 2, (5, 8, 0)),
+        (170, None, (6, 8, 1)), (205, 3, (6, 8, 1)), (250, None, (6, 8, 2)),
+        (270, 4, (6, 8, 2)), (325, 5, (6, 8, 2)), (445, 7, (6, 8, 2))]
 
 
-def _expected(b: int) -> dict:
-    if b == 4:
+def _expected(b: int | None) -> dict:
+    if b is None or b == 4:
         return {c: np.nan for c in ("tc_soak_1", "tc_soak_2", "tc_heat_1", "tc_preheat_2")}
     return {"tc_soak_1": 100.0 + 6 * b + 2.5, "tc_soak_2": 200.0 + 6 * b + 3,
             "tc_heat_1": np.nan if b == 2 else 300.0, "tc_preheat_2": 400.0}
 
 
-BURNERS = {0: (10, 0, 0), 1: (10, 0, 0), 2: (6, 8, 1), 3: (6, 8, 1), 4: (6, 8, 2), 5: (6, 8, 2),
-           7: (6, 8, 2)}
-
-
 def test_export_resamples_exactly(series: list[Path], tmp_path: Path, capsys) -> None:
     out = tmp_path / "run.parquet"
     assert main(["logs", "export", *map(str, reversed(series)), "--out", str(out)]) == 0
-    assert "7 rows of 60 s" in capsys.readouterr().out
+    assert "10 rows of 60 s" in capsys.readouterr().out
     frame = pd.read_parquet(out)
-    stamps = [f"2026-03-02T06:{b:02d}:00.000Z" for b in BINS]
+    stamps = [f"2026-03-02T06:{t // 60:02d}:{t % 60:02d}.000Z" for t, _, _ in ROWS]
     assert frame["timestamp"].tolist() == stamps
-    for row, b in enumerate(BINS):
+    for row, (_, b, counts) in enumerate(ROWS):
         for col, value in _expected(b).items():
             got = frame[col].iloc[row]
             assert (np.isnan(got) and np.isnan(value)) or got == value, (b, col, got)
         assert tuple(frame[["burners_soak", "burners_heat", "burners_preheat"]].iloc[row]) \
-            == BURNERS[b]
+            == counts
     assert frame["t_air"].iloc[0] == 25.0 and frame["t_air"].iloc[1:].isna().all()
     exp = load_experiment(out)
-    assert np.allclose(exp.t_min, BINS) and exp.burner_steps == 2
+    assert np.allclose(exp.t_min, [(t - 25) / 60 for t, _, _ in ROWS]) and exp.burner_steps == 3
 
 
 def test_export_csv_loads_as_an_experiment(series: list[Path], tmp_path: Path) -> None:
     out = tmp_path / "run.csv"
     assert main(["logs", "export", *map(str, series), "--out", str(out), "--period", "120"]) == 0
     exp = load_experiment(out)
-    assert exp.start_time == pd.Timestamp("2026-03-02T06:00:00Z")
-    assert np.allclose(exp.t_min, [0, 2, 4, 6])
+    assert exp.start_time == pd.Timestamp("2026-03-02T06:00:55Z")
+    assert np.allclose(exp.t_min * 60, [0, 70, 115, 120, 195, 270, 390])  # changes at 125, 170, 250 s
     # soak_1 over two minutes: the mean of 100+i over its 12 readings (minute 4 has none).
-    assert np.allclose(exp.tc[:, 0], [105.5, 117.5, 132.5, 144.5], atol=1e-3)
+    nan = np.nan
+    assert np.allclose(exp.tc[:, 0], [105.5, nan, nan, 117.5, nan, 132.5, 144.5], atol=1e-3,
+                       equal_nan=True)
     assert np.allclose(exp.t_air, 25.0)  # one reading, held (the contract's rule for t_air)
-    assert exp.burners.tolist() == [[10, 0, 0], [6, 8, 1], [6, 8, 2], [6, 8, 2]]
+    assert exp.burners.tolist() == [[10, 0, 0], [5, 8, 0], [6, 8, 1], [6, 8, 1], [6, 8, 2],
+                                    [6, 8, 2], [6, 8, 2]]
 
 
 def test_export_time_window(series: list[Path], tmp_path: Path, capsys) -> None:
@@ -118,8 +121,9 @@ def test_export_time_window(series: list[Path], tmp_path: Path, capsys) -> None:
     assert main(["logs", "export", *map(str, series), "--out", str(out),
                  "--start", "2026-03-02T07:01:00+01:00", "--end", "2026-03-02T06:03:00Z"]) == 0
     exp = load_experiment(out)
-    assert np.allclose(exp.t_min, [0, 1]) and exp.start_time.minute == 1
-    assert exp.burners.tolist() == [[10, 0, 0], [6, 8, 1]]  # state in force from before
+    assert np.allclose(exp.t_min * 60, [0, 40, 60, 85]) and exp.start_time.minute == 1
+    # the state in force from before, the changes at 125 and 170 s
+    assert exp.burners.tolist() == [[10, 0, 0], [5, 8, 0], [5, 8, 0], [6, 8, 1]]
     assert main(["logs", "export", *map(str, series), "--out", str(out),
                  "--start", "2026-03-02T06:01:00"]) != 0
     assert "no UTC offset" in capsys.readouterr().err

@@ -38,6 +38,23 @@ def test_control_has_no_gap():
     assert set(doc["baseline"]) >= {"rmse_fit_c", "rmse_holdout_c", "noise_floor_c"}
 
 
+def test_holdout_cut_from_the_data_when_none_is_given():
+    case = _case(None, 15)
+    exp = case.fit[0]
+    d = diagnose([exp], effects=QUICK)  # one experiment: its tail is held out
+    assert d.holdout_how.startswith(f"last 30% of {exp.name}")
+    tail = d.holdout[0]
+    assert tail.t_min[0] > d.fit_data[0].t_min[-1] and len(d.fit_data[0]) + len(tail) == len(exp)
+    assert d.baseline.holdout_pred[0].shape == (len(tail), 3)
+    assert d.verdict.status == "no_gap", d.verdict.sentence
+    # the tail continues the fitted run: no jump at the cut
+    jump = d.baseline.holdout_pred[0][0] - d.baseline.fit_pred[0][-1]
+    assert np.all(np.abs(jump) < 5.0)
+    d2 = diagnose([exp, case.holdout[0]], effects=QUICK)  # several: the last one held out
+    assert d2.holdout_how == f"whole experiments: {case.holdout[0].name} held out"
+    assert d2.verdict.status == "no_gap"
+
+
 def test_zone_burners_named_with_large_shrink():
     case = _case("zone_burners", 12)
     d = diagnose(case.fit, case.holdout, effects=QUICK)

@@ -103,6 +103,8 @@ class Task:
     budget_s: float | None
     cold_too: bool = False
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    cold_above: dict[str, float] | None = None
+    """Per zone: the cold search is skipped when the warm fit is already below these."""
     """Search boxes narrower than the effect's own: a time within the record, not 0-1e6 min."""
     """Also search from scratch: worth it when the baseline bent far to absorb the effect
     (seen with strong zone burners: a = 1, d = 11), which can hold a warm start in a side
@@ -148,7 +150,9 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     runs = 3 if not task.effects else 1
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
              time_budget_s=task.budget_s, runs=runs, bounds=bounds)
-    if init is not None and structure.linear and task.cold_too:
+    off_floor = task.cold_above is None or any(
+        fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in ZONES)
+    if init is not None and structure.linear and task.cold_too and off_floor:
         cold = fit(task.fit_data, structure, seed=task.seed + 1, zone_offsets=True,
                    time_budget_s=task.budget_s, bounds=bounds)
         if cold.sse < fr.sse:

@@ -206,7 +206,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     starts = effect_starts(faults, every)
     tasks = [Task((n,), {n: opts}, fit_data, hold, tail_of,
                   {**base.params, **starts.get(n, {})}, seed,
-                  BUDGET_S.get(n, DEFAULT_BUDGET_S), bent, bounds)
+                  BUDGET_S.get(n, DEFAULT_BUDGET_S), bent, bounds,
+                  {z: GAP_RATIO * floor[z] for z in ZONES})
              for n in names for opts in VARIANTS.get(n, [options.get(n, {})])]
     fitted = _run_all(tasks, lambda f: say("candidates", 0.1 + 0.6 * f))
     for c in fitted:

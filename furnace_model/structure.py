@@ -309,14 +309,15 @@ class _Linearised:
     def __init__(self, nonlinear: _Nonlinear, A: np.ndarray, Bu: np.ndarray, x: np.ndarray):
         P, n = x.shape
         delta = 1e-5 * np.maximum(1.0, np.abs(x))
-        probes = np.concatenate([x[:, None], x[:, None, :] + np.eye(n) * delta[:, :, None]],
-                                axis=1)
+        probes = np.repeat(x[:, None], n + 1, axis=1)
+        probes[:, 1:] += _eye(n) * delta[:, :, None]
         Np = nonlinear(probes)  # (P, 1 + n, n): at x, then x moved along each state
         self.N0 = Np[:, 0]
         self.Jn = np.swapaxes(Np[:, 1:] - self.N0[:, None], 1, 2) / delta[:, None, :]
         F = (A @ x[:, :, None])[:, :, 0] + Bu + self.N0
         self.lam, self.V = np.linalg.eig(A + self.Jn)
         self.Vinv = np.linalg.inv(self.V)
+        # 1-norm condition number of V: a (nearly) defective J has no usable eigenbasis
         self.bad = (np.abs(self.V).sum(axis=1).max(axis=1)
                     * np.abs(self.Vinv).sum(axis=1).max(axis=1) > 1e10)
         self.Fm = self.Vinv @ F[:, :, None]
@@ -338,16 +339,25 @@ class _Linearised:
         x = self.x[:, :, None]
         D = np.swapaxes(self.nonlinear(np.swapaxes(U, 1, 2)), 1, 2) - self.N0[:, :, None] \
             - self.Jn @ (U - x)
-        c3 = (D[:, :, 1] - 4.0 * D[:, :, 0]) / (h ** 3 / 2)
-        self.c = (np.stack([(D[:, :, 1] - c3 * h ** 3) / h ** 2, c3], axis=2))
+        self.c3 = (D[:, :, 1:] - 4.0 * D[:, :, :1]) * (2.0 / h ** 3)
+        self.c2 = (D[:, :, 1:] - self.c3 * h ** 3) * (1.0 / h ** 2)
         corr = self._corr(tau[1:], phi3[:, :, 1:], D[:, :, 1:])
         return U[:, :, 1] + corr[:, :, 0]
 
     def inside(self, tau: np.ndarray) -> np.ndarray:
         """States (P, S, n) at x's time + tau, for 0 < tau < h of the last `end`."""
         U, phi3 = self._u(tau)
-        D = self.c[:, :, :1] * tau ** 2 + self.c[:, :, 1:] * tau ** 3
+        D = (self.c2 + self.c3 * tau) * (tau * tau)
         return np.swapaxes(U + self._corr(tau, phi3, D), 1, 2)
+
+
+_EYES: dict[int, np.ndarray] = {}
+
+
+def _eye(n: int) -> np.ndarray:
+    if n not in _EYES:
+        _EYES[n] = np.eye(n)
+    return _EYES[n]
 
 
 def _phi13(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,6 +1,8 @@
-"""Known-truth cases for checking the diagnosis: the plant simulator with one effect (or none,
+"""The diagnosis checked on known-truth cases: the plant simulator with one effect (or none,
 or two, or a fault outside the effect library) switched on, seen the way a plant engineer
-would see it -- two heat-ups, noisy biased thermocouples, and nothing said about the effect.
+would see it -- two heat-ups, noisy biased thermocouples, and nothing said about the effect
+(`draw_case`); each case diagnosed and its verdict judged against the truth (`check`,
+`summarize`: what `furnace-model selfcheck` prints).
 
 A case is two experiments like the paper's: each a cold heat-up of 3000-3500 minutes at
 1-minute samples, thermocouple noise sd 1.5 degC and a fixed bias per thermocouple (sd

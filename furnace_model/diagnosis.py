@@ -29,6 +29,7 @@ from .candidates import (
     pooled,
     run_task,
     score_against,
+    structure_of,
 )
 from .effects import EFFECTS
 from .errors import FurnaceError
@@ -293,22 +294,44 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         for c in step:
             score_against(c, base, floor)
         tried += step
-        fl2 = float(np.mean([floor[z] ** 2 for z in ZONES]))
-        left = kept.rmse_holdout_pooled() ** 2 - fl2
-
-        def closes(c: CandidateResult, left=left, kept=kept) -> bool:
-            if not c.identifiable or not np.isfinite(c.sse_fit):
-                return False
-            gain = kept.rmse_holdout_pooled() ** 2 - c.rmse_holdout_pooled() ** 2
-            bic = c.n_eff() * np.log(c.sse_fit / kept.sse_fit) + \
-                (c.n_params - kept.n_params) * np.log(c.n_eff())
-            return left > 0 and gain >= MIN_GAP_CLOSED / 100 * left and bic < 0
-
-        good = [c for c in step if closes(c)]
+        good = [c for c in step if _closes(c, kept, floor)]
         if not good:
             break
-        kept = min(good, key=lambda c: c.evidence)
+        best = min(good, key=lambda c: c.evidence)
+        # The gain may come from the kept effects reaching their own optimum from the
+        # combination's start (a fit that stopped in a side valley), not from the added
+        # effect: refit the kept set from there, and add the effect only if it still closes
+        # most of what the refitted set leaves.
+        structure = structure_of(kept.effects, options)
+        again = _run_all([Task(kept.effects, {k: v for k, v in options.items()
+                                              if k in kept.effects}, fit_data, hold, tail_of,
+                               {k: v for k, v in best.params.items() if k in structure.names},
+                               seed, max(BUDGET_S.get(e, DEFAULT_BUDGET_S)
+                                         for e in kept.effects), bounds=bounds)], progress)[0]
+        score_against(again, base, floor)
+        if np.isfinite(again.rmse_holdout_pooled()) and \
+                again.rmse_holdout_pooled() < kept.rmse_holdout_pooled() and _credit(again):
+            again.note = "; ".join(x for x in (again.note, "refitted from a combination's "
+                                               "optimum") if x)
+            tried.append(again)
+            kept = again
+            if not _closes(best, kept, floor):
+                break
+        kept = best
     return tried, kept
+
+
+def _closes(c: CandidateResult, kept: CandidateResult, floor: dict[str, float]) -> bool:
+    """Whether c (kept plus one effect) removes most of the held-out gap kept leaves, with
+    a lower BIC on the fitted data and its own strength determined."""
+    if not c.identifiable or not np.isfinite(c.sse_fit) or not np.isfinite(kept.sse_fit):
+        return False
+    fl2 = float(np.mean([floor[z] ** 2 for z in ZONES]))
+    left = kept.rmse_holdout_pooled() ** 2 - fl2
+    gain = kept.rmse_holdout_pooled() ** 2 - c.rmse_holdout_pooled() ** 2
+    bic = c.n_eff() * np.log(c.sse_fit / kept.sse_fit) + \
+        (c.n_params - kept.n_params) * np.log(c.n_eff())
+    return bool(left > 0 and gain >= MIN_GAP_CLOSED / 100 * left and bic < 0)
 
 
 def judge(base: CandidateResult, kept: CandidateResult | None,

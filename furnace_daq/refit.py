@@ -14,8 +14,9 @@ resampled to `step_s` exactly as `logs export` does (logexport.Resampler).
 
 Drift. Each parameter has a reference: its value and 95% interval in the first model fitted,
 or at its last drift event. A window's value moves away from the reference when (1) it lies
-outside the reference interval, (2) the distance on the log scale exceeds the two intervals'
-half-widths combined in quadrature (overlapping noisy windows scatter within that), and (3) the
+outside the reference interval, (2) the distance on the log scale exceeds twice the two
+intervals' half-widths combined in quadrature (overlapping noisy windows scatter within that:
+WINDOW_INTERVAL_FACTOR), and (3) the
 relative change is at least `drift_min_change` (3 %: smaller changes are not worth an alarm
 even when the data resolve them). `drift_windows` successive fitted windows moving away in the
 same direction raise one drift event, and the new value becomes the reference. Only a
@@ -24,8 +25,18 @@ judged: at 1-minute sampling b, c, d and e are not, and their intervals, lineari
 a long curved valley, are not to be trusted for an alarm. A reference that was itself not
 determined is replaced by the next value.
 
+Recent drift. A window much longer than the period moves only as the share of the window
+after a change grows (with 24 h every 15 min, f of a fuel switch took 1.5 h to alarm). So each
+fitted window also judges its newest `RECENT_PERIODS` periods alone: f re-estimated on them
+with the window model's a..e held (and the temperatures at the span's start; see
+`recent_f`), against
+f's reference: outside its interval, beyond the two uncertainties combined and by at least
+twice `drift_min_change` (RECENT_MIN_CHANGE_FACTOR). `drift_windows` such refits in a row moving the same way raise one event
+(`basis: recent`) and move f's reference to the recent value. A span in which no burner fires
+is not judged (f is seen only with heat input), nor is one longer than the window.
+
 After a drift event no window that still holds data from before the end of the event's
-window is judged (nor counts): with windows much longer than the period, a change inside
+window is judged (nor counts), by either test: with windows much longer than the period, a change inside
 the window gives a day of compromise fits (one parameter set for two furnaces) whose values
 swing, and an alarm for each swing would bury the one that matters. The next judgement
 compares a window wholly after the event with the references the event set.
@@ -43,7 +54,8 @@ import pandas as pd
 
 from furnace_model import ZONES
 from furnace_model.experiment import Experiment
-from furnace_model.fit import fit
+from furnace_model.fit import FitResult, fit
+from furnace_model.structure import ModelStructure
 
 from .daqconfig import RefitConfig
 from .logexport import Resampler
@@ -51,6 +63,16 @@ from .logschema import AMBIENT, PARAM_NAMES, THERMOCOUPLES
 from .mcaplog import iso_time
 
 FITTING_SEED = 0
+WINDOW_INTERVAL_FACTOR = 2.0
+"""The window test asks for this multiple of the two half-widths combined: the intervals come
+from residuals that are not independent, and over a steady week with the default windows a
+moved 5.5% and back against a combined 95% half-width of 4.4%."""
+RECENT_PERIODS = 2
+"""The recent span judged for drift besides the window: the newest refit periods."""
+RECENT_MIN_CHANGE_FACTOR = 2.0
+"""The recent test asks for this multiple of `drift_min_change`: half an hour of data gives
+an f that scatters by 3-7% about the truth over two steady days (plant seeds 1-5), where a
+fuel switch moves it by 20%."""
 """Seed of the first (cold) fit's search: fixed, so that replay repeats it exactly."""
 
 
@@ -94,6 +116,8 @@ class FitJob:
     experiment: Experiment
     init: dict[str, float] | None
     budget_s: float
+    recent_from_min: float | None = None
+    """Start of the recent span (minutes on the experiment's time) whose f is estimated."""
 
 
 def run_fit(job: FitJob) -> dict:
@@ -115,8 +139,50 @@ def run_fit(job: FitJob) -> dict:
         "undetermined": list(res.undetermined),
         "zone_offsets_c": (res.zone_offsets_c or [None])[0],
         "sigma_c": float(res.sigma_c),
+        "recent": None if over or job.recent_from_min is None
+        else recent_f(res, job.experiment, job.recent_from_min),
         "elapsed_s": time.perf_counter() - t0,
     }
+
+
+def recent_f(res: FitResult, exp: Experiment, from_min: float) -> dict | None:
+    """f on the recent span alone, the window model's a..e held: what the newest data say
+    about the heat per burner, long before a day-long window follows (a window's f moves with
+    the share of the window after a change). The zone temperatures at the span's start are
+    estimated with it, starting from the window model's: right after a change that model's
+    state is off (it ran the old f), and held fixed it pushed a fuel switch's f to -35%
+    instead of -20%. The model is linear in f and in the initial state, so this is one
+    least-squares step. None when no burner fires in the span: f is seen only with heat
+    input."""
+    span = exp.between(from_min, math.inf)
+    if len(span) < 8 or not np.any(span.burners > 0):
+        return None
+    structure = ModelStructure()
+    params = {k: float(v) for k, v in res.params.items()}
+    states = structure.simulate(params, exp.inputs(), exp.t_min, np.asarray(res.x0[0])[None],
+                                states=True)[0]
+    x_span = states[np.searchsorted(exp.t_min, span.t_min[0])]
+    inputs = span.inputs()
+
+    def run(values: dict, x: np.ndarray) -> np.ndarray:
+        return structure.simulate(values, inputs, span.t_min, x[None])[0]
+
+    base = run(params, x_span)
+    columns = [run({**params, "f": 2.0 * params["f"]}, x_span) - base]  # d y / d f times f
+    columns += [run(params, x_span + unit) - base for unit in np.eye(x_span.size)[:3]]
+    offsets = np.array([(res.zone_offsets_c or [dict.fromkeys(ZONES, 0.0)])[0][z]
+                        for z in ZONES])
+    resid = span.zone_temp - offsets - base
+    good = np.isfinite(resid)
+    design = np.stack([c[good] for c in columns], axis=1)
+    normal = design.T @ design
+    if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
+        return None
+    cov = np.linalg.inv(normal)
+    step = cov @ (design.T @ resid[good])
+    f = params["f"] * (1.0 + float(step[0]))
+    se = params["f"] * float(res.sigma_c) * math.sqrt(float(cov[0, 0]))
+    return {"f": f, "se": se, "n_samples": int(good.any(axis=1).sum())}
 
 
 @dataclass
@@ -141,6 +207,8 @@ class RefitChain:
     references: dict[str, _Reference] = field(default_factory=dict)
     quiet_until: str | None = None
     """Window end of the last drift event: later windows that overlap it are not judged."""
+    recent_streak: int = 0
+    recent_direction: int = 0
 
     def check(self, window: Window) -> str | None:
         """Why the window cannot identify the model, or None when it can be fitted."""
@@ -159,8 +227,12 @@ class RefitChain:
 
     def job(self, window: Window) -> FitJob:
         assert window.experiment is not None
+        exp = window.experiment
         init = None if self.model is None else {p: self.model[p] for p in PARAM_NAMES}
-        return FitJob(window.experiment, init, self.config.budget_s)
+        recent_ns = window.end_ns - int(round(RECENT_PERIODS * self.config.period_s * 1e9))
+        t0 = exp.start_time.value if exp.start_time is not None else window.start_ns
+        recent = (recent_ns - t0) / 60e9 if recent_ns > window.start_ns else None
+        return FitJob(exp, init, self.config.budget_s, recent)
 
     def process(self, window: Window, fitter: Callable[[FitJob], dict] = run_fit
                 ) -> tuple[dict, list[dict]]:
@@ -214,7 +286,10 @@ class RefitChain:
                                             "zone_offsets_c", "sigma_c", "elapsed_s")})
         msg["model_window_start"] = msg["window_start"]
         msg["model_window_end"] = msg["window_end"]
-        events = self._drift(msg)
+        recent = outcome.get("recent")
+        if recent is not None:
+            msg["recent_f"] = recent
+        events = self._drift(msg) or self._drift_recent(msg, recent)
         self.model = msg
         return msg, events
 
@@ -252,10 +327,71 @@ class RefitChain:
                 "window_end": msg["window_end"], "parameters": {p: new}})
             self.references[p] = _Reference(new, (lo, hi), msg["window_end"], determined)
         if events:
-            self.quiet_until = msg["window_end"]
-            for ref in self.references.values():
-                ref.streak, ref.direction = 0, 0
+            self._after_event(msg)
         return events
+
+    def _after_event(self, msg: dict) -> None:
+        self.quiet_until = msg["window_end"]
+        self.recent_streak, self.recent_direction = 0, 0
+        for ref in self.references.values():
+            ref.streak, ref.direction = 0, 0
+
+    def _drift_recent(self, msg: dict, recent: dict | None) -> list[dict]:
+        """The recent span's f against the reference (see the module docstring). Spans
+        without firing burners neither count nor break a run."""
+        ref = self.references.get("f")
+        if recent is None or ref is None or not ref.determined:
+            return []
+        if self.quiet_until is not None and msg["window_start"] < self.quiet_until:
+            return []  # the window model is still a compromise across the change
+        direction = _recent_moved(ref, recent,
+                                  RECENT_MIN_CHANGE_FACTOR * self.config.drift_min_change)
+        if direction == 0 or direction != self.recent_direction:
+            self.recent_streak = 0
+        self.recent_direction = direction
+        if direction == 0:
+            return []
+        self.recent_streak += 1
+        if self.recent_streak < self.config.drift_windows:
+            return []
+        new, se = float(recent["f"]), float(recent["se"])
+        ci = (new - 1.96 * se, new + 1.96 * se)
+        change = new / ref.value - 1.0
+        start = self._recent_start(msg)
+        event = {
+            "kind": "drift", "parameter": "f", "basis": "recent",
+            "detail": (f"f {'rose' if change > 0 else 'fell'} {100 * abs(change):.1f}% from "
+                       f"{ref.value:.6g} [{ref.ci95[0]:.6g}, {ref.ci95[1]:.6g}] (window to "
+                       f"{ref.window_end}) to {new:.6g} [{ci[0]:.6g}, {ci[1]:.6g}] on the data "
+                       f"from {start}, {self.recent_streak} refits in a row"),
+            "old": ref.value, "old_ci95": list(ref.ci95), "old_window_end": ref.window_end,
+            "new": new, "new_ci95": list(ci), "relative_change": change,
+            "windows": self.recent_streak, "recent_start": start,
+            "window_start": msg["window_start"], "window_end": msg["window_end"],
+            "parameters": {"f": new}}
+        self.references["f"] = _Reference(new, ci, msg["window_end"], True)
+        self._after_event(msg)
+        return [event]
+
+    def _recent_start(self, msg: dict) -> str:
+        end = pd.Timestamp(msg["window_end"]).value
+        return iso_time(end - int(round(RECENT_PERIODS * self.config.period_s * 1e9)))
+
+
+def _recent_moved(ref: _Reference, recent: dict, min_change: float) -> int:
+    """+1 / -1 when the recent span's f lies outside the reference interval, differs from it by
+    at least `min_change` and by more than twice the two 95% uncertainties combined (as for
+    windows: the span's residuals are not independent either)."""
+    new, se = float(recent["f"]), float(recent["se"])
+    if not (new > 0 and math.isfinite(se)):
+        return 0
+    if ref.ci95[0] <= new <= ref.ci95[1] or abs(new / ref.value - 1.0) < min_change:
+        return 0
+    half_ref = 0.5 * (math.log(ref.ci95[1]) - math.log(ref.ci95[0]))
+    distance = math.log(new) - math.log(ref.value)
+    if abs(distance) <= WINDOW_INTERVAL_FACTOR * math.hypot(half_ref, 1.96 * se / new):
+        return 0
+    return 1 if distance > 0 else -1
 
 
 def _moved(ref: _Reference, new: float, ci: tuple[float, float], min_change: float) -> int:
@@ -265,7 +401,7 @@ def _moved(ref: _Reference, new: float, ci: tuple[float, float], min_change: flo
     half_ref = 0.5 * (math.log(ref.ci95[1]) - math.log(ref.ci95[0]))
     half_new = 0.5 * (math.log(ci[1]) - math.log(ci[0]))
     distance = math.log(new) - math.log(ref.value)
-    if abs(distance) <= math.hypot(half_ref, half_new):
+    if abs(distance) <= WINDOW_INTERVAL_FACTOR * math.hypot(half_ref, half_new):
         return 0
     return 1 if distance > 0 else -1
 

@@ -350,7 +350,7 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
         physics = "; and ".join(EFFECTS[n].physics for n in best.effects)
         one = len(best.effects) == 1
         what, it = ("an effect", "it") if one else (f"{len(best.effects)} effects", "them")
-        worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / floor[z])
+        worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / max(floor[z], 1e-9))
         return Verdict(
             "explained", list(best.effects), best.shrink_pct, gap_closed_pct=best.gap_closed_pct,
             sentence=
@@ -359,7 +359,7 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
             f"{ZONE_WORDS[worst]} zone from {base.rmse_holdout_c[worst]:.1f} to "
             f"{best.rmse_holdout_c[worst]:.1f} degC (pooled over zones {best.shrink_pct:.0f}% "
             f"smaller), down to about the thermocouple noise of {floor[worst]:.1f} degC.")
-    worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / floor[z])
+    worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / max(floor[z], 1e-9))
     place = ""
     if where:
         w = where[0]

@@ -11,10 +11,10 @@ docs/performance.md.
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import numpy as np
+from bench_simulate import median_time  # a script beside this one
 
 from furnace_model.effects import DeadTime, FuelChange, Radiation
 from furnace_model.parameters import PAPER_TABLE_V
@@ -22,16 +22,6 @@ from furnace_model.scenario import load_scenario
 from furnace_model.structure import ModelStructure
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def median_time(fn, repeat: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def main() -> None:

@@ -213,7 +213,7 @@ def recover_leftovers(log_dir: str | Path, prefix: str) -> list[str]:
     for part in sorted(log_dir.glob(f"{prefix}-*.mcap.part")):
         notes.append(_recover_leftover(part))
     if notes:
-        _fsync_dir(log_dir)
+        fsync_dir(log_dir)
     return notes
 
 
@@ -257,7 +257,8 @@ def _count_messages(path: Path) -> int:
         return sum(1 for _ in make_reader(f).iter_messages())
 
 
-def _fsync_dir(path: Path) -> None:
+def fsync_dir(path: Path) -> None:
+    """A rename or a new file is durable only once its directory entry is."""
     fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
     try:
         os.fsync(fd)

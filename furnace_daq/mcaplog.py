@@ -53,7 +53,7 @@ from mcap.writer import CompressionType, Writer
 
 from furnace_model.errors import DataError
 
-from .logrecover import has_footer, salvage
+from .logrecover import fsync_dir, has_footer, salvage
 from .logschema import DAQ_EVENTS, MESSAGE_ENCODING, SCHEMA_ENCODING, topic
 
 PART_SUFFIX = ".part"
@@ -213,7 +213,7 @@ class LogWriter:
             writer = Writer(fh, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)
             writer.start(profile="", library=LIBRARY)
             fh.flush()
-            _fsync_dir(self.log_dir)
+            fsync_dir(self.log_dir)
         except OSError as exc:
             if fh is not None:
                 with contextlib.suppress(OSError):
@@ -267,7 +267,7 @@ class LogWriter:
             os.fsync(f.fh.fileno())
             f.fh.close()
             os.rename(f.part, f.final)
-            _fsync_dir(self.log_dir)
+            fsync_dir(self.log_dir)
         except OSError as exc:
             self._fail(exc, self._now if self._now is not None else time.monotonic())
             return
@@ -357,14 +357,6 @@ def _finite(obj: Any) -> Any:
     return obj
 
 
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def iso_time(ns: int) -> str:
     return datetime.fromtimestamp(ns / 1e9, UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
 
@@ -443,15 +435,7 @@ def open_log(path: str | Path) -> LogFile:
 
 
 def decode(path: Path, raw: RawMessage) -> dict:
-    try:
-        value = json.loads(raw.message.data)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise DataError(str(path), f"message on {raw.topic} at {iso_time(raw.message.log_time)} "
-                        f"is not JSON: {exc}") from None
-    if not isinstance(value, dict):
-        raise DataError(str(path), f"message on {raw.topic} at {iso_time(raw.message.log_time)} "
-                        "is not a JSON object")
-    return value
+    return _json(path, raw.topic, raw.message.data, raw.message.log_time)
 
 
 def read_messages(paths: Iterable[str | Path] | str | Path,

@@ -193,6 +193,7 @@ class ModelStructure:
         cuts = np.unique(np.ravel(drive.s))
         edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
         hard = np.zeros(P, dtype=bool)
+        diverged = np.zeros(P, dtype=bool)
         for lo, hi in zip(edges[:-1], edges[1:], strict=True):
             if hi <= lo:
                 continue
@@ -208,6 +209,9 @@ class ModelStructure:
                     out[:, idx] = step.inside(t[idx] - a)
                 out[:, (t == b) if b < end else (t >= b)] = x[:, None]
                 hard |= step.bad
+                diverged |= step.diverged
+        hard &= ~diverged
+        out[diverged] = np.nan
         if hard.any():
             p = np.nonzero(hard)[0]
             out[p] = self._integrate_lsoda({k: v[p] for k, v in theta.items()},
@@ -315,7 +319,14 @@ class _Linearised:
         self.N0 = Np[:, 0]
         self.Jn = np.swapaxes(Np[:, 1:] - self.N0[:, None], 1, 2) / delta[:, None, :]
         F = (A @ x[:, :, None])[:, :, 0] + Bu + self.N0
-        self.lam, self.V = np.linalg.eig(A + self.Jn)
+        J = A + self.Jn
+        # A set that has blown up (non-finite state or Jacobian) must not stop the batch: it
+        # is stepped with a stand-in Jacobian and its result is NaN (an infinite misfit).
+        self.diverged = ~(np.isfinite(J).all(axis=(1, 2)) & np.isfinite(F).all(axis=1))
+        if self.diverged.any():
+            J = np.where(self.diverged[:, None, None], -_eye(n), J)
+            F = np.where(self.diverged[:, None], 0.0, F)
+        self.lam, self.V = np.linalg.eig(J)
         self.Vinv = np.linalg.inv(self.V)
         # 1-norm condition number of V: a (nearly) defective J has no usable eigenbasis
         self.bad = (np.abs(self.V).sum(axis=1).max(axis=1)

@@ -262,3 +262,16 @@ def test_radiation_with_per_set_step_times():
         ref = reference_nonlinear(ModelStructure([Radiation()]),
                                   {**PAPER_TABLE_V, "rad_share": 0.6}, shifted, t, x0)
         assert np.max(np.abs(y[p] - ref)) < 0.01
+
+
+def test_a_diverged_set_is_nan_and_leaves_the_batch_alone():
+    """A search may propose a set that blows up; it must cost that set an infinite misfit,
+    not stop the batch (one eigen-decomposition serves every set)."""
+    ms = ModelStructure([Radiation()])
+    inputs = Inputs(np.array([0.0, 300.0]), np.array([[2, 0, 0], [6, 0, 0.0]]), np.full(2, 30.0))
+    t = np.arange(0.0, 601.0, 5.0)
+    x0 = np.array([[30.0, 30.0, 30.0], [np.nan, 30.0, 30.0]])
+    y = ms.simulate({**PAPER_TABLE_V, "rad_share": np.array([0.5, 0.5])}, inputs, t, x0)
+    alone = ms.simulate({**PAPER_TABLE_V, "rad_share": 0.5}, inputs, t, x0[:1])
+    assert np.isnan(y[1]).all()
+    np.testing.assert_allclose(y[0], alone[0], rtol=0, atol=1e-9)

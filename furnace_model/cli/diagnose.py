@@ -90,13 +90,13 @@ def summary(d: Diagnosis) -> str:
                          f"{w.regime}")
     if d.candidates:
         lines += ["", "Candidates, best first (held-out RMSE per zone soak/heat/preheat):",
-                  "| effect(s) | held out (degC) | shrink % | gap closed % | dBIC | credit |",
+                  "| effect(s) | held out (degC) | shrink % | gap closed % | dBIC | strength determined |",
                   "|---|---|---|---|---|---|"]
         for c in d.candidates:
             ho = "/".join(f"{c.rmse_holdout_c[z]:.2f}" for z in ZONES)
-            credit = "yes" if c.identifiable else "no: not determined"
+            determined = "yes" if c.identifiable else "no"
             lines.append(f"| {c.label} | {ho} | {c.shrink_pct:.0f} | {c.gap_closed_pct:.0f} | "
-                         f"{c.delta_bic:.0f} | {credit} |")
+                         f"{c.delta_bic:.0f} | {determined} |")
     v = d.verdict
     lines += ["", f"Verdict: {v.status}" + (f" ({', '.join(v.effects)})" if v.effects else ""),
               v.sentence]

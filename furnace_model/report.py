@@ -279,16 +279,21 @@ def _fig_traces(d: Diagnosis, best: CandidateResult | None) -> Figure:
             if ext is not None:
                 ax.plot(exp.t_min, ext[:, w], "--", lw=1.0, color="C0",
                         label=f"with {best.label}")
-            ax.grid(alpha=0.3)
-            if w == 0:
-                ax.set_title(f"{exp.name} ({kind})", fontsize=10)
-            if k == 0:
-                ax.set_ylabel(f"{ZONE_WORDS[z]} (°C)")
-            if w == 2:
-                ax.set_xlabel("time (min)")
+            _frame(ax, w, k, f"{exp.name} ({kind})", f"{ZONE_WORDS[z]} (°C)")
     axes[0, 0].legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def _frame(ax, row: int, col: int, title: str, ylabel: str) -> None:
+    """Grid, and the labels only on the panel edges of a zones-by-records grid."""
+    ax.grid(alpha=0.3)
+    if row == 0:
+        ax.set_title(title, fontsize=10)
+    if col == 0:
+        ax.set_ylabel(ylabel)
+    if row == len(ZONES) - 1:
+        ax.set_xlabel("time (min)")
 
 
 def _fig_residuals(d: Diagnosis) -> Figure:
@@ -309,13 +314,7 @@ def _fig_residuals(d: Diagnosis) -> Figure:
                     ax.axvspan(loc.start_min, max(loc.end_min, loc.start_min + 1),
                                color="C4" if loc.sensor else "C1", alpha=0.3, lw=0)
             ax.axhline(0.0, color="0.3", lw=0.6)
-            ax.grid(alpha=0.3)
-            if w == 0:
-                ax.set_title(f"{exp.name} ({kind})", fontsize=10)
-            if k == 0:
-                ax.set_ylabel(f"{ZONE_WORDS[z]} error (°C)")
-            if w == 2:
-                ax.set_xlabel("time (min)")
+            _frame(ax, w, k, f"{exp.name} ({kind})", f"{ZONE_WORDS[z]} error (°C)")
     fig.tight_layout()
     return fig
 

@@ -27,18 +27,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", type=Path, metavar="OUT", help="write the diagnosis as JSON")
     p.add_argument("--report", type=Path, metavar="OUT.html",
                    help="write a self-contained HTML report")
-    p.add_argument("--effects", type=_effect_list, metavar="a,b",
+    p.add_argument("--effects", type=effect_list, metavar="a,b",
                    help=f"candidates to try (default all: {','.join(EFFECTS)})")
     p.add_argument("--seed", type=int, default=0, help="random seed of the searches (default 0)")
     p.set_defaults(run=run)
 
 
-def _effect_list(text: str) -> tuple[str, ...]:
+def effect_list(text: str, what: str = "effect") -> tuple[str, ...]:
+    """A comma-separated list of effect names (CONTRACTS.md section 4), for argparse."""
     names = tuple(n.strip() for n in text.split(",") if n.strip())
     bad = [n for n in names if n not in EFFECTS]
     if bad or not names:
         raise argparse.ArgumentTypeError(
-            f"unknown effect(s) {', '.join(bad) or '(none given)'}; expected names from "
+            f"unknown {what}(s) {', '.join(bad) or '(none given)'}; expected names from "
             f"{', '.join(EFFECTS)}")
     return names
 

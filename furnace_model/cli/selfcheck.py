@@ -13,11 +13,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from functools import partial
 from pathlib import Path
 
 from ..effects import EFFECTS
 from ..errors import FurnaceError
 from ..selfcheck import OUT_OF_LIBRARY, check, parse_label, summarize, table
+from .diagnose import effect_list
 
 DEFAULT = ("none", *EFFECTS)
 EXTRA = ("zone_burners+sensor_lag", *OUT_OF_LIBRARY)
@@ -34,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"also {', '.join(EXTRA)}")
     p.add_argument("--form", choices=("candidate", "other"), default="candidate",
                    help="draw effects in the candidates' formulation or in another one")
-    p.add_argument("--candidates", metavar="a,b", type=_candidates,
+    p.add_argument("--candidates", metavar="a,b", type=partial(effect_list, what="candidate"),
                    help="limit the diagnosis to these candidates (default all nine)")
     p.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
     p.add_argument("--json", type=Path, metavar="OUT", help="write every case and the table")
@@ -79,16 +81,6 @@ def _label(text: str) -> str:
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
-
-
-def _candidates(text: str) -> tuple[str, ...]:
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    bad = [n for n in names if n not in EFFECTS]
-    if bad or not names:
-        raise argparse.ArgumentTypeError(
-            f"unknown candidate(s) {', '.join(bad) or '(none given)'}; expected names from "
-            f"{', '.join(EFFECTS)}")
-    return names
 
 
 def _plain(x):

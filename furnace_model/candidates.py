@@ -40,9 +40,6 @@ MAX_RATIO = 4.0
 """A positive strength parameter counts as determined when its 95% interval spans less than
 this factor: one that could be anything from a trace to a flood is not an estimate."""
 
-BUDGET_S = {"radiation": 20.0}
-DEFAULT_BUDGET_S = 15.0
-
 
 @dataclass
 class CandidateResult:
@@ -91,7 +88,9 @@ def pooled(per_zone: dict[str, float]) -> float:
 
 @dataclass
 class Task:
-    """One candidate to fit: picklable, so a process pool can take it."""
+    """One candidate to fit: picklable, so a process pool can take it. Fits are bounded by
+    their iteration counts, never by the clock, so that a diagnosis does not depend on how
+    busy the machine is."""
 
     effects: tuple[str, ...]
     options: dict[str, dict]
@@ -100,7 +99,6 @@ class Task:
     tail_of: list[int | None]  # per holdout: index of the fit experiment it continues
     init: dict[str, float] | None
     seed: int
-    budget_s: float | None
     cold_too: bool = False
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     cold_above: dict[str, float] | None = None
@@ -149,12 +147,12 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     # searches, so that a side valley of eq. 11 is not mistaken for a gap.
     runs = 3 if not task.effects else 1
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
-             time_budget_s=task.budget_s, runs=runs, bounds=bounds)
+             runs=runs, bounds=bounds)
     off_floor = task.cold_above is None or any(
         fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in ZONES)
     if init is not None and structure.linear and task.cold_too and off_floor:
         cold = fit(task.fit_data, structure, seed=task.seed + 1, zone_offsets=True,
-                   time_budget_s=task.budget_s, bounds=bounds)
+                   bounds=bounds)
         if cold.sse < fr.sse:
             fr = cold
     fit_pred = fitted_predictions(fr, task.fit_data)

@@ -183,10 +183,17 @@ class _Problem:
         return np.concatenate([zp, *per])
 
     def fun(self, z: np.ndarray) -> np.ndarray:
-        vals = self.values(z[:self.k])
-        return np.concatenate([self.residuals(j, vals, self.x0_of(z, j)[None])[0]
-                               + self.offsets_of(z, j)[r.zone_of]
-                               for j, r in enumerate(self.records)])
+        return self.fun_many(z[None])[0]
+
+    def fun_many(self, Z: np.ndarray) -> np.ndarray:
+        """Residuals (P, m) of unknown vectors (P, n), each experiment in one batched call."""
+        vals = self.values(Z[:, :self.k])
+        out = []
+        for j, r in enumerate(self.records):
+            i = self.k + self.block * j
+            res = self.residuals(j, vals, Z[:, i:i + 3])
+            out.append(res + Z[:, i + 3:i + 6][:, r.zone_of] if self.block == 6 else res)
+        return np.concatenate(out, axis=1)
 
     def jac(self, z: np.ndarray) -> np.ndarray:
         """Forward differences, all perturbed sets of an experiment in one batched call."""
@@ -218,6 +225,9 @@ class _Problem:
         instead of a QR or SVD of the tall Jacobian: with tens of thousands of residuals and
         a dozen unknowns, that factorisation is what would cost, not the simulation.
         """
+        # A nonlinear simulation costs about the same for a few parameter sets as for one
+        # (its time goes to stepping, not arithmetic): try several dampings in one call.
+        trials = 1 if self.structure.linear else 4
         lo = np.concatenate([self.lo, np.full(self.n - self.k, -np.inf)])
         hi = np.concatenate([self.hi, np.full(self.n - self.k, np.inf)])
         z = np.clip(z0, lo, hi)
@@ -233,15 +243,18 @@ class _Problem:
             H, g = J.T @ J, J.T @ r
             d = np.maximum(np.diag(H), 1e-12 * max(np.diag(H).max(), 1e-300))
             accepted = False
-            while mu < 1e12:
-                step = -_solve(H + mu * np.diag(d), g)
-                z_new = np.clip(z + step, lo, hi)
-                r_new = self.fun(z_new)
-                c_new = float(r_new @ r_new)
-                if np.isfinite(c_new) and c_new < cost:
-                    accepted = True
-                    break
-                mu *= 4.0
+            while mu < 1e12 and not accepted:
+                mus = mu * 4.0 ** np.arange(trials)
+                Z = np.array([np.clip(z - _solve(H + m * np.diag(d), g), lo, hi) for m in mus])
+                R = self.fun_many(Z)
+                costs = np.einsum("pm,pm->p", R, R)
+                for i in range(trials):  # the first damping that lowers the cost, as in turn
+                    if np.isfinite(costs[i]) and costs[i] < cost:
+                        z_new, r_new, c_new, mu = Z[i], R[i], float(costs[i]), mus[i]
+                        accepted = True
+                        break
+                else:
+                    mu = mus[-1] * 4.0
             if not accepted:
                 ok = True  # no step lowers the cost: a minimum to working precision
                 break

@@ -102,6 +102,20 @@ def test_split_refuses_what_cannot_be_diagnosed():
         diagnose([exp], effects=("no_such_effect",))
 
 
+def test_the_experiment_held_out_is_one_whose_burners_the_others_fire():
+    exp = _case(None, 14).fit[0]
+    soak_only = Experiment("soak_only", exp.t_min, exp.tc, exp.burners * [1, 0, 0], exp.t_air)
+    hot = Experiment("hot", exp.t_min, exp.tc, exp.burners * [1, 0, 0] + [0, 2, 0], exp.t_air)
+    fit, hold, _, how = split([soak_only, hot], None)  # not the last: no other fires zone 2
+    assert [e.name for e in fit] == ["hot"] and [e.name for e in hold] == ["soak_only"]
+    assert "hot fires heating-zone burners the rest never fire" in how
+    fit, hold, _, how = split([hot, soak_only], None)
+    assert [e.name for e in hold] == ["soak_only"] and "never" not in how
+    fit, hold, _, how = split([soak_only], [hot])  # as given, and said
+    assert [e.name for e in hold] == ["hot"]
+    assert "fires heating-zone burners, which the fitted data never fire" in how
+
+
 # --- acceptance, all nine candidates (make test-slow) -------------------------------------
 
 DRAWS = 10

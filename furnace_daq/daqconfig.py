@@ -187,6 +187,12 @@ def _log(node: Node) -> LogConfig:
         file_mode = int(mode, 8)
     except ValueError:
         raise node.child("file_mode").error(f"expected an octal mode like '0640', got '{mode}'") from None
+    if file_mode & ~0o644 or file_mode & 0o600 != 0o600:
+        # A log another user can rewrite is no record of the plant; one the daemon cannot
+        # write, or an executable one, is a typo.
+        raise node.child("file_mode").error(
+            f"{mode} is not allowed: the owner must read and write the logs and nobody else "
+            "may write or execute them (at most 0644; the default is 0640)")
     return LogConfig(
         dir=Path(node.get_string("dir", default_dir)),
         prefix=node.get_string("prefix", "furnace"),

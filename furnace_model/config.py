@@ -37,6 +37,13 @@ def parse_yaml(text: str, file: str = "<string>") -> Node:
         value = yaml.safe_load(text)
     except RecursionError:
         raise ConfigError(file, "", "not valid YAML: nested too deeply") from None
+    except yaml.constructor.ConstructorError as exc:
+        mark = exc.problem_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        tag = str(exc.problem or "").split("'")[1:2] or ["?"]
+        raise ConfigError(file, "", f"not valid YAML: {where}the tag "
+                          f"'{tag[0].replace('tag:yaml.org,2002:', '!!')}' is not allowed: a "
+                          "setting is text, a number, a list or a mapping") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""

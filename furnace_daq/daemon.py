@@ -23,18 +23,21 @@ RefitRunner (refitworker), which cuts windows on the PLC clock and fits them in 
 process; the loop only checks for finished fits once per tick. Results go to /model/* with
 log_time = host time of the result and publish_time = the window's end on the data clock,
 to `on_model`, and atomically to <state_dir>/model.json (written from a thread: a slow disk
-must not delay a poll).
+must not delay a poll), with the chain's state in <state_dir>/refit_chain.json, from which
+a restarted daemon goes on.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Protocol
 
 from furnace_model import SENSORS, ZONES
@@ -49,6 +52,7 @@ from .sources import CanSource, ModbusSource, Sample, Source, SourceError
 from .statefile import write_json_atomic
 
 MODEL_FILE = "model.json"
+CHAIN_FILE = "refit_chain.json"
 STOP_WAIT_S = 10.0
 """At stop, how long windows already cut may still be fitted."""
 FURNACE_TOPICS = frozenset((THERMOCOUPLES, BURNERS, AMBIENT))
@@ -132,6 +136,7 @@ class Daemon:
         self.notifier.ready(f"polling {where} every {self.config.poll_period_s:g} s")
         self._status("disconnected", f"starting; dialling PLC at {where}")
         if self.refit is not None:
+            self._resume_chain()
             self.refit.start()
             self._state_writer = ThreadPoolExecutor(1, thread_name_prefix="state-writer")
         tasks = [asyncio.create_task(self._connector(self.plc), name="plc connector")]
@@ -445,17 +450,41 @@ class Daemon:
                 self.log.write(DAQ_EVENTS, {"kind": "on_model_error",
                                             "detail": f"{type(exc).__name__}: {exc}"}, now, now)
         if self._state_writer is not None and self.config.refit is not None:
-            path = self.config.refit.state_dir / MODEL_FILE
-            self._state_writer.submit(self._write_state, path, message)
+            state_dir = self.config.refit.state_dir
+            files = [(state_dir / MODEL_FILE, message)]
+            if self.refit is not None:  # the chain has taken this window in already
+                files.append((state_dir / CHAIN_FILE, self.refit.chain.state()))
+            self._state_writer.submit(self._write_state, files)
 
-    def _write_state(self, path, message: dict) -> None:
-        """In the writer thread; a failure is remembered and reported once per kind."""
+    def _resume_chain(self) -> None:
+        """Go on with the model in force and the drift references a previous run left, so
+        that a restart neither forgets the model nor starts drift detection afresh. A state
+        file that cannot be used is reported and set aside; the chain then starts empty."""
+        assert self.refit is not None and self.config.refit is not None
+        path = self.config.refit.state_dir / CHAIN_FILE
+        now = self.wall_ns()
         try:
-            write_json_atomic(path, message)
-        except (OSError, ValueError, TypeError) as exc:
-            self._state_error = f"{path}: {getattr(exc, 'strerror', None) or exc}"
-        else:
-            self._state_error = None
+            self.refit.chain.restore(json.loads(path.read_text(encoding="utf-8")))
+        except FileNotFoundError:
+            return
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            detail = f"{path}: {getattr(exc, 'strerror', None) or exc}; refits start afresh"
+            self.log.write(DAQ_EVENTS, {"kind": "state_unusable", "detail": detail}, now, now)
+            return
+        model = self.refit.chain.model
+        detail = (f"from {path}: model of the window to {model['window_end']}"
+                  if model is not None else f"from {path}: no model fitted yet")
+        self.log.write(DAQ_EVENTS, {"kind": "refit_resumed", "detail": detail}, now, now)
+
+    def _write_state(self, files: list[tuple[Path, dict]]) -> None:
+        """In the writer thread; a failure is remembered and reported once per kind."""
+        for path, value in files:
+            try:
+                write_json_atomic(path, value)
+            except (OSError, ValueError, TypeError) as exc:
+                self._state_error = f"{path}: {getattr(exc, 'strerror', None) or exc}"
+                return
+        self._state_error = None
 
     async def _finish_refits(self) -> None:
         """At stop: give the windows already cut their fit (bounded), then end the worker."""

@@ -47,7 +47,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -185,6 +185,9 @@ def recent_f(res: FitResult, exp: Experiment, from_min: float) -> dict | None:
     return {"f": f, "se": se, "n_samples": int(good.any(axis=1).sum())}
 
 
+STATE_VERSION = 1
+
+
 @dataclass
 class _Reference:
     value: float
@@ -209,6 +212,39 @@ class RefitChain:
     """Window end of the last drift event: later windows that overlap it are not judged."""
     recent_streak: int = 0
     recent_direction: int = 0
+
+    def state(self) -> dict:
+        """What a restarted daemon needs to go on where this chain stopped: the model in force
+        and the drift references, as plain JSON."""
+        return {"version": STATE_VERSION, "model": self.model,
+                "references": {p: {**asdict(r), "ci95": list(r.ci95)}
+                               for p, r in self.references.items()},
+                "quiet_until": self.quiet_until, "recent_streak": self.recent_streak,
+                "recent_direction": self.recent_direction}
+
+    def restore(self, state: object) -> None:
+        """Take over a saved `state()`. Raises ValueError, naming what is wrong, and leaves
+        the chain as it was, for anything that is not one."""
+        try:
+            if not isinstance(state, dict) or state.get("version") != STATE_VERSION:
+                raise ValueError(f"not a chain state of version {STATE_VERSION}")
+            model = state["model"]
+            if model is not None and not (
+                    isinstance(model, dict) and model.get("status") == "ok"
+                    and all(isinstance(model.get(p), float | int) and model[p] > 0
+                            for p in PARAM_NAMES)):
+                raise ValueError("its model is not a fitted /model/parameters message")
+            refs = {p: _Reference(float(r["value"]), (float(r["ci95"][0]), float(r["ci95"][1])),
+                                  str(r["window_end"]), bool(r["determined"]), int(r["streak"]),
+                                  int(r["direction"]))
+                    for p, r in state["references"].items() if p in PARAM_NAMES}
+            quiet = state["quiet_until"]
+            streak, direction = int(state["recent_streak"]), int(state["recent_direction"])
+        except (KeyError, TypeError, IndexError, AttributeError) as exc:
+            raise ValueError(f"malformed chain state ({type(exc).__name__}: {exc})") from None
+        self.model, self.references = model, refs
+        self.quiet_until = None if quiet is None else str(quiet)
+        self.recent_streak, self.recent_direction = streak, direction
 
     def check(self, window: Window) -> str | None:
         """Why the window cannot identify the model, or None when it can be fitted."""

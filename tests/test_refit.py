@@ -205,6 +205,30 @@ def test_chain_warm_starts_from_the_previous_window():
     assert all(by_hand.params[p] == out[i][p] for p in PARAM_NAMES)
 
 
+def test_a_chain_restored_from_its_state_goes_on_as_the_original():
+    """What a restarted daemon reads back: the same model and references, so the next
+    window gives the same message and the same drift judgement as an unbroken chain."""
+    s = scenario("week_steps", duration_min=12 * 60)
+    cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR)
+    cutter, chain = WindowCutter(cfg), RefitChain(cfg)
+    windows = [w for topic, msg, t in run_messages(simulate(s)) for w in cutter.feed(topic, msg, t)]
+    for w in windows[:-1]:
+        chain.process(w)
+    assert chain.model is not None and chain.references
+    again = RefitChain(cfg)
+    again.restore(json.loads(json.dumps(chain.state())))  # as it goes through the file
+    assert again.state() == chain.state()
+    (got, got_events), (want, want_events) = again.process(windows[-1]), chain.process(windows[-1])
+    assert got.pop("elapsed_s") > 0 and want.pop("elapsed_s") > 0  # the one clock-bound field
+    assert (got, got_events) == (want, want_events)
+    before = again.state()
+    for bad, why in (({"version": 2}, "version 1"), ({"version": 1, "model": 3}, "model"),
+                     ({**before, "references": {"a": {"value": 1}}}, "malformed"), ([], "version")):
+        with pytest.raises(ValueError, match=why):
+            again.restore(bad)
+        assert again.state() == before  # nothing taken from a bad state
+
+
 def test_a_backed_up_queue_drops_the_oldest_window_with_an_event():
     """Windows cut faster than they are fitted: beyond queue_max the oldest goes, said so."""
     s = scenario("week_steps", duration_min=30 * 60)

@@ -112,6 +112,43 @@ def test_live_refits_while_polling(live):
                for pub, m in pubs)
 
 
+def test_a_restarted_daemon_goes_on_with_the_saved_model(live, tmp_path):
+    """The chain's state is saved next to model.json; a daemon started on it reports so and
+    keeps the saved model in force until its own windows are fitted."""
+    params = live_params(live)
+    saved = json.loads((live["tmp"] / "state" / "refit_chain.json").read_text())
+    last_ok = [m for m in params if m["status"] == "ok"][-1]
+    assert saved["model"] == last_ok and set(saved["references"]) == set(PARAM_NAMES)
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "refit_chain.json").write_text(json.dumps(saved))
+
+    async def run():
+        plc = SimPLC(load_scenario(SCENARIO), speed=SPEED, port=0, seed=1, scan_s=0.05)
+        await plc.start()
+        try:
+            cfg = daemon_config(plc.port, state)
+            _, task = start_daemon(cfg, tmp_path / "logs", 2 * 3600 / SPEED + 0.5)
+            await task
+        finally:
+            await plc.stop()
+
+    asyncio.run(run())
+    msgs = list(read_messages(sorted((tmp_path / "logs").glob("*.mcap"))))
+    events = [m for t, m, _, _ in msgs if t == "/daq/events" and m["kind"] == "refit_resumed"]
+    assert len(events) == 1 and last_ok["window_end"] in events[0]["detail"]
+    first = next(m for t, m, _, _ in msgs if t == MODEL_PARAMETERS)
+    assert first["status"] == "insufficient_excitation"  # its 6-h window is still filling
+    assert first["model_window_end"] == last_ok["window_end"]
+    assert all(first[p] == last_ok[p] for p in PARAM_NAMES)
+    # a state file that is not one is an event, and the refits start afresh
+    (state / "refit_chain.json").write_text('{"version": 1, "model": 3}')
+    asyncio.run(run())
+    kinds = [m["kind"] for t, m, _, _ in read_messages(sorted((tmp_path / "logs").glob(
+        "*.mcap"))) if t == "/daq/events"]
+    assert "state_unusable" in kinds
+
+
 def test_polling_keeps_its_period_while_fits_run(live):
     msgs = live["msgs"]
     ticks = np.array([lt for t, m, lt, _ in msgs if t == THERMOCOUPLES], dtype=np.int64)

@@ -32,6 +32,7 @@ from .candidates import (
 from .effects import EFFECTS
 from .errors import FurnaceError
 from .experiment import Experiment
+from .fit import fit
 from .residuals import (
     ZONE_WORDS,
     error_spans,
@@ -64,6 +65,8 @@ STEP_TRIES = 8
 """Further effects tried at each step of the combination search, the best singles first: a
 second effect may show nothing alone while a larger one dominates the error."""
 WORKERS = 2
+FRESH_STARTS = ("zone_burners",)
+"""Effects whose start, when the data give one, replaces the bent baseline's values."""
 VARIANTS: dict[str, list[dict]] = {"radiation": [{"exponent": 3.0}, {"exponent": 5.0}]}
 """Further laws of a candidate, the best kept: a furnace's effective radiation exponent
 depends on its gas and walls, not only on Stefan-Boltzmann; a law between these points leaves
@@ -204,7 +207,12 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     say("candidates", 0.1)
     bounds = search_bounds(fit_data)
     starts = effect_starts(faults, every)
+    if bent and "zone_burners" in names:
+        own = soak_burners_start(fit_data, seed)
+        if own is not None:
+            starts["zone_burners"] = own
     tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of,
+                  starts[n] if n in FRESH_STARTS and n in starts else
                   {**base.params, **starts.get(n, {})}, seed, bent, bounds,
                   {z: GAP_RATIO * floor[z] for z in ZONES})
              for n in names]
@@ -538,6 +546,27 @@ def effect_starts(faults, experiments: list[Experiment]) -> dict[str, dict[str, 
             rate = f.size_c / max(t1 - t0, 1.0)
             return {"sensor_drift": {"t_drift": t0, "drift_rate": rate}}
     return {}
+
+
+def soak_burners_start(fit_data: list[Experiment], seed: int) -> dict[str, float] | None:
+    """Where the model errs because the heating- and preheating-zone burners heat their own
+    zones, it is still right while only soaking-zone burners fire: the baseline fitted on the
+    start of each record up to the first other burner, keeping what those data determine
+    (a and f; the rest, like the effect's own strengths, are searched). The baseline fitted
+    on everything has bent to absorb the other burners (seen: f at its bound), a start from
+    which the zone-burner fit stays in a side valley."""
+    if not any(np.any(e.burners[:, 1:] > 0) for e in fit_data):
+        return None  # no other burner fires: the baseline is as good a start
+    heads = []
+    for e in fit_data:
+        other = np.nonzero((e.burners[:, 1:] > 0).any(axis=1))[0]
+        head = e if not other.size else e.between(float(e.t_min[0]), float(e.t_min[other[0]]))
+        if len(head) >= MIN_FIT_SAMPLES and head.burner_steps > 0:
+            heads.append(head)
+    if not heads:
+        return None
+    fr = fit(heads, seed=seed, zone_offsets=True)
+    return {k: v for k, v in fr.params.items() if k not in fr.undetermined}
 
 
 def pooled_floor(floor: dict[str, float]) -> float:

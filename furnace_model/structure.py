@@ -8,6 +8,7 @@ are arrays of length P and results carry a leading P axis.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -250,8 +251,11 @@ class ModelStructure:
                     return dx
 
                 idx = np.nonzero((t >= lo) & (t < hi))[0]
-                sol = solve_ivp(rhs, (lo, hi), x, method="LSODA", rtol=1e-9, atol=1e-7,
-                                t_eval=np.append(t[idx], hi))
+                with warnings.catch_warnings():
+                    # its complaints end in sol.success, which is checked: not for stderr
+                    warnings.simplefilter("ignore")
+                    sol = solve_ivp(rhs, (lo, hi), x, method="LSODA", rtol=1e-9, atol=1e-7,
+                                    t_eval=np.append(t[idx], hi))
                 if not sol.success:
                     raise RuntimeError(f"integration failed on [{lo}, {hi}] min: {sol.message}")
                 out[p, idx] = sol.y[:, :-1].T

@@ -43,7 +43,7 @@ def start_simplc() -> tuple[subprocess.Popen, int]:
 def measure(port: int, seconds: float, rate: float, log_dir: Path) -> dict:
     from dataclasses import replace
     cfg = load_config(ROOT / "config" / "gateway.yaml")
-    cfg = replace(cfg, poll_period_s=1.0 / rate,
+    cfg = replace(cfg, poll_period_s=1.0 / rate, refit=None,
                   plc=replace(cfg.plc, host="127.0.0.1", port=port))
     log = LogWriter(log_dir, flush_interval_s=cfg.log.flush_interval_s)
     daemon = Daemon(cfg, log, plc=ModbusSource(cfg))

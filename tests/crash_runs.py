@@ -49,6 +49,7 @@ def daemon_config(directory: Path, flush_s: float = FLUSH_S, period_s: float = P
     doc["plc"]["timeout_s"] = 0.5
     doc["plc"]["reconnect"] = {"initial_s": 0.1, "max_s": 0.5, "factor": 2.0}
     doc["log"]["flush_interval_s"] = flush_s
+    doc["refit"]["enabled"] = False  # polling and logging only: no refit worker
     path = directory / "daq.yaml"
     path.write_text(yaml.safe_dump(doc))
     return path

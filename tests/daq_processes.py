@@ -80,6 +80,7 @@ def config(port: int, **changes) -> DaqConfig:
     doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
     doc["poll_period_s"] = 0.05
     doc["stale_after_s"] = 0.5
+    doc["refit"]["enabled"] = False  # polling and logging only: no refit worker
     doc["plc"].update(host="127.0.0.1", port=port, timeout_s=0.2, max_consecutive_errors=2,
                       reconnect={"initial_s": 0.1, "max_s": 0.4, "factor": 2.0})
     doc.update(changes)

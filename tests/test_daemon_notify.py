@@ -22,6 +22,7 @@ def test_notify_watchdog_and_sigterm(tmp_path):
     got: list[str] = []
     proc = furnace_daq("run", "--config", str(ROOT / "config" / "gateway.yaml"),
                        "--plc", f"127.0.0.1:{free_port()}", "--log-dir", str(tmp_path / "logs"),
+                       "--no-refit",
                        env={"NOTIFY_SOCKET": str(sock_path), "WATCHDOG_USEC": "400000"})
     try:
         deadline = time.monotonic() + 30

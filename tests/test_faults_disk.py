@@ -170,6 +170,7 @@ def test_unwritable_log_dir_at_start_never_stops_the_service(tmp_path):
     doc["poll_period_s"] = 0.05
     doc["status_interval_s"] = 0.5
     doc["log"]["flush_interval_s"] = 0.2
+    doc["refit"]["enabled"] = False  # polling and logging only: no refit worker
     cfg = tmp_path / "daq.yaml"
     cfg.write_text(yaml.safe_dump(doc))
     plc, port = start_simplc("--speed", "600")
@@ -278,7 +279,7 @@ def test_log_dir_that_cannot_be_created_is_reported_not_fatal(tmp_path):
     blocker.write_text("")
     proc = furnace_daq("run", "--config", str(ROOT / "config" / "gateway.yaml"), "--plc",
                        f"127.0.0.1:{free_port()}", "--log-dir", str(blocker / "logs"),
-                       "--duration", "1.5")
+                       "--no-refit", "--duration", "1.5")
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     assert f"log: {blocker / 'logs'}: Not a directory" in err and "Traceback" not in err
@@ -304,6 +305,7 @@ def test_real_disk_full_on_a_tiny_tmpfs(tmp_path):
     doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
     doc["poll_period_s"] = 0.05
     doc["log"]["flush_interval_s"] = 0.2
+    doc["refit"]["enabled"] = False  # polling and logging only: no refit worker
     cfg = tmp_path / "daq.yaml"
     cfg.write_text(yaml.safe_dump(doc))
     plc, port = start_simplc("--speed", "600")

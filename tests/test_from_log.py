@@ -36,6 +36,7 @@ def daemon_config(tmp_path: Path) -> Path:
     doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
     doc["poll_period_s"] = PERIOD
     doc["plc"]["timeout_s"] = 0.5
+    doc["refit"]["enabled"] = False  # polling and logging only: no refit worker
     path = tmp_path / "daq.yaml"
     path.write_text(yaml.safe_dump(doc))
     return path

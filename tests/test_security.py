@@ -286,7 +286,7 @@ def test_daemon_listens_on_nothing_and_logs_0640(tmp_path):
     log_dir = tmp_path / "logs"
     try:
         daq = furnace_daq("run", "--config", str(ROOT / "config" / "gateway.yaml"), "--plc",
-                          f"127.0.0.1:{port}", "--log-dir", str(log_dir))
+                          f"127.0.0.1:{port}", "--log-dir", str(log_dir), "--no-refit")
         deadline = time.monotonic() + 30
         while not list(log_dir.glob("*.mcap.part")) and time.monotonic() < deadline:
             assert daq.poll() is None, daq.communicate()

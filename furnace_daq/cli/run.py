@@ -30,7 +30,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plc", metavar="HOST:PORT", help="PLC address, overrides plc.host/port")
     p.add_argument("--log-dir", type=Path, help="MCAP directory, overrides log.dir")
     p.add_argument("--state-dir", type=Path,
-                   help="where the latest model (model.json) is kept, overrides refit.state_dir")
+                   help="where the latest model (model.json) and the refit chain are kept, "
+                   "overrides refit.state_dir")
+    p.add_argument("--no-refit", action="store_true",
+                   help="poll and log only, whatever the config's refit section says")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (exit 0)")
     p.set_defaults(run=run)
 
@@ -49,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
         config = replace(config, plc=replace(config.plc, host=host, port=port))
     if args.log_dir:
         config = replace(config, log=replace(config.log, dir=args.log_dir))
+    if args.no_refit:
+        config = replace(config, refit=None)
     if args.state_dir and config.refit is not None:
         config = replace(config, refit=replace(config.refit, state_dir=args.state_dir))
     if args.duration is not None and args.duration <= 0:

@@ -65,8 +65,6 @@ STEP_TRIES = 8
 """Further effects tried at each step of the combination search, the best singles first: a
 second effect may show nothing alone while a larger one dominates the error."""
 WORKERS = 2
-FRESH_STARTS = ("zone_burners",)
-"""Effects whose start, when the data give one, replaces the bent baseline's values."""
 VARIANTS: dict[str, list[dict]] = {"radiation": [{"exponent": 3.0}, {"exponent": 5.0}]}
 """Further laws of a candidate, the best kept: a furnace's effective radiation exponent
 depends on its gas and walls, not only on Stefan-Boltzmann; a law between these points leaves
@@ -207,14 +205,11 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     say("candidates", 0.1)
     bounds = search_bounds(fit_data)
     starts = effect_starts(faults, every)
+    inits = {n: {**base.params, **starts.get(n, {})} for n in names}
     if bent and "zone_burners" in names:
-        own = soak_burners_start(fit_data, seed)
-        if own is not None:
-            starts["zone_burners"] = own
-    tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of,
-                  starts[n] if n in FRESH_STARTS and n in starts else
-                  {**base.params, **starts.get(n, {})}, seed, bent, bounds,
-                  {z: GAP_RATIO * floor[z] for z in ZONES})
+        inits["zone_burners"] = soak_burners_start(fit_data, seed) or inits["zone_burners"]
+    tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of, inits[n], seed, bent,
+                  bounds, {z: GAP_RATIO * floor[z] for z in ZONES})
              for n in names]
     fitted = _run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f))
     for c in fitted:

@@ -100,13 +100,15 @@ class Task:
     init: dict[str, float] | None
     seed: int
     cold_too: bool = False
+    """Also search from scratch (linear structures): worth it when the baseline bent far to
+    absorb the effect (seen with strong zone burners: a = 1, d = 11), which can hold a warm
+    start in a side valley."""
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """Search boxes narrower than the effect's own: a time within the record, not 0-1e6 min."""
     cold_above: dict[str, float] | None = None
     """Per zone: the cold search is skipped when the warm fit is already below these."""
-    """Search boxes narrower than the effect's own: a time within the record, not 0-1e6 min."""
-    """Also search from scratch: worth it when the baseline bent far to absorb the effect
-    (seen with strong zone burners: a = 1, d = 11), which can hold a warm start in a side
-    valley."""
+    generations: int | None = None
+    """Generations of a search from scratch (init None); None: the fit's default."""
 
 
 def structure_of(effects: tuple[str, ...], options: dict[str, dict]) -> ModelStructure:
@@ -147,7 +149,7 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     # searches, so that a side valley of eq. 11 is not mistaken for a gap.
     runs = 3 if not task.effects else 1
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
-             runs=runs, bounds=bounds)
+             runs=runs, bounds=bounds, generations=task.generations)
     off_floor = task.cold_above is None or any(
         fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in ZONES)
     if init is not None and structure.linear and task.cold_too and off_floor:

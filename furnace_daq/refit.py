@@ -186,6 +186,9 @@ def recent_f(res: FitResult, exp: Experiment, from_min: float) -> dict | None:
 
 
 STATE_VERSION = 1
+MODEL_KEYS = ("ci95", "rmse_c", "window_start", "window_end", "determined_combinations",
+              "combinations")
+"""What the message of a window that keeps the model copies from it."""
 
 
 @dataclass
@@ -232,7 +235,8 @@ class RefitChain:
             if model is not None and not (
                     isinstance(model, dict) and model.get("status") == "ok"
                     and all(isinstance(model.get(p), float | int) and model[p] > 0
-                            for p in PARAM_NAMES)):
+                            for p in PARAM_NAMES)
+                    and all(k in model for k in MODEL_KEYS)):
                 raise ValueError("its model is not a fitted /model/parameters message")
             refs = {p: _Reference(float(r["value"]), (float(r["ci95"][0]), float(r["ci95"][1])),
                                   str(r["window_end"]), bool(r["determined"]), int(r["streak"]),

@@ -223,7 +223,9 @@ def test_a_chain_restored_from_its_state_goes_on_as_the_original():
     assert (got, got_events) == (want, want_events)
     before = again.state()
     for bad, why in (({"version": 2}, "version 1"), ({"version": 1, "model": 3}, "model"),
-                     ({**before, "references": {"a": {"value": 1}}}, "malformed"), ([], "version")):
+                     ({**before, "references": {"a": {"value": 1}}}, "malformed"), ([], "version"),
+                     ({**before, "model": {k: v for k, v in before["model"].items()
+                                           if k != "ci95"}}, "not a fitted")):
         with pytest.raises(ValueError, match=why):
             again.restore(bad)
         assert again.state() == before  # nothing taken from a bad state

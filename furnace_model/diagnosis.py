@@ -34,6 +34,7 @@ from .errors import FurnaceError
 from .experiment import Experiment
 from .fit import fit
 from .residuals import (
+    SUDDEN_WINDOW_MIN,
     ZONE_WORDS,
     error_spans,
     iso,
@@ -41,6 +42,7 @@ from .residuals import (
     residual_tests,
     sensor_faults,
     sensor_noise,
+    sudden_change,
     zone_noise_floor,
 )
 
@@ -85,6 +87,9 @@ class Located:
     end: str | None
     share_of_error: float
     regime: str
+    kind: str = "span"
+    """sensor (a thermocouple departing from its partner), change (the sharpest step of the
+    residual in any zone) or span (a stretch holding much of a zone's error)."""
 
 
 @dataclass
@@ -145,7 +150,7 @@ class Diagnosis:
             "where": [{"zone": w.zone, "sensor": w.sensor, "start": w.start, "end": w.end,
                        "share_of_error": _r(w.share_of_error), "regime": w.regime,
                        "experiment": w.experiment, "start_min": _r(w.start_min),
-                       "end_min": _r(w.end_min)} for w in self.where],
+                       "end_min": _r(w.end_min), "kind": w.kind} for w in self.where],
             "candidates": [cand(c) for c in self.candidates],
             "verdict": {"status": self.verdict.status, "effects": list(self.verdict.effects),
                         "shrink_pct": _r(self.verdict.shrink_pct),
@@ -391,7 +396,8 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
     if where:
         w = where[0]
         who = f"thermocouple {w.sensor}" if w.sensor else f"the {ZONE_WORDS[w.zone]} zone"
-        place = (f" It lies mainly in {who}, {w.start_min:.0f}-{w.end_min:.0f} min of "
+        how = "shows first and most sharply" if w.kind == "change" else "lies mainly"
+        place = (f" It {how} in {who}, {w.start_min:.0f}-{w.end_min:.0f} min of "
                  f"{w.experiment} ({w.regime}).")
     best = candidates[0] if candidates else None
     tried = (f" The best candidate, {best.label}, only reaches {best.rmse_holdout_pooled():.1f} "
@@ -480,8 +486,9 @@ def _zones_words(zones: list[str]) -> str:
 
 def locate(experiments: list[Experiment], residuals: list[np.ndarray],
            floor: dict[str, float], faults) -> list[Located]:
-    """The located error: thermocouples at fault first, then the spans that hold most of
-    the baseline's squared error above the floor."""
+    """The located error: thermocouples at fault first, then the residual's sharpest step if
+    it stands out of the noise (where a disturbance entered), then the spans that hold most
+    of the baseline's squared error above the floor."""
     total = {z: 0.0 for z in ZONES}
     for r in residuals:
         for w, z in enumerate(ZONES):
@@ -495,7 +502,16 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
         share = float(np.nansum(r[f.i0:f.i1, w] ** 2)) / total[z] if total[z] > 0 else 0.0
         what = (f"{f.sensor} drifts {f.size_c:+.1f} degC from its partner" if f.kind == "drift"
                 else f"{f.sensor} departs by about {f.size_c:.0f} degC from its partner at times")
-        out.append(_located(exp, z, f.sensor, f.i0, f.i1, share, what))
+        out.append(_located(exp, z, f.sensor, f.i0, f.i1, share, what, "sensor"))
+    change = sudden_change(experiments, residuals, floor)
+    if change is not None:
+        exp, r = experiments[change.experiment], residuals[change.experiment]
+        w = ZONES.index(change.zone)
+        share = (float(np.nansum(r[change.i0:change.i1, w] ** 2)) / total[change.zone]
+                 if total[change.zone] > 0 else 0.0)
+        what = (f"the sharpest change in any zone: {change.size_c:+.0f} degC within "
+                f"{SUDDEN_WINDOW_MIN:g} min; {regime(exp, change.i0, change.i1, change.zone)}")
+        out.append(_located(exp, change.zone, None, change.i0, change.i1, share, what, "change"))
     for s in error_spans(experiments, residuals, floor):
         exp = experiments[s.experiment]
         share = s.sse / total[s.zone] if total[s.zone] > 0 else 0.0
@@ -507,9 +523,9 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
 
 
 def _located(exp: Experiment, zone: str, sensor: str | None, i0: int, i1: int, share: float,
-             words: str) -> Located:
-    a, b = float(exp.t_min[i0]), float(exp.t_min[max(i1 - 1, i0)])
-    return Located(zone, sensor, exp.name, a, b, iso(exp, a), iso(exp, b), share, words)
+             words: str, kind: str = "span") -> Located:
+    a, b = float(exp.t_min[i0]), float(exp.t_min[min(max(i1 - 1, i0), len(exp) - 1)])
+    return Located(zone, sensor, exp.name, a, b, iso(exp, a), iso(exp, b), share, words, kind)
 
 
 def drift_sensor(faults, experiments: list[Experiment], base: CandidateResult,

@@ -125,6 +125,54 @@ def error_spans(experiments: list[Experiment], residuals: list[np.ndarray],
     return spans[:max_spans]
 
 
+SUDDEN_WINDOW_MIN = 15.0
+SUDDEN_SIGNIFICANCE = 8.0
+"""A step between window means counts when it exceeds this many of its own noise sd (the
+zone's floor times sqrt(2 / samples per window)): noise alone stays under 5 over a record."""
+
+
+@dataclass
+class Change:
+    zone: str
+    experiment: int
+    i0: int  # the sample the step starts at (first of the window before it)
+    i1: int  # end (exclusive) of the window after it
+    size_c: float  # later window mean minus earlier one
+    score: float  # |size| over its noise sd
+
+
+def sudden_change(experiments: list[Experiment], residuals: list[np.ndarray],
+                  floor: dict[str, float]) -> Change | None:
+    """The sharpest step of the residual between consecutive 15-minute means, over every
+    zone and record, if it stands out of the noise. A disturbance entering one zone (a door
+    left open) moves that zone's residual first and most steeply; the zones it drains follow
+    more slowly and, with larger capacities, may hold more squared error for longer, so the
+    error's size alone points at the wrong zone."""
+    best: Change | None = None
+    for j, (e, r) in enumerate(zip(experiments, residuals, strict=True)):
+        if len(e) < 4:
+            continue
+        dt = float(np.median(np.diff(e.t_min)))
+        n = max(2, int(round(SUDDEN_WINDOW_MIN / dt)) if dt > 0 else 2)
+        m = len(e) // n
+        if m < 2:
+            continue
+        for w, zone in enumerate(ZONES):
+            blocks = r[:m * n, w].reshape(m, n)
+            with np.errstate(all="ignore"):
+                means = np.nanmean(blocks, axis=1) if np.isfinite(blocks).any() else None
+            if means is None or not np.isfinite(floor[zone]) or floor[zone] <= 0:
+                continue
+            steps = np.diff(means)
+            if not np.isfinite(steps).any():
+                continue
+            k = int(np.nanargmax(np.abs(steps)))
+            score = abs(steps[k]) / (floor[zone] * np.sqrt(2.0 / n))
+            if score >= SUDDEN_SIGNIFICANCE and (best is None or score > best.score):
+                best = Change(zone, j, k * n, (k + 2) * n, float(steps[k]), float(score))
+    return best
+
+
 def _max_subarray(g: np.ndarray) -> tuple[int, int, float]:
     """(start, end exclusive, sum) of the maximum-sum contiguous run (Kadane)."""
     best, best_i0, best_i1 = 0.0, 0, 0

@@ -13,6 +13,7 @@ from furnace_model.residuals import (
     residual_tests,
     sensor_faults,
     sensor_noise,
+    sudden_change,
     zone_noise_floor,
 )
 
@@ -64,6 +65,25 @@ def test_error_span_found_where_the_residual_is_large():
     assert top.zone == "heat"
     assert 1180 <= top.i0 <= 1260 and 1440 <= top.i1 <= 1520
     assert all(s.excess < 0.05 * top.excess for s in spans[1:])
+
+
+def test_sudden_change_points_at_the_zone_a_disturbance_enters():
+    """A heat loss entering the heating zone at minute 2000: that zone drops fast, the
+    soaking zone (larger capacity) follows slowly and ends with more squared error; the
+    sharpest step is found in the heating zone at the minute. Noise alone gives none."""
+    rng = np.random.default_rng(5)
+    e = _experiment(rng)
+    floor = {"soak": 1.0, "heat": 1.0, "preheat": 1.0}
+    r = rng.normal(0, 1.0, (len(e), 3))
+    assert sudden_change([e], [r], floor) is None
+    t = np.arange(len(e), dtype=float) - 2000.0
+    on = t >= 0
+    r[on, 1] -= 30.0 * (1 - np.exp(-t[on] / 5.0))
+    r[on, 0] -= 60.0 * (1 - np.exp(-t[on] / 400.0))
+    assert np.sum(r[:, 0] ** 2) > np.sum(r[:, 1] ** 2)  # size alone would blame the soak zone
+    change = sudden_change([e], [r], floor)
+    assert change is not None and change.zone == "heat" and change.size_c < -15
+    assert change.i0 <= 2000 < change.i1 and change.i1 - change.i0 == 30
 
 
 def test_regime_words():

@@ -435,17 +435,16 @@ def split(data: list[Experiment], holdout: list[Experiment] | None
     elif len(data) > 1:
         # The last experiment whose burners the others cover: an effect of burners that
         # never fire in the fitted data cannot be learnt from them, only stumbled upon.
-        k = next((i for i in reversed(range(len(data)))
-                  if not uncovered(data[:i] + data[i + 1:], [data[i]])), len(data) - 1)
+        missing = [uncovered(data[:i] + data[i + 1:], [data[i]]) for i in range(len(data))]
+        k = next((i for i in reversed(range(len(data))) if not missing[i]), len(data) - 1)
         fit_data, hold, tail_of = list(data[:k] + data[k + 1:]), [data[k]], [None]
         how = f"whole experiments: {data[k].name} held out"
         if k != len(data) - 1:
-            how += (f" (the others fire every zone's burners it fires; "
-                    f"{data[-1].name} fires {_zones_words(uncovered(data[:-1], data[-1:]))}"
-                    "-zone burners the rest never fire)")
-        elif uncovered(fit_data, hold):
-            how += (f"; it fires {_zones_words(uncovered(fit_data, hold))}-zone burners, "
-                    "which no other experiment fires")
+            how += (f" (the others fire every zone's burners it fires; {data[-1].name} fires "
+                    f"{_zones_words(missing[-1])}-zone burners the rest never fire)")
+        elif missing[k]:
+            how += (f"; it fires {_zones_words(missing[k])}-zone burners, which no other "
+                    "experiment fires")
     else:
         e = data[0]
         t0, t1 = float(e.t_min[0]), float(e.t_min[-1])
@@ -524,7 +523,7 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
 
 def _located(exp: Experiment, zone: str, sensor: str | None, i0: int, i1: int, share: float,
              words: str, kind: str = "span") -> Located:
-    a, b = float(exp.t_min[i0]), float(exp.t_min[min(max(i1 - 1, i0), len(exp) - 1)])
+    a, b = float(exp.t_min[i0]), float(exp.t_min[max(i1 - 1, i0)])
     return Located(zone, sensor, exp.name, a, b, iso(exp, a), iso(exp, b), share, words, kind)
 
 

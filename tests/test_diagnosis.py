@@ -11,11 +11,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from furnace_model.diagnosis import diagnose, split
+from furnace_model import ZONES
+from furnace_model.candidates import Task, run_task
+from furnace_model.diagnosis import (
+    GAP_RATIO,
+    NEAR_RATIO,
+    diagnose,
+    search_bounds,
+    soak_burners_start,
+    split,
+)
 from furnace_model.effects import EFFECTS
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import Experiment
-from furnace_model.selfcheck import draw_case
+from furnace_model.parameters import PAPER_TABLE_V
+from furnace_model.residuals import zone_noise_floor
+from furnace_model.selfcheck import case_rng, draw_case
 
 QUICK = ("zone_burners", "sensor_lag", "zone_losses", "fuel_change")
 CONTRACT_KEYS = {"baseline", "where", "candidates", "verdict"}
@@ -114,6 +125,30 @@ def test_the_experiment_held_out_is_one_whose_burners_the_others_fire():
     fit, hold, _, how = split([soak_only], [hot])  # as given, and said
     assert [e.name for e in hold] == ["hot"]
     assert "fires heating-zone burners, which the fitted data never fire" in how
+
+
+def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
+    # A draw (selfcheck seed 0, draw 3) where the baseline bends to absorb the heating- and
+    # preheating-zone burners (f at its lower bound) and a zone-burner fit warm-started from
+    # it stays in a side valley, off the noise floor.
+    case = draw_case("zone_burners", case_rng(0, "zone_burners", 3))
+    base = run_task(Task((), {}, case.fit, case.holdout, [None], None, 0))
+    assert base.params["f"] < 0.1 * PAPER_TABLE_V["f"]
+    start = soak_burners_start(case.fit, 0)
+    assert start is not None and set(start) == {"a", "f"}
+    for k in start:
+        assert start[k] == pytest.approx(PAPER_TABLE_V[k], rel=0.03)
+    floor = zone_noise_floor(case.fit + case.holdout)
+    c = run_task(Task(("zone_burners",), {"zone_burners": {}}, case.fit, case.holdout, [None],
+                      start, 0, True, search_bounds(case.fit),
+                      {z: GAP_RATIO * floor[z] for z in ZONES}))
+    for z in ZONES:
+        assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
+    assert c.params["f_heat"] == pytest.approx(case.truth["zone_burners"]["f_heat"], rel=0.1)
+    # no other burner in the fitted data: nothing to start from but the baseline
+    soak_only = Experiment("soak_only", case.fit[0].t_min, case.fit[0].tc,
+                           case.fit[0].burners * [1, 0, 0], case.fit[0].t_air)
+    assert soak_burners_start([soak_only], 0) is None
 
 
 # --- acceptance, all nine candidates (make test-slow) -------------------------------------

@@ -14,6 +14,7 @@ import pytest
 from furnace_model import ZONES
 from furnace_model.candidates import Task, run_task
 from furnace_model.diagnosis import (
+    COLD_GENERATIONS,
     GAP_RATIO,
     NEAR_RATIO,
     diagnose,
@@ -149,6 +150,21 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
     soak_only = Experiment("soak_only", case.fit[0].t_min, case.fit[0].tc,
                            case.fit[0].burners * [1, 0, 0], case.fit[0].t_air)
     assert soak_burners_start([soak_only], 0) is None
+
+
+def test_nonlinear_candidate_searched_from_scratch_leaves_the_bent_baseline_valley():
+    # Selfcheck seed 0, radiation draw 4: strong radiation bends the baseline (a at its
+    # bound), and the radiation fit warm-started from there stops 10 degC off the floor (a
+    # at 1.0 again). Searched from scratch, it finds the plant.
+    case = draw_case("radiation", case_rng(0, "radiation", 4))
+    c = run_task(Task(("radiation",), {"radiation": {"exponent": 4.0}}, case.fit, case.holdout,
+                      [None], None, 1, bounds=search_bounds(case.fit),
+                      generations=COLD_GENERATIONS))
+    floor = zone_noise_floor(case.fit + case.holdout)
+    for z in ZONES:
+        assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
+    assert c.params["rad_share"] == pytest.approx(case.truth["radiation"]["rad_share"], abs=0.02)
+    assert c.params["a"] == pytest.approx(PAPER_TABLE_V["a"], rel=0.05)
 
 
 # --- acceptance, all nine candidates (make test-slow) -------------------------------------

@@ -12,7 +12,7 @@ the physics lives here and nowhere else. An effect may
 
 Options (which zone, which sensor, which law) are chosen, not fitted; parameters are fitted.
 Options that give a formulation different from the diagnosis's candidate (a second-order
-lag, a cubic radiation law, a power-law burner curve) exist so that the diagnosis can be
+lag, a radiation exponent of 3.5, a burner curve of another shape) exist so that the diagnosis can be
 tested on physics that is not its own.
 
 Input channels: burners on in soak, heat, preheat (counts), then ambient temperature.
@@ -265,7 +265,8 @@ class Radiation(Effect):
 class BurnerNonlinearity(Effect):
     name = "burner_nonlinearity"
     physics = "heat per burner falls (or rises) as more burners fire"
-    option_kinds = {"form": ("linear", lambda n: n.string(("linear", "power")))}
+    option_kinds = {"form": ("linear", lambda n: n.string(("linear", "power", "exponential",
+                                                           "quadratic")))}
 
     def _params(self):
         return (Param("k_nl", -0.01, -0.035, 0.1, log=False, unit="1/burner",
@@ -274,10 +275,18 @@ class BurnerNonlinearity(Effect):
     def transform_levels(self, theta, u):
         k = theta["k_nl"][:, None]
         n = u[..., U_BURNERS].sum(axis=-1)  # (P|1, J)
-        if self.options["form"] == "linear":
+        # Curves of the same trend: a straight line, a power of n (steepest at few burners),
+        # the same fraction lost (or gained) with each further burner, and the square of a
+        # straight line of half the slope (between the first and the third).
+        form = self.options["form"]
+        if form == "linear":
             factor = 1.0 + k * n
-        else:  # heat ~ n^(1 + k*10): the same trend, another curve
+        elif form == "power":
             factor = np.where(n > 0, np.maximum(n, 1e-9) ** (10.0 * k), 1.0)
+        elif form == "exponential":
+            factor = np.exp(k * n)
+        else:
+            factor = np.maximum(1.0 + 0.5 * k * n, 0.0) ** 2
         out = np.array(np.broadcast_to(u, (k.shape[0],) + u.shape[1:]))
         out[..., U_BURNERS] *= factor[..., None]
         return out

@@ -19,7 +19,7 @@ absorbs is the selfcheck's to report, not to avoid.
 
 `form="other"` draws the effect in a formulation the diagnosis's candidate does not use (a
 second- or third-order sensor lag, a radiation law with another exponent or reference
-temperature, a power-law burner curve, a wall in one zone only, losses from one zone only),
+temperature, a quadratic burner curve, a wall in one zone only, losses from one zone only),
 so that the check does not merely find our own equations back.
 
 Two perturbations lie outside the library (`OUT_OF_LIBRARY`), and no candidate can express
@@ -196,13 +196,15 @@ def _draw_effect(name: str, rng: np.random.Generator, form: str,
         vals = {"k_gw": _u(rng, name, "k_gw"), "k_wg": _u(rng, name, "k_wg")}
     elif name == "radiation":
         if other:
-            eff = cls(exponent=float(rng.choice([3.0, 5.0])),
+            # not 3 or 5 either, the candidate's further laws; another reference temperature
+            # alone is no other law (the fitted exchange rates absorb it)
+            eff = cls(exponent=float(rng.choice([3.5, 4.5])),
                       t_ref_c=float(rng.uniform(600.0, 1100.0)))
         else:
             eff = cls()
         vals = {"rad_share": _u(rng, name, "rad_share")}
     elif name == "burner_nonlinearity":
-        eff = cls(form="power" if other else "linear")
+        eff = cls(form="quadratic" if other else "linear")
         sign = -1.0 if rng.uniform() < 0.75 else 1.0
         vals = {"k_nl": sign * _u(rng, name, "k_nl")}
     elif name == "fuel_change":

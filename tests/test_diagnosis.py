@@ -17,6 +17,7 @@ from furnace_model.diagnosis import (
     COLD_GENERATIONS,
     GAP_RATIO,
     NEAR_RATIO,
+    blend_weight,
     diagnose,
     search_bounds,
     soak_burners_start,
@@ -165,6 +166,38 @@ def test_nonlinear_candidate_searched_from_scratch_leaves_the_bent_baseline_vall
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
     assert c.params["rad_share"] == pytest.approx(case.truth["radiation"]["rad_share"], abs=0.02)
     assert c.params["a"] == pytest.approx(PAPER_TABLE_V["a"], rel=0.05)
+
+
+def test_a_law_between_the_candidates_laws_is_named_as_their_blend():
+    # A furnace whose burner curve is the square of a straight line: between the candidate's
+    # straight line and exponential. Fitted on up to 10 burners, both laws fit to the noise;
+    # the held-out run fires 14, where they part, and neither alone reaches the floor there.
+    case = _case("burner_nonlinearity", 5, form="other")
+    assert case.truth["burner_nonlinearity"]["form"] == "quadratic"
+    d = diagnose(case.fit, case.holdout, effects=("burner_nonlinearity", "fuel_change"))
+    assert d.verdict.status == "explained", d.verdict.sentence
+    assert d.verdict.effects == ["burner_nonlinearity"]
+    best = d.best()
+    blend = best.options["burner_nonlinearity"]
+    assert {o["form"] for o in blend["between"]} == {"linear", "exponential"}
+    assert 0.2 < blend["weight"] < 0.8  # about halfway, as the square of a line is
+    assert "weighted on the held-out data" in best.note
+    for z in ZONES:
+        assert best.rmse_holdout_c[z] < NEAR_RATIO * d.noise_floor_c[z]
+    k = case.truth["burner_nonlinearity"]["k_nl"]
+    assert best.params["k_nl"] == pytest.approx(k, rel=0.25)
+
+
+def testblend_weight_is_the_least_squares_one():
+    rng = np.random.default_rng(0)
+    exp = _case(None, 14).fit[0]
+    p = exp.zone_temp + rng.normal(0, 5, exp.zone_temp.shape)
+    q = exp.zone_temp + rng.normal(0, 5, exp.zone_temp.shape)
+    truth = 0.3 * p + 0.7 * q
+    held = Experiment("held", exp.t_min, np.repeat(truth, 2, axis=1), exp.burners, exp.t_air)
+    assert np.allclose(held.zone_temp, truth)
+    assert blend_weight([p], [q], [held]) == pytest.approx(0.7, abs=1e-9)
+    assert blend_weight([p], [p], [held]) == 0.0  # nothing to weigh
 
 
 # --- acceptance, all nine candidates (make test-slow) -------------------------------------

@@ -120,6 +120,21 @@ def test_burner_nonlinearity_falling_heat_per_burner():
     assert run([BurnerNonlinearity()], k_nl=0.02)[-1, 0] > BASE[-1, 0]
 
 
+@pytest.mark.parametrize("form, factor", [
+    ("linear", lambda n: 1 - 0.02 * n),
+    ("power", lambda n: n ** -0.2),
+    ("exponential", lambda n: np.exp(-0.02 * n)),
+    ("quadratic", lambda n: (1 - 0.01 * n) ** 2),
+])
+def test_burner_curve_forms(form, factor):
+    u = np.array([[[0.0, 0, 0, 25], [4, 0, 0, 25], [10, 8, 8, 25]]])
+    out = BurnerNonlinearity(form=form).transform_levels({"k_nl": np.array([-0.02])}, u)
+    n = u[0, :, :3].sum(axis=1)
+    expect = u[0, :, :3] * np.where(n > 0, factor(np.maximum(n, 1)), 1.0)[:, None]
+    np.testing.assert_allclose(out[0, :, :3], expect, rtol=1e-12)
+    np.testing.assert_array_equal(out[0, :, 3], 25.0)  # ambient untouched
+
+
 def test_fuel_change_lowers_heat_after_the_switch_only():
     y = run([FuelChange()], t_fuel=1000.0, fuel_ratio=0.8)
     np.testing.assert_allclose(y[:1001], BASE[:1001], rtol=1e-12)

@@ -191,7 +191,9 @@ def _candidate_table(d: Diagnosis) -> str:
     rows = []
     for c in d.candidates:
         ho = " / ".join(_f(c.rmse_holdout_c[z]) for z in ZONES)
-        credit = "yes" if _credited(c) else ("no: " + (c.note or "not better on the data"))
+        # a credited candidate's note says how it was found (which law, from where)
+        credit = ("yes" + (f"; {c.note}" if c.note else "")) if _credited(c) else \
+            ("no: " + (c.note or "not better on the data"))
         rows.append([c.label, ho, _f(c.shrink_pct, 0), _f(c.gap_closed_pct, 0),
                      _f(c.delta_bic, 0), credit])
     return _table(["effect(s)", "held-out RMSE soak / heat / preheat (°C)", "shrink %",

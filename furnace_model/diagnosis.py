@@ -227,14 +227,17 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     fitted = _run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f))
     for c in fitted:
         score_against(c, base, floor)
-    promising = [i for i, c in enumerate(fitted) if c.effects[0] in VARIANTS
-                 and c.gap_closed_pct > 0 and c.delta_bic < 0]
     if bent:
-        # A nonlinear candidate that helps but stays off the floor may sit in the bent
-        # baseline's side valley (seen: strong radiation, a held at its bound): search it
-        # from scratch too, with a short evolutionary search (each generation is a batch).
-        off = [i for i in promising
-               if any(fitted[i].rmse_fit_c[z] > GAP_RATIO * floor[z] for z in ZONES)]
+        # A nonlinear candidate that stays off the floor may sit in the bent baseline's side
+        # valley (seen: strong radiation, a held at its bound), or have fallen from its start
+        # into a worse one (seen: radiation of exponent 3.5 fitting worse than the baseline,
+        # which the candidate contains): search it from scratch too, with a short
+        # evolutionary search (each generation is a batch). Linear candidates were searched
+        # from scratch in their own task.
+        off = [i for i, c in enumerate(fitted)
+               if not structure_of(c.effects, c.options).linear
+               and ((c.gap_closed_pct > 0 and c.delta_bic < 0) or c.sse_fit > base.sse_fit)
+               and any(c.rmse_fit_c[z] > GAP_RATIO * floor[z] for z in ZONES)]
         cold = _run_all([Task(fitted[i].effects, fitted[i].options, fit_data, hold, tail_of,
                               None, seed + 1, bounds=bounds, generations=COLD_GENERATIONS)
                          for i in off], lambda f: say("candidates", 0.6 + 0.05 * f))
@@ -243,6 +246,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
             if np.isfinite(c.sse_fit) and c.sse_fit < fitted[i].sse_fit:
                 c.note = "; ".join(x for x in (c.note, "searched from scratch") if x)
                 fitted[i] = c
+    promising = [i for i, c in enumerate(fitted) if c.effects[0] in VARIANTS
+                 and c.gap_closed_pct > 0 and c.delta_bic < 0]
     laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
                  seed, bounds=bounds)
             for c in (fitted[i] for i in promising) for opts in VARIANTS[c.effects[0]]]

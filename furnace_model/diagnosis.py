@@ -281,19 +281,20 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
 
 def between_laws(same: list[CandidateResult], fit_data: list[Experiment],
                  hold: list[Experiment], floor: dict[str, float]) -> CandidateResult | None:
-    """An effect's law between two of the candidate's (a radiation exponent of 3.5, a burner
-    curve between a straight line and a power of n). Where two laws both fit the fitted data
-    to the noise, those data cannot choose between them, but the held-out data, which carry
-    the extrapolation, can: the two predictions blended with one weight, fitted on the
-    held-out data (one number against thousands of samples, as the held-out offsets are),
-    stand for the law between them to first order. None when no pair blends to better than
-    either law alone."""
-    ok = [c for c in same if c.identifiable and c.holdout_pred
-          and all(c.rmse_fit_c[z] <= NEAR_RATIO * floor[z] for z in ZONES)]
+    """An effect's law between two of the candidate's (a radiation exponent of 4.5, a burner
+    curve between a straight line and an exponential): the two laws' predictions blended with
+    one weight stand for the law between them to first order. The weight is fitted on the
+    fitted and held-out data together (one number against thousands of samples, as the
+    held-out offsets are): where both laws fit the fitted data to the noise, those data cannot
+    choose between them (a burner curve fitted on up to 10 burners), and the held-out data,
+    which carry the extrapolation, set it. None when no pair blends to better than either
+    law alone."""
+    ok = [c for c in same if c.identifiable and c.holdout_pred]
     best: CandidateResult | None = None
     for i, p in enumerate(ok):
         for q in ok[i + 1:]:
-            w = blend_weight(p.holdout_pred, q.holdout_pred, hold)
+            w = blend_weight(p.fit_pred + p.holdout_pred, q.fit_pred + q.holdout_pred,
+                             fit_data + hold)
             if not 0.0 < w < 1.0:
                 continue
             mix = _blend(p, q, w, fit_data, hold)
@@ -302,10 +303,10 @@ def between_laws(same: list[CandidateResult], fit_data: list[Experiment],
     return best
 
 
-def blend_weight(p: list[np.ndarray], q: list[np.ndarray], hold: list[Experiment]) -> float:
-    """Least-squares weight w of q in (1 - w) p + w q against the held-out zone readings."""
+def blend_weight(p: list[np.ndarray], q: list[np.ndarray], data: list[Experiment]) -> float:
+    """Least-squares weight w of q in (1 - w) p + w q against the zone readings."""
     num = den = 0.0
-    for e, a, b in zip(hold, p, q, strict=True):
+    for e, a, b in zip(data, p, q, strict=True):
         d, r = b - a, e.zone_temp - a
         m = np.isfinite(d) & np.isfinite(r)
         num += float(np.sum(d[m] * r[m]))
@@ -326,8 +327,7 @@ def _blend(p: CandidateResult, q: CandidateResult, w: float, fit_data: list[Expe
         effects=p.effects, params=dict(major.params), ci95=dict(major.ci95),
         rmse_fit_c=rmse_per_zone(fit_data, fit_pred), rmse_holdout_c=rmse_per_zone(hold, hold_pred),
         identifiable=True, fit_pred=fit_pred, holdout_pred=hold_pred,
-        note=f"law between {laws}, weighted on the held-out data: the fitted data, which both "
-             f"laws fit to the noise, cannot choose between them",
+        note=f"law between {laws}, weighted on the fitted and held-out data together",
         options={n: {"between": [p.options[n], q.options[n]], "weight": w}},
         # the blend's fit error is at most the weighted one (the squared error is convex)
         sse_fit=(1 - w) * p.sse_fit + w * q.sse_fit, n_obs=major.n_obs,

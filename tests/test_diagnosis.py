@@ -181,7 +181,7 @@ def test_a_law_between_the_candidates_laws_is_named_as_their_blend():
     blend = best.options["burner_nonlinearity"]
     assert {o["form"] for o in blend["between"]} == {"linear", "exponential"}
     assert 0.2 < blend["weight"] < 0.8  # about halfway, as the square of a line is
-    assert "weighted on the held-out data" in best.note
+    assert "law between" in best.note
     for z in ZONES:
         assert best.rmse_holdout_c[z] < NEAR_RATIO * d.noise_floor_c[z]
     k = case.truth["burner_nonlinearity"]["k_nl"]

@@ -260,7 +260,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         same = sorted((c for c in fitted if c.effects == (n,)), key=_rank)
         if len(same) > 1:
             options[n] = same[0].options[n]  # combinations are simulated in one law
-            mix = between_laws(same, fit_data, hold, floor)
+            mix = between_laws(same, fit_data, hold)
             if mix is not None:
                 score_against(mix, base, floor)
             if mix is not None and _rank(mix) < _rank(same[0]):
@@ -280,15 +280,15 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
 
 
 def between_laws(same: list[CandidateResult], fit_data: list[Experiment],
-                 hold: list[Experiment], floor: dict[str, float]) -> CandidateResult | None:
+                 hold: list[Experiment]) -> CandidateResult | None:
     """An effect's law between two of the candidate's (a radiation exponent of 4.5, a burner
     curve between a straight line and an exponential): the two laws' predictions blended with
     one weight stand for the law between them to first order. The weight is fitted on the
     fitted and held-out data together (one number against thousands of samples, as the
     held-out offsets are): where both laws fit the fitted data to the noise, those data cannot
     choose between them (a burner curve fitted on up to 10 burners), and the held-out data,
-    which carry the extrapolation, set it. None when no pair blends to better than either
-    law alone."""
+    which carry the extrapolation, set it. None when every pair's best weight is one law
+    alone."""
     ok = [c for c in same if c.identifiable and c.holdout_pred]
     best: CandidateResult | None = None
     for i, p in enumerate(ok):

@@ -18,8 +18,8 @@ ranges (`RANGES`), not from what the diagnosis finds easy: a draw whose effect t
 absorbs is the selfcheck's to report, not to avoid.
 
 `form="other"` draws the effect in a formulation the diagnosis's candidate does not use (a
-second- or third-order sensor lag, a radiation law with another exponent or reference
-temperature, a quadratic burner curve, a wall in one zone only, losses from one zone only),
+second- or third-order sensor lag, a radiation exponent between the candidate's laws and
+another reference temperature, a quadratic burner curve, a wall in one zone only, losses from one zone only),
 so that the check does not merely find our own equations back.
 
 Two perturbations lie outside the library (`OUT_OF_LIBRARY`), and no candidate can express

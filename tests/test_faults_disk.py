@@ -316,11 +316,12 @@ def test_real_disk_full_on_a_tiny_tmpfs(tmp_path):
                           "--log-dir", str(log_dir))
         early = wait_for_line(daq, "polling ")
         time.sleep(1.0)
-        with open(filler, "wb") as f:  # every free block, until the kernel says ENOSPC
+        # every free block, until the kernel says ENOSPC; unbuffered, or the bytes of a short
+        # last write stay in the buffer and raise ENOSPC again when the file is closed
+        with open(filler, "wb", buffering=0) as f:
             try:
                 while True:
                     f.write(b"\0" * 65536)
-                    f.flush()
             except OSError as exc:
                 assert exc.errno == errno.ENOSPC
         time.sleep(2.0)

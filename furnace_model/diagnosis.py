@@ -231,12 +231,10 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         # A nonlinear candidate that helps but stays off the floor may sit in the bent
         # baseline's side valley (seen: strong radiation, a held at its bound): search it
         # from scratch too, with a short evolutionary search (each generation is a batch).
-        # Not one that fits worse than the baseline (a fall from its start into a worse
-        # valley, seen with strong radiation of exponent 4.5): on a bent baseline that is the
-        # radiation candidate in most diagnoses, and the search would quadruple their time
-        # (47 to 190 s), and in the draw where it was seen it did not change the verdict
-        # (the radiation candidate still fell short of the floor). Linear candidates were
-        # searched from scratch in their own task.
+        # Not one that fits worse than the baseline: on a bent baseline that is radiation in
+        # most diagnoses, and searching it took the paper's pair from 47 to 190 s for a
+        # verdict it did not change. Linear candidates are searched from scratch in their
+        # own task.
         off = [i for i, c in enumerate(fitted)
                if not structure_of(c.effects, c.options).linear
                and c.gap_closed_pct > 0 and c.delta_bic < 0
@@ -249,11 +247,10 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
             if np.isfinite(c.sse_fit) and c.sse_fit < fitted[i].sse_fit:
                 c.note = "; ".join(x for x in (c.note, "searched from scratch") if x)
                 fitted[i] = c
-    promising = [i for i, c in enumerate(fitted) if c.effects[0] in VARIANTS
-                 and c.gap_closed_pct > 0 and c.delta_bic < 0]
     laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
                  seed, bounds=bounds)
-            for c in (fitted[i] for i in promising) for opts in VARIANTS[c.effects[0]]]
+            for c in fitted if c.effects[0] in VARIANTS and c.gap_closed_pct > 0
+            and c.delta_bic < 0 for opts in VARIANTS[c.effects[0]]]
     more = _run_all(laws, lambda f: say("candidates", 0.65 + 0.05 * f))
     for c in more:
         score_against(c, base, floor)
@@ -568,30 +565,33 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
         for w, z in enumerate(ZONES):
             v = r[:, w]
             total[z] += float(np.nansum(v * v))
+
+    def share(j: int, z: str, i0: int, i1: int) -> float:
+        sse = float(np.nansum(residuals[j][i0:i1, ZONES.index(z)] ** 2))
+        return sse / total[z] if total[z] > 0 else 0.0
+
     out: list[Located] = []
     for f in faults:
-        exp, r = experiments[f.experiment], residuals[f.experiment]
+        exp = experiments[f.experiment]
         z = f.sensor.rsplit("_", 1)[0]
-        w = ZONES.index(z)
-        share = float(np.nansum(r[f.i0:f.i1, w] ** 2)) / total[z] if total[z] > 0 else 0.0
         what = (f"{f.sensor} drifts {f.size_c:+.1f} degC from its partner" if f.kind == "drift"
                 else f"{f.sensor} departs by about {f.size_c:.0f} degC from its partner at times")
-        out.append(_located(exp, z, f.sensor, f.i0, f.i1, share, what, "sensor"))
+        out.append(_located(exp, z, f.sensor, f.i0, f.i1, share(f.experiment, z, f.i0, f.i1),
+                            what, "sensor"))
     change = sudden_change(experiments, residuals, floor)
     if change is not None:
-        exp, r = experiments[change.experiment], residuals[change.experiment]
-        w = ZONES.index(change.zone)
-        share = (float(np.nansum(r[change.i0:change.i1, w] ** 2)) / total[change.zone]
-                 if total[change.zone] > 0 else 0.0)
+        exp = experiments[change.experiment]
         what = (f"the sharpest change in any zone: {change.size_c:+.0f} degC within "
                 f"{SUDDEN_WINDOW_MIN:g} min; {regime(exp, change.i0, change.i1, change.zone)}")
-        out.append(_located(exp, change.zone, None, change.i0, change.i1, share, what, "change"))
+        out.append(_located(exp, change.zone, None, change.i0, change.i1,
+                            share(change.experiment, change.zone, change.i0, change.i1),
+                            what, "change"))
     for s in error_spans(experiments, residuals, floor):
         exp = experiments[s.experiment]
-        share = s.sse / total[s.zone] if total[s.zone] > 0 else 0.0
-        if share < MIN_SHARE:
+        part = s.sse / total[s.zone] if total[s.zone] > 0 else 0.0
+        if part < MIN_SHARE:
             continue  # a burst of noise, not where the error lies
-        out.append(_located(exp, s.zone, None, s.i0, s.i1, share,
+        out.append(_located(exp, s.zone, None, s.i0, s.i1, part,
                             regime(exp, s.i0, s.i1, s.zone)))
     return out
 

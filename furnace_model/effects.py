@@ -236,25 +236,37 @@ class Radiation(Effect):
     option_kinds = {
         "exponent": (4.0, lambda n: n.number(lo=1.5, hi=6.0)),
         "t_ref_c": (900.0, lambda n: n.number(lo=100.0, hi=2000.0)),
+        "emissivity_slope": (0.0, lambda n: n.number(lo=-1.0, hi=1.0)),
     }
 
     def _params(self):
-        return (Param("rad_share", 0.5, 0.0, 1.0, log=False, unit="-",
-                      doc="share of each exchange that is radiative at the reference temperature"),)
+        share = Param("rad_share", 0.5, 0.0, 1.0, log=False, unit="-",
+                      doc="share of each exchange that is radiative at the reference temperature")
+        if self.options["exponent"] is not None:
+            return (share,)
+        # exponent None: the law itself fitted (the diagnosis's law between laws)
+        return (share, Param("rad_exponent", 4.0, 1.5, 6.0, log=False, unit="-",
+                             doc="effective exponent: a furnace's gas and walls set it, not "
+                                 "only Stefan-Boltzmann"))
 
     def nonlinear_rhs(self, theta, x, A, B, u):
         # Each linear exchange k (Tj - Ti) becomes k [(1-w)(Tj - Ti) + w (rho(Tj) - rho(Ti))]
         # with rho(T) = T_K^p / (p T_ref^(p-1)), whose slope is 1 at T_ref: the paper's model is
-        # the linearisation of this one at the reference temperature.
+        # the linearisation of this one at the reference temperature. An emissivity that
+        # changes with temperature, 1 + s (T_K / T_ref - 1), makes the law other than a power
+        # of T (the furnace's own law, for the diagnosis's robustness check).
         p, tref = self.options["exponent"], self.options["t_ref_c"] + KELVIN
+        s = self.options["emissivity_slope"]
+        if p is None:
+            p = theta["rad_exponent"][:, None]
 
         def excess(T):
-            TK = np.maximum(T + KELVIN, 1.0)
-            return tref / p * (TK / tref) ** p - T
+            ratio = np.maximum(T + KELVIN, 1.0) / tref
+            return tref / (p + s) * ratio ** p * np.maximum(1.0 + s * (ratio - 1.0), 0.0) - T
 
         w = theta["rad_share"][:, None]
         r = excess(x[:, :3])
-        r_air = excess(u[:, U_AIR])[:, None]
+        r_air = excess(u[:, U_AIR][:, None])
         K = A[:, :3, :3] * (1.0 - np.eye(3))
         k_air = B[:, :3, U_AIR]
         dx = np.zeros_like(x)

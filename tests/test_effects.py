@@ -111,6 +111,36 @@ def test_radiation_weakens_exchange_below_and_strengthens_it_above_the_reference
     assert np.all(hot[5:, 0] < base_warm[5:, 0])
 
 
+def _radiative_exchange(effect: Radiation, theta: dict, t0: float, t1: float) -> float:
+    """Heat flow into zone 0 from zone 1 with one unit exchange, all of it radiative."""
+    A = np.zeros((1, 3, 3))
+    A[0, 0, 1] = 1.0
+    x = np.array([[t0, t1, 0.0]])
+    u = np.array([[0.0, 0.0, 0.0, 25.0]])
+    extra = effect.nonlinear_rhs({"rad_share": np.array([1.0]), **theta}, x, A,
+                                 np.zeros((1, 3, 4)), u)
+    return float((t1 - t0) + extra[0, 0])
+
+
+@pytest.mark.parametrize("options, theta, law", [
+    ({"exponent": 4.0}, {}, lambda tk, tr: tr / 4 * (tk / tr) ** 4),
+    ({"exponent": None}, {"rad_exponent": np.array([4.5])},
+     lambda tk, tr: tr / 4.5 * (tk / tr) ** 4.5),
+    ({"emissivity_slope": 0.6}, {},
+     lambda tk, tr: tr / 4.6 * (tk / tr) ** 4 * (1 + 0.6 * (tk / tr - 1))),
+])
+def test_radiation_laws(options, theta, law):
+    # a fitted exponent acts as the same fixed one; an emissivity changing with temperature
+    # is another law with the same unit slope at the reference
+    effect = Radiation(t_ref_c=900.0, **options)
+    tr = 900.0 + 273.15
+    for t0, t1 in [(300.0, 1200.0), (850.0, 950.0), (1250.0, 1300.0)]:
+        expect = law(t1 + 273.15, tr) - law(t0 + 273.15, tr)
+        assert _radiative_exchange(effect, theta, t0, t1) == pytest.approx(expect, rel=1e-9)
+    near = _radiative_exchange(effect, theta, 899.95, 900.05)
+    assert near == pytest.approx(0.1, rel=1e-3)  # the paper's linear exchange at T_ref
+
+
 def test_burner_nonlinearity_falling_heat_per_burner():
     y = run([BurnerNonlinearity()], k_nl=-0.02)
     rel_early = (BASE[1999] - y[1999]) / (BASE[1999] - 30)

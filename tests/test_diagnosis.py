@@ -269,3 +269,20 @@ def test_other_formulations_still_named(effect):
         d = diagnose(case.fit, case.holdout)
         hits += d.verdict.status == "explained" and d.verdict.effects == [effect]
     assert hits >= 4
+
+
+def test_radiation_exponent_is_fitted_from_the_data():
+    # The further radiation law fits its exponent. Started at 5.5 on a Stefan-Boltzmann
+    # furnace (selfcheck seed 0, radiation draw 1), the fit finds 4 back, and the share.
+    case = draw_case("radiation", case_rng(0, "radiation", 1))
+    truth = case.truth["radiation"]
+    c = run_task(Task(("radiation",), {"radiation": {"exponent": None}}, case.fit, case.holdout,
+                      [None], {**PAPER_TABLE_V, "rad_share": 0.3, "rad_exponent": 5.5}, 0,
+                      bounds=search_bounds(case.fit)))
+    assert c.params["rad_exponent"] == pytest.approx(truth["exponent"], abs=0.15)
+    assert c.params["rad_share"] == pytest.approx(truth["rad_share"], abs=0.03)
+    lo, hi = c.ci95["rad_exponent"]
+    assert lo < truth["exponent"] < hi and hi - lo < 0.5
+    floor = zone_noise_floor(case.fit + case.holdout)
+    for z in ZONES:
+        assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)

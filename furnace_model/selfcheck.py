@@ -18,8 +18,9 @@ ranges (`RANGES`), not from what the diagnosis finds easy: a draw whose effect t
 absorbs is the selfcheck's to report, not to avoid.
 
 `form="other"` draws the effect in a formulation the diagnosis's candidate does not use (a
-second- or third-order sensor lag, a radiation exponent between the candidate's laws and
-another reference temperature, a quadratic burner curve, a wall in one zone only, losses from one zone only),
+second- or third-order sensor lag, radiation with an emissivity that changes with temperature
+(no power law) and another reference temperature, a quadratic burner curve, a wall in one
+zone only, losses from one zone only),
 so that the check does not merely find our own equations back.
 
 Two perturbations lie outside the library (`OUT_OF_LIBRARY`), and no candidate can express
@@ -196,10 +197,12 @@ def _draw_effect(name: str, rng: np.random.Generator, form: str,
         vals = {"k_gw": _u(rng, name, "k_gw"), "k_wg": _u(rng, name, "k_wg")}
     elif name == "radiation":
         if other:
-            # not 3 or 5 either, the candidate's further laws; another reference temperature
-            # alone is no other law (the fitted exchange rates absorb it)
-            eff = cls(exponent=float(rng.choice([3.5, 4.5])),
-                      t_ref_c=float(rng.uniform(600.0, 1100.0)))
+            # No other exponent: the candidate fits its own. An emissivity that rises or
+            # falls with temperature is no power law at all (its local exponent runs from
+            # about 3.2 to 4.8 at the reference); another reference temperature alone is no
+            # other law (the fitted exchange rates absorb it).
+            slope = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.4, 0.8))
+            eff = cls(emissivity_slope=slope, t_ref_c=float(rng.uniform(600.0, 1100.0)))
         else:
             eff = cls()
         vals = {"rad_share": _u(rng, name, "rad_share")}

@@ -262,7 +262,10 @@ class Radiation(Effect):
 
         def excess(T):
             ratio = np.maximum(T + KELVIN, 1.0) / tref
-            return tref / (p + s) * ratio ** p * np.maximum(1.0 + s * (ratio - 1.0), 0.0) - T
+            law = ratio ** p
+            if s:  # the hot path of every radiation fit: no work for a power law
+                law *= np.maximum(1.0 + s * (ratio - 1.0), 0.0)
+            return tref / (p + s) * law - T
 
         w = theta["rad_share"][:, None]
         r = excess(x[:, :3])

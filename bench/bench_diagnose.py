@@ -9,7 +9,8 @@ The headline case is the worked example of docs/diagnosis.md: the paper's two he
 diagnosis picks the holdout. The others come from furnace_model.selfcheck.draw_case (the
 plant simulator with one effect, random strengths and schedules): a control (no gap: only
 the baseline is fitted), a case the baseline absorbs badly (zone burners: every candidate
-fitted, warm and cold), a lag, and a nonlinear effect (radiation: exponent 4, then its exponent fitted).
+fitted, warm and cold), a lag, and a nonlinear effect (radiation: exponent 4, then its
+exponent fitted).
 """
 
 from __future__ import annotations

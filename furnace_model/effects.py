@@ -10,10 +10,11 @@ the physics lives here and nowhere else. An effect may
 - add a term that is not linear in the state (`nonlinear_rhs`; radiation only),
 - offset individual thermocouples (`sensor_offsets`).
 
-Options (which zone, which sensor, which law) are chosen, not fitted; parameters are fitted.
+Options (which zone, which sensor, which law) are chosen, not fitted; parameters are fitted
+(radiation's exponent either: None leaves it to the fit).
 Options that give a formulation different from the diagnosis's candidate (a second-order
-lag, a radiation exponent of 3.5, a burner curve of another shape) exist so that the diagnosis can be
-tested on physics that is not its own.
+lag, a radiation law that is no power of T, a burner curve of another shape) exist so that
+the diagnosis can be tested on physics that is not its own.
 
 Input channels: burners on in soak, heat, preheat (counts), then ambient temperature.
 """
@@ -244,7 +245,7 @@ class Radiation(Effect):
                       doc="share of each exchange that is radiative at the reference temperature")
         if self.options["exponent"] is not None:
             return (share,)
-        # exponent None: the law itself fitted (the diagnosis's law between laws)
+        # exponent None: the exponent fitted too (the diagnosis's further radiation law)
         return (share, Param("rad_exponent", 4.0, 1.5, 6.0, log=False, unit="-",
                              doc="effective exponent: a furnace's gas and walls set it, not "
                                  "only Stefan-Boltzmann"))

@@ -198,9 +198,9 @@ def _draw_effect(name: str, rng: np.random.Generator, form: str,
     elif name == "radiation":
         if other:
             # No other exponent: the candidate fits its own. An emissivity that rises or
-            # falls with temperature is no power law at all (its local exponent runs from
-            # about 3.2 to 4.8 at the reference); another reference temperature alone is no
-            # other law (the fitted exchange rates absorb it).
+            # falls with temperature is no power law at all (its local exponent at the
+            # reference is 4 + s); another reference temperature alone is no other law (the
+            # fitted exchange rates absorb it).
             slope = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.4, 0.8))
             eff = cls(emissivity_slope=slope, t_ref_c=float(rng.uniform(600.0, 1100.0)))
         else:

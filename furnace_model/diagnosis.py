@@ -239,7 +239,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         stuck = not any(_credit(c) and _near(c, floor) for c in fitted)
         off = [i for i, c in enumerate(fitted)
                if not structure_of(c.effects, c.options).linear
-               and (stuck or c.gap_closed_pct > 0 and c.delta_bic < 0)
+               and (stuck or _helps(c))
                and any(c.rmse_fit_c[z] > GAP_RATIO * floor[z] for z in ZONES)]
         cold = _run_all([Task(fitted[i].effects, fitted[i].options, fit_data, hold, tail_of,
                               None, seed + 1, bounds=bounds, generations=COLD_GENERATIONS)
@@ -251,8 +251,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                 fitted[i] = c
     laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
                  seed, bounds=bounds)
-            for c in fitted if c.effects[0] in VARIANTS and c.gap_closed_pct > 0
-            and c.delta_bic < 0 for opts in VARIANTS[c.effects[0]]]
+            for c in fitted if c.effects[0] in VARIANTS and _helps(c)
+            for opts in VARIANTS[c.effects[0]]]
     more = _run_all(laws, lambda f: say("candidates", 0.65 + 0.05 * f))
     for c in more:
         score_against(c, base, floor)
@@ -284,13 +284,12 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
 def between_laws(same: list[CandidateResult], fit_data: list[Experiment],
                  hold: list[Experiment]) -> CandidateResult | None:
     """An effect's law between two of the candidate's (a burner curve between a straight
-    line and an exponential): the two laws' predictions blended with
-    one weight stand for the law between them to first order. The weight is fitted on the
-    fitted and held-out data together (one number against thousands of samples, as the
-    held-out offsets are): where both laws fit the fitted data to the noise, those data cannot
-    choose between them (a burner curve fitted on up to 10 burners), and the held-out data,
-    which carry the extrapolation, set it. None when every pair's best weight is one law
-    alone."""
+    line and an exponential): the two laws' predictions blended with one weight stand for
+    the law between them to first order. The weight is fitted on the fitted and held-out
+    data together (one number against thousands of samples, as the held-out offsets are):
+    where both laws fit the fitted data to the noise, those data cannot choose between them
+    (a burner curve fitted on up to 10 burners), and the held-out data, which carry the
+    extrapolation, set it. None when every pair's best weight is one law alone."""
     ok = [c for c in same if c.identifiable and c.holdout_pred]
     best: CandidateResult | None = None
     for i, p in enumerate(ok):
@@ -335,6 +334,11 @@ def _blend(p: CandidateResult, q: CandidateResult, w: float, fit_data: list[Expe
         sse_fit=(1 - w) * p.sse_fit + w * q.sse_fit, n_obs=major.n_obs,
         n_params=major.n_params + 1, rho1=major.rho1, rho1_holdout=major.rho1_holdout,
         n_holdout=major.n_holdout, elapsed_s=p.elapsed_s + q.elapsed_s)
+
+
+def _helps(c: CandidateResult) -> bool:
+    """Closes part of the gap and lowers the BIC: worth a further law or a second search."""
+    return c.gap_closed_pct > 0 and c.delta_bic < 0
 
 
 def _credit(c: CandidateResult, min_closed: float = MIN_GAP_CLOSED) -> bool:

@@ -13,8 +13,8 @@ the physics lives here and nowhere else. An effect may
 Options (which zone, which sensor, which law) are chosen, not fitted; parameters are fitted
 (radiation's exponent either: None leaves it to the fit).
 Options that give a formulation different from the diagnosis's candidate (a second-order
-lag, a radiation law that is no power of T, a burner curve of another shape) exist so that
-the diagnosis can be tested on physics that is not its own.
+lag, a radiation law that is no power of T, a burner curve of another shape, a wall of two
+layers) exist so that the diagnosis can be tested on physics that is not its own.
 
 Input channels: burners on in soak, heat, preheat (counts), then ambient temperature.
 """
@@ -208,26 +208,37 @@ class DeadTime(Effect):
 class WallStorage(Effect):
     name = "wall_storage"
     physics = "the refractory wall of a zone stores heat: one more, slow state"
-    option_kinds = {"zones": (ZONES, lambda n: tuple(ZONES[i] for i in _zone_list(n)))}
+    option_kinds = {"zones": (ZONES, lambda n: tuple(ZONES[i] for i in _zone_list(n))),
+                    "layers": (1, lambda n: n.integer(lo=1, hi=2))}
+    """layers 2: a hot face and a slower back layer behind it, a wall of another order."""
 
     def _params(self):
-        return (
-            Param("k_gw", 0.05, 1e-5, 10.0, doc="gas-to-wall exchange rate, seen from the gas"),
-            Param("k_wg", 0.002, 1e-6, 1.0, doc="wall-to-gas exchange rate, seen from the wall"),
-        )
+        face = (Param("k_gw", 0.05, 1e-5, 10.0, doc="gas-to-wall exchange rate, seen from the gas"),
+                Param("k_wg", 0.002, 1e-6, 1.0, doc="wall-to-gas exchange rate, seen from the wall"))
+        if self.options["layers"] == 1:
+            return face
+        return face + (
+            Param("k_wb", 0.005, 1e-6, 1.0, doc="hot face to back layer, seen from the face"),
+            Param("k_bw", 0.001, 1e-6, 1.0, doc="back layer to hot face, seen from the back"))
 
     @property
     def state_zones(self):
-        return tuple(ZONES.index(z) for z in self.options["zones"])
+        return tuple(ZONES.index(z) for z in self.options["zones"]) * self.options["layers"]
 
     def extend(self, A, B, C, theta, first):
-        kgw, kwg = theta["k_gw"], theta["k_wg"]
-        for j, z in enumerate(self.state_zones):
-            w = first + j
-            A[:, z, z] -= kgw
-            A[:, z, w] += kgw
-            A[:, w, w] -= kwg
-            A[:, w, z] += kwg
+        zones = self.state_zones[:len(self.options["zones"])]
+        for j, z in enumerate(zones):
+            _exchange(A, z, first + j, theta["k_gw"], theta["k_wg"])
+            if self.options["layers"] == 2:
+                _exchange(A, first + j, first + len(zones) + j, theta["k_wb"], theta["k_bw"])
+
+
+def _exchange(A: np.ndarray, i: int, j: int, k_ij: np.ndarray, k_ji: np.ndarray) -> None:
+    """Heat exchange between states i and j, at rate k_ij seen from i and k_ji seen from j."""
+    A[:, i, i] -= k_ij
+    A[:, i, j] += k_ij
+    A[:, j, j] -= k_ji
+    A[:, j, i] += k_ji
 
 
 class Radiation(Effect):

@@ -91,6 +91,21 @@ def test_wall_storage_slows_heating_but_keeps_the_steady_state():
     np.testing.assert_allclose(ys[-1], yb[-1], rtol=1e-6)
 
 
+def test_wall_of_two_layers_and_wall_in_one_zone():
+    one = run([WallStorage()], k_gw=0.2, k_wg=0.01)
+    # a back layer that takes no heat is the one-layer wall; one that takes heat slows the
+    # heat-up further
+    idle = run([WallStorage(layers=2)], k_gw=0.2, k_wg=0.01, k_wb=0.0, k_bw=0.001)
+    np.testing.assert_allclose(idle, one, rtol=1e-9)
+    two = run([WallStorage(layers=2)], k_gw=0.2, k_wg=0.01, k_wb=0.01, k_bw=0.001)
+    assert np.all(two[10:1500] < one[10:1500])
+    # a preheating-zone wall holds back the preheating zone first, the soaking zone last
+    pre = run([WallStorage(zones=("preheat",))], k_gw=0.2, k_wg=0.01)
+    lag = (BASE - pre)[5:400]
+    assert np.all(lag[:, 2] > lag[:, 1]) and np.all(lag[:, 1] > lag[:, 0])
+    assert ModelStructure([WallStorage(zones=("heat",), layers=2)]).n_states == 5
+
+
 def test_radiation_weakens_exchange_below_and_strengthens_it_above_the_reference():
     t = np.arange(0.0, 1501.0, 10.0)
     inputs = Inputs(np.array([0.0]), np.array([[4, 0, 0.0]]), np.array([30.0]))

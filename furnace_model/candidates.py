@@ -26,7 +26,7 @@ NULL: dict[str, dict[str, float]] = {
     "zone_losses": {"g_soak": 0.0, "g_heat": 0.0},
     "sensor_lag": {"tau_lag": 0.0},
     "dead_time": {"theta_dead": 0.0},
-    "wall_storage": {"k_gw": 0.0},
+    "wall_storage": {"k_gw": 0.0, "k_wg": float("nan")},
     "radiation": {"rad_share": 0.0},
     "burner_nonlinearity": {"k_nl": 0.0},
     "fuel_change": {"fuel_ratio": 1.0},
@@ -34,7 +34,10 @@ NULL: dict[str, dict[str, float]] = {
     "zone_burners": {"f_heat": float("nan"), "f_preheat": float("nan")},
 }
 """Each effect's strength parameters and the value at which the effect vanishes (NaN: the
-baseline is not nested in the extension; the parameter must merely be determined)."""
+parameter must merely be determined, either because the baseline is not nested in the
+extension or because it is felt only where the effect is: a wall's release rate, which
+stays determined when its exchange rate trades with the zone's own rates, seen with a
+preheating-zone wall)."""
 
 MAX_RATIO = 4.0
 """A positive strength parameter counts as determined when its 95% interval spans less than

@@ -19,9 +19,9 @@ absorbs is the selfcheck's to report, not to avoid.
 
 `form="other"` draws the effect in a formulation the diagnosis's candidate does not use (a
 second- or third-order sensor lag, radiation with an emissivity that changes with temperature
-(no power law) and another reference temperature, a quadratic burner curve, a wall in one
-zone only, losses from one zone only),
-so that the check does not merely find our own equations back.
+(no power law) and another reference temperature, a quadratic burner curve, a wall of two
+layers in every zone or in one, losses from one zone only), so that the check does not
+merely find our own equations back.
 
 Two perturbations lie outside the library (`OUT_OF_LIBRARY`), and no candidate can express
 them; the honest verdict for them is `unexplained`, with the zone or sensor located:
@@ -69,7 +69,8 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "zone_losses": {"g": (0.002, 0.01)},
     "sensor_lag": {"tau_lag": (4.0, 20.0)},
     "dead_time": {"theta_dead": (5.0, 45.0)},
-    "wall_storage": {"k_gw": (0.02, 0.2), "k_wg": (0.001, 0.01)},
+    "wall_storage": {"k_gw": (0.02, 0.2), "k_wg": (0.001, 0.01), "k_wb": (0.002, 0.02),
+                     "k_bw": (0.0003, 0.003)},
     "radiation": {"rad_share": (0.2, 0.8)},
     "burner_nonlinearity": {"k_nl": (0.01, 0.03)},  # magnitude; sign drawn (mostly falling)
     "fuel_change": {"t_fuel_frac": (0.3, 0.8), "fuel_ratio": (0.65, 0.9)},
@@ -193,8 +194,14 @@ def _draw_effect(name: str, rng: np.random.Generator, form: str,
         eff = cls()
         vals = {"theta_dead": _u(rng, name, "theta_dead")}
     elif name == "wall_storage":
-        eff = cls(zones=(ZONES[int(rng.integers(3))],) if other else ZONES)
         vals = {"k_gw": _u(rng, name, "k_gw"), "k_wg": _u(rng, name, "k_wg")}
+        if other:
+            # A wall of two layers, in every zone or in one: the candidate's walls have one.
+            zones = (ZONES, *((z,) for z in ZONES))[int(rng.integers(4))]
+            eff = cls(zones=zones, layers=2)
+            vals |= {"k_wb": _u(rng, name, "k_wb"), "k_bw": _u(rng, name, "k_bw")}
+        else:
+            eff = cls()
     elif name == "radiation":
         if other:
             # No other exponent: the candidate fits its own. An emissivity that rises or

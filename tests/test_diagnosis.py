@@ -202,6 +202,20 @@ def test_further_laws_only_for_a_candidate_that_helps():
     assert [o["zones"] for _, o in walls] == [(z,) for z in ZONES]
 
 
+def test_wall_behind_one_zone_is_named_with_its_zone():
+    # A two-layer wall behind the preheating zone alone (selfcheck seed 0, other form, draw
+    # 1): one exchange rate shared by walls behind all three zones leaves that zone off the
+    # floor; the preheating-zone law reaches it, though its exchange rate trades with the
+    # zone's own rates and only its release rate is determined.
+    case = draw_case("wall_storage", case_rng(0, "wall_storage", 1), form="other")
+    assert case.truth["wall_storage"]["zones"] == ["preheat"]
+    d = diagnose(case.fit, case.holdout, effects=["wall_storage"])
+    assert d.verdict.status == "explained" and d.verdict.effects == ["wall_storage"]
+    best = d.to_json()["candidates"][0]
+    assert best["options"] == {"wall_storage": {"zones": ["preheat"]}}
+    assert "law chosen among zones preheat" in best["note"]
+
+
 def testblend_weight_is_the_least_squares_one():
     rng = np.random.default_rng(0)
     exp = _case(None, 14).fit[0]

@@ -96,6 +96,8 @@ def test_other_forms_differ_from_the_candidate():
     assert abs(rad["emissivity_slope"]) >= 0.4  # no power law: the candidate fits exponents
     nl = draw_case("burner_nonlinearity", _rng(4), form="other").truth["burner_nonlinearity"]
     assert nl["form"] not in ("linear", "power", "exponential")
+    wall = draw_case("wall_storage", _rng(4), form="other").truth["wall_storage"]
+    assert wall["layers"] == 2  # the candidate's walls, behind any zones, have one
 
 
 def test_door_open_cools_its_zone_for_an_hour():

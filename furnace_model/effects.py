@@ -226,11 +226,12 @@ class WallStorage(Effect):
         return tuple(ZONES.index(z) for z in self.options["zones"]) * self.options["layers"]
 
     def extend(self, A, B, C, theta, first):
-        zones = self.state_zones[:len(self.options["zones"])]
+        zones = [ZONES.index(z) for z in self.options["zones"]]
         for j, z in enumerate(zones):
-            _exchange(A, z, first + j, theta["k_gw"], theta["k_wg"])
+            face = first + j
+            _exchange(A, z, face, theta["k_gw"], theta["k_wg"])
             if self.options["layers"] == 2:
-                _exchange(A, first + j, first + len(zones) + j, theta["k_wb"], theta["k_bw"])
+                _exchange(A, face, face + len(zones), theta["k_wb"], theta["k_bw"])
 
 
 def _exchange(A: np.ndarray, i: int, j: int, k_ij: np.ndarray, k_ji: np.ndarray) -> None:

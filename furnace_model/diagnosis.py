@@ -257,7 +257,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                 c.note = "; ".join(x for x in (c.note, "searched from scratch") if x)
                 fitted[i] = c
     laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
-                 seed, bent, bounds, {z: GAP_RATIO * floor[z] for z in ZONES})
+                 seed, bounds=bounds)
             for c, opts in further_laws(fitted)]
     more = _run_all(laws, lambda f: say("candidates", 0.65 + 0.05 * f))
     for c in more:

@@ -194,9 +194,10 @@ def test_further_laws_only_for_a_candidate_that_helps():
     def cand(name, closed, dbic):
         return CandidateResult((name,), {}, {}, {}, {}, gap_closed_pct=closed, delta_bic=dbic)
 
-    helps, costs, idle = cand("radiation", 40.0, -300.0), cand("wall_storage", 60.0, 5.0), \
-        cand("burner_nonlinearity", 0.0, -10.0)
-    laws = further_laws([helps, costs, idle, cand("dead_time", 90.0, -900.0)])
+    laws = further_laws([cand("radiation", 40.0, -300.0),  # helps
+                         cand("wall_storage", 60.0, 5.0),  # closes, but costs BIC
+                         cand("burner_nonlinearity", 0.0, -10.0),  # closes nothing
+                         cand("dead_time", 90.0, -900.0)])  # has one law
     assert [(c.effects[0], o) for c, o in laws] == [("radiation", o) for o in VARIANTS["radiation"]]
     walls = further_laws([cand("wall_storage", 60.0, -50.0)])
     assert [o["zones"] for _, o in walls] == [(z,) for z in ZONES]
@@ -296,7 +297,7 @@ def test_other_formulations_still_named(effect):
     for s in range(5):
         case = _case(effect, 500 + s, form="other")
         d = diagnose(case.fit, case.holdout)
-        absorbed += d.verdict.status == "no_gap"  # a weak wall behind the preheating zone
+        absorbed += d.verdict.status == "no_gap"  # as a weak preheating-zone wall can be
         hits += d.verdict.status == "explained" and d.verdict.effects == [effect]
     assert absorbed <= 2 and hits >= 5 - absorbed - 1
 

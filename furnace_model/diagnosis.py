@@ -78,12 +78,13 @@ VARIANTS: dict[str, list[dict]] = {"radiation": [{"exponent": None}],
 furnace's effective radiation exponent depends on its gas and walls, not only on
 Stefan-Boltzmann (so it is fitted: exponent None), and its burner curve on its air supply
 (three shapes and blends of them). A wall that stores much heat in one zone only cannot be
-fitted by one exchange rate shared by the three (seen: a preheating-zone wall left 1.9 degC
-held out against a floor of 1 with walls in all zones). A burner curve fitted on few
+fitted by one exchange rate shared by the three (seen: a preheating-zone wall left 1.8 degC
+held out against a floor of 1.1 with walls in all zones). A burner curve fitted on few
 burners is extrapolated to the held-out data's many, where the laws part (seen: 3 degC held
 out against a floor of 1 after a straight-line fit to a power-law furnace). The further laws
-are fitted, warm from the effect's own law, only when that law already removes part of the
-gap: the nonlinear fits are the slow ones."""
+are fitted, warm from the effect's own law (and from scratch on a bent baseline, see
+`diagnose`), only when that law already removes part of the gap: the nonlinear fits are the
+slow ones."""
 BLENDED = ("radiation", "burner_nonlinearity")
 """Effects whose further laws lie on one scale, so that a blend of two stands for a law
 between them; walls in different zones do not."""

@@ -4,6 +4,7 @@ diagnosis run on them with the effect withheld."""
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 
@@ -201,6 +202,26 @@ def test_selfcheck_command_on_a_small_set(tmp_path):
     assert cases["fuel_change"]["correct"] or cases["fuel_change"]["absorbed"]
     assert cases["tc_reads_low"]["status"] == "unexplained" and cases["tc_reads_low"]["correct"]
     assert all(r["passed"] for r in doc["rows"])
+
+
+def test_selfcheck_stopped_keeps_the_cases_it_diagnosed(tmp_path):
+    out = tmp_path / "sc.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "furnace_model.cli", "selfcheck", "--draws", "20", "--effects",
+         "none", "--json", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stderr.readline().startswith("none draw 0: no_gap")
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, stderr
+    assert "interrupted after" in stderr and "Traceback" not in stderr
+    doc = json.loads(out.read_text())
+    assert doc["complete"] is False and 1 <= len(doc["cases"]) < 20
+    assert doc["rows"][0]["draws"] == len(doc["cases"])
+    assert f"| none | {len(doc['cases'])} |" in stdout
 
 
 def test_selfcheck_command_refuses_unknown_names():

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from ..effects import EFFECTS
 from ..errors import FurnaceError
-from ..selfcheck import OUT_OF_LIBRARY, check, parse_label, summarize, table
+from ..selfcheck import OUT_OF_LIBRARY, Outcome, Row, check, parse_label, summarize, table
 from .diagnose import effect_list
 
 DEFAULT = ("none", *EFFECTS)
@@ -47,32 +47,48 @@ def run(args: argparse.Namespace) -> int:
     if args.draws < 1:
         raise FurnaceError("--draws must be at least 1")
     labels = list(args.effects or DEFAULT) + (list(EXTRA) if args.all else [])
-    candidates = args.candidates
+    outcomes: list[Outcome] = []
 
     def progress(o):
+        outcomes.append(o)
         mark = "absorbed" if o.absorbed else ("ok" if o.correct else "WRONG")
         print(f"{o.label} draw {o.draw}: {o.status} {'+'.join(o.named)} [{mark}] "
               f"{o.elapsed_s:.0f} s{': ' + o.reason if o.reason else ''}", file=sys.stderr,
               flush=True)
 
-    outcomes = check(labels, args.draws, args.seed, form=args.form, candidates=candidates,
-                     report=progress)
+    try:
+        check(labels, args.draws, args.seed, form=args.form, candidates=args.candidates,
+              report=progress)
+    except KeyboardInterrupt:
+        # A full check takes hours: stopping it must not throw away the cases diagnosed.
+        if not outcomes:
+            raise
+        _report(args, outcomes, complete=False)
+        print(f"selfcheck: interrupted after {len(outcomes)} case(s); the table and --json "
+              "hold those only", file=sys.stderr)
+        return 130
+    rows = _report(args, outcomes, complete=True)
+    failed = [r.label for r in rows if not r.passed]
+    if failed:
+        print(f"selfcheck: acceptance missed for {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool) -> list[Row]:
+    """Print the table and write --json; the rows, for the acceptance."""
     rows = summarize(outcomes)
     print(table(rows, outcomes))
     if args.json:
         doc = {"seed": args.seed, "draws": args.draws, "form": args.form,
-               "candidates": list(candidates or EFFECTS),
+               "candidates": list(args.candidates or EFFECTS), "complete": complete,
                "rows": [r.__dict__ for r in rows], "cases": [o.to_json() for o in outcomes]}
         try:
             args.json.parent.mkdir(parents=True, exist_ok=True)
             args.json.write_text(json.dumps(doc, indent=1, default=_plain) + "\n")
         except OSError as exc:
             raise FurnaceError(f"{args.json}: cannot write: {exc}") from None
-    failed = [r.label for r in rows if not r.passed]
-    if failed:
-        print(f"selfcheck: acceptance missed for {', '.join(failed)}", file=sys.stderr)
-        return 1
-    return 0
+    return rows
 
 
 def _label(text: str) -> str:

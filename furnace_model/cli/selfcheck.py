@@ -6,7 +6,8 @@ diagnosed, and the verdict compared with the truth.
 Draws the baseline absorbs (its held-out error is already at the noise floor) are reported
 apart with that reason, not counted as failures. Exit code 1 when a row misses the
 acceptance: every control no_gap, each effect named in 9 of 10 draws it was not absorbed
-in, combinations and faults outside the library every time."""
+in, combinations and faults outside the library every time. Stopped with Ctrl-C, it
+prints and writes (--json, "complete": false) the cases diagnosed so far and exits with 130."""
 
 from __future__ import annotations
 

@@ -67,6 +67,7 @@ class CandidateResult:
     n_holdout: int = 0
     evidence: float = 0.0  # lower is better: delta_bic plus the held-out log-likelihood ratio
     gap_closed_pct: float = 0.0
+    held_out_fitted: tuple[str, ...] = ()  # parameters estimated on the held-out data too
     elapsed_s: float = 0.0
     warnings: list[str] = field(default_factory=list)
 
@@ -161,11 +162,15 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         if cold.sse < fr.sse:
             fr = cold
     fit_pred = fitted_predictions(fr, task.fit_data)
-    hold_pred = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of)
+    blind = left_open(fr, bounds) if any(j is None for j in task.tail_of) else ()
+    hold_pred = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of, blind)
     res = [e.zone_temp - p for e, p in zip(task.fit_data, fit_pred, strict=True)]
     hold_res = [e.zone_temp - p for e, p in zip(task.holdout, hold_pred, strict=True)]
     n_hold = int(sum(np.isfinite(r).sum() for r in hold_res))
     ident, note = identifiable(fr, task.effects)
+    if blind:
+        note = "; ".join(x for x in (note, f"{', '.join(blind)} left open by the fitted data: "
+                                     "estimated on the held-out data") if x)
     return CandidateResult(
         effects=task.effects, params=dict(fr.params),
         ci95={k: (float(v[0]), float(v[1])) for k, v in fr.ci95.items()},
@@ -175,7 +180,22 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         options={n: dict(task.options.get(n, {})) for n in task.effects},
         sse_fit=fr.sse, n_obs=fr.n_obs,
         n_params=len(structure.names) + 6 * len(task.fit_data),
-        rho1=lag1(res), rho1_holdout=lag1(hold_res), n_holdout=n_hold, elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
+        rho1=lag1(res), rho1_holdout=lag1(hold_res), n_holdout=n_hold, held_out_fitted=blind, elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
+
+
+def left_open(fr: FitResult, bounds: dict[str, tuple[float, float]]) -> tuple[str, ...]:
+    """The paper's parameters the fitted data do not see at all. An extension can take away
+    what the baseline saw: with the heating- and preheating-zone burners heating their own
+    zones, the soaking-burner gain f rests on the soaking-zone burners alone, and a record
+    in which they never step leaves it anywhere. An effect's own parameter left open already
+    costs the effect its credit."""
+    unc = fr.uncertainty
+    if unc is None:
+        return ()
+    box = {p.name: bounds.get(p.name, (p.lo, p.hi)) for p in fr.structure.params}
+    unseen = unc.unseen(np.array([box[n][0] for n in unc.names]),
+                        np.array([box[n][1] for n in unc.names]))
+    return tuple(n for n in ModelStructure().names if n in unseen)
 
 
 def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray]:
@@ -189,15 +209,18 @@ def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray
 
 
 def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Experiment],
-                        tail_of: list[int | None]) -> list[np.ndarray]:
+                        tail_of: list[int | None], blind: tuple[str, ...] = ()
+                        ) -> list[np.ndarray]:
     """Held-out predictions with the parameters fixed. A whole held-out experiment gets
-    its own initial state and offsets from its data; a tail cut from a fitted experiment
-    continues the fitted run (same start, same thermocouples): nothing is estimated on it."""
+    its own initial state and offsets from its data, and the parameters in `blind` (left
+    open by the fitted data) are estimated on the whole held-out experiments together; a
+    tail cut from a fitted experiment continues the fitted run (same start, same
+    thermocouples): nothing is estimated on it."""
     out: list[np.ndarray | None] = [None] * len(holdout)
     whole = [i for i, j in enumerate(tail_of) if j is None]
     if whole:
         preds = predict_held_out(fr.params, [holdout[i] for i in whole], fr.structure,
-                                 zone_offsets=True)
+                                 zone_offsets=True, free=blind)
         for i, p in zip(whole, preds, strict=True):
             out[i] = p
     for i, j in enumerate(tail_of):
@@ -279,9 +302,12 @@ def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, fl
     # Held-out evidence: the Gaussian log-likelihood ratio on data the fit has not seen,
     # counted in effective samples; with the fit's BIC it ranks candidates whose held-out
     # errors are within noise of each other (a lag and a dead time both near the floor).
+    # A parameter estimated on the held-out data is charged as BIC charges one.
     rho = c.rho1_holdout
     n_ho = c.n_holdout * (1 - rho) / (1 + rho)
     c.evidence = c.delta_bic + (n_ho * np.log(rc * rc / (rb * rb)) if rb > 0 and rc > 0 else 0.0)
+    if n_ho > 1:
+        c.evidence += (len(c.held_out_fitted) - len(base.held_out_fitted)) * np.log(n_ho)
 
 
 def check_effects(names) -> tuple[str, ...]:

@@ -151,6 +151,7 @@ class Diagnosis:
                     "shrink_pct": _r(c.shrink_pct), "gap_closed_pct": _r(c.gap_closed_pct),
                     "delta_bic": _r(c.delta_bic), "evidence": _r(c.evidence),
                     "identifiable": c.identifiable,
+                    "held_out_fitted": list(c.held_out_fitted),
                     "note": c.note, "elapsed_s": _r(c.elapsed_s)}
 
         b = self.baseline

@@ -18,7 +18,7 @@ intervals and the determined combinations (furnace_model.uncertainty).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -550,18 +550,24 @@ def score(params: dict, experiments: list[Experiment],
 
 def predict_held_out(params: dict, experiments: list[Experiment],
                      structure: ModelStructure | None = None,
-                     zone_offsets: bool = False) -> list[np.ndarray]:
+                     zone_offsets: bool = False, free: Sequence[str] = ()) -> list[np.ndarray]:
     """What the thermocouples would read (N, 3) per experiment under fixed parameters, each
     experiment's initial state (and with `zone_offsets` its offsets, which are included)
     estimated from its own data: held-out records are scored this way, because the furnace's
     starting temperatures and a new campaign's thermocouple biases are not the model's to
-    predict."""
+    predict. Parameters named in `free` are estimated too, once for all the experiments,
+    from the given values: those the fitted data left open, which fixed at an arbitrary
+    value would make the score a lottery."""
     structure = structure or ModelStructure()
     values = {n: float(params[n]) for n in structure.names}
+    fixed = {n: v for n, v in values.items() if n not in free}
     out = []
-    for exp in experiments:
-        prob = _Problem([exp], structure, values, {}, zone_offsets)
-        z, _, _, _ = prob.polish(prob.start(np.zeros(0)), None)
-        y = prob.predict(0, prob.values(np.zeros((1, 0))), prob.x0_of(z, 0)[None])[0]
-        out.append(y + prob.offsets_of(z, 0))
+    for group in ([experiments] if free else [[e] for e in experiments]):
+        prob = _Problem(group, structure, fixed, {}, zone_offsets)
+        z, _, _, _ = prob.polish(prob.start(prob.to_z(np.array([values[n] for n in prob.names]))),
+                                 None)
+        vals = prob.values(z[None, :prob.k])
+        for j in range(len(group)):
+            y = prob.predict(j, vals, prob.x0_of(z, j)[None])[0]
+            out.append(y + prob.offsets_of(z, j))
     return out

@@ -71,6 +71,19 @@ class Uncertainty:
                 out.append(name)
         return out
 
+    def unseen(self, lo: np.ndarray, hi: np.ndarray) -> list[str]:
+        """Parameters the data do not see at all: even were every other parameter known
+        (the initial states still estimated), the 95% interval would span the search box.
+        Not those that merely trade with another (d and e along d/e)."""
+        if self.eigvals.size == 0:
+            return []
+        info = (self.eigvecs ** 2) @ self.eigvals  # the Fisher information's diagonal
+        half = Z95 / np.sqrt(np.maximum(info, 1e-300))
+        zlo = np.where(self.log, np.log(np.maximum(lo, 1e-300)), lo)
+        zhi = np.where(self.log, np.log(np.maximum(hi, 1e-300)), hi)
+        return [n for i, n in enumerate(self.names)
+                if self.z[i] - half[i] <= zlo[i] and self.z[i] + half[i] >= zhi[i]]
+
     def n_flat_directions(self) -> int:
         """Eigen-directions of the Fisher information the data leave wider than WIDE."""
         if self.eigvals.size == 0:

@@ -28,9 +28,13 @@ from furnace_model.diagnosis import (
 from furnace_model.effects import EFFECTS
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import Experiment
+from furnace_model.fit import predict_held_out
 from furnace_model.parameters import PAPER_TABLE_V
+from furnace_model.plant import Plant
 from furnace_model.residuals import zone_noise_floor
+from furnace_model.scenario import SensorSpec
 from furnace_model.selfcheck import case_rng, draw_case
+from furnace_model.structure import Inputs, ModelStructure
 
 QUICK = ("zone_burners", "sensor_lag", "zone_losses", "fuel_change")
 CONTRACT_KEYS = {"baseline", "where", "candidates", "verdict"}
@@ -317,3 +321,36 @@ def test_radiation_exponent_is_fitted_from_the_data():
     floor = zone_noise_floor(case.fit + case.holdout)
     for z in ZONES:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
+
+
+def test_a_parameter_the_fitted_data_leave_open_is_estimated_on_the_held_out_data():
+    # With the heating- and preheating-zone burners on their own zones, f rests on the
+    # soaking-zone burners alone; a fitted record in which they never step leaves it
+    # anywhere (selfcheck seed 0, zone_burners+sensor_lag draw 8). Fixed where the fit left
+    # it, the held-out score would depend on the start, not on the model.
+    structure = ModelStructure([EFFECTS["zone_burners"]()])
+    truth = {**PAPER_TABLE_V, "f_heat": 3.0, "f_preheat": 4.2}
+    plant = Plant(structure, truth, SensorSpec(noise_sd_c=1.5, bias_sd_c=0.0), seed=5)
+    t = np.arange(0.0, 1500.0, 1.0)
+
+    def run(times, counts, name):
+        inputs = Inputs(np.array(times), np.array(counts, dtype=float), np.full(len(times), 25.0))
+        return plant.run(inputs, t, np.full(3, 25.0)).to_experiment(name)
+
+    soak_steady = run([0.0, 500.0, 1000.0], [[3, 0, 0], [3, 2, 2], [3, 6, 1]], "soak_steady")
+    soak_steps = run([0.0, 400.0, 800.0, 1100.0], [[3, 0, 0], [5, 0, 0], [8, 0, 0], [2, 5, 1]],
+                     "soak_steps")
+    start = {**truth, "f": 0.5 * truth["f"]}
+    c = run_task(Task(("zone_burners",), {"zone_burners": {}}, [soak_steady], [soak_steps],
+                      [None], start, 0))
+    assert c.held_out_fitted == ("f",) and "f left open" in c.note, c.note
+    floor = zone_noise_floor([soak_steady, soak_steps])
+    for z in ZONES:
+        assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
+    fixed = predict_held_out(c.params, [soak_steps], structure, zone_offsets=True)[0]
+    rmse_fixed = np.sqrt(np.nanmean((soak_steps.zone_temp - fixed) ** 2, axis=0))
+    assert rmse_fixed.max() > 2 * NEAR_RATIO * max(floor.values()), rmse_fixed
+    # the same fit on a record whose soaking burners step leaves nothing open
+    d = run_task(Task(("zone_burners",), {"zone_burners": {}}, [soak_steps], [soak_steady],
+                      [None], start, 0))
+    assert d.held_out_fitted == () and "left open" not in d.note

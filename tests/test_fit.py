@@ -14,6 +14,7 @@ from furnace_model.parameters import PAPER_TABLE_V
 from furnace_model.plant import Plant
 from furnace_model.scenario import SensorSpec, load_scenario
 from furnace_model.structure import Inputs, ModelStructure
+from furnace_model.uncertainty import from_jacobian
 
 TC_SD = 1.5
 ZONE_SD = TC_SD / np.sqrt(2)  # zone temperature = mean of two thermocouples, both reading
@@ -88,6 +89,19 @@ def test_paper_values_at_10s_still_leave_d_and_e_open(scenarios):
     for k, v in PAPER_TABLE_V.items():
         lo, hi = res.ci95[k]
         assert lo <= v <= hi, (k, lo, v, hi)
+
+
+def test_a_parameter_unseen_differs_from_two_that_trade():
+    # d and e seen only as d/e, f not at all, one initial state: the intervals of all three
+    # span the box, but only f would stay open were the others known.
+    rng = np.random.default_rng(0)
+    col = rng.normal(size=200)
+    J = np.column_stack([col, -col, np.zeros(200), rng.normal(size=200)])
+    unc = from_jacobian(J, rng.normal(size=200), ["d", "e", "f"], np.ones(3, bool),
+                        np.log([0.9, 0.7, 0.2]))
+    lo, hi = np.full(3, 1e-3), np.full(3, 10.0)
+    assert all(ci == (1e-3, 10.0) for ci in unc.ci95(lo, hi))
+    assert unc.unseen(lo, hi) == ["f"]
 
 
 def test_ten_seeds_agree_on_the_determined_quantities(paper_1min):

@@ -162,14 +162,14 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         if cold.sse < fr.sse:
             fr = cold
     fit_pred = fitted_predictions(fr, task.fit_data)
-    blind = left_open(fr, bounds) if any(j is None for j in task.tail_of) else ()
-    hold_pred = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of, blind)
+    unseen = unseen_by_fit(fr, bounds) if any(j is None for j in task.tail_of) else ()
+    hold_pred = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of, unseen)
     res = [e.zone_temp - p for e, p in zip(task.fit_data, fit_pred, strict=True)]
     hold_res = [e.zone_temp - p for e, p in zip(task.holdout, hold_pred, strict=True)]
     n_hold = int(sum(np.isfinite(r).sum() for r in hold_res))
     ident, note = identifiable(fr, task.effects)
-    if blind:
-        note = "; ".join(x for x in (note, f"{', '.join(blind)} left open by the fitted data: "
+    if unseen:
+        note = "; ".join(x for x in (note, f"{', '.join(unseen)} unseen by the fitted data: "
                                      "estimated on the held-out data") if x)
     return CandidateResult(
         effects=task.effects, params=dict(fr.params),
@@ -180,10 +180,11 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         options={n: dict(task.options.get(n, {})) for n in task.effects},
         sse_fit=fr.sse, n_obs=fr.n_obs,
         n_params=len(structure.names) + 6 * len(task.fit_data),
-        rho1=lag1(res), rho1_holdout=lag1(hold_res), n_holdout=n_hold, held_out_fitted=blind, elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
+        rho1=lag1(res), rho1_holdout=lag1(hold_res), n_holdout=n_hold,
+        held_out_fitted=unseen, elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
 
 
-def left_open(fr: FitResult, bounds: dict[str, tuple[float, float]]) -> tuple[str, ...]:
+def unseen_by_fit(fr: FitResult, bounds: dict[str, tuple[float, float]]) -> tuple[str, ...]:
     """The paper's parameters the fitted data do not see at all. An extension can take away
     what the baseline saw: with the heating- and preheating-zone burners heating their own
     zones, the soaking-burner gain f rests on the soaking-zone burners alone, and a record
@@ -193,9 +194,9 @@ def left_open(fr: FitResult, bounds: dict[str, tuple[float, float]]) -> tuple[st
     if unc is None:
         return ()
     box = {p.name: bounds.get(p.name, (p.lo, p.hi)) for p in fr.structure.params}
-    unseen = unc.unseen(np.array([box[n][0] for n in unc.names]),
-                        np.array([box[n][1] for n in unc.names]))
-    return tuple(n for n in ModelStructure().names if n in unseen)
+    out = unc.unseen(np.array([box[n][0] for n in unc.names]),
+                     np.array([box[n][1] for n in unc.names]))
+    return tuple(n for n in ModelStructure().names if n in out)
 
 
 def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray]:
@@ -209,18 +210,18 @@ def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray
 
 
 def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Experiment],
-                        tail_of: list[int | None], blind: tuple[str, ...] = ()
+                        tail_of: list[int | None], unseen: tuple[str, ...] = ()
                         ) -> list[np.ndarray]:
     """Held-out predictions with the parameters fixed. A whole held-out experiment gets
-    its own initial state and offsets from its data, and the parameters in `blind` (left
-    open by the fitted data) are estimated on the whole held-out experiments together; a
+    its own initial state and offsets from its data, and the parameters in `unseen` (by
+    the fitted data) are estimated on the whole held-out experiments together; a
     tail cut from a fitted experiment continues the fitted run (same start, same
     thermocouples): nothing is estimated on it."""
     out: list[np.ndarray | None] = [None] * len(holdout)
     whole = [i for i, j in enumerate(tail_of) if j is None]
     if whole:
         preds = predict_held_out(fr.params, [holdout[i] for i in whole], fr.structure,
-                                 zone_offsets=True, free=blind)
+                                 zone_offsets=True, free=unseen)
         for i, p in zip(whole, preds, strict=True):
             out[i] = p
     for i, j in enumerate(tail_of):

@@ -556,7 +556,7 @@ def predict_held_out(params: dict, experiments: list[Experiment],
     estimated from its own data: held-out records are scored this way, because the furnace's
     starting temperatures and a new campaign's thermocouple biases are not the model's to
     predict. Parameters named in `free` are estimated too, once for all the experiments,
-    from the given values: those the fitted data left open, which fixed at an arbitrary
+    from the given values: those the fitted data do not see, which fixed at an arbitrary
     value would make the score a lottery."""
     structure = structure or ModelStructure()
     values = {n: float(params[n]) for n in structure.names}

@@ -46,6 +46,7 @@ from .residuals import (
     sudden_change,
     zone_noise_floor,
 )
+from .structure import ModelStructure
 
 __all__ = ["CandidateResult", "Diagnosis", "Located", "Verdict", "diagnose"]
 
@@ -488,7 +489,8 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
             f"({', '.join(best.effects)}). Adding {it} cuts the held-out error in the "
             f"{ZONE_WORDS[worst]} zone from {base.rmse_holdout_c[worst]:.1f} to "
             f"{best.rmse_holdout_c[worst]:.1f} degC (pooled over zones {best.shrink_pct:.0f}% "
-            f"smaller), down to about the thermocouple noise of {floor[worst]:.1f} degC.")
+            f"smaller), down to about the thermocouple noise of {floor[worst]:.1f} degC."
+            + _unseen_words(best))
     worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / max(floor[z], 1e-9))
     place = ""
     if where:
@@ -509,6 +511,16 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
            f"fitted data never fire: what those burners do cannot be learnt from the fitted "
            f"data. Given together as DATA, without --holdout, the experiments are split so "
            f"that the fitted ones fire every burner the held-out one does." if missing else ""))
+
+
+def _unseen_words(c: CandidateResult) -> str:
+    if not c.held_out_fitted:
+        return ""
+    docs = {p.name: p.doc.split(": ")[-1] for p in ModelStructure().params}
+    what = "; ".join(f"{n} ({docs[n]})" for n in c.held_out_fitted)
+    it = "it" if len(c.held_out_fitted) == 1 else "them"
+    return (f" With {' and '.join(c.effects)} in the model, the fitted data do not show {what} "
+            f"at all: the held-out check estimated {it} on the held-out data.")
 
 
 def split(data: list[Experiment], holdout: list[Experiment] | None

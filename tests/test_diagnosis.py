@@ -21,6 +21,7 @@ from furnace_model.diagnosis import (
     blend_weight,
     diagnose,
     further_laws,
+    judge,
     search_bounds,
     soak_burners_start,
     split,
@@ -354,3 +355,6 @@ def test_a_parameter_the_fitted_data_leave_open_is_estimated_on_the_held_out_dat
     d = run_task(Task(("zone_burners",), {"zone_burners": {}}, [soak_steps], [soak_steady],
                       [None], start, 0))
     assert d.held_out_fitted == () and "unseen" not in d.note
+    # and the verdict tells the plant engineer
+    v = judge(d, c, [c], floor, ZONES, [])
+    assert v.status == "explained" and "do not show f (soaking-zone heating rate" in v.sentence

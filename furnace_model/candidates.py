@@ -188,8 +188,8 @@ def unseen_by_fit(fr: FitResult, bounds: dict[str, tuple[float, float]]) -> tupl
     """The paper's parameters the fitted data do not see at all. An extension can take away
     what the baseline saw: with the heating- and preheating-zone burners heating their own
     zones, the soaking-burner gain f rests on the soaking-zone burners alone, and a record
-    in which they never step leaves it anywhere. An effect's own parameter left open already
-    costs the effect its credit."""
+    in which they never step leaves it anywhere. An effect's own parameter the data do not
+    determine already costs the effect its credit."""
     unc = fr.uncertainty
     if unc is None:
         return ()

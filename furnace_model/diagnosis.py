@@ -516,7 +516,7 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
 def _unseen_words(c: CandidateResult) -> str:
     if not c.held_out_fitted:
         return ""
-    docs = {p.name: p.doc.split(": ")[-1] for p in ModelStructure().params}
+    docs = {p.name: p.doc.split(": ")[-1] for p in ModelStructure().params}  # words, not 1/C1
     what = "; ".join(f"{n} ({docs[n]})" for n in c.held_out_fitted)
     it = "it" if len(c.held_out_fitted) == 1 else "them"
     return (f" With {' and '.join(c.effects)} in the model, the fitted data do not show {what} "

@@ -324,7 +324,7 @@ def test_radiation_exponent_is_fitted_from_the_data():
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
 
 
-def test_a_parameter_the_fitted_data_leave_open_is_estimated_on_the_held_out_data():
+def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_data():
     # With the heating- and preheating-zone burners on their own zones, f rests on the
     # soaking-zone burners alone; a fitted record in which they never step leaves it
     # anywhere (selfcheck seed 0, zone_burners+sensor_lag draw 8). Fixed where the fit left
@@ -351,7 +351,7 @@ def test_a_parameter_the_fitted_data_leave_open_is_estimated_on_the_held_out_dat
     fixed = predict_held_out(c.params, [soak_steps], structure, zone_offsets=True)[0]
     rmse_fixed = np.sqrt(np.nanmean((soak_steps.zone_temp - fixed) ** 2, axis=0))
     assert rmse_fixed.max() > 2 * NEAR_RATIO * max(floor.values()), rmse_fixed
-    # the same fit on a record whose soaking burners step leaves nothing open
+    # the same fit on a record whose soaking burners step sees every parameter
     d = run_task(Task(("zone_burners",), {"zone_burners": {}}, [soak_steps], [soak_steady],
                       [None], start, 0))
     assert d.held_out_fitted == () and "unseen" not in d.note

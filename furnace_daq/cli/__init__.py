@@ -1,6 +1,7 @@
 """`furnace-daq`: thin front end over the library. Each subcommand lives in its own module
-and registers itself through `register(subparsers)`; errors the user can fix print one line
-and exit non-zero, never a traceback."""
+and registers itself through `register(subparsers)`, loading the library only inside its
+`run()` so that `--help` answers without numpy, pandas or scipy. Errors the user can fix print
+one line and exit non-zero, never a traceback."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import argparse
 import importlib
 import sys
 
+from furnace_model.cli.arguments import add_version
 from furnace_model.errors import FurnaceError
 
 COMMANDS: tuple[str, ...] = ("simplc", "run", "logs", "replay")
@@ -18,6 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="furnace-daq",
         description="Furnace data acquisition: simulated PLC, polling daemon, MCAP logs.")
+    add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         importlib.import_module(f"{__name__}.{name}").register(sub)

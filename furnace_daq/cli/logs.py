@@ -6,16 +6,15 @@ from __future__ import annotations
 import argparse
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
+from furnace_model.cli.arguments import output_file
 from furnace_model.errors import DataError
-from furnace_model.experiment import write_table
 
-from ..logexport import export_frame, parse_time
-from ..logrecover import recover
 from ..logschema import DAQ_STATUS, THERMOCOUPLES
-from ..mcaplog import decode, iso_time, open_log
+
+if TYPE_CHECKING:
+    import numpy as np
 
 MAX_LISTED = 20
 
@@ -34,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                       "period, burner counts as in force, t_air averaged. "
                                       "Several files are merged in time order.")
     exp.add_argument("files", nargs="+", type=Path, metavar="FILE")
-    exp.add_argument("--out", required=True, type=Path, help="output .csv or .parquet")
+    exp.add_argument("--out", required=True, type=output_file, help="output .csv or .parquet")
     exp.add_argument("--period", type=float, default=60.0,
                      help="resampling period in seconds (default 60)")
     exp.add_argument("--start", help="first time exported, ISO 8601 with Z or an offset")
@@ -45,11 +44,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                           description="Reads every complete record up to the cut and writes a "
                                       "new file; the input is left as it is.")
     rec.add_argument("file", type=Path, metavar="FILE")
-    rec.add_argument("--out", type=Path, help="output file (default FILE.recovered.mcap)")
+    rec.add_argument("--out", type=output_file, help="output file (default FILE.recovered.mcap)")
     rec.set_defaults(run=run_recover)
 
 
 def run_info(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from ..mcaplog import decode, iso_time, open_log
+
     counts: Counter[str] = Counter()
     tc_times: list[int] = []
     status: list[tuple[int, str, str]] = []
@@ -95,6 +98,10 @@ def run_info(args: argparse.Namespace) -> int:
 
 
 def _print_gaps(t: np.ndarray) -> None:
+    import numpy as np
+
+    from ..mcaplog import iso_time
+
     if t.size < 3:
         print(f"{THERMOCOUPLES} gaps: too few messages to tell")
         return
@@ -118,6 +125,10 @@ def _duration(s: float) -> str:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    from furnace_model.experiment import write_table
+
+    from ..logexport import export_frame, parse_time
+
     if args.out.suffix.lower() not in (".csv", ".parquet", ".pq"):
         raise DataError(str(args.out), "unsupported output type: use .csv or .parquet")
     start = parse_time(args.start, "--start") if args.start else None
@@ -133,6 +144,9 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_recover(args: argparse.Namespace) -> int:
+    from ..logrecover import recover
+    from ..mcaplog import iso_time
+
     r = recover(args.file, args.out)
     note = "the input was complete already" if r.was_complete else r.cut
     print(f"saved {r.messages} messages from {iso_time(r.start_ns)} to {iso_time(r.end_ns)} "

@@ -11,9 +11,9 @@ import sys
 import time
 from pathlib import Path
 
-from ..daqconfig import load_config
+from furnace_model.cli.arguments import output_file
+
 from ..logschema import MODEL_EVENTS, MODEL_PARAMETERS, PARAM_NAMES
-from ..replay import default_out, replay
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=__doc__)
     p.add_argument("files", nargs="+", type=Path, metavar="LOG",
                    help="MCAP logs (finished .mcap or a dead writer's .mcap.part), any order")
-    p.add_argument("--out", type=Path,
+    p.add_argument("--out", type=output_file,
                    help="output MCAP of the /model topics (default: next to the first log, "
                         "<name>.model.mcap)")
     pace = p.add_mutually_exclusive_group()
@@ -45,6 +45,9 @@ def summary(message: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..daqconfig import load_config
+    from ..replay import default_out, replay
+
     config = load_config(args.config) if args.config else None
     if config is not None and config.refit is None:
         print(f"furnace-daq replay: {args.config} has no refit: section (or it is disabled); "

@@ -12,16 +12,14 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from furnace_model.errors import ConfigError, FurnaceError
 
-from ..daemon import Daemon
-from ..daqconfig import load_config
-from ..logrecover import lock_log_dir, recover_leftovers
 from ..logschema import DAQ_EVENTS
-from ..mcaplog import LogWriter
-from ..sdnotify import Notifier
-from ..writeback import WriteBack
+
+if TYPE_CHECKING:
+    from ..mcaplog import LogWriter
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,6 +44,9 @@ def _plc_address(text: str) -> tuple[str, int]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..daqconfig import load_config
+    from ..mcaplog import LogWriter
+
     config = load_config(args.config)
     if args.plc:
         host, port = _plc_address(args.plc)
@@ -88,6 +89,8 @@ def _recover_at_start(log_dir: Path, prefix: str) -> tuple[int | None, list[str]
     """Lock the log directory (held until the daemon stops) and recover what a dead daemon
     left. An unwritable directory (full, read-only) must not stop the service: it then starts
     without recovery and reports the log error as usual."""
+    from ..logrecover import lock_log_dir, recover_leftovers
+
     try:
         lock = lock_log_dir(log_dir, prefix)
     except OSError as exc:
@@ -100,6 +103,10 @@ def _recover_at_start(log_dir: Path, prefix: str) -> tuple[int | None, list[str]
 
 
 async def _main(config, log: LogWriter, duration: float | None) -> int:
+    from ..daemon import Daemon
+    from ..sdnotify import Notifier
+    from ..writeback import WriteBack
+
     write_back = None
     if config.write_back is not None:  # off unless the config enables it
         def event(message: dict) -> None:

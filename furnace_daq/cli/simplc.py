@@ -9,12 +9,12 @@ import asyncio
 import signal
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from furnace_model.errors import FurnaceError
-from furnace_model.scenario import load_scenario
 
-from ..logplayer import LogPlayer
-from ..simplc import SimPLC, ValueSource
+if TYPE_CHECKING:
+    from ..simplc import ValueSource
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,6 +44,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from furnace_model.scenario import load_scenario
+
+    from ..logplayer import LogPlayer
+
     if args.speed <= 0 or args.scan_s <= 0:
         raise FurnaceError("--speed and --scan-s must be positive")
     if not 0 <= args.port <= 65535:
@@ -64,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def _serve(source, what: str, args: argparse.Namespace) -> int:
+    from ..simplc import SimPLC
+
     plc = SimPLC(source, speed=args.speed, host=args.host, port=args.port, manual=args.manual,
                  seed=args.seed, scan_s=args.scan_s, can_channel=args.can_channel,
                  can_interface=args.can_interface)

@@ -1,6 +1,7 @@
 """`furnace-model`: thin front end over the library. Each subcommand lives in its own module
-and registers itself through `register(subparsers)`; errors the user can fix print one line
-and exit non-zero, never a traceback."""
+and registers itself through `register(subparsers)`, loading the library only inside its
+`run()` so that `--help` answers without numpy, pandas or scipy. Errors the user can fix print
+one line and exit non-zero, never a traceback."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import importlib
 import sys
 
 from ..errors import FurnaceError
+from .arguments import add_version
 
 COMMANDS = ("simulate", "fit", "validate", "diagnose", "selfcheck")
 """Subcommand modules of this package, in the order `--help` lists them."""
@@ -18,6 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="furnace-model",
         description="Three-zone reheating-furnace model: simulate, identify, diagnose.")
+    add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         importlib.import_module(f"{__name__}.{name}").register(sub)

@@ -9,23 +9,26 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .. import ZONES
-from ..diagnosis import Diagnosis, diagnose
-from ..effects import EFFECTS
 from ..errors import FurnaceError
-from ..experiment import load_experiment
+from .arguments import output_file
+from .names import EFFECTS
+
+if TYPE_CHECKING:
+    from ..diagnosis import Diagnosis
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("diagnose", help="explain the model's error: where, which effect, how far",
                        description=__doc__)
     p.add_argument("data", nargs="+", type=Path, help="CSV or Parquet files to fit")
-    p.add_argument("--holdout", nargs="+", type=Path, metavar="DATA",
-                   help="files to score on, never fitted (default: the last file given, or "
-                        "the last 30%% of a lone file)")
-    p.add_argument("--json", type=Path, metavar="OUT", help="write the diagnosis as JSON")
-    p.add_argument("--report", type=Path, metavar="OUT.html",
+    p.add_argument("--holdout", action="append", type=Path, metavar="DATA",
+                   help="a file to score on, never fitted; repeat for more (default: the last "
+                        "file given, or the last 30%% of a lone file)")
+    p.add_argument("--json", type=output_file, metavar="OUT", help="write the diagnosis as JSON")
+    p.add_argument("--report", type=output_file, metavar="OUT.html",
                    help="write a self-contained HTML report")
     p.add_argument("--effects", type=effect_list, metavar="a,b",
                    help=f"candidates to try (default all: {','.join(EFFECTS)})")
@@ -45,6 +48,9 @@ def effect_list(text: str, what: str = "effect") -> tuple[str, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..diagnosis import diagnose
+    from ..experiment import load_experiment
+
     data = [load_experiment(p) for p in args.data]
     hold = [load_experiment(p) for p in args.holdout] if args.holdout else None
     result = diagnose(data, hold, effects=args.effects, seed=args.seed)
@@ -66,7 +72,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _write(path: Path, text: str) -> None:
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
     except OSError as exc:
         raise FurnaceError(f"{path}: cannot write: {exc}") from None

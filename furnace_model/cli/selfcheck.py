@@ -15,12 +15,15 @@ import argparse
 import json
 import sys
 from functools import partial
-from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ..effects import EFFECTS
 from ..errors import FurnaceError
-from ..selfcheck import OUT_OF_LIBRARY, Outcome, Row, check, parse_label, summarize, table
+from .arguments import output_file
 from .diagnose import effect_list
+from .names import EFFECTS, OUT_OF_LIBRARY
+
+if TYPE_CHECKING:
+    from ..selfcheck import Outcome, Row
 
 DEFAULT = ("none", *EFFECTS)
 EXTRA = ("zone_burners+sensor_lag", *OUT_OF_LIBRARY)
@@ -40,11 +43,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--candidates", metavar="a,b", type=partial(effect_list, what="candidate"),
                    help="limit the diagnosis to these candidates (default all nine)")
     p.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
-    p.add_argument("--json", type=Path, metavar="OUT", help="write every case and the table")
+    p.add_argument("--json", type=output_file, metavar="OUT",
+                   help="write every case and the table")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..selfcheck import check
+
     if args.draws < 1:
         raise FurnaceError("--draws must be at least 1")
     labels = list(args.effects or DEFAULT) + (list(EXTRA) if args.all else [])
@@ -78,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool) -> list[Row]:
     """Print the table and write --json; the rows, for the acceptance."""
+    from ..selfcheck import summarize, table
+
     rows = summarize(outcomes)
     print(table(rows, outcomes))
     if args.json:
@@ -85,7 +93,6 @@ def _report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool
                "candidates": list(args.candidates or EFFECTS), "complete": complete,
                "rows": [r.__dict__ for r in rows], "cases": [o.to_json() for o in outcomes]}
         try:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
             args.json.write_text(json.dumps(doc, indent=1, default=_plain) + "\n")
         except OSError as exc:
             raise FurnaceError(f"{args.json}: cannot write: {exc}") from None
@@ -93,10 +100,13 @@ def _report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool
 
 
 def _label(text: str) -> str:
-    try:
-        parse_label(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    """What `selfcheck.parse_label` accepts, checked without loading the library."""
+    parts = text.split("+")
+    bad = [p for p in parts if p not in EFFECTS and p not in OUT_OF_LIBRARY]
+    if text != "none" and (bad or not all(parts)):
+        raise argparse.ArgumentTypeError(
+            f"unknown effect(s) {', '.join(bad) or repr(text)}; expected 'none', names from "
+            f"{', '.join([*EFFECTS, *OUT_OF_LIBRARY])}, or a+b")
     return text
 
 

@@ -8,9 +8,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError
-from ..experiment import write_table
-from ..plant import Plant
-from ..scenario import load_scenario
+from .arguments import output_file
 
 MAX_ROWS = 10_000_000
 """About 1 GB of CSV: beyond it a scenario's sampling is a typo, not a data set."""
@@ -20,12 +18,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a scenario into a CSV or Parquet file",
                        description=__doc__)
     p.add_argument("--scenario", required=True, type=Path, help="scenario YAML")
-    p.add_argument("--out", required=True, type=Path, help="output .csv or .parquet")
+    p.add_argument("--out", required=True, type=output_file, help="output .csv or .parquet")
     p.add_argument("--seed", type=int, default=0, help="noise and sensor-bias seed (default 0)")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..experiment import write_table
+    from ..plant import Plant
+    from ..scenario import load_scenario
+
     scenario = load_scenario(args.scenario)
     if scenario.duration_min / scenario.sample_min > MAX_ROWS:
         raise ConfigError(str(args.scenario), "sample_min",

@@ -9,13 +9,14 @@ import json
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .. import ZONES
-from ..effects import EFFECTS
 from ..errors import FurnaceError
-from ..experiment import load_experiment
-from ..fit import predict, score
-from ..structure import ModelStructure
+from .arguments import output_dir, output_file
+
+if TYPE_CHECKING:
+    from ..structure import ModelStructure
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,13 +28,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--zone-offsets", action="store_true",
                    help="estimate each file's constant offset per zone (thermocouple bias) "
                         "before scoring")
-    p.add_argument("--json", type=Path, metavar="OUT", help="write the scores as JSON")
-    p.add_argument("--plot", type=Path, metavar="DIR", help="write measured-vs-model PNGs here")
+    p.add_argument("--json", type=output_file, metavar="OUT", help="write the scores as JSON")
+    p.add_argument("--plot", type=output_dir, metavar="DIR",
+                   help="write measured-vs-model PNGs here (created if missing)")
     p.set_defaults(run=run)
 
 
 def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
     """Parameters and structure from a fit's JSON, checked: a wrong file is one clear line."""
+    from ..effects import EFFECTS
+    from ..structure import ModelStructure
+
     try:
         doc = json.loads(path.read_text())
     except FileNotFoundError:
@@ -70,6 +75,9 @@ def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..experiment import load_experiment
+    from ..fit import predict, score
+
     params, structure = load_params(args.params)
     experiments = [load_experiment(p) for p in args.data]
     off = args.zone_offsets
@@ -87,7 +95,6 @@ def run(args: argparse.Namespace) -> int:
         doc = {"params_file": str(args.params), "params": params, "data": [str(p) for p in args.data],
                "per_experiment": per_exp, "per_zone": pooled}
         try:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
             args.json.write_text(json.dumps(doc, indent=1) + "\n")
         except OSError as exc:
             raise FurnaceError(f"{args.json}: cannot write JSON: {exc}") from None

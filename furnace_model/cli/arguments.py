@@ -1,0 +1,68 @@
+"""Argument pieces both command lines share. They stay light (no numpy, pandas or scipy), so
+that `--help`, `--version` and a mistyped argument answer at once, and an output path that
+cannot be written is refused when the arguments are read, not after the work it would hold."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+DISTRIBUTION = "furnace-daq"
+"""The installed distribution both commands belong to (pyproject.toml's project name)."""
+
+
+def version() -> str:
+    """The installed version; from a source tree that was never installed, pyproject.toml's
+    version marked as such."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return installed(DISTRIBUTION)
+    except PackageNotFoundError:
+        import tomllib
+
+        try:
+            pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
+            return f"{tomllib.loads(pyproject.read_text())['project']['version']} (not installed)"
+        except (OSError, KeyError, tomllib.TOMLDecodeError):
+            return "unknown (not installed)"
+
+
+class _Version(argparse.Action):
+    """argparse's own version action needs the text when the parser is built; looking the
+    version up costs more than all of --help, so it is looked up only when asked for."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS,
+                         help="print the installed version and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"{parser.prog} {version()}")
+        parser.exit()
+
+
+def add_version(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--version", action=_Version)
+
+
+def output_file(text: str) -> Path:
+    """argparse type of an output file: its directory must exist and the path must not be
+    one. A missing directory is a typo far more often than a wish, so it is refused, never
+    created."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a directory; give a file name in it")
+    if not path.parent.is_dir():
+        what = "not a directory" if path.parent.exists() else "no such directory"
+        raise argparse.ArgumentTypeError(f"{what}: {path.parent} (for {path})")
+    return path
+
+
+def output_dir(text: str) -> Path:
+    """argparse type of a directory to fill: created (with its parents) when written to, as
+    one expects of a directory named for output, but refused at once if it is a file."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} exists and is not a directory")
+    return path

@@ -6,16 +6,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from .. import ZONES
 from ..errors import FurnaceError
-from ..experiment import load_experiment
-from ..fit import METHODS, FitResult, fit
+from ..parameters import BASELINE
+from .arguments import output_dir, output_file
+from .names import METHODS
+
+if TYPE_CHECKING:
+    from ..fit import FitResult
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,10 +33,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--population", type=_positive, help="GA population (fast 32, ga 20)")
     p.add_argument("--generations", type=_positive, help="GA generations (fast 30, ga 2000)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the first run (default 0)")
-    p.add_argument("--zone-offsets", action="store_true",
-                   help="also fit a constant offset per zone (thermocouple bias)")
-    p.add_argument("--json", type=Path, metavar="OUT", help="write the result as JSON")
-    p.add_argument("--plot", type=Path, metavar="DIR", help="write measured-vs-model PNGs here")
+    p.add_argument("--zone-offsets", action=argparse.BooleanOptionalAction, default=True,
+                   help="fit a constant offset per zone and file, the thermocouples' bias "
+                        "(default); --no-zone-offsets fits the paper's plain model")
+    p.add_argument("--fix", action=_ParamValues, dest="fixed", metavar="NAME=V[,...]",
+                   help="hold parameters at known values, e.g. d=0.87 (repeatable)")
+    p.add_argument("--bounds", action=_ParamValues, dest="bounds", metavar="NAME=LO:HI[,...]",
+                   help="search parameters only between LO and HI, e.g. d=0.1:2 (repeatable)")
+    p.add_argument("--json", type=output_file, metavar="OUT", help="write the result as JSON")
+    p.add_argument("--plot", type=output_dir, metavar="DIR",
+                   help="write measured-vs-model PNGs here (created if missing)")
     p.set_defaults(run=run)
 
 
@@ -44,6 +54,58 @@ def _positive(text: str) -> int:
     if v < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
     return v
+
+
+class _ParamValues(argparse.Action):
+    """--fix NAME=V and --bounds NAME=LO:HI, repeatable and comma-separated, gathered into one
+    dict per option and checked as they are read: a typo costs no fit. The parameters are
+    those `fit` identifies, `ModelStructure()`'s, which are `parameters.BASELINE`."""
+
+    def __call__(self, parser, namespace, text, option_string=None):
+        ranged = self.dest == "bounds"
+        got = dict(getattr(namespace, self.dest) or {})
+        other = getattr(namespace, "fixed" if ranged else "bounds") or {}
+        for item in (i.strip() for i in text.split(",")):
+            try:
+                name, value = _param_value(item, ranged)
+                if name in got:
+                    raise ValueError(f"{name} is given twice")
+                if name in other:
+                    raise ValueError(f"{name} is also {'fixed' if ranged else 'bounded'}; a "
+                                     "parameter is either fixed or bounded")
+            except ValueError as exc:
+                parser.error(f"argument {option_string}: '{item}': {exc}")
+            got[name] = value
+        setattr(namespace, self.dest, got)
+
+
+def _param_value(item: str, ranged: bool) -> tuple[str, float | tuple[float, float]]:
+    """NAME=V (or NAME=LO:HI when `ranged`), inside the parameter's own search box."""
+    params = {p.name: p for p in BASELINE}
+    name, eq, value = item.partition("=")
+    name = name.strip()
+    if not eq or not name:
+        raise ValueError(f"expected {'NAME=LO:HI' if ranged else 'NAME=VALUE'}")
+    if name not in params:
+        raise ValueError(f"unknown parameter {name}; the model has {', '.join(params)}")
+    texts = value.split(":") if ranged else [value]
+    if len(texts) != (2 if ranged else 1):
+        raise ValueError("expected NAME=LO:HI" if ranged else "expected NAME=VALUE")
+    nums = []
+    for t in texts:
+        try:
+            nums.append(float(t))
+        except ValueError:
+            raise ValueError(f"not a number: '{t.strip()}'") from None
+        if not math.isfinite(nums[-1]):
+            raise ValueError(f"not a finite number: '{t.strip()}'")
+    p = params[name]
+    if ranged and nums[0] >= nums[1]:
+        raise ValueError(f"the lower bound {nums[0]:g} must be below the upper {nums[1]:g}")
+    for v in nums:
+        if not p.lo <= v <= p.hi:
+            raise ValueError(f"{v:g} is outside {name}'s search box, {p.lo:g} to {p.hi:g}")
+    return name, (nums[0], nums[1]) if ranged else nums[0]
 
 
 class ProgressBar:
@@ -74,23 +136,32 @@ class ProgressBar:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from ..experiment import load_experiment
+    from ..fit import fit
+
     experiments = [load_experiment(p) for p in args.data]
     names = [e.name for e in experiments]
     if len(set(names)) != len(names):
         raise FurnaceError(f"two data files share the name {names}: plots and tables need "
                            "distinct file names")
+    fixed, bounds = args.fixed or {}, args.bounds or {}
     bar = ProgressBar("fitting")
     try:
         result = fit(experiments, method=args.method, runs=args.runs, population=args.population,
                      generations=args.generations, seed=args.seed, progress=bar,
-                     zone_offsets=args.zone_offsets)
+                     zone_offsets=args.zone_offsets, fixed=fixed, bounds=bounds)
     finally:
         bar.close()
     print(render(result, experiments))
     for w in result.warnings:
         print(f"furnace-model fit: warning: {w}", file=sys.stderr)
     if args.json:
-        _write_json(args.json, result.to_json([str(p) for p in args.data]))
+        doc = result.to_json([str(p) for p in args.data])
+        doc["fixed"] = fixed
+        doc["bounds"] = {k: list(v) for k, v in bounds.items()}
+        _write_json(args.json, doc)
     if args.plot:
         from ..plots import plot_fit  # matplotlib only when plots are asked for
 
@@ -107,7 +178,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_json(path: Path, doc: dict) -> None:
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
     except (OSError, ValueError) as exc:
         raise FurnaceError(f"{path}: cannot write JSON: {exc}") from None

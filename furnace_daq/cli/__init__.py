@@ -9,7 +9,7 @@ import argparse
 import importlib
 import sys
 
-from furnace_model.cli.arguments import add_version
+from furnace_model.cli.arguments import CommandParser, add_version
 from furnace_model.errors import FurnaceError
 
 COMMANDS: tuple[str, ...] = ("simplc", "run", "logs", "replay")
@@ -21,7 +21,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="furnace-daq",
         description="Furnace data acquisition: simulated PLC, polling daemon, MCAP logs.")
     add_version(parser)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=CommandParser)
     for name in COMMANDS:
         importlib.import_module(f"{__name__}.{name}").register(sub)
     return parser

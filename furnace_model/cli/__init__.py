@@ -10,7 +10,7 @@ import importlib
 import sys
 
 from ..errors import FurnaceError
-from .arguments import add_version
+from .arguments import CommandParser, add_version
 
 COMMANDS = ("simulate", "fit", "validate", "diagnose", "selfcheck")
 """Subcommand modules of this package, in the order `--help` lists them."""
@@ -21,7 +21,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="furnace-model",
         description="Three-zone reheating-furnace model: simulate, identify, diagnose.")
     add_version(parser)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=CommandParser)
     for name in COMMANDS:
         importlib.import_module(f"{__name__}.{name}").register(sub)
     return parser

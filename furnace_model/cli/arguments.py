@@ -29,6 +29,24 @@ def version() -> str:
             return "unknown (not installed)"
 
 
+class CommandParser(argparse.ArgumentParser):
+    """A command's parser on which files may follow options: `diagnose a.csv --holdout b.csv
+    c.csv` fits c.csv. argparse takes a command's positional files in one run, so the plain
+    parser refuses c.csv; its intermixed parsing (options first, then the files left over)
+    does not, but cannot parse a level that has subcommands, which keeps the plain one."""
+
+    _intermixed = False
+
+    def parse_known_args(self, args=None, namespace=None):
+        if self._intermixed or any(a.nargs == argparse.PARSER for a in self._actions):
+            return super().parse_known_args(args, namespace)
+        self._intermixed = True  # parse_known_intermixed_args calls back here, twice
+        try:
+            return self.parse_known_intermixed_args(args, namespace)
+        finally:
+            self._intermixed = False
+
+
 class _Version(argparse.Action):
     """argparse's own version action needs the text when the parser is built; looking the
     version up costs more than all of --help, so it is looked up only when asked for."""

@@ -121,3 +121,62 @@ def test_a_zone_without_any_reading_is_refused(tmp_path):
     assert r.returncode == 1
     assert "blind.csv" in r.stderr and "zone 'heat' has no readings" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_zone_offsets_are_fitted_unless_switched_off(exp_files, tmp_path):
+    data = str(exp_files["paper_exp1"])
+    docs = {}
+    for flag in ("", "--zone-offsets", "--no-zone-offsets"):
+        out = tmp_path / f"fit{flag}.json"
+        r = cli("fit", data, *([flag] if flag else []), "--json", str(out))
+        assert r.returncode == 0, r.stderr
+        docs[flag] = json.loads(out.read_text())
+    assert docs[""]["zone_offsets_c"] == docs["--zone-offsets"]["zone_offsets_c"]
+    assert set(docs[""]["zone_offsets_c"][0]) == {"soak", "heat", "preheat"}
+    assert docs["--no-zone-offsets"]["zone_offsets_c"] is None
+    # the offsets are free parameters: with them the sum of squares can only go down
+    assert docs[""]["sse"] <= docs["--no-zone-offsets"]["sse"]
+
+
+def test_fix_and_bounds_hold_and_narrow_the_parameters_and_are_recorded(exp_files, tmp_path):
+    out = tmp_path / "fixed.json"
+    r = cli("fit", str(exp_files["paper_exp1"]), "--fix", "d=0.8", "--bounds", "e=0.5:0.6",
+            "--bounds", "f=0.1:0.2,a=0.01:0.05", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    assert doc["params"]["d"] == 0.8 and doc["ci95"]["d"] == [0.8, 0.8]
+    assert 0.5 <= doc["params"]["e"] <= 0.6
+    assert 0.1 <= doc["params"]["f"] <= 0.2  # a box without the truth, 0.224: f stays in it
+    assert 0.01 <= doc["params"]["a"] <= 0.05
+    assert doc["fixed"] == {"d": 0.8}
+    assert doc["bounds"] == {"e": [0.5, 0.6], "f": [0.1, 0.2], "a": [0.01, 0.05]}
+    r = cli("fit", str(exp_files["paper_exp1"]), "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    assert doc["fixed"] == {} and doc["bounds"] == {}
+
+
+@pytest.mark.parametrize("args, expect", [
+    (["--fix", "z=1"], "argument --fix: 'z=1': unknown parameter z; the model has a, b, c, d, e, f"),
+    (["--fix", "d=abc"], "argument --fix: 'd=abc': not a number: 'abc'"),
+    (["--fix", "d"], "argument --fix: 'd': expected NAME=VALUE"),
+    (["--fix", "d=0.8,e=inf"], "argument --fix: 'e=inf': not a finite number: 'inf'"),
+    (["--fix", "d=99"], "argument --fix: 'd=99': 99 is outside d's search box, 0.001 to 50"),
+    (["--fix", "d=0.8", "--fix", "d=0.9"], "argument --fix: 'd=0.9': d is given twice"),
+    (["--bounds", "d=2:0.1"],
+     "argument --bounds: 'd=2:0.1': the lower bound 2 must be below the upper 0.1"),
+    (["--bounds", "d=0.1"], "argument --bounds: 'd=0.1': expected NAME=LO:HI"),
+    (["--bounds", "a=0:0.5"],
+     "argument --bounds: 'a=0:0.5': 0 is outside a's search box, 0.0001 to 1"),
+    (["--fix", "d=0.8", "--bounds", "d=0.1:2"],
+     "argument --bounds: 'd=0.1:2': d is also fixed; a parameter is either fixed or bounded"),
+    (["--bounds", "d=0.1:2", "--fix", "e=0.7,d=0.8"],
+     "argument --fix: 'd=0.8': d is also bounded; a parameter is either fixed or bounded"),
+])
+def test_bad_fix_or_bounds_is_a_usage_error_before_any_fit(args, expect, tmp_path):
+    """Checked when read: the data file does not even exist, and no JSON appears."""
+    out = tmp_path / "never.json"
+    r = cli("fit", str(tmp_path / "absent.csv"), *args, "--json", str(out))
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().splitlines()[-1] == f"furnace-model fit: error: {expect}"
+    assert "Traceback" not in r.stderr and not out.exists()

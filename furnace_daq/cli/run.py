@@ -4,8 +4,6 @@ on CAN) as the config describes and logs every sample to MCAP until SIGTERM or -
 from __future__ import annotations
 
 import argparse
-import asyncio
-import logging
 import os
 import signal
 import sys
@@ -44,6 +42,9 @@ def _plc_address(text: str) -> tuple[str, int]:
 
 
 def run(args: argparse.Namespace) -> int:
+    import asyncio
+    import logging
+
     from ..daqconfig import load_config
     from ..mcaplog import LogWriter
 
@@ -103,6 +104,8 @@ def _recover_at_start(log_dir: Path, prefix: str) -> tuple[int | None, list[str]
 
 
 async def _main(config, log: LogWriter, duration: float | None) -> int:
+    import asyncio
+
     from ..daemon import Daemon
     from ..sdnotify import Notifier
     from ..writeback import WriteBack

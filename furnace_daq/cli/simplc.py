@@ -5,7 +5,6 @@ optionally broadcasting flame states on a CAN bus."""
 from __future__ import annotations
 
 import argparse
-import asyncio
 import signal
 import sys
 from pathlib import Path
@@ -44,6 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import asyncio
+
     from furnace_model.scenario import load_scenario
 
     from ..logplayer import LogPlayer
@@ -68,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def _serve(source, what: str, args: argparse.Namespace) -> int:
+    import asyncio
+
     from ..simplc import SimPLC
 
     plc = SimPLC(source, speed=args.speed, host=args.host, port=args.port, manual=args.manual,

@@ -48,8 +48,9 @@ class CommandParser(argparse.ArgumentParser):
 
 
 class _Version(argparse.Action):
-    """argparse's own version action needs the text when the parser is built; looking the
-    version up costs more than all of --help, so it is looked up only when asked for."""
+    """argparse's own version action needs the text when the parser is built; looking it up
+    loads importlib.metadata and scans the installed distributions, which --help has no use
+    for, so it is looked up only when asked for."""
 
     def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS, **kwargs):
         super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS,

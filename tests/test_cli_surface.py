@@ -5,6 +5,7 @@ them, and the names they check equal to the library's."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from importlib.metadata import version
@@ -56,8 +57,10 @@ print(json.dumps({"answered": answered,
 
 
 def run(*argv: str, cwd: Path = ROOT, timeout: float = 60) -> subprocess.CompletedProcess:
+    """This tree's commands in their own interpreter, from any working directory."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run([sys.executable, *argv], cwd=cwd, capture_output=True, text=True,
-                          timeout=timeout)
+                          timeout=timeout, env=env)
 
 
 def test_help_version_and_argument_checks_load_no_heavy_library(tmp_path):

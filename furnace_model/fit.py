@@ -42,12 +42,12 @@ _CELLS = 4_000_000
 """Model values (sets x samples x zones) per simulator call in the GA: about 32 MB each."""
 POLISH_MAX_ITER = 60
 STOP_REASONS = {
-    "converged": "the polish converged: the last step changed the cost by less than 1e-10 "
-                 "(relative) or the unknowns by less than 1e-9, or no step lowered the cost",
+    "converged": "the polish converged: its last step changed the cost by less than 1e-10 "
+                 "relative or the unknowns by less than 1e-9, or no step lowered the cost",
     "iteration_limit": f"the polish reached its limit of {POLISH_MAX_ITER} iterations before "
                        "converging",
     "time_budget": "the time budget ran out before the search finished",
-    "ga_generations": "the genetic algorithm ran all its generations (method ga has no polish)",
+    "ga_generations": "the genetic algorithm ran all its generations; method ga has no polish",
     "not_finite": "the model cannot be simulated at the point the polish started from",
 }
 """Why a run's search stopped (FitResult.stop_reason, the runs' stop_reason)."""
@@ -505,8 +505,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         value, (lo, hi) = unc.combination_value(coef)
         combo_values[name] = {"value": value, "ci95": [lo, hi]}
     at_bound = prob.at_bound(z)
-    warnings = _warnings(experiments, unc, undetermined, combos, best_run, method,
-                         time_budget_s, at_bound, params)
+    warnings = _warnings(experiments, unc, undetermined, combos, best_run, time_budget_s,
+                         at_bound, params)
     static = all(e.burner_steps == 0 for e in experiments)
     corr = np.eye(len(structure.names))
     cov = np.zeros((len(structure.names),) * 2)
@@ -621,7 +621,7 @@ def _residual_matrix(prob: _Problem, z: np.ndarray) -> np.ndarray:
 
 
 def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: list[str],
-              run: _Run, method: str, budget, at_bound: dict[str, str],
+              run: _Run, budget, at_bound: dict[str, str],
               params: dict[str, float]) -> list[str]:
     out = []
     for e in experiments:
@@ -645,7 +645,8 @@ def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: li
     elif run.stop_reason == "iteration_limit":
         out.append(f"the least-squares polish did not converge in {POLISH_MAX_ITER} iterations")
     elif run.stop_reason == "not_finite":
-        out.append("the model could not be simulated where the search ended")
+        out.append("the model could not be simulated where the polish started: these values "
+                   "are that start, not a fit")
     return out
 
 

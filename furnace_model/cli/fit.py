@@ -189,11 +189,12 @@ def _criteria_line(result: FitResult) -> str:
     parts = [f"{k} parameters"] + ([f"{states} initial states"] if states else []) + (
         [f"{ic.n_params - k - states} zone offsets"] if ic.n_params > k + states else [])
 
-    def v(x: float) -> str:
-        return f"{x:.6g}" if np.isfinite(x) else "n/a"
+    def v(x: float, fmt: str) -> str:
+        return format(x, fmt) if np.isfinite(x) else "n/a"
 
-    return (f"Information criteria: AIC {v(ic.aic)}, AICc {v(ic.aicc)}, BIC {v(ic.bic)}, "
-            f"nAIC {v(ic.naic)}, FPE {v(ic.fpe)} (°C)^6; np = {ic.n_params} estimated "
+    return (f"Information criteria: AIC {v(ic.aic, '.1f')}, AICc {v(ic.aicc, '.1f')}, "
+            f"BIC {v(ic.bic, '.1f')}, nAIC {v(ic.naic, '.4f')}, FPE {v(ic.fpe, '.4g')} (°C)^6; "
+            f"np = {ic.n_params} estimated "
             f"({' + '.join(parts)}), N = {ic.n_samples:.6g} samples of 3 zones "
             "(System Identification Toolbox's definitions, docs/identification.md)")
 

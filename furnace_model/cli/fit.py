@@ -140,7 +140,7 @@ def render(result: FitResult, experiments) -> str:
                    + " | | | | |")
     out += ["", "Best fit: value, standard deviation and 95% interval (rates: the interval on "
             "the log scale, the sd in the parameter's units by the delta method, "
-            "sd = value x sd of its log)",
+            "sd = value × sd of its log)",
             "| parameter | value | sd | 95% interval | determined |", "|---|---|---|---|---|"]
     for k in names:
         lo, hi = result.ci95[k]

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import ZONES
+from .criteria import Criteria, criteria
 from .effects import Effect
 from .errors import FurnaceError
 from .experiment import Experiment
@@ -39,6 +40,17 @@ cycles; 2000 generations already take seconds per run here."""
 _FD_STEP = 1e-6
 _CELLS = 4_000_000
 """Model values (sets x samples x zones) per simulator call in the GA: about 32 MB each."""
+POLISH_MAX_ITER = 60
+STOP_REASONS = {
+    "converged": "the polish converged: its last step changed the cost by less than 1e-10 "
+                 "relative or the unknowns by less than 1e-9, or no step lowered the cost",
+    "iteration_limit": f"the polish reached its limit of {POLISH_MAX_ITER} iterations before "
+                       "converging",
+    "time_budget": "the time budget ran out before the search finished",
+    "ga_generations": "the genetic algorithm ran all its generations; method ga has no polish",
+    "not_finite": "the model cannot be simulated at the point the polish started from",
+}
+"""Why a run's search stopped (FitResult.stop_reason, the runs' stop_reason)."""
 
 
 @dataclass
@@ -178,6 +190,18 @@ class _Problem:
         i = self.k + self.block * j + 3
         return z[i:i + 3] if self.block == 6 else np.zeros(3)
 
+    def at_bound(self, z: np.ndarray) -> dict[str, str]:
+        """Free parameters that ended on an edge of their search box: {name: side}. The
+        polish clips onto the edge exactly; the tolerance is for the GA alone."""
+        tol = 1e-6 * (self.hi - self.lo)
+        out = {}
+        for i, name in enumerate(self.names):
+            if z[i] <= self.lo[i] + tol[i]:
+                out[name] = "lower"
+            elif z[i] >= self.hi[i] - tol[i]:
+                out[name] = "upper"
+        return out
+
     def start(self, zp: np.ndarray) -> np.ndarray:
         per = [np.concatenate([r.x0_guess, np.zeros(self.block - 3)]) for r in self.records]
         return np.concatenate([zp, *per])
@@ -217,9 +241,9 @@ class _Problem:
             blocks.append(block)
         return np.concatenate(blocks)
 
-    def polish(self, z0: np.ndarray, deadline: float | None, max_iter: int = 60):
-        """Levenberg-Marquardt from z0, parameters kept in their box; returns
-        (z, residual, jacobian, converged).
+    def polish(self, z0: np.ndarray, deadline: float | None, max_iter: int = POLISH_MAX_ITER
+               ) -> _Polished:
+        """Levenberg-Marquardt from z0, parameters kept in their box.
 
         The steps are those of scipy's least_squares, solved on the n x n normal equations
         instead of a QR or SVD of the tall Jacobian: with tens of thousands of residuals and
@@ -233,19 +257,29 @@ class _Problem:
         z = np.clip(z0, lo, hi)
         r = self.fun(z)
         cost = float(r @ r)
-        if self.n == 0 or not np.isfinite(cost):
-            return z, r, np.zeros((r.size, self.n)), np.isfinite(cost)
+        if not np.isfinite(cost):
+            return _Polished(z, r, np.zeros((r.size, self.n)), "not_finite", 0)
+        if self.n == 0:
+            return _Polished(z, r, np.zeros((r.size, 0)), "converged", 0)
         J = self.jac(z)
-        mu, ok = 1e-3, False
+        mu, reason, done = 1e-3, "iteration_limit", 0
         for _ in range(max_iter):
             if deadline is not None and time.perf_counter() > deadline:
+                reason = "time_budget"
                 break
             H, g = J.T @ J, J.T @ r
             d = np.maximum(np.diag(H), 1e-12 * max(np.diag(H).max(), 1e-300))
+            # An unknown on an edge of its box that the gradient pushes outward is held
+            # there for this step: a step clipped afterwards would crawl along the edge.
+            free = ~(((z <= lo) & (g > 0)) | ((z >= hi) & (g < 0)))
+            Hf, gf, df = H[np.ix_(free, free)], g[free], d[free]
             accepted = False
             while mu < 1e12 and not accepted:
                 mus = mu * 4.0 ** np.arange(trials)
-                Z = np.array([np.clip(z - _solve(H + m * np.diag(d), g), lo, hi) for m in mus])
+                Z = np.repeat(z[None], trials, axis=0)
+                for i, m in enumerate(mus):
+                    Z[i, free] -= _solve(Hf + m * np.diag(df), gf)
+                Z = np.clip(Z, lo, hi)
                 R = self.fun_many(Z)
                 costs = np.einsum("pm,pm->p", R, R)
                 for i in range(trials):  # the first damping that lowers the cost, as in turn
@@ -256,17 +290,29 @@ class _Problem:
                 else:
                     mu = mus[-1] * 4.0
             if not accepted:
-                ok = True  # no step lowers the cost: a minimum to working precision
+                reason = "converged"  # no step lowers the cost: a minimum to working precision
                 break
             gain = (cost - c_new) / cost
             moved = np.max(np.abs(z_new - z) / (1.0 + np.abs(z)))
             z, r, cost = z_new, r_new, c_new
+            done += 1
             mu = max(mu / 5.0, 1e-9)
             J = self.jac(z)
             if gain < 1e-10 or moved < 1e-9:
-                ok = True
+                reason = "converged"
                 break
-        return z, r, J, ok
+        return _Polished(z, r, J, reason, done)
+
+
+@dataclass
+class _Polished:
+    """Where a polish ended and why (a key of STOP_REASONS), after how many accepted steps."""
+
+    z: np.ndarray
+    r: np.ndarray
+    J: np.ndarray
+    reason: str
+    iterations: int
 
 
 def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -298,12 +344,25 @@ class FitResult:
     combinations: dict[str, dict] = field(default_factory=dict)  # name -> {value, ci95}
     zone_offsets_c: list[dict[str, float]] | None = None  # per experiment: offset per zone
     uncertainty: Uncertainty | None = None
+    std: dict[str, float] = field(default_factory=dict)  # own units; 0 fixed, NaN at a bound
+    cov: np.ndarray | None = None  # own units, names order; fixed 0, at a bound NaN
+    fixed: list[str] = field(default_factory=list)
+    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)  # searched box
+    at_bound: dict[str, str] = field(default_factory=dict)  # name -> "lower" | "upper"
+    stop_reason: str = ""  # a key of STOP_REASONS, for the best run
+    iterations: int = 0  # accepted polish steps of the best run's result
+    generations: int = 0  # GA generations of the best run
+    criteria: Criteria | None = None
 
     def predict(self, exp: Experiment, x0: np.ndarray | None = None) -> np.ndarray:
         """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None.
         Fitted zone offsets are not added: they belong to the thermocouples of the fitted
         records, not to the furnace."""
         return predict(self.params, exp, self.structure, x0)
+
+    @property
+    def stop_description(self) -> str:
+        return STOP_REASONS.get(self.stop_reason, "")
 
     def to_json(self, data: list[str]) -> dict:
         """CONTRACTS.md section 5, plus the diagnostics of this fit."""
@@ -331,7 +390,38 @@ class FitResult:
             "n_obs": self.n_obs,
             "sigma_c": self.sigma_c,
             "zone_offsets_c": self.zone_offsets_c,
+            **self._report_json(),
         }
+
+    def _report_json(self) -> dict:
+        """What System Identification Toolbox's present, getcov, aic and fpe give."""
+        names = self.structure.names
+        cov = self.cov if self.cov is not None else np.zeros((len(names),) * 2)
+        unc, ic = self.uncertainty, self.criteria
+        return {
+            "std": {k: _finite(v) for k, v in self.std.items()},
+            "cov": {"names": list(names), "matrix": _finite(cov)},
+            "cov_search": None if unc is None else {
+                "names": list(unc.names), "scale": ["log" if g else "linear" for g in unc.log],
+                "matrix": _finite(unc.cov)},
+            "fixed": {k: self.params[k] for k in self.fixed},
+            "bounds": {k: [lo, hi] for k, (lo, hi) in self.bounds.items()},
+            "at_bound": dict(self.at_bound),
+            "stop_reason": self.stop_reason,
+            "iterations": self.iterations,
+            "generations": self.generations,
+            **{k: None if ic is None else _finite(getattr(ic, k))
+               for k in ("aic", "aicc", "bic", "naic", "fpe")},
+            "n_estimated": None if ic is None else ic.n_params,
+            "n_samples": None if ic is None else ic.n_samples,
+        }
+
+
+def _finite(v):
+    """A number or array for JSON, which has no NaN or infinity: those become null."""
+    if np.ndim(v):
+        return [_finite(x) for x in v]
+    return float(v) if np.isfinite(v) else None
 
 
 def _plain(options: dict) -> dict:
@@ -385,21 +475,21 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
             if progress is not None:
                 progress(min((r + frac) / runs, 1.0))
 
-        z, ok, gens = _one_run(prob, method, population, generations, rng, start, spread,
-                               deadline, report)
-        results.append((z, ok, gens, seed + r, time.perf_counter() - t_run))
+        run = _one_run(prob, method, population, generations, rng, start, spread, deadline,
+                       report)
+        results.append((run, seed + r, time.perf_counter() - t_run))
     report_done = progress or (lambda _f: None)
     report_done(1.0)
 
     run_dicts = []
-    for z, _ok, gens, s, dt in results:
-        vals = _param_dict(prob, z)
+    for run, s, dt in results:
         run_dicts.append({"seed": s, "method": method, "population": population,
-                          "generations": gens, "params": vals,
-                          "per_zone": _per_zone(prob, z), "sse": _sse(prob, z),
-                          "elapsed_s": round(dt, 4)})
-    best = int(np.argmin([d["sse"] for d in run_dicts]))
-    z, ok = results[best][0], results[best][1]
+                          "generations": run.generations, "params": _param_dict(prob, run.z),
+                          "per_zone": _per_zone(prob, run.z), "sse": _sse(prob, run.z),
+                          "elapsed_s": round(dt, 4), "stop_reason": run.stop_reason,
+                          "iterations": run.iterations})
+    best_run = results[int(np.argmin([d["sse"] for d in run_dicts]))][0]
+    z = best_run.z
     res = prob.fun(z)
     J = prob.jac(z)
     unc = from_jacobian(J, res, prob.names, prob.log, z[:prob.k])
@@ -414,13 +504,20 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     for name, coef in named:
         value, (lo, hi) = unc.combination_value(coef)
         combo_values[name] = {"value": value, "ci95": [lo, hi]}
-    warnings = _warnings(experiments, unc, undetermined, combos, ok, method, time_budget_s,
-                         deadline)
+    at_bound = prob.at_bound(z)
+    warnings = _warnings(experiments, unc, undetermined, combos, best_run, time_budget_s,
+                         at_bound, params)
     static = all(e.burner_steps == 0 for e in experiments)
     corr = np.eye(len(structure.names))
+    cov = np.zeros((len(structure.names),) * 2)
     idx = [structure.names.index(n) for n in prob.names]
     corr[np.ix_(idx, idx)] = unc.corr
+    cov[np.ix_(idx, idx)] = unc.cov_own_units
+    for name in at_bound:  # a linearisation on the edge of the box says nothing about it
+        cov[structure.names.index(name), :] = cov[:, structure.names.index(name)] = np.nan
     mean = {n: float(np.mean([d["params"][n] for d in run_dicts])) for n in structure.names}
+    # The GA alone keeps each record's initial state at its first readings: not estimated.
+    n_estimated = prob.k if method == "ga" else prob.n
     return FitResult(
         structure=structure, params=params,
         x0=[prob.x0_of(z, j).copy() for j in range(len(prob.records))],
@@ -432,20 +529,38 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         sigma_c=unc.sigma, combinations=combo_values,
         zone_offsets_c=([dict(zip(ZONES, map(float, prob.offsets_of(z, j)), strict=True))
                          for j in range(len(experiments))] if zone_offsets else None),
-        uncertainty=unc)
+        uncertainty=unc,
+        std={n: float(np.sqrt(max(cov[i, i], 0.0))) if np.isfinite(cov[i, i]) else float("nan")
+             for i, n in enumerate(structure.names)},
+        cov=cov, fixed=sorted(prob.fixed, key=structure.names.index),
+        bounds={n: (float(lo), float(hi))
+                for n, lo, hi in zip(prob.names, prob.lo_val, prob.hi_val, strict=True)},
+        at_bound=at_bound, stop_reason=best_run.stop_reason, iterations=best_run.iterations,
+        generations=best_run.generations,
+        criteria=criteria(_residual_matrix(prob, z), n_estimated))
+
+
+@dataclass
+class _Run:
+    """One run's end point, why its search stopped, and how far it went."""
+
+    z: np.ndarray
+    stop_reason: str
+    iterations: int  # accepted polish steps of the result's polish
+    generations: int  # GA generations run
+    truncated: bool  # some stage (GA or polish) stopped on the time budget
 
 
 def _one_run(prob: _Problem, method: str, population: int, generations: int,
              rng: np.random.Generator, start: np.ndarray | None, spread: np.ndarray | None,
-             deadline: float | None,
-             report: Callable[[float], None]) -> tuple[np.ndarray, bool, int]:
+             deadline: float | None, report: Callable[[float], None]) -> _Run:
     if prob.k == 0:
-        z, _, _, ok = prob.polish(prob.start(np.zeros(0)), deadline)
-        return z, ok, 0
+        p = prob.polish(prob.start(np.zeros(0)), deadline)
+        return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget")
     if method == "fast" and start is not None and np.all(spread < 0.1):
-        z, _, _, ok = prob.polish(prob.start(start), deadline)  # every value given: polish
+        p = prob.polish(prob.start(start), deadline)  # every value given: polish
         report(1.0)
-        return z, ok, 0
+        return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget")
     ga_deadline = deadline
     if deadline is not None and method == "fast":
         ga_deadline = time.perf_counter() + 0.5 * (deadline - time.perf_counter())
@@ -454,11 +569,13 @@ def _one_run(prob: _Problem, method: str, population: int, generations: int,
                            generations=generations, rng=rng, start=start,
                            spread=spread if start is not None else 1.0,
                            progress=lambda f: report(share * f), deadline=ga_deadline)
+    ga_cut = found.generations < generations  # only the deadline ends it early
     if method == "ga":
-        return prob.start(found.best), True, found.generations
+        return _Run(prob.start(found.best), "time_budget" if ga_cut else "ga_generations", 0,
+                    found.generations, ga_cut)
     # Polish the best few distinct members: the GA's best may sit in a side valley. A warm
     # start is always among them: the extended model may be the baseline with its effect off.
-    best_z, best_c, best_ok = None, np.inf, False
+    polished: list[_Polished] = []
     picked: list[np.ndarray] = []
     first = [] if start is None else [np.clip(start, prob.lo, prob.hi)]
     for cand in [*first, *found.population]:
@@ -467,12 +584,11 @@ def _one_run(prob: _Problem, method: str, population: int, generations: int,
         if any(np.max(np.abs(cand - p)) < 0.3 for p in picked):
             continue
         picked.append(cand)
-        z, r, _, ok = prob.polish(prob.start(cand), deadline)
-        c = float(r @ r)
-        if c < best_c:
-            best_z, best_c, best_ok = z, c, ok
+        polished.append(prob.polish(prob.start(cand), deadline))
     report(1.0)
-    return best_z, best_ok, found.generations
+    best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
+    cut = ga_cut or any(p.reason == "time_budget" for p in polished)
+    return _Run(best.z, best.reason, best.iterations, found.generations, cut)
 
 
 def _param_dict(prob: _Problem, z: np.ndarray) -> dict[str, float]:
@@ -485,22 +601,37 @@ def _sse(prob: _Problem, z: np.ndarray) -> float:
     return float(r @ r)
 
 
-def _per_zone(prob: _Problem, z: np.ndarray) -> dict[str, dict[str, float]]:
+def _measured_and_model(prob: _Problem, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Measured (NaN where missing) and modelled readings of all records, stacked (N, 3)."""
     vals = prob.values(z[:prob.k][None])
     meas, model = [], []
     for j, r in enumerate(prob.records):
         meas.append(np.where(r.mask, r.y, np.nan))
         model.append(prob.predict(j, vals, prob.x0_of(z, j)[None])[0] + prob.offsets_of(z, j))
-    return zone_metrics(np.concatenate(meas), np.concatenate(model))
+    return np.concatenate(meas), np.concatenate(model)
+
+
+def _per_zone(prob: _Problem, z: np.ndarray) -> dict[str, dict[str, float]]:
+    return zone_metrics(*_measured_and_model(prob, z))
+
+
+def _residual_matrix(prob: _Problem, z: np.ndarray) -> np.ndarray:
+    measured, model = _measured_and_model(prob, z)
+    return measured - model
 
 
 def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: list[str],
-              ok: bool, method: str, budget, deadline) -> list[str]:
+              run: _Run, budget, at_bound: dict[str, str],
+              params: dict[str, float]) -> list[str]:
     out = []
     for e in experiments:
         if e.burner_steps == 0:
             out.append(f"{e.name}: no burner change in the data: too little excitation to "
                        "identify the model; do not trust these values")
+    for name, side in at_bound.items():
+        out.append(f"{name} ended on the {side} bound of its search range ({params[name]:g}): "
+                   "the best fit within the range lies on its edge, so the value is the "
+                   "bound, not an estimate, and no sd or interval applies to it")
     if undetermined:
         pairs = [c for c in combos if c not in unc.names]
         out.append(f"the data do not determine {', '.join(undetermined)} (95% interval wider "
@@ -509,18 +640,26 @@ def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: li
     for a, b, r in unc.strong_correlations():
         out.append(f"{a} and {b} are strongly correlated (r = {r:+.3f}): the data fix a "
                    "combination of them better than either")
-    if deadline is not None and time.perf_counter() > deadline:
+    if run.truncated:
         out.append(f"time budget of {budget:g} s ran out: the search stopped early")
-    elif not ok and method == "fast":
-        out.append("the least-squares polish did not converge")
+    elif run.stop_reason == "iteration_limit":
+        out.append(f"the least-squares polish did not converge in {POLISH_MAX_ITER} iterations")
+    elif run.stop_reason == "not_finite":
+        out.append("the model could not be simulated where the polish started: these values "
+                   "are that start, not a fit")
     return out
 
 
-def _estimate_x0(params: dict[str, float], exp: Experiment,
-                 structure: ModelStructure) -> np.ndarray:
-    prob = _Problem([exp], structure, params, {})
-    z, _, _, _ = prob.polish(prob.start(np.zeros(0)), None)
-    return prob.x0_of(z, 0)
+def initial_state(params: dict[str, float], exp: Experiment,
+                  structure: ModelStructure | None = None,
+                  zone_offsets: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Initial zone temperatures (3,) and zone offsets (3,; zeros unless `zone_offsets`)
+    that fit exp best under fixed parameters: what `score` estimates before it scores."""
+    structure = structure or ModelStructure()
+    prob = _Problem([exp], structure, {n: float(params[n]) for n in structure.names}, {},
+                    zone_offsets)
+    z = prob.polish(prob.start(np.zeros(0)), None).z
+    return prob.x0_of(z, 0).copy(), prob.offsets_of(z, 0).copy()
 
 
 def predict(params: dict[str, float], exp: Experiment, structure: ModelStructure | None = None,
@@ -528,7 +667,7 @@ def predict(params: dict[str, float], exp: Experiment, structure: ModelStructure
     """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None."""
     structure = structure or ModelStructure()
     if x0 is None:
-        x0 = _estimate_x0(params, exp, structure)
+        x0 = initial_state(params, exp, structure)[0]
     prob = _Problem([exp], structure, dict(params), {})
     return prob.predict(0, prob.values(np.zeros((1, 0))), np.asarray(x0, float)[None])[0]
 
@@ -544,8 +683,7 @@ def score(params: dict, experiments: list[Experiment],
         raise FurnaceError(f"parameter(s) {', '.join(missing)} missing for {structure.label}")
     values = {n: float(params[n]) for n in structure.names}
     prob = _Problem(experiments, structure, values, {}, zone_offsets)
-    z, _, _, _ = prob.polish(prob.start(np.zeros(0)), None)
-    return _per_zone(prob, z)
+    return _per_zone(prob, prob.polish(prob.start(np.zeros(0)), None).z)
 
 
 def predict_held_out(params: dict, experiments: list[Experiment],
@@ -564,8 +702,8 @@ def predict_held_out(params: dict, experiments: list[Experiment],
     out = []
     for group in ([experiments] if free else [[e] for e in experiments]):
         prob = _Problem(group, structure, fixed, {}, zone_offsets)
-        z, _, _, _ = prob.polish(prob.start(prob.to_z(np.array([values[n] for n in prob.names]))),
-                                 None)
+        z = prob.polish(prob.start(prob.to_z(np.array([values[n] for n in prob.names]))),
+                        None).z
         vals = prob.values(z[None, :prob.k])
         for j in range(len(group)):
             y = prob.predict(j, vals, prob.x0_of(z, j)[None])[0]

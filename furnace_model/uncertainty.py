@@ -39,6 +39,15 @@ class Uncertainty:
         return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
 
     @property
+    def cov_own_units(self) -> np.ndarray:
+        """The covariance in the parameters' own units, by the delta method: a parameter
+        searched on the log scale, p = exp(z), moves by dp = p dz, so its row and column are
+        scaled by p (its sd is p times its sd on the log scale). Linear where the intervals
+        are not: an sd above about 0.3 of p says more about the log scale than about p."""
+        p = np.where(self.log, np.exp(np.where(self.log, self.z, 0.0)), 1.0)
+        return self.cov * np.outer(p, p)
+
+    @property
     def corr(self) -> np.ndarray:
         sd = np.where(self.sd > 0, self.sd, 1.0)
         c = self.cov / np.outer(sd, sd)

@@ -271,6 +271,7 @@ def test_time_budget_returns_what_it_has_and_says_so(paper_1min):
               progress=seen.append)
     assert res.runs[0]["generations"] < 100000
     assert any("time budget" in w for w in res.warnings)
+    assert res.stop_reason == "time_budget" and res.runs[0]["stop_reason"] == "time_budget"
     assert seen and seen[-1] == 1.0 and all(0 <= f <= 1 for f in seen)
     assert np.isfinite(res.sse)
 
@@ -285,3 +286,125 @@ def test_an_extension_warm_started_from_the_baseline_fits_no_worse(paper_1min):
         ext = fit([paper_1min], ModelStructure([effect]), init=base.params)
         assert ext.sse <= base.sse * 1.001, (effect.name, ext.sse, base.sse)
         assert set(ext.params) == set(ModelStructure([effect]).names)
+
+
+def test_sd_and_covariance_in_the_parameters_units(paper_1min):
+    res = fit([paper_1min], init=PAPER_TABLE_V, fixed={"d": 0.873573})
+    unc, names = res.uncertainty, res.structure.names
+    for i, name in enumerate(names):
+        assert res.std[name] ** 2 == pytest.approx(res.cov[i, i], rel=1e-12)
+    assert res.std["d"] == 0.0 and not res.cov[names.index("d")].any()
+    for i, name in enumerate(unc.names):  # delta method: sd = value x sd of the log
+        assert res.std[name] == pytest.approx(res.params[name] * unc.sd[i], rel=1e-12)
+    lo, hi = res.ci95["a"]  # the interval is +-1.96 sd on the log scale
+    assert np.log(hi / lo) / (2 * 1.959964) == pytest.approx(res.std["a"] / res.params["a"],
+                                                              rel=1e-6)
+    sd = np.array([res.std[n] if res.std[n] > 0 else 1.0 for n in names])
+    corr = res.cov / np.outer(sd, sd)
+    free = [names.index(n) for n in unc.names]
+    assert np.allclose(corr[np.ix_(free, free)], res.corr[np.ix_(free, free)], atol=1e-9)
+    doc = res.to_json(["x.csv"])
+    assert doc["fixed"] == {"d": res.params["d"]} and doc["std"]["d"] == 0.0
+    assert doc["cov"]["names"] == names
+    assert np.allclose(np.array(doc["cov"]["matrix"], float), res.cov)
+    assert doc["cov_search"]["names"] == unc.names
+    assert doc["cov_search"]["scale"] == ["log"] * len(unc.names)
+
+
+def test_information_criteria_as_system_identification_toolbox_defines_them(scenarios):
+    """AIC = N log V + 2 np + N ny (log 2 pi + 1), V = det(E'E / N), and the others, for the
+    three zones as outputs; np counts the parameters, initial states and zone offsets."""
+    scn = load_scenario(scenarios / "paper_exp1.yaml")
+    exp = Plant.from_scenario(scn, seed=1).run_scenario(scn).to_experiment("biased")
+    res = fit([exp], zone_offsets=True)
+    off = np.array(list(res.zone_offsets_c[0].values()))
+    e = exp.zone_temp - (res.predict(exp, res.x0[0]) + off)
+    n, ny, k = len(exp), 3, 6 + 3 + 3
+    V = np.linalg.det(e.T @ e / n)
+    ic = res.criteria
+    assert (ic.n_params, ic.n_samples) == (k, n)
+    aic = n * np.log(V) + 2 * k + n * ny * (np.log(2 * np.pi) + 1)
+    assert ic.aic == pytest.approx(aic, rel=1e-9)
+    assert ic.aicc == pytest.approx(aic + 2 * k * (k + 1) / (n - k - 1), rel=1e-9)
+    assert ic.bic == pytest.approx(aic - 2 * k + k * np.log(n), rel=1e-9)
+    assert ic.naic == pytest.approx(np.log(V) + 2 * k / n, rel=1e-9)
+    assert ic.fpe == pytest.approx(V * (1 + k / n) / (1 - k / n), rel=1e-9)
+    doc = res.to_json(["x"])
+    assert (doc["aic"], doc["n_estimated"]) == (ic.aic, k)
+    # the thermocouple bias is real here: the offsets pay for themselves
+    plain = fit([exp])
+    assert plain.criteria.n_params == 9
+    assert ic.aic < plain.criteria.aic and ic.bic < plain.criteria.bic
+
+
+def test_criteria_reproduce_the_published_matlab_example():
+    """MATLAB's aic and fpe pages fit iddata1 (300 samples, one output) and publish
+    MSE 1.6575, nAIC 0.5453, AIC 1015.0, AICc 1015.3, BIC 1037.2, FPE 1.7252: all five follow
+    from np = 6 estimated values."""
+    from furnace_model.criteria import criteria
+
+    e = np.random.default_rng(0).normal(size=(300, 1))
+    e *= np.sqrt(1.6575 / np.mean(e * e))
+    ic = criteria(e, 6)
+    # to the digits published (half a unit of the last), plus what MSE's own rounding moves
+    assert ic.naic == pytest.approx(0.5453, abs=0.00005 + 0.00003)
+    assert ic.aic == pytest.approx(1015.0, abs=0.05 + 0.01)
+    assert ic.aicc == pytest.approx(1015.3, abs=0.05 + 0.01)
+    assert ic.bic == pytest.approx(1037.2, abs=0.05 + 0.01)
+    assert ic.fpe == pytest.approx(1.7252, abs=0.00005 + 0.00003)
+
+
+def test_criteria_with_missing_readings_use_the_readings_present():
+    from furnace_model.criteria import criteria
+
+    rng = np.random.default_rng(1)
+    e = rng.normal(size=(2000, 3)) * [1.0, 2.0, 0.5]
+    full = criteria(e, 9)
+    holed = e.copy()
+    holed[:500, 1] = np.nan  # a quarter of one zone's readings lost
+    part = criteria(holed, 9)
+    assert part.n_samples == pytest.approx((3 * 2000 - 500) / 3)
+    # the lost readings' likelihood is gone: about a quarter of zone 2's share of -2 log L
+    share = 500 * (np.log(2 * np.pi * 4.0) + 1)
+    assert part.aic == pytest.approx(full.aic - share, rel=2e-3)
+    assert np.isfinite([part.aicc, part.bic, part.fpe]).all()
+
+
+def test_why_the_search_stopped_and_after_how_many_iterations(paper_1min):
+    res = fit([paper_1min], runs=2)
+    assert res.stop_reason == "converged" and res.iterations > 0 and res.generations == 30
+    assert [r["stop_reason"] for r in res.runs] == ["converged", "converged"]
+    assert all(r["iterations"] > 0 for r in res.runs)
+    doc = res.to_json(["x"])
+    assert (doc["stop_reason"], doc["iterations"], doc["generations"]) == (
+        "converged", res.iterations, 30)
+    warm = fit([paper_1min], init=res.params)
+    assert (warm.stop_reason, warm.generations) == ("converged", 0)
+    ga = fit([paper_1min], method="ga", generations=15)
+    assert (ga.stop_reason, ga.iterations, ga.generations) == ("ga_generations", 0, 15)
+    from furnace_model.fit import _Problem
+
+    prob = _Problem([paper_1min], ModelStructure(), {}, {})
+    start = prob.start(prob.to_z(np.array([PAPER_TABLE_V[n] for n in prob.names])) + 0.3)
+    short = prob.polish(start, None, max_iter=2)
+    assert (short.reason, short.iterations) == ("iteration_limit", 2)
+
+
+def test_a_parameter_forced_onto_its_bound_is_flagged_not_reported_as_a_value(paper_1min):
+    from furnace_model.cli.fit import render
+
+    res = fit([paper_1min], bounds={"b": (0.5, 2.0)})  # the truth is b = 0.299
+    assert res.at_bound == {"b": "lower"}
+    assert res.params["b"] == pytest.approx(0.5)
+    assert np.isnan(res.std["b"]) and np.isnan(res.cov[1]).all()
+    assert any(w.startswith("b ended on the lower bound") for w in res.warnings)
+    doc = res.to_json(["x"])
+    assert doc["at_bound"] == {"b": "lower"} and doc["std"]["b"] is None
+    assert doc["bounds"]["b"] == [0.5, 2.0]
+    import json
+
+    json.dumps(doc, allow_nan=False)
+    text = render(res, [paper_1min])
+    assert "| b | at lower bound 0.5 | - | - |" in text
+    assert "| b | 0.5 |" not in text
+    assert fit([paper_1min]).at_bound == {}

@@ -149,11 +149,13 @@ def test_fix_and_bounds_hold_and_narrow_the_parameters_and_are_recorded(exp_file
     assert 0.1 <= doc["params"]["f"] <= 0.2  # a box without the truth, 0.224: f stays in it
     assert 0.01 <= doc["params"]["a"] <= 0.05
     assert doc["fixed"] == {"d": 0.8}
-    assert doc["bounds"] == {"e": [0.5, 0.6], "f": [0.1, 0.2], "a": [0.01, 0.05]}
+    assert {k: doc["bounds"][k] for k in "aef"} == {"e": [0.5, 0.6], "f": [0.1, 0.2],
+                                                    "a": [0.01, 0.05]}
+    assert "d" not in doc["bounds"]  # fixed, not searched
     r = cli("fit", str(exp_files["paper_exp1"]), "--json", str(out))
     assert r.returncode == 0, r.stderr
     doc = json.loads(out.read_text())
-    assert doc["fixed"] == {} and doc["bounds"] == {}
+    assert doc["fixed"] == {} and doc["bounds"]["e"] == [0.001, 50.0]  # the parameter's own box
 
 
 @pytest.mark.parametrize("args, expect", [
@@ -180,3 +182,52 @@ def test_bad_fix_or_bounds_is_a_usage_error_before_any_fit(args, expect, tmp_pat
     assert r.returncode == 2, r.stderr
     assert r.stderr.strip().splitlines()[-1] == f"furnace-model fit: error: {expect}"
     assert "Traceback" not in r.stderr and not out.exists()
+
+
+def test_the_report_has_sd_covariance_criteria_and_why_the_search_stopped(exp_files, tmp_path):
+    out_json = tmp_path / "fit.json"
+    r = cli("fit", str(exp_files["paper_exp1"]), "--json", str(out_json))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out_json.read_text())
+    names = list("abcdef")
+    assert list(doc["std"]) == names and doc["cov"]["names"] == names and doc["fixed"] == {}
+    cov = doc["cov"]["matrix"]
+    for i, k in enumerate(names):
+        if k in doc["at_bound"]:  # no sd on the edge of the range (d may run there)
+            assert doc["std"][k] is None and cov[i][i] is None
+        else:
+            assert doc["std"][k] > 0 and cov[i][i] == pytest.approx(doc["std"][k] ** 2)
+    assert doc["stop_reason"] == "converged" and doc["iterations"] > 0
+    assert doc["runs"][0]["stop_reason"] == "converged"
+    assert doc["aic"] < doc["aicc"] and doc["bic"] > doc["aic"] and doc["fpe"] > 0
+    n_est = 6 + 3 + (3 if doc["zone_offsets_c"] else 0)
+    assert doc["n_estimated"] == n_est and doc["n_samples"] == 3311
+    assert "| parameter | value | sd | 95% interval | determined |" in r.stdout
+    assert f"AIC {doc['aic']:.1f}" in r.stdout and f"np = {n_est} estimated" in r.stdout
+    assert "stopped: converged" in r.stdout
+    assert "°C" in r.stdout and "degC" not in r.stdout
+
+
+def test_a_parameter_beyond_its_range_is_flagged_on_the_bound(tmp_path):
+    """The furnace's c is 3e-5, the search range of c starts at 1e-4: the fit ends on the
+    edge, and says so instead of printing 1e-4 as c's value."""
+    from furnace_model.experiment import write_table
+    from furnace_model.parameters import PAPER_TABLE_V
+    from furnace_model.plant import Plant
+    from furnace_model.scenario import load_scenario
+    from furnace_model.structure import ModelStructure
+
+    scn = load_scenario(ROOT / "config/scenarios/paper_exp1.yaml")
+    truth = {**PAPER_TABLE_V, "c": 3e-5, "f": 0.12}  # f lower: still a heat-up, not a melt
+    plant = Plant(ModelStructure(), truth, scn.sensors, seed=1)
+    data = tmp_path / "tight_preheat.csv"
+    write_table(plant.run_scenario(scn).to_experiment("tight_preheat").to_frame(), data)
+    out_json = tmp_path / "fit.json"
+    r = cli("fit", str(data), "--json", str(out_json))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out_json.read_text())
+    assert doc["at_bound"]["c"] == "lower"
+    assert doc["params"]["c"] == pytest.approx(1e-4) and doc["std"]["c"] is None
+    assert "| c | at lower bound 0.0001 | - | - |" in r.stdout
+    assert "| c | 0.0001 |" not in r.stdout
+    assert "c ended on the lower bound of its search range" in r.stderr

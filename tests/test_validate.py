@@ -109,3 +109,40 @@ def test_zone_offsets_take_the_bias_out_of_the_score(fitted, tmp_path):
     for zone in ("soak", "heat", "preheat"):
         assert o[zone]["rmse_c"] <= p[zone]["rmse_c"] + 1e-9
         assert abs(o[zone]["rmse_c"] / (1.5 / 2 ** 0.5) - 1) < 0.15, (zone, o[zone])
+
+
+def test_horizon_scores_the_k_step_prediction_beside_the_simulation(fitted, tmp_path):
+    """f 10% high: the simulation drifts off, the prediction from readings a few samples
+    back does not; the further ahead, the closer to the simulation (compare(data, model, K))."""
+    doc = json.loads((fitted / "fit.json").read_text())
+    doc["params"]["f"] *= 1.1
+    wrong = tmp_path / "wrong.json"
+    wrong.write_text(json.dumps(doc))
+    data = [str(fitted / "paper_exp1.csv"), str(fitted / "paper_exp2.csv")]
+    got = {}
+    for k in (1, 30):
+        out = tmp_path / f"k{k}.json"
+        r = cli("validate", "--params", str(wrong), *data, "--horizon", str(k),
+                "--json", str(out))
+        assert r.returncode == 0, r.stderr
+        assert f"| {k}-step RMSE (°C) | {k}-step fit % |" in r.stdout
+        assert "| all | soak |" in r.stdout and "degC" not in r.stdout
+        got[k] = json.loads(out.read_text())
+        assert got[k]["horizon"] == k
+        assert set(got[k]["prediction"]["per_experiment"]) == {"paper_exp1", "paper_exp2"}
+    for zone in ("soak", "heat", "preheat"):
+        sim = got[1]["per_zone"][zone]["fit_pct"]
+        one = got[1]["prediction"]["per_zone"][zone]["fit_pct"]
+        thirty = got[30]["prediction"]["per_zone"][zone]["fit_pct"]
+        assert one > thirty > sim, (zone, one, thirty, sim)
+        assert got[30]["per_zone"][zone] == got[1]["per_zone"][zone]  # the simulation's own
+    plain = cli("validate", "--params", str(wrong), data[0], "--json", str(tmp_path / "p.json"))
+    assert plain.returncode == 0 and "-step" not in plain.stdout
+    assert json.loads((tmp_path / "p.json").read_text())["prediction"] is None
+
+
+def test_a_horizon_of_no_samples_is_refused(fitted):
+    r = cli("validate", "--params", str(fitted / "fit.json"), str(fitted / "paper_exp2.csv"),
+            "--horizon", "0")
+    assert r.returncode != 0
+    assert "--horizon: must be at least 1 sample" in r.stderr and "Traceback" not in r.stderr

@@ -158,10 +158,7 @@ def run(args: argparse.Namespace) -> int:
     for w in result.warnings:
         print(f"furnace-model fit: warning: {w}", file=sys.stderr)
     if args.json:
-        doc = result.to_json([str(p) for p in args.data])
-        doc["fixed"] = fixed
-        doc["bounds"] = {k: list(v) for k, v in bounds.items()}
-        _write_json(args.json, doc)
+        _write_json(args.json, result.to_json([str(p) for p in args.data]))
     if args.plot:
         from ..plots import plot_fit  # matplotlib only when plots are asked for
 
@@ -189,30 +186,46 @@ def _g(v: float) -> str:
 
 def render(result: FitResult, experiments) -> str:
     """The paper's tables in markdown: runs (Tables I-II), genetic mean (Table V), then
-    the best fit with its intervals and per-zone errors."""
+    the best fit with sd, intervals and covariance, the information criteria, why the search
+    stopped, and per-zone errors."""
     names = result.structure.names
     n = sum(len(e) for e in experiments)
     out = [f"{len(experiments)} experiment(s), {n} samples, {result.n_obs} zone readings; "
            f"method {result.method}, {len(result.runs)} run(s), {result.elapsed_s:.2f} s", ""]
-    out.append("Runs (the paper's Tables I-II; e_w = mean absolute error per zone, degC)")
-    out.append("| run | seed | population | generations | " + " | ".join(names)
-               + " | e_1 | e_2 | e_3 | SSE |")
-    out.append("|---" * (8 + len(names)) + "|")
+    out.append("Runs (the paper's Tables I-II; e_w = mean absolute error per zone, °C)")
+    out.append("| run | seed | population | generations | iterations | stopped | "
+               + " | ".join(names) + " | e_1 | e_2 | e_3 | SSE |")
+    out.append("|---" * (10 + len(names)) + "|")
     for i, r in enumerate(result.runs, 1):
         errs = [f"{r['per_zone'][z]['mae_c']:.3f}" for z in ZONES]
         out.append(f"| {i} | {r['seed']} | {r['population']} | {r['generations']} | "
+                   f"{r.get('iterations', '')} | {r.get('stop_reason', '')} | "
                    + " | ".join(_g(r["params"][k]) for k in names) + " | "
                    + " | ".join(errs) + f" | {r['sse']:.6g} |")
     if len(result.runs) > 1:
-        out.append("| mean | | | | " + " | ".join(_g(result.genetic_mean[k]) for k in names)
+        out.append("| mean | | | | | | " + " | ".join(_g(result.genetic_mean[k]) for k in names)
                    + " | | | | |")
-    out += ["", "Best fit, 95% intervals (log scale for rates)",
-            "| parameter | value | 95% interval | determined |", "|---|---|---|---|"]
+    out += ["", "Best fit: value, standard deviation and 95% interval (rates: the interval on "
+            "the log scale, the sd in the parameter's units by the delta method, "
+            "sd = value × sd of its log)",
+            "| parameter | value | sd | 95% interval | determined |", "|---|---|---|---|---|"]
     for k in names:
         lo, hi = result.ci95[k]
-        out.append(f"| {k} | {_g(result.params[k])} | [{_g(lo)}, {_g(hi)}] | "
-                   f"{'no' if k in result.undetermined else 'yes'} |")
-    out += ["", "Per zone", "| zone | MAE (degC) | RMSE (degC) | fit % |", "|---|---|---|---|"]
+        if k in result.at_bound:
+            out.append(f"| {k} | at {result.at_bound[k]} bound {_g(result.params[k])} | - | - "
+                       "| no: on the edge of its range |")
+        elif k in result.fixed:
+            out.append(f"| {k} | {_g(result.params[k])} | 0 | - | fixed |")
+        else:
+            out.append(f"| {k} | {_g(result.params[k])} | {result.std[k]:.3g} | "
+                       f"[{_g(lo)}, {_g(hi)}] | {'no' if k in result.undetermined else 'yes'} |")
+    if result.cov is not None:
+        out += ["", "Covariance (parameters' units; rates by the delta method)",
+                "| | " + " | ".join(names) + " |", "|---" * (1 + len(names)) + "|"]
+        out += [f"| {k} | " + " | ".join(f"{v:.3g}" if math.isfinite(v) else "-" for v in row) + " |"
+                for k, row in zip(names, result.cov, strict=True)]
+    out += ["", _criteria_line(result), _stop_line(result)]
+    out += ["", "Per zone", "| zone | MAE (°C) | RMSE (°C) | fit % |", "|---|---|---|---|"]
     for z in ZONES:
         m = result.per_zone[z]
         out.append(f"| {z} | {m['mae_c']:.3f} | {m['rmse_c']:.3f} | {m['fit_pct']:.2f} |")
@@ -226,7 +239,36 @@ def render(result: FitResult, experiments) -> str:
         for e, x in zip(experiments, result.x0, strict=True)))
     if result.zone_offsets_c:
         out.append("Zone offsets (measured minus model): " + "; ".join(
-            f"{e.name} [" + ", ".join(f"{v:+.2f}" for v in off.values()) + "] degC"
+            f"{e.name} [" + ", ".join(f"{v:+.2f}" for v in off.values()) + "] °C"
             for e, off in zip(experiments, result.zone_offsets_c, strict=True)))
-    out.append(f"Status: {result.status}; residual sd {result.sigma_c:.3f} degC")
+    out.append(f"Status: {result.status}; residual sd {result.sigma_c:.3f} °C")
     return "\n".join(out)
+
+
+def _criteria_line(result: FitResult) -> str:
+    """AIC, AICc, BIC and FPE as System Identification Toolbox defines them, with what was
+    counted: an engineer comparing numbers must know np and N."""
+    ic = result.criteria
+    if ic is None:
+        return "Information criteria: not computed"
+    k = len(result.structure.names) - len(result.fixed)
+    states = 3 * len(result.x0) if ic.n_params > k else 0
+    parts = [f"{k} parameters"] + ([f"{states} initial states"] if states else []) + (
+        [f"{ic.n_params - k - states} zone offsets"] if ic.n_params > k + states else [])
+
+    def v(x: float, fmt: str) -> str:
+        return format(x, fmt) if math.isfinite(x) else "n/a"
+
+    return (f"Information criteria: AIC {v(ic.aic, '.1f')}, AICc {v(ic.aicc, '.1f')}, "
+            f"BIC {v(ic.bic, '.1f')}, nAIC {v(ic.naic, '.4f')}, FPE {v(ic.fpe, '.4g')} (°C)^6; "
+            f"np = {ic.n_params} estimated "
+            f"({' + '.join(parts)}), N = {ic.n_samples:.6g} samples of 3 zones "
+            "(System Identification Toolbox's definitions, docs/identification.md)")
+
+
+def _stop_line(result: FitResult) -> str:
+    ga = f"{result.generations} GA generation(s)" if result.generations else "no GA"
+    polish = (f"{result.iterations} polish iteration(s)" if result.method == "fast"
+              else "no polish")
+    return (f"Search: {ga}, then {polish}; stopped: {result.stop_reason} "
+            f"({result.stop_description})")

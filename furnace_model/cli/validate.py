@@ -1,6 +1,7 @@
 """`furnace-model validate`: score fitted parameters on other experiments (the paper's
 Table VI): per-zone MAE, RMSE and fit %, each experiment's initial state estimated from its
-own first readings onward."""
+own first readings onward; with --horizon K also the K-step-ahead prediction beside the
+simulation."""
 
 from __future__ import annotations
 
@@ -28,10 +29,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--zone-offsets", action="store_true",
                    help="estimate each file's constant offset per zone (thermocouple bias) "
                         "before scoring")
+    p.add_argument("--horizon", type=_horizon, metavar="K",
+                   help="also score the K-step-ahead prediction (the model restarted from the "
+                        "readings K samples earlier), as System Identification Toolbox's "
+                        "compare(data, model, K)")
     p.add_argument("--json", type=output_file, metavar="OUT", help="write the scores as JSON")
     p.add_argument("--plot", type=output_dir, metavar="DIR",
                    help="write measured-vs-model PNGs here (created if missing)")
     p.set_defaults(run=run)
+
+
+def _horizon(text: str) -> int:
+    try:
+        k = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number of samples: '{text}'") from None
+    if k < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 sample, got {k}")
+    return k
 
 
 def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
@@ -80,20 +95,38 @@ def run(args: argparse.Namespace) -> int:
 
     params, structure = load_params(args.params)
     experiments = [load_experiment(p) for p in args.data]
-    off = args.zone_offsets
+    off, k = args.zone_offsets, args.horizon
     per_exp = {e.name: score(params, [e], structure, off) for e in experiments}
     pooled = (score(params, experiments, structure, off) if len(experiments) > 1
               else next(iter(per_exp.values())))
-    lines = [f"Parameters from {args.params} ({structure.label}) on {len(experiments)} experiment(s)",
-             "", "| experiment | zone | MAE (degC) | RMSE (degC) | fit % |", "|---|---|---|---|---|"]
-    for name, pz in [*per_exp.items(), *([("all", pooled)] if len(experiments) > 1 else [])]:
+    ahead_exp, ahead = {}, None
+    if k:
+        from ..prediction import score_ahead
+
+        ahead_exp, ahead = score_ahead(params, experiments, k, structure, off)
+    rows = [*per_exp.items(), *([("all", pooled)] if len(experiments) > 1 else [])]
+    lines = [f"Parameters from {args.params} ({structure.label}) on {len(experiments)} "
+             "experiment(s)", ""]
+    if k:
+        lines += [f"Simulation, and the prediction {k} sample(s) ahead from the readings "
+                  "(as compare(data, model, K))", "",
+                  "| experiment | zone | MAE (°C) | RMSE (°C) | fit % | "
+                  f"{k}-step RMSE (°C) | {k}-step fit % |", "|---|---|---|---|---|---|---|"]
+    else:
+        lines += ["| experiment | zone | MAE (°C) | RMSE (°C) | fit % |", "|---|---|---|---|---|"]
+    for name, pz in rows:
         for z in ZONES:
             m = pz[z]
-            lines.append(f"| {name} | {z} | {m['mae_c']:.3f} | {m['rmse_c']:.3f} | {m['fit_pct']:.2f} |")
+            row = f"| {name} | {z} | {m['mae_c']:.3f} | {m['rmse_c']:.3f} | {m['fit_pct']:.2f} |"
+            if k:
+                a = (ahead if name == "all" else ahead_exp[name])[z]
+                row += f" {a['rmse_c']:.3f} | {a['fit_pct']:.2f} |"
+            lines.append(row)
     print("\n".join(lines))
     if args.json:
         doc = {"params_file": str(args.params), "params": params, "data": [str(p) for p in args.data],
-               "per_experiment": per_exp, "per_zone": pooled}
+               "per_experiment": per_exp, "per_zone": pooled, "horizon": k,
+               "prediction": {"per_experiment": ahead_exp, "per_zone": ahead} if k else None}
         try:
             args.json.write_text(json.dumps(doc, indent=1) + "\n")
         except OSError as exc:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from importlib.metadata import version
@@ -97,11 +98,17 @@ def test_version_is_the_installed_distribution(module, prog):
     assert r.stdout == f"{prog} {version('furnace-daq')}\n"
 
 
-def test_version_from_a_tree_that_is_not_installed_says_so():
-    """Without site-packages the distribution is not found; pyproject.toml's version is
+def test_version_from_a_tree_that_is_not_installed_says_so(tmp_path):
+    """A copy of the source tree without site-packages (nor the egg-info an editable install
+    leaves in the checkout): the distribution is not found; pyproject.toml's version is
     given, marked as not installed."""
-    r = run("-S", "-c", f"import sys; sys.path.insert(0, {str(ROOT)!r}); "
-                        "from furnace_model.cli.arguments import version; print(version())")
+    tree = tmp_path / "tree"
+    shutil.copytree(ROOT / "furnace_model", tree / "furnace_model",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tree / "pyproject.toml")
+    r = run("-I", "-S", "-c", f"import sys; sys.path.insert(0, {str(tree)!r}); "
+                        "from furnace_model.cli.arguments import version; print(version())",
+            cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == f"{version('furnace-daq')} (not installed)"
 

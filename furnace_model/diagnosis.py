@@ -422,6 +422,9 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
             score_against(c, base, floor)
         tried += step
         good = [c for c in step if _closes(c, kept, floor)]
+        for c in step:
+            if all(c is not g for g in good):
+                c.note = "; ".join(x for x in (c.note, _not_kept(c, kept)) if x)
         if not good:
             break
         best = min(good, key=lambda c: c.evidence)
@@ -445,6 +448,15 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
                 break
         kept = best
     return tried, kept
+
+
+def _not_kept(c: CandidateResult, kept: CandidateResult) -> str:
+    """Why the verdict does not keep a combination, which may earn credit against the
+    baseline on the strength of the effects it extends."""
+    return (f"not kept: {c.effects[-1]} does not earn its place beside {kept.label} (with its "
+            f"strength determined and a lower BIC, it must remove at least "
+            f"{MIN_GAP_CLOSED:.0f}% of the held-out error above the floor that {kept.label} "
+            "leaves)")
 
 
 def _closes(c: CandidateResult, kept: CandidateResult, floor: dict[str, float]) -> bool:

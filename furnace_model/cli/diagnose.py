@@ -109,4 +109,7 @@ def summary(d: Diagnosis) -> str:
             credit = "no: " + "; ".join(short) if short else "yes"
             lines.append(f"| {c.label} | {ho} | {c.shrink_pct:.0f} | {c.gap_closed_pct:.0f} | "
                          f"{c.delta_bic:.0f} | {determined} | {credit} |")
+        notes = [f"- {c.label}: {c.note}" for c in d.candidates if c.note]
+        if notes:
+            lines += ["", "Notes:", *notes]
     return "\n".join(lines)

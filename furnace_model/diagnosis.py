@@ -422,9 +422,6 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
             score_against(c, base, floor)
         tried += step
         good = [c for c in step if _closes(c, kept, floor)]
-        for c in step:
-            if all(c is not g for g in good):
-                c.note = "; ".join(x for x in (c.note, _not_kept(c, kept)) if x)
         if not good:
             break
         best = min(good, key=lambda c: c.evidence)
@@ -447,16 +444,18 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
             if not _closes(best, kept, floor):
                 break
         kept = best
+    # A combination earns credit against the baseline on the strength of the effects it
+    # extends; say why one with credit is not the set kept.
+    for c in tried:
+        if len(c.effects) > 1 and c.effects != kept.effects and _credit(c):
+            c.note = "; ".join(x for x in (c.note, _not_kept(kept)) if x)
     return tried, kept
 
 
-def _not_kept(c: CandidateResult, kept: CandidateResult) -> str:
-    """Why the verdict does not keep a combination, which may earn credit against the
-    baseline on the strength of the effects it extends."""
-    return (f"not kept: {c.effects[-1]} does not earn its place beside {kept.label} (with its "
-            f"strength determined and a lower BIC, it must remove at least "
-            f"{MIN_GAP_CLOSED:.0f}% of the held-out error above the floor that {kept.label} "
-            "leaves)")
+def _not_kept(kept: CandidateResult) -> str:
+    return (f"not kept: the stepwise search keeps {kept.label} (a further effect must remove "
+            f"at least {MIN_GAP_CLOSED:.0f}% of the held-out error above the floor that the "
+            "kept ones leave, with its strength determined and a lower BIC)")
 
 
 def _closes(c: CandidateResult, kept: CandidateResult, floor: dict[str, float]) -> bool:

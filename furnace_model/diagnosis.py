@@ -30,6 +30,8 @@ from .candidates import (
     score_against,
     structure_of,
 )
+from .credit import MIN_GAP_CLOSED
+from .credit import credited as _credit  # the one rule, shown as it is by report and summary
 from .effects import EFFECTS
 from .errors import FurnaceError
 from .experiment import Experiment
@@ -48,7 +50,8 @@ from .residuals import (
 )
 from .structure import ModelStructure
 
-__all__ = ["CandidateResult", "Diagnosis", "Located", "Verdict", "diagnose"]
+__all__ = ["CandidateResult", "Diagnosis", "Located", "Verdict", "WhereLine", "diagnose",
+           "where_lines"]
 
 TAIL_SHARE = 0.3
 """Share of a lone experiment held out (its last part) when no holdout is given."""
@@ -59,9 +62,6 @@ GAP_RATIO = 1.25
 NEAR_RATIO = 1.5
 """An extension whose held-out RMSE is within this multiple of the floor in every zone
 explains the gap."""
-MIN_GAP_CLOSED = 50.0
-"""Percent of the baseline's held-out error above the floor an effect must remove to count;
-for a further effect in a stepwise combination, of the error the kept ones leave."""
 MIN_SHARE = 0.02
 """A located span holds at least this share of its zone's squared error."""
 MAX_EFFECTS = 3
@@ -79,9 +79,9 @@ VARIANTS: dict[str, list[dict]] = {"radiation": [{"exponent": None}],
 furnace's effective radiation exponent depends on its gas and walls, not only on
 Stefan-Boltzmann (so it is fitted: exponent None), and its burner curve on its air supply
 (three shapes and blends of them). A wall that stores much heat in one zone only cannot be
-fitted by one exchange rate shared by the three (seen: a preheating-zone wall left 1.8 degC
+fitted by one exchange rate shared by the three (seen: a preheating-zone wall left 1.8 °C
 held out against a floor of 1.1 with walls in all zones). A burner curve fitted on few
-burners is extrapolated to the held-out data's many, where the laws part (seen: 3 degC held
+burners is extrapolated to the held-out data's many, where the laws part (seen: 3 °C held
 out against a floor of 1 after a straight-line fit to a power-law furnace). The further laws
 are fitted, warm from the effect's own law (and from scratch on a bent baseline, see
 `diagnose`), only when that law already removes part of the gap: the nonlinear fits are the
@@ -104,7 +104,8 @@ class Located:
     regime: str
     kind: str = "span"
     """sensor (a thermocouple departing from its partner), change (the sharpest step of the
-    residual in any zone) or span (a stretch holding much of a zone's error)."""
+    residual in any zone), span (a stretch holding much of a zone's error) or throughout (the
+    zone's error runs through the whole record: `residuals.THROUGHOUT_SHARE`)."""
 
 
 @dataclass
@@ -151,7 +152,7 @@ class Diagnosis:
                     "rmse_fit_c": _round(c.rmse_fit_c), "rmse_holdout_c": _round(c.rmse_holdout_c),
                     "shrink_pct": _r(c.shrink_pct), "gap_closed_pct": _r(c.gap_closed_pct),
                     "delta_bic": _r(c.delta_bic), "evidence": _r(c.evidence),
-                    "identifiable": c.identifiable,
+                    "identifiable": c.identifiable, "credit": _credit(c),
                     "held_out_fitted": list(c.held_out_fitted),
                     "note": c.note, "elapsed_s": _r(c.elapsed_s)}
 
@@ -362,10 +363,6 @@ def _helps(c: CandidateResult) -> bool:
     return c.gap_closed_pct > 0 and c.delta_bic < 0
 
 
-def _credit(c: CandidateResult, min_closed: float = MIN_GAP_CLOSED) -> bool:
-    return c.identifiable and c.delta_bic < 0 and c.gap_closed_pct >= min_closed
-
-
 def _rank(c: CandidateResult) -> tuple:
     r = c.rmse_holdout_pooled()
     return (not _credit(c), c.evidence if _credit(c) else (r if np.isfinite(r) else np.inf))
@@ -447,7 +444,18 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
             if not _closes(best, kept, floor):
                 break
         kept = best
+    # A combination earns credit against the baseline on the strength of the effects it
+    # extends; say why one with credit is not the set kept.
+    for c in tried:
+        if len(c.effects) > 1 and c.effects != kept.effects and _credit(c):
+            c.note = "; ".join(x for x in (c.note, _not_kept(kept)) if x)
     return tried, kept
+
+
+def _not_kept(kept: CandidateResult) -> str:
+    return (f"not kept: the stepwise search keeps {kept.label} (a further effect must remove "
+            f"at least {MIN_GAP_CLOSED:.0f}% of the held-out error above the floor that the "
+            "kept ones leave, with its strength determined and a lower BIC)")
 
 
 def _closes(c: CandidateResult, kept: CandidateResult, floor: dict[str, float]) -> bool:
@@ -473,8 +481,8 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
     if not gap:
         return Verdict("no_gap", [], 0.0,
                        f"The paper's model already predicts the held-out data as well as the "
-                       f"thermocouples allow (held-out RMSE {rb} degC against a noise floor of "
-                       f"{fl} degC): there is no model error to explain, and no candidate "
+                       f"thermocouples allow (held-out RMSE {rb} °C against a noise floor of "
+                       f"{fl} °C): there is no model error to explain, and no candidate "
                        f"effect was tried.")
     if kept is not None and _near(kept, floor):
         best = kept
@@ -488,24 +496,26 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
             f"The model's error comes from {what} it leaves out: {physics} "
             f"({', '.join(best.effects)}). Adding {it} cuts the held-out error in the "
             f"{ZONE_WORDS[worst]} zone from {base.rmse_holdout_c[worst]:.1f} to "
-            f"{best.rmse_holdout_c[worst]:.1f} degC (pooled over zones {best.shrink_pct:.0f}% "
-            f"smaller), down to about the thermocouple noise of {floor[worst]:.1f} degC."
+            f"{best.rmse_holdout_c[worst]:.1f} °C (pooled over zones {best.shrink_pct:.0f}% "
+            f"smaller), down to about the thermocouple noise of {floor[worst]:.1f} °C."
             + _unseen_words(best))
     worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / max(floor[z], 1e-9))
     place = ""
     if where:
-        w = where[0]
-        who = f"thermocouple {w.sensor}" if w.sensor else f"the {ZONE_WORDS[w.zone]} zone"
-        how = "shows first and most sharply" if w.kind == "change" else "lies mainly"
-        place = (f" It {how} in {who}, {w.start_min:.0f}-{w.end_min:.0f} min of "
-                 f"{w.experiment} ({w.regime}).")
+        w = where_lines(where)[0]
+        who = w.who if w.who.startswith("thermocouple") else f"the {w.who}"
+        if w.kind == "throughout":
+            place = f" It lies in {who} throughout {w.experiment} ({w.regime})."
+        else:
+            how = "shows first and most sharply" if w.kind == "change" else "lies mainly"
+            place = f" It {how} in {who}, {w.span} of {w.experiment} ({w.regime})."
     best = candidates[0] if candidates else None
     tried = (f" The best candidate, {best.label}, only reaches {best.rmse_holdout_pooled():.1f} "
-             f"degC." if best is not None else "")
+             f"°C." if best is not None else "")
     return Verdict(
         "unexplained", [], 0.0,
-        f"The model's held-out error is real ({base.rmse_holdout_c[worst]:.1f} degC in the "
-        f"{ZONE_WORDS[worst]} zone against a noise floor of {floor[worst]:.1f} degC), but "
+        f"The model's held-out error is real ({base.rmse_holdout_c[worst]:.1f} °C in the "
+        f"{ZONE_WORDS[worst]} zone against a noise floor of {floor[worst]:.1f} °C), but "
         f"none of the candidate effects brings it down to the noise.{place}{tried}"
         + (f" The held-out data fire {_zones_words(list(missing))}-zone burners, which the "
            f"fitted data never fire: what those burners do cannot be learnt from the fitted "
@@ -589,8 +599,7 @@ def uncovered(fit_data: list[Experiment], holdout: list[Experiment]) -> list[str
 
 
 def _zones_words(zones: list[str]) -> str:
-    words = [ZONE_WORDS[z] for z in zones]
-    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
+    return _and([ZONE_WORDS[z] for z in zones])
 
 
 def locate(experiments: list[Experiment], residuals: list[np.ndarray],
@@ -612,14 +621,14 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
     for f in faults:
         exp = experiments[f.experiment]
         z = f.sensor.rsplit("_", 1)[0]
-        what = (f"{f.sensor} drifts {f.size_c:+.1f} degC from its partner" if f.kind == "drift"
-                else f"{f.sensor} departs by about {f.size_c:.0f} degC from its partner at times")
+        what = (f"{f.sensor} drifts {f.size_c:+.1f} °C from its partner" if f.kind == "drift"
+                else f"{f.sensor} departs by about {f.size_c:.0f} °C from its partner at times")
         out.append(_located(exp, z, f.sensor, f.i0, f.i1, share(f.experiment, z, f.i0, f.i1),
                             what, "sensor"))
     change = sudden_change(experiments, residuals, floor)
     if change is not None:
         exp = experiments[change.experiment]
-        what = (f"the sharpest change in any zone: {change.size_c:+.0f} degC within "
+        what = (f"the sharpest change in any zone: {change.size_c:+.0f} °C within "
                 f"{SUDDEN_WINDOW_MIN:g} min; {regime(exp, change.i0, change.i1, change.zone)}")
         out.append(_located(exp, change.zone, None, change.i0, change.i1,
                             share(change.experiment, change.zone, change.i0, change.i1),
@@ -629,8 +638,8 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
         part = s.sse / total[s.zone] if total[s.zone] > 0 else 0.0
         if part < MIN_SHARE:
             continue  # a burst of noise, not where the error lies
-        out.append(_located(exp, s.zone, None, s.i0, s.i1, part,
-                            regime(exp, s.i0, s.i1, s.zone)))
+        out.append(_located(exp, s.zone, None, s.i0, s.i1, part, regime(exp, s.i0, s.i1, s.zone),
+                            "throughout" if s.throughout else "span"))
     return out
 
 
@@ -638,6 +647,58 @@ def _located(exp: Experiment, zone: str, sensor: str | None, i0: int, i1: int, s
              words: str, kind: str = "span") -> Located:
     a, b = float(exp.t_min[i0]), float(exp.t_min[max(i1 - 1, i0)])
     return Located(zone, sensor, exp.name, a, b, iso(exp, a), iso(exp, b), share, words, kind)
+
+
+@dataclass
+class WhereLine:
+    """One line of 'where the error lies' as the verdict, the report and the text summary
+    say it: the zones whose error runs throughout the same record are said once."""
+
+    who: str  # "thermocouple heat_1", "heating zone", "soaking and heating zones"
+    experiment: str
+    span: str  # "120-300 min"; the whole record's for kind "throughout"
+    clock: str  # "2026-03-10T06:00:00Z to 2026-03-10T09:00:00Z", or "" without a start time
+    share: str  # of the zone's squared error: "41%", or "92%, 93% and 93%" for zones
+    regime: str
+    kind: str
+
+
+def where_lines(where: list[Located]) -> list[WhereLine]:
+    out: list[WhereLine] = []
+    done: set[str] = set()
+    for w in where:
+        clock = f"{w.start} to {w.end}" if w.start and w.end else ""
+        span = f"{w.start_min:.0f}-{w.end_min:.0f} min"
+        if w.kind != "throughout":
+            who = f"thermocouple {w.sensor}" if w.sensor else f"{ZONE_WORDS[w.zone]} zone"
+            out.append(WhereLine(who, w.experiment, span, clock,
+                                 f"{100 * w.share_of_error:.0f}%", w.regime, w.kind))
+            continue
+        if w.experiment in done:
+            continue
+        done.add(w.experiment)
+        same = sorted((x for x in where if x.kind == "throughout" and x.experiment == w.experiment),
+                      key=lambda x: ZONES.index(x.zone))
+        zones = _zones_words([x.zone for x in same]) + (" zones" if len(same) > 1 else " zone")
+        share = _and([f"{100 * x.share_of_error:.0f}%" for x in same])
+        out.append(WhereLine(zones, w.experiment, span, clock, share,
+                             _common_regime([x.regime for x in same]), w.kind))
+    return out
+
+
+def _and(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
+
+
+def _common_regime(regimes: list[str]) -> str:
+    """The regime of several zones over one record: burners and steps are the record's,
+    said once; the temperature bands (the last part) are the zones' own."""
+    parts = [r.split("; ") for r in regimes]
+    if len(parts) == 1 or any(p[:-1] != parts[0][:-1] or not p[-1].endswith(" °C")
+                              for p in parts):
+        return " / ".join(regimes)
+    bands = [p[-1].removesuffix(" °C") for p in parts]
+    return "; ".join([*parts[0][:-1], f"{_and(bands)} °C"])
 
 
 def drift_sensor(faults, experiments: list[Experiment], base: CandidateResult,
@@ -671,8 +732,8 @@ def _opts_text(opts: dict) -> str:
 
 def search_bounds(fit_data: list[Experiment]) -> dict[str, tuple[float, float]]:
     """Times of a fuel switch or a drift's onset lie within the fitted records (minutes from
-    each record's start, as the effects count them); a drift faster than 0.2 degC/min
-    (12 degC an hour) is a broken thermocouple, not a drift."""
+    each record's start, as the effects count them); a drift faster than 0.2 °C/min
+    (12 °C an hour) is a broken thermocouple, not a drift."""
     t_end = max(float(e.t_min[-1]) for e in fit_data)
     t_lo = min(float(e.t_min[0]) for e in fit_data)
     return {"t_fuel": (t_lo, t_end), "t_drift": (t_lo, t_end), "drift_rate": (-0.2, 0.2)}

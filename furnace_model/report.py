@@ -20,7 +20,8 @@ from matplotlib.figure import Figure
 
 from . import ZONES
 from .candidates import CandidateResult
-from .diagnosis import Diagnosis
+from .credit import MIN_GAP_CLOSED, RULE, shortfall
+from .diagnosis import Diagnosis, where_lines
 from .experiment import Experiment
 from .residuals import ZONE_WORDS
 
@@ -41,6 +42,7 @@ th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }
 th:first-child, td:first-child { text-align: left; }
 th { background: #eee; }
 td.no { color: #999; }
+td.bar { padding: 0.1em 0.4em; }
 figure { margin: 0.8em 0; }
 figure svg { max-width: 100%; height: auto; }
 figcaption { color: #555; font-size: 0.9em; }
@@ -89,20 +91,21 @@ def render(d: Diagnosis) -> str:
                  _figure(_fig_residuals(d), "residuals",
                          "The paper's model's error over time per zone (measured minus model), "
                          "with the spans that hold most of it shaded (orange: the furnace; "
-                         "purple: a thermocouple) and the noise floor as dashed lines."), ""),
+                         "purple: a thermocouple) and the noise floor as dashed lines; an error "
+                         "that runs throughout a record is listed, not shaded."), ""),
         _section("Residual tests", _tests_table(d),
                  _figure(_fig_tests(d), "tests",
                          "Autocorrelation of the baseline's held-out residual per zone with its "
                          "99% band (a white residual stays inside): a model that leaves "
                          "structure behind shows outside the band."), ""),
-        _section("Candidate effects", _candidate_table(d),
-                 _figure(_fig_ranking(d), "ranking",
-                         "Each candidate extension's held-out RMSE reduction against the "
-                         "baseline. Filled bars earned credit (parameters determined by the "
-                         "data, information criterion lower); hatched ones did not."),
+        _section("Candidate effects", _candidate_table(d), "",
                  "Each candidate is fitted on the fit data (its parameters and the "
                  "baseline's together) and scored on the held-out data. dBIC < 0 means the "
-                 "extension is worth its extra parameters on the fitted data."),
+                 "extension is worth its extra parameters on the fitted data. A candidate "
+                 f"earns credit with its {RULE}. The bar is the share of the gap closed "
+                 f"(from -{BAR_LEFT_PCT:.0f} to {BAR_RIGHT_PCT:.0f}%, dotted at the "
+                 "threshold): filled when the candidate earns credit (blue: the verdict's), "
+                 "outlined when it does not."),
         _section("Parameters", _param_table(d, best), "", ""),
         "</body></html>",
     ]
@@ -152,13 +155,10 @@ def _rmse_table(d: Diagnosis, best: CandidateResult | None) -> str:
 def _where_table(d: Diagnosis) -> str:
     if not d.where:
         return "<p>No span holds a notable share of the error.</p>"
-    rows = []
-    for w in d.where:
-        who = f"thermocouple {w.sensor}" if w.sensor else f"{ZONE_WORDS[w.zone]} zone"
-        when = f"{w.start_min:.0f}-{w.end_min:.0f} min"
-        if w.start and w.end:
-            when += f" ({w.start} to {w.end})"
-        rows.append([who, w.experiment, when, f"{100 * w.share_of_error:.0f}%", w.regime])
+    rows = [[w.who, w.experiment,
+             (f"throughout ({w.span})" if w.kind == "throughout" else w.span)
+             + (f" ({w.clock})" if w.clock else ""), w.share, w.regime]
+            for w in where_lines(d.where)]
     return _table(["where", "experiment", "when", "share of the zone's squared error",
                    "operating regime"], rows)
 
@@ -186,18 +186,59 @@ def _tests_table(d: Diagnosis) -> str:
 
 
 def _candidate_table(d: Diagnosis) -> str:
+    """The candidates, best first, each with its credit and the bar that draws it: the
+    credit is `credit.shortfall`'s, the rule the verdict keeps effects by."""
     if not d.candidates:
         return "<p>No candidate was tried: there is no gap to explain.</p>"
+    kept = set(d.verdict.effects) if d.verdict.status == "explained" else set()
+    head = ["effect(s)", "gap closed", "held-out RMSE soak / heat / preheat (°C)", "shrink %",
+            "gap closed %", "dBIC", "credit", "note"]
     rows = []
     for c in d.candidates:
+        short = shortfall(c)
         ho = " / ".join(_f(c.rmse_holdout_c[z]) for z in ZONES)
-        # a credited candidate's note says how it was found (which law, from where)
-        credit = ("yes" + (f"; {c.note}" if c.note else "")) if _credited(c) else \
-            ("no: " + (c.note or "not better on the data"))
-        rows.append([c.label, ho, _f(c.shrink_pct, 0), _f(c.gap_closed_pct, 0),
-                     _f(c.delta_bic, 0), credit])
-    return _table(["effect(s)", "held-out RMSE soak / heat / preheat (°C)", "shrink %",
-                   "gap closed %", "dBIC", "credit"], rows, "Best first")
+        cells = [_e(c.label), _bar(c, not short, set(c.effects) == kept), _e(ho),
+                 _e(_f(c.shrink_pct, 0)), _e(_f(c.gap_closed_pct, 0)), _e(_f(c.delta_bic, 0)),
+                 _e("no: " + "; ".join(short) if short else "yes"), _e(c.note)]
+        classes = ["", ' class="bar"', "", "", "", "", ' class="credit"', ""]
+        rows.append("<tr>" + "".join(f"<td{k}>{x}</td>" for k, x in zip(classes, cells,
+                                                                         strict=True)) + "</tr>")
+    th = "".join(f"<th>{_e(h)}</th>" for h in head)
+    return (f"<table><caption>Best first</caption><thead><tr>{th}</tr></thead>"
+            f"<tbody>{''.join(rows)}</tbody></table>")
+
+
+BAR_LEFT_PCT, BAR_RIGHT_PCT = 50.0, 100.0
+"""The bar's scale in percent of the gap closed; a candidate beyond it is drawn to the edge
+(its number stands beside it)."""
+BAR_PX = 1.2
+"""Pixels per percent of the gap closed."""
+
+
+def _bar(c: CandidateResult, credited: bool, chosen: bool) -> str:
+    """The share of the gap a candidate closes as a small inline SVG: filled only when it
+    earns credit, so that the picture cannot say more than the rule."""
+    width, height = (BAR_LEFT_PCT + BAR_RIGHT_PCT) * BAR_PX, 14
+    zero = BAR_LEFT_PCT * BAR_PX
+    v = c.gap_closed_pct
+    parts = [f'<svg width="{width:.0f}" height="{height}" viewBox="0 0 {width:.0f} {height}" '
+             'role="img">']
+    if np.isfinite(v):
+        x = zero + float(np.clip(v, -BAR_LEFT_PCT, BAR_RIGHT_PCT)) * BAR_PX
+        colour = STATUS_COLOURS["explained"] if chosen else STATUS_COLOURS["no_gap"]
+        style = (f'fill="{colour}" stroke="{colour}"' if credited else
+                 'fill="none" stroke="#888" stroke-dasharray="3,2"')
+        parts += [f"<title>{_e(f'{v:.0f}% of the gap closed')}</title>",
+                  f'<rect class="{"credited" if credited else "uncredited"}" '
+                  f'x="{min(zero, x):.1f}" y="2" width="{abs(x - zero):.1f}" '
+                  f'height="{height - 4}" {style}/>']
+    else:
+        parts.append("<title>fit failed</title>")
+    threshold = zero + MIN_GAP_CLOSED * BAR_PX
+    parts += [f'<line x1="{zero:.1f}" x2="{zero:.1f}" y1="0" y2="{height}" stroke="#444"/>',
+              f'<line x1="{threshold:.1f}" x2="{threshold:.1f}" y1="0" y2="{height}" '
+              'stroke="#444" stroke-dasharray="1,2"/>', "</svg>"]
+    return "".join(parts)
 
 
 def _param_table(d: Diagnosis, best: CandidateResult | None) -> str:
@@ -219,10 +260,6 @@ def _table(head: list[str], rows: list[list[str]], caption: str = "") -> str:
     th = "".join(f"<th>{_e(h)}</th>" for h in head)
     body = "".join("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in r) + "</tr>" for r in rows)
     return f"<table>{cap}<thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
-
-
-def _credited(c: CandidateResult) -> bool:
-    return bool(c.identifiable and c.delta_bic < 0 and np.isfinite(c.shrink_pct))
 
 
 # --- figures -----------------------------------------------------------------------------
@@ -312,7 +349,7 @@ def _fig_residuals(d: Diagnosis) -> Figure:
                 for s in (-1, 1):
                     ax.axhline(s * fl, color="k", lw=0.7, ls="--")
             for loc in d.where:
-                if loc.experiment == exp.name and loc.zone == z:
+                if loc.experiment == exp.name and loc.zone == z and loc.kind != "throughout":
                     ax.axvspan(loc.start_min, max(loc.end_min, loc.start_min + 1),
                                color="C4" if loc.sensor else "C1", alpha=0.3, lw=0)
             ax.axhline(0.0, color="0.3", lw=0.6)
@@ -338,35 +375,6 @@ def _fig_tests(d: Diagnosis) -> Figure | None:
         ax.set_xlabel("lag (samples)")
         if k == 0:
             ax.set_ylabel("autocorrelation")
-    fig.tight_layout()
-    return fig
-
-
-def _fig_ranking(d: Diagnosis) -> Figure | None:
-    cands = d.candidates
-    if not cands:
-        return None
-    fig, axes = _new(1, 1, 8.5, 0.45 * len(cands) + 1.4)
-    ax = axes[0, 0]
-    y = np.arange(len(cands))[::-1]
-    kept = set(d.verdict.effects)
-    for yi, c in zip(y, cands, strict=True):
-        val = c.shrink_pct if np.isfinite(c.shrink_pct) else 0.0
-        credited = _credited(c)
-        chosen = d.verdict.status == "explained" and set(c.effects) == kept
-        ax.barh(yi, val, color="C0" if chosen else ("C2" if credited else "white"),
-                edgecolor="C2" if credited else "0.5", hatch=None if credited else "//")
-        mark = "" if c.identifiable else "  not determined"
-        dbic = f"dBIC {c.delta_bic:.0f}" if np.isfinite(c.delta_bic) else "failed"
-        ax.text(max(val, 0) + 1, yi, f"{dbic}{mark}", va="center", fontsize=8)
-    ax.set_yticks(y)
-    ax.set_yticklabels([c.label for c in cands], fontsize=8)
-    ax.axvline(0, color="0.3", lw=0.6)
-    ax.axvline(50, color="0.5", lw=0.6, ls=":")
-    hi = max([c.shrink_pct for c in cands if np.isfinite(c.shrink_pct)] + [10.0])
-    lo = min([c.shrink_pct for c in cands if np.isfinite(c.shrink_pct)] + [0.0])
-    ax.set_xlim(min(lo, 0) - 5, hi + 30)
-    ax.set_xlabel("held-out RMSE reduction against the paper's model (%)")
     fig.tight_layout()
     return fig
 

@@ -25,6 +25,10 @@ EPISODE_WINDOW = 121
 """Samples of the running median a thermocouple pair's difference is compared with."""
 MIN_SPAN = 5
 """Samples: a shorter run of large residuals is a spike, not a span."""
+THROUGHOUT_SHARE = 0.8
+"""A zone's stretches that together cover this share of a record's samples are one entry,
+the whole record: an error that runs through most of a record is not localised by cutting
+it where the residual happens to cross the noise band."""
 ZONE_WORDS = {"soak": "soaking", "heat": "heating", "preheat": "preheating"}
 
 
@@ -95,6 +99,7 @@ class Span:
     i1: int  # exclusive
     sse: float
     excess: float  # squared error above the noise floor
+    throughout: bool = False  # the whole record (`THROUGHOUT_SHARE`)
 
 
 def error_spans(experiments: list[Experiment], residuals: list[np.ndarray],
@@ -113,16 +118,30 @@ def error_spans(experiments: list[Experiment], residuals: list[np.ndarray],
             fl2 = floor[zone] ** 2 if np.isfinite(floor[zone]) else 0.0
             gain = sq - 4.0 * fl2
             used = np.zeros(sq.size, dtype=bool)
+            found: list[Span] = []
             for _ in range(3):
                 g = np.where(used, -np.inf, gain)
                 i0, i1, total = _max_subarray(g)
                 if total <= 0 or i1 - i0 < MIN_SPAN:
                     break
                 used[i0:i1] = True
-                spans.append(Span(zone, j, i0, i1, float(sq[i0:i1].sum()),
-                                  float((sq[i0:i1] - fl2).sum())))
+                found.append(Span(zone, j, i0, i1, float(sq[i0:i1].sum()),
+                                 float((sq[i0:i1] - fl2).sum())))
+            spans += _throughout(found, sq, fl2, np.isfinite(rz))
     spans.sort(key=lambda s: -s.excess)
     return spans[:max_spans]
+
+
+def _throughout(found: list[Span], sq: np.ndarray, fl2: float,
+                finite: np.ndarray) -> list[Span]:
+    """One zone's stretches in one record, or the whole record in their place when they
+    cover `THROUGHOUT_SHARE` of its samples with a residual."""
+    covered = sum(int(finite[s.i0:s.i1].sum()) for s in found)
+    if not found or covered < THROUGHOUT_SHARE * finite.sum():
+        return found
+    s = found[0]
+    return [Span(s.zone, s.experiment, 0, sq.size, float(sq.sum()),
+                 float((sq[finite] - fl2).sum()), throughout=True)]
 
 
 SUDDEN_WINDOW_MIN = 15.0
@@ -216,7 +235,7 @@ def regime(exp: Experiment, i0: int, i1: int, zone: str) -> str:
     if np.isfinite(y).any():
         lo, hi = np.nanmin(y), np.nanmax(y)
         band = 100.0 if hi - lo > 150 else 50.0
-        words.append(f"{np.floor(lo / band) * band:.0f}-{np.ceil(hi / band) * band:.0f} C")
+        words.append(f"{np.floor(lo / band) * band:.0f}-{np.ceil(hi / band) * band:.0f} °C")
     return "; ".join(w for w in words if w)
 
 

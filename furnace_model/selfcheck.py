@@ -5,8 +5,8 @@ would see it -- two heat-ups, noisy biased thermocouples, and nothing said about
 `summarize`: what `furnace-model selfcheck` prints).
 
 A case is two experiments like the paper's: each a cold heat-up of 3000-3500 minutes at
-1-minute samples, thermocouple noise sd 1.5 degC and a fixed bias per thermocouple (sd
-0.5 degC, drawn anew per experiment: thermocouples change between campaigns). The first is
+1-minute samples, thermocouple noise sd 1.5 °C and a fixed bias per thermocouple (sd
+0.5 °C, drawn anew per experiment: thermocouples change between campaigns). The first is
 given to the diagnosis to fit, the second is held out. Burner schedules are random heat-ups
 (several steps, the total mostly rising); in the fitted experiment the heating- and
 preheating-zone burners fire for part of the run, so that an effect tied to them can show.
@@ -31,7 +31,7 @@ them; the honest verdict for them is `unexplained`, with the zone or sensor loca
   library's own pieces: the plant up to the opening, the same plant with a wall loss in that
   zone (for preheating: a larger e) for the hour, then the plant again from the state reached.
 - `tc_reads_low`: one thermocouple intermittently reads low (a loose junction): in a handful
-  of episodes of 5-40 minutes its reading drops by 15-60 degC. Applied to the recorded
+  of episodes of 5-40 minutes its reading drops by 15-60 °C. Applied to the recorded
   readings after the plant run, since the furnace itself is unaffected.
 """
 
@@ -409,7 +409,7 @@ def judge_case(case: Case, diagnosis) -> tuple[bool, bool, str]:
         b, fl = diagnosis.baseline.rmse_holdout_c, diagnosis.noise_floor_c
         rmse = "/".join(f"{b[z]:.2f}" for z in ZONES)
         floor = "/".join(f"{fl[z]:.2f}" for z in ZONES)
-        return False, True, f"{ABSORBED_REASON} (held-out RMSE {rmse} against {floor} degC)"
+        return False, True, f"{ABSORBED_REASON} (held-out RMSE {rmse} against {floor} °C)"
     if case.expected_status == "unexplained":
         if v.status != "unexplained":
             return False, False, f"verdict {v.status} {v.effects}"

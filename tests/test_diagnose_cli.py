@@ -38,8 +38,13 @@ def test_diagnose_names_the_effect_and_writes_the_contract_json(case_files, tmp_
     r = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,sensor_lag,dead_time",
             "--json", str(out))
     assert r.returncode == 0, r.stderr
-    assert "Verdict: explained (zone_burners)" in r.stdout
-    assert "| zone | RMSE fit (degC) | RMSE held out (degC) | noise floor (degC) | gap |" in r.stdout
+    # the verdict first, then the evidence: baseline, where, candidates
+    assert r.stdout.startswith("Verdict: explained (zone_burners)\n")
+    order = [r.stdout.index(h) for h in ("Baseline (the paper's model", "Where the error lies",
+                                         "Candidates, best first")]
+    assert order == sorted(order)
+    assert "| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap |" in r.stdout
+    assert "degC" not in r.stdout and " C;" not in r.stdout
     doc = json.loads(out.read_text())
     assert set(doc["baseline"]) >= {"rmse_fit_c", "rmse_holdout_c", "noise_floor_c"}
     assert set(doc["baseline"]["rmse_holdout_c"]) == {"soak", "heat", "preheat"}
@@ -49,10 +54,15 @@ def test_diagnose_names_the_effect_and_writes_the_contract_json(case_files, tmp_
     assert [c["effect"] for c in doc["candidates"]][0] == "zone_burners"
     for c in doc["candidates"]:
         assert set(c) >= {"effect", "params", "rmse_fit_c", "rmse_holdout_c", "shrink_pct",
-                          "delta_bic"}
+                          "delta_bic", "credit"}
+        # the credit the summary prints is the JSON's
+        row = next(line for line in r.stdout.splitlines() if line.startswith(f"| {c['effect']} |"))
+        assert row.rstrip(" |").endswith("| yes") == c["credit"], row
+    assert doc["candidates"][0]["credit"] is True
     for w in doc["where"]:
         assert set(w) >= {"zone", "sensor", "start", "end", "share_of_error", "regime"}
         assert w["start"].endswith("Z")
+        assert w["kind"] in {"sensor", "change", "span", "throughout"}
     assert doc["holdout_how"] == "given"
 
 

@@ -13,6 +13,8 @@ import pytest
 
 from furnace_model import ZONES
 from furnace_model.candidates import CandidateResult, Task, run_task
+from furnace_model.cli.diagnose import summary
+from furnace_model.credit import credited
 from furnace_model.diagnosis import (
     COLD_GENERATIONS,
     GAP_RATIO,
@@ -89,6 +91,27 @@ def test_zone_burners_named_with_large_shrink():
     assert doc["verdict"] == {**doc["verdict"], "status": "explained",
                               "effects": ["zone_burners"]}
     assert len(best.holdout_pred) == 1 and best.holdout_pred[0].shape == (len(case.holdout[0]), 3)
+
+
+def test_a_combination_with_credit_that_is_not_kept_says_why():
+    """Zone burners and a sensor lag, with a dead time among the candidates: the lag is
+    added to the zone burners; the dead time added instead also earns credit against the
+    baseline (it extends the zone burners, which close 99% of the gap alone), so the credit
+    the summary shows does not by itself say what the verdict kept: its note does."""
+    case = _case(("zone_burners", "sensor_lag"), 300)
+    d = diagnose(case.fit, case.holdout, effects=("zone_burners", "sensor_lag", "dead_time"))
+    assert d.verdict.status == "explained"
+    assert set(d.verdict.effects) == {"zone_burners", "sensor_lag"}, d.verdict.sentence
+    chosen = d.best()
+    assert credited(chosen) and "not kept" not in chosen.note
+    others = [c for c in d.candidates if len(c.effects) > 1 and credited(c)
+              and set(c.effects) != set(d.verdict.effects)]
+    assert others, [(c.label, credited(c)) for c in d.candidates]
+    for c in others:
+        assert f"not kept: the stepwise search keeps {chosen.label}" in c.note, c.note
+        assert f"- {c.label}: " in summary(d)
+    assert [c["credit"] for c in d.to_json()["candidates"]] == [credited(c)
+                                                              for c in d.candidates]
 
 
 def test_thermocouple_reading_low_at_times_is_unexplained_and_located():

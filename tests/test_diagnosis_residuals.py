@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from furnace_model.diagnosis import Located, locate, where_lines
 from furnace_model.experiment import Experiment
 from furnace_model.residuals import (
     error_spans,
@@ -67,6 +68,48 @@ def test_error_span_found_where_the_residual_is_large():
     assert all(s.excess < 0.05 * top.excess for s in spans[1:])
 
 
+def test_error_throughout_a_record_is_one_entry_and_a_local_one_keeps_its_stretch():
+    """The heating zone errs through the whole of the first record (a slow swing of 6 °C,
+    crossing zero every 250 minutes); the soaking zone of the second errs for 300 minutes
+    only. The first is one entry covering the record, the second its own stretch."""
+    rng = np.random.default_rng(6)
+    exps = [_experiment(rng), _experiment(rng)]
+    n = len(exps[0])
+    floor = {"soak": 1.0, "heat": 1.0, "preheat": 1.0}
+    r0, r1 = rng.normal(0, 1.0, (n, 3)), rng.normal(0, 1.0, (n, 3))
+    r0[:, 1] += 6.0 * np.sin(2 * np.pi * np.arange(n) / 500.0)
+    r1[1200:1500, 0] += 8.0 * np.sin(np.linspace(0, np.pi, 300))
+    spans = error_spans(exps, [r0, r1], floor)
+    assert [(s.zone, s.experiment) for s in spans] == [("heat", 0), ("soak", 1)], spans
+    whole, local = spans
+    assert whole.throughout and (whole.i0, whole.i1) == (0, n)
+    assert not local.throughout and 1180 <= local.i0 <= 1260 and 1440 <= local.i1 <= 1520
+    where = [w for w in locate(exps, [r0, r1], floor, []) if w.kind != "change"]
+    assert [(w.zone, w.kind) for w in where] == [("heat", "throughout"), ("soak", "span")]
+    assert (where[0].start_min, where[0].end_min) == (0.0, float(n - 1))
+    assert where[0].share_of_error > 0.9
+
+
+def test_zones_erring_throughout_one_record_are_said_once():
+    """Three zones erring throughout exp2 make one line, zones and shares in order, with
+    the record's burners said once and each zone's temperature band; the verdict says it so."""
+    def whole(zone, share, band):
+        return Located(zone, None, "exp2", 0.0, 3473.0, None, None, share,
+                       f"soaking-zone burners firing; burners 3 -> 5 at 882 min; {band} °C",
+                       "throughout")
+    where = [whole("soak", 0.92, "0-1400"),
+             Located("heat", "heat_1", "exp1", 100.0, 400.0, None, None, 0.3,
+                     "heat_1 drifts +4.0 °C from its partner", "sensor"),
+             whole("heat", 0.93, "0-1300"), whole("preheat", 0.91, "0-700")]
+    lines = where_lines(where)
+    assert [(w.who, w.kind) for w in lines] == [
+        ("soaking, heating and preheating zones", "throughout"), ("thermocouple heat_1", "sensor")]
+    assert lines[0].share == "92%, 93% and 91%" and lines[0].span == "0-3473 min"
+    assert lines[0].regime == ("soaking-zone burners firing; burners 3 -> 5 at 882 min; "
+                               "0-1400, 0-1300 and 0-700 °C")
+    assert lines[1].span == "100-400 min" and lines[1].share == "30%"
+
+
 def test_sudden_change_points_at_the_zone_a_disturbance_enters():
     """A heat loss entering the heating zone at minute 2000: that zone drops fast, the
     soaking zone (larger capacity) follows slowly and ends with more squared error; the
@@ -92,7 +135,7 @@ def test_regime_words():
     words = regime(e, 2100, 2900, "heat")
     assert "soaking and heating-zone burners firing" in words
     assert "11 burners on" in words and "->" not in words
-    assert "C" in words.split("; ")[-1]
+    assert words.split("; ")[-1].endswith("00 °C")
     assert "burners 4 -> 8 at 1500 min" in regime(e, 1400, 1600, "soak")
 
 

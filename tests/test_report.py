@@ -3,12 +3,17 @@ one figure per section, nothing that reaches outside the page."""
 
 from __future__ import annotations
 
+import dataclasses
 import html
 from html.parser import HTMLParser
 
 import numpy as np
 import pytest
 
+from furnace_model import ZONES
+from furnace_model.candidates import CandidateResult, rmse_per_zone, score_against
+from furnace_model.cli.diagnose import summary
+from furnace_model.credit import credited
 from furnace_model.diagnosis import diagnose
 from furnace_model.report import write_report
 from furnace_model.selfcheck import draw_case
@@ -72,11 +77,13 @@ def test_report_is_one_self_contained_page_with_the_verdict_first(explained):
     text = " ".join(page.text)
     assert d.verdict.sentence in html.unescape(raw)
     assert text.index("heating- and preheating-zone burners") < text.index("Candidate effects")
-    # every section holds exactly one figure, except the parameter tables
+    # every section holds exactly one figure, except the parameter tables and the
+    # candidates, which draw one bar per candidate
     titles = [s["title"] for s in page.sections]
     assert titles[0] == "Error per zone, before and after" and titles[-1] == "Parameters"
     for s in page.sections:
-        assert s["svg"] == (0 if s["title"] == "Parameters" else 1), s
+        want = {"Parameters": 0, "Candidate effects": len(d.candidates)}.get(s["title"], 1)
+        assert s["svg"] == want, s
     # the numbers a plant engineer reads: per zone RMSE, the shrink, the parameter intervals
     for z in ("soaking", "heating", "preheating"):
         assert z in text
@@ -96,6 +103,103 @@ def test_report_of_a_control_says_no_gap_and_draws_what_there_is(tmp_path):
     assert d.verdict.sentence in html.unescape(raw)
     assert "No candidate was tried" in raw
     by_title = {s["title"]: s["svg"] for s in page.sections}
-    assert by_title["Candidate effects"] == 0  # no ranking to draw
+    assert by_title["Candidate effects"] == 0  # no candidate, no bar
     assert by_title["Measured and modelled temperatures"] == 1
     assert by_title["Where the error lies"] == 1
+
+
+class _CandidateRows(HTMLParser):
+    """Each row of the candidates' table: its cells' text by column, and the bar's rect."""
+
+    def __init__(self):
+        super().__init__()
+        self.head: list[str] = []
+        self.rows: list[dict] = []
+        self.in_table = self.in_cell = False
+        self.cell: list[str] = []
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if tag == "h2":
+            self.in_table = False
+        if tag == "table" and self.in_title == "Candidate effects":
+            self.in_table = True
+        if not self.in_table:
+            return
+        if tag == "tr":
+            self.rows.append({"cells": [], "rect": None})
+        if tag in ("td", "th"):
+            self.in_cell, self.cell = True, []
+        if tag == "rect":
+            self.rows[-1]["rect"] = a
+
+    def handle_endtag(self, tag):
+        if self.in_table and tag in ("td", "th"):
+            text = " ".join("".join(self.cell).split())
+            if tag == "th":
+                self.head.append(text)
+            else:
+                self.rows[-1]["cells"].append(text)
+            self.in_cell = False
+        if tag == "table":
+            self.in_table = False
+
+    in_title = ""
+
+    def handle_data(self, data):
+        if self.lasttag == "h2":
+            self.in_title = data
+        if self.in_cell and self.lasttag != "title":
+            self.cell.append(data)
+
+
+def _worse(d, factor: float) -> CandidateResult:
+    """A candidate that fits the fitted data better than the baseline (smaller squared
+    error, so a lower BIC) with its strength determined, but whose held-out error is
+    `factor` times the baseline's in every zone: the residual scaled, sample by sample."""
+    b = d.baseline
+    hold = [e.zone_temp - factor * (e.zone_temp - p) for e, p in
+            zip(d.holdout, b.holdout_pred, strict=True)]
+    c = CandidateResult(("dead_time",), {**b.params, "theta_dead": 3.0},
+                        {**b.ci95, "theta_dead": (2.0, 4.0)}, dict(b.rmse_fit_c),
+                        rmse_per_zone(d.holdout, hold), identifiable=True, fit_pred=b.fit_pred,
+                        holdout_pred=hold, sse_fit=0.8 * b.sse_fit, n_obs=b.n_obs,
+                        n_params=b.n_params + 1, rho1=b.rho1, rho1_holdout=b.rho1_holdout,
+                        n_holdout=b.n_holdout)
+    score_against(c, b, d.noise_floor_c)
+    return c
+
+
+def test_a_candidate_that_worsens_the_held_out_error_is_drawn_uncredited(explained, tmp_path):
+    """The report shows the credit the verdict's rule gives, read back from the HTML: a
+    candidate with a lower BIC and a determined strength that makes the held-out error 35%
+    worse says no, with why, and its bar is an outline; every credited row is the rule's,
+    with a filled bar, and the text summary and the JSON say the same."""
+    d0, _ = explained
+    bad = _worse(d0, 1.35)
+    assert bad.identifiable and bad.delta_bic < 0 and bad.gap_closed_pct < 0
+    assert bad.shrink_pct == pytest.approx(-35.0, abs=0.5)
+    d = dataclasses.replace(d0, candidates=[*d0.candidates, bad])
+    page = _CandidateRows()
+    page.feed((write_report(d, tmp_path / "r.html")).read_text(encoding="utf-8"))
+    col = {h: i for i, h in enumerate(page.head)}
+    rows = {r["cells"][col["effect(s)"]]: r for r in page.rows if r["cells"]}
+    assert set(rows) == {c.label for c in d.candidates}
+    worse = rows["dead_time"]
+    assert worse["cells"][col["credit"]].startswith("no:")
+    assert "worse (35% larger)" in worse["cells"][col["credit"]]
+    assert worse["rect"]["fill"] == "none"
+    for c in d.candidates:
+        cells, rect = rows[c.label]["cells"], rows[c.label]["rect"]
+        assert (cells[col["credit"]] == "yes") == credited(c), (c.label, cells)
+        assert (rect["fill"] != "none") == credited(c), (c.label, rect)
+    chosen = rows["+".join(d.verdict.effects)]
+    assert chosen["cells"][col["credit"]] == "yes" and chosen["rect"]["fill"] != "none"
+    text = {line.split("|")[1].strip(): line for line in summary(d).splitlines()
+            if line.startswith("| ") and line.count("|") == 8}
+    for c in d.candidates:
+        assert text[c.label].rstrip(" |").endswith(rows[c.label]["cells"][col["credit"]]), \
+            text[c.label]
+    assert [c["credit"] for c in d.to_json()["candidates"]] == [credited(c)
+                                                              for c in d.candidates]
+    assert all(np.isfinite(bad.rmse_holdout_c[z]) for z in ZONES)

@@ -78,32 +78,43 @@ def _write(path: Path, text: str) -> None:
 
 
 def summary(d: Diagnosis) -> str:
-    b = d.baseline
-    lines = [f"Fitted: {', '.join(e.name for e in d.fit_data)}; held out: {d.holdout_how}", "",
+    """The verdict first, then the evidence behind it, in the report's order and words."""
+    from ..credit import RULE, shortfall
+    from ..diagnosis import where_lines
+
+    b, v = d.baseline, d.verdict
+    lines = [f"Verdict: {v.status}" + (f" ({', '.join(v.effects)})" if v.effects else ""),
+             v.sentence, "",
+             f"Fitted: {', '.join(e.name for e in d.fit_data)}; held out: {d.holdout_how}", "",
              "Baseline (the paper's model, eq. 11):",
-             "| zone | RMSE fit (degC) | RMSE held out (degC) | noise floor (degC) | gap |",
+             "| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap |",
              "|---|---|---|---|---|"]
     for z in ZONES:
         lines.append(f"| {z} | {b.rmse_fit_c[z]:.2f} | {b.rmse_holdout_c[z]:.2f} | "
                      f"{d.noise_floor_c[z]:.2f} | {'yes' if z in d.gap_zones else 'no'} |")
     if d.where:
         lines += ["", "Where the error lies:"]
-        for w in d.where:
-            who = f"thermocouple {w.sensor}" if w.sensor else f"{w.zone} zone"
-            lines.append(f"- {who}, {w.experiment} {w.start_min:.0f}-{w.end_min:.0f} min"
-                         + (f" ({w.start} to {w.end})" if w.start else "")
-                         + f": {100 * w.share_of_error:.0f}% of the zone's squared error; "
-                         f"{w.regime}")
+        for w in where_lines(d.where):
+            when = (f"throughout {w.experiment} ({w.span})" if w.kind == "throughout"
+                    else f"{w.experiment} {w.span}")
+            lines.append(f"- {w.who}, {when}"
+                         + (f" ({w.clock})" if w.clock else "")
+                         + f": {w.share} of {'each' if ' and ' in w.share else 'the'} "
+                         f"zone's squared error; {w.regime}")
     if d.candidates:
-        lines += ["", "Candidates, best first (held-out RMSE per zone soak/heat/preheat):",
-                  "| effect(s) | held out (degC) | shrink % | gap closed % | dBIC | strength determined |",
-                  "|---|---|---|---|---|---|"]
+        lines += ["", "Candidates, best first (held-out RMSE per zone soak/heat/preheat; "
+                  f"credit: {RULE}):",
+                  "| effect(s) | held out (°C) | shrink % | gap closed % | dBIC | "
+                  "strength determined | credit |",
+                  "|---|---|---|---|---|---|---|"]
         for c in d.candidates:
             ho = "/".join(f"{c.rmse_holdout_c[z]:.2f}" for z in ZONES)
             determined = "yes" if c.identifiable else "no"
+            short = shortfall(c)
+            credit = "no: " + "; ".join(short) if short else "yes"
             lines.append(f"| {c.label} | {ho} | {c.shrink_pct:.0f} | {c.gap_closed_pct:.0f} | "
-                         f"{c.delta_bic:.0f} | {determined} |")
-    v = d.verdict
-    lines += ["", f"Verdict: {v.status}" + (f" ({', '.join(v.effects)})" if v.effects else ""),
-              v.sentence]
+                         f"{c.delta_bic:.0f} | {determined} | {credit} |")
+        notes = [f"- {c.label}: {c.note}" for c in d.candidates if c.note]
+        if notes:
+            lines += ["", "Notes:", *notes]
     return "\n".join(lines)

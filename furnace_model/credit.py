@@ -1,0 +1,44 @@
+"""Whether a candidate effect earns credit: the one rule the verdict keeps effects by, and
+the one the report, the text summary and the JSON show, so that they cannot disagree.
+
+A candidate earns credit when the data determine its own strength, it lowers the
+information criterion on the fitted data (dBIC < 0) and it removes at least half of the
+baseline's held-out error above the noise floor. A candidate that makes the held-out error
+worse closes a negative share of the gap and never earns it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .candidates import CandidateResult
+
+MIN_GAP_CLOSED = 50.0
+"""Percent of the baseline's held-out error above the floor an effect must remove to count;
+for a further effect in a stepwise combination, of the error the kept ones leave."""
+RULE = (f"strength determined by the data, dBIC < 0 on the fitted data and at least "
+        f"{MIN_GAP_CLOSED:.0f}% of the held-out gap above the noise floor closed")
+"""The rule in the words the report and the text summary print beside each candidate."""
+
+
+def shortfall(c: CandidateResult) -> list[str]:
+    """What keeps `c` from credit, in words; empty when it earns it."""
+    if not np.isfinite(c.gap_closed_pct) or not np.isfinite(c.delta_bic):
+        return ["its fit failed"]
+    out = []
+    if not c.identifiable:
+        out.append("its strength is not determined by the data")
+    if c.delta_bic >= 0:
+        out.append(f"the information criterion is not lower (dBIC {c.delta_bic:+.0f})")
+    if c.gap_closed_pct < 0:
+        larger = -c.shrink_pct
+        size = f"{larger:.0f}" if larger >= 1 else f"{larger:.1g}"
+        out.append(f"it makes the held-out error worse ({size}% larger)")
+    elif c.gap_closed_pct < MIN_GAP_CLOSED:
+        out.append(f"it closes {c.gap_closed_pct:.0f}% of the held-out gap above the noise "
+                   f"floor, under {MIN_GAP_CLOSED:.0f}%")
+    return out
+
+
+def credited(c: CandidateResult) -> bool:
+    return not shortfall(c)

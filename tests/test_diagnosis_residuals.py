@@ -7,14 +7,13 @@ import numpy as np
 import pytest
 
 from furnace_model.experiment import Experiment
+from furnace_model.noisefloor import record_floor
 from furnace_model.residuals import (
     error_spans,
     regime,
     residual_tests,
     sensor_faults,
-    sensor_noise,
     sudden_change,
-    zone_noise_floor,
 )
 
 
@@ -34,33 +33,12 @@ def _experiment(rng, n=3000, noise=(1.5, 1.0, 2.0), truth=None, burners=None) ->
     return Experiment("exp", t, tc, burners, np.full(n, 30.0))
 
 
-def test_noise_floor_recovers_sensor_noise_per_zone():
-    rng = np.random.default_rng(1)
-    exps = [_experiment(rng), _experiment(rng)]
-    per_tc = sensor_noise(exps)
-    for zone, sd in zip(("soak", "heat", "preheat"), (1.5, 1.0, 2.0), strict=True):
-        assert per_tc[zone] == pytest.approx(sd, rel=0.05)
-    floor = zone_noise_floor(exps)
-    assert floor["heat"] == pytest.approx(1.0 / np.sqrt(2), rel=0.05)
-
-
-def test_noise_floor_ignores_a_loose_junction_and_uses_a_lone_thermocouple():
-    rng = np.random.default_rng(2)
-    e = _experiment(rng)
-    e.tc[100:140, 2] -= 40.0  # heat_1 reads low for a while
-    e.tc[:, 5] = np.nan  # preheat_2 dead: one thermocouple left
-    per_tc = sensor_noise([e])
-    assert per_tc["heat"] == pytest.approx(1.0, rel=0.08)
-    assert per_tc["preheat"] == pytest.approx(2.0, rel=0.1)
-    assert zone_noise_floor([e])["preheat"] == pytest.approx(2.0, rel=0.1)
-
-
 def test_error_span_found_where_the_residual_is_large():
     rng = np.random.default_rng(3)
     e = _experiment(rng)
     r = rng.normal(0, 1.0, (len(e), 3))
     r[1200:1500, 1] += 8.0 * np.sin(np.linspace(0, np.pi, 300))
-    spans = error_spans([e], [r], {"soak": 1.0, "heat": 1.0, "preheat": 1.0})
+    spans = error_spans([e], [r], [{"soak": 1.0, "heat": 1.0, "preheat": 1.0}])
     top = spans[0]
     assert top.zone == "heat"
     assert 1180 <= top.i0 <= 1260 and 1440 <= top.i1 <= 1520
@@ -73,7 +51,9 @@ def test_sudden_change_points_at_the_zone_a_disturbance_enters():
     sharpest step is found in the heating zone at the minute. Noise alone gives none."""
     rng = np.random.default_rng(5)
     e = _experiment(rng)
-    floor = {"soak": 1.0, "heat": 1.0, "preheat": 1.0}
+    floor = [record_floor(e)]  # white noise of sd 1.5, 1 and 2 per thermocouple
+    for zf in floor[0].zones.values():
+        zf.floor_c, zf.lag1 = 1.0, 0.0  # the residual below is white of sd 1
     r = rng.normal(0, 1.0, (len(e), 3))
     assert sudden_change([e], [r], floor) is None
     t = np.arange(len(e), dtype=float) - 2000.0
@@ -103,7 +83,7 @@ def test_drifting_thermocouple_is_named(culprit):
     t = e.t_min
     e.tc[:, culprit] += 0.02 * np.maximum(t - 1000, 0.0)
     truth_pred = np.column_stack([300 + 0.2 * t, 250 + 0.15 * t, 100 + 0.05 * t])
-    faults = sensor_faults([e], [truth_pred], sensor_noise([e]))
+    faults = sensor_faults([e], [truth_pred], [{z: f.tc_sd_c for z, f in record_floor(e).zones.items()}])
     assert [f.sensor for f in faults] == [("heat_1", "heat_2")[culprit - 2]]
     assert faults[0].kind == "drift"
     assert 800 <= t[faults[0].i0] <= 1200
@@ -116,7 +96,7 @@ def test_episodes_of_low_readings_are_named_and_a_clean_pair_is_not():
         e.tc[lo:lo + 20, 1] -= 30.0  # soak_2 reads low at times
     t = e.t_min
     truth_pred = np.column_stack([300 + 0.2 * t, 250 + 0.15 * t, 100 + 0.05 * t])
-    faults = sensor_faults([e], [truth_pred], sensor_noise([e]))
+    faults = sensor_faults([e], [truth_pred], [{z: f.tc_sd_c for z, f in record_floor(e).zones.items()}])
     assert [(f.sensor, f.kind) for f in faults] == [("soak_2", "episodes")]
     assert faults[0].size_c == pytest.approx(30.0, rel=0.2)
 

@@ -106,6 +106,16 @@ class _Problem:
         self.n = self.k + self.block * len(self.records)
         self.n_obs = int(sum(r.mask.sum() for r in self.records))
 
+    def series(self) -> list[np.ndarray]:
+        """Positions in the residual vector of each record's zone series, in time order:
+        the unit whose noise has one variance and one colour."""
+        out, at = [], 0
+        for r in self.records:
+            for w in range(3):
+                out.append(at + np.nonzero(r.zone_of == w)[0])
+            at += r.zone_of.size
+        return out
+
     def to_z(self, v: np.ndarray) -> np.ndarray:
         v = np.asarray(v, dtype=float)
         return np.where(self.log, np.log(np.where(self.log, np.maximum(v, 1e-300), 1.0)), v)
@@ -298,6 +308,8 @@ class FitResult:
     combinations: dict[str, dict] = field(default_factory=dict)  # name -> {value, ci95}
     zone_offsets_c: list[dict[str, float]] | None = None  # per experiment: offset per zone
     uncertainty: Uncertainty | None = None
+    ci95_white: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """The intervals were the residuals white (ci95 allows for their autocorrelation)."""
 
     def predict(self, exp: Experiment, x0: np.ndarray | None = None) -> np.ndarray:
         """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None.
@@ -402,11 +414,12 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     z, ok = results[best][0], results[best][1]
     res = prob.fun(z)
     J = prob.jac(z)
-    unc = from_jacobian(J, res, prob.names, prob.log, z[:prob.k])
+    unc = from_jacobian(J, res, prob.names, prob.log, z[:prob.k], prob.series())
     params = _param_dict(prob, z)
     ci = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val), strict=True))
+    ci_white = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val, white=True), strict=True))
     for name, v in prob.fixed.items():
-        ci[name] = (float(v), float(v))
+        ci[name] = ci_white[name] = (float(v), float(v))
     undetermined = unc.undetermined(prob.from_z(z[:prob.k]), prob.lo_val, prob.hi_val)
     named = unc.determined_combinations(undetermined)
     combos = [name for name, _ in named]
@@ -432,7 +445,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         sigma_c=unc.sigma, combinations=combo_values,
         zone_offsets_c=([dict(zip(ZONES, map(float, prob.offsets_of(z, j)), strict=True))
                          for j in range(len(experiments))] if zone_offsets else None),
-        uncertainty=unc)
+        uncertainty=unc, ci95_white={n: ci_white[n] for n in structure.names})
 
 
 def _one_run(prob: _Problem, method: str, population: int, generations: int,

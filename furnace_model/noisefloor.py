@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import ZONES
+from .autoregression import acf, fit_ar
 from .experiment import Experiment
 
 TREND_MIN = 360.0
@@ -40,8 +41,6 @@ CLIP_SD = 5.0
 drop, a spike): the floor is the noise of working sensors, not of their faults."""
 MIN_PAIR = 20
 """Samples with both thermocouples below which a pair does not give a floor."""
-MAX_AR = 8
-"""Highest autoregression order tried for the pair difference's colour."""
 
 
 @dataclass
@@ -156,9 +155,8 @@ def _pair_variance(exp: Experiment, w: int) -> tuple[float, float, float, int] |
     kept = np.abs(e) <= CLIP_SD * robust
     e = np.where(kept, e, 0.0)  # a left-out sample leaves a zero, not a gap in the series
     var = float(e @ e / max(kept.sum() - 1, 1))
-    rho = _acf(e, MAX_AR)
-    n_eff = float(kept.sum()) / _correlation_time(rho, int(kept.sum()))
-    return var, float(rho[1]), n_eff, int(kept.sum())
+    n_eff = float(kept.sum()) / fit_ar(e).correlation_time
+    return var, float(acf(e, 1)[1]), n_eff, int(kept.sum())
 
 
 def _slow_trend(t: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -183,45 +181,6 @@ def _robust_sd(x: np.ndarray) -> float:
     if x.size < 3:
         return float("nan")
     return float(1.482602218505602 * np.median(np.abs(x - np.median(x))))
-
-
-def _acf(e: np.ndarray, lags: int) -> np.ndarray:
-    """Sample autocorrelation at lags 0..lags."""
-    e = e - e.mean()
-    den = float(e @ e)
-    if den <= 0:
-        return np.r_[1.0, np.zeros(lags)]
-    return np.array([1.0] + [float(e[k:] @ e[:-k]) / den for k in range(1, lags + 1)])
-
-
-def _correlation_time(rho: np.ndarray, n: int) -> float:
-    """Integrated correlation time, samples per independent sample, of a series whose
-    autocorrelation is rho: from a low-order autoregression fitted to it (Yule-Walker, order
-    by AIC), whose spectrum at zero frequency is what a sample mean or variance of slow
-    samples feels. A white series gives 1."""
-    from scipy.linalg import solve_toeplitz
-
-    best, tau = np.inf, 1.0
-    n_terms = rho.size - 1
-    for p in range(0, n_terms + 1):
-        if p == 0:
-            phi, s2 = np.zeros(0), 1.0
-        else:
-            try:
-                phi = solve_toeplitz(rho[:p], rho[1:p + 1])
-            except np.linalg.LinAlgError:
-                break
-            s2 = float(1.0 - phi @ rho[1:p + 1])
-            if s2 <= 1e-6:
-                break
-        aic = n * np.log(s2) + 2.0 * p
-        if aic < best:
-            best = aic
-            # For an AR process: tau = sum of rho over all lags = (s2 / (1 - sum phi)^2)
-            # / variance, and the variance is 1 here (rho is normalised).
-            gain = 1.0 - float(phi.sum())
-            tau = s2 / (gain * gain) if gain > 1e-3 else 1e6
-    return float(np.clip(tau, 1.0, 1e6))
 
 
 def _second_difference_sd(y: np.ndarray) -> tuple[float, float]:

@@ -30,9 +30,9 @@ from furnace_model.effects import EFFECTS
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import Experiment
 from furnace_model.fit import predict_held_out
+from furnace_model.noisefloor import pooled_floor, record_floor
 from furnace_model.parameters import PAPER_TABLE_V
 from furnace_model.plant import Plant
-from furnace_model.noisefloor import pooled_floor, record_floor
 from furnace_model.scenario import SensorSpec
 from furnace_model.selfcheck import case_rng, draw_case
 from furnace_model.structure import Inputs, ModelStructure

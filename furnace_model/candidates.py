@@ -263,7 +263,10 @@ def identifiable(fr: FitResult, effects: tuple[str, ...]) -> tuple[bool, str]:
         for pname, null in NULL[name].items():
             if pname not in box:
                 continue
-            p, (lo, hi), v = box[pname], fr.ci95[pname], fr.params[pname]
+            # Under the candidate's own noise (white): whether the records pin its strength
+            # down; a residual the other effects of a combination leave would otherwise
+            # hide a first effect that the data do determine.
+            p, (lo, hi), v = box[pname], fr.ci95_white[pname], fr.params[pname]
             at_edge = lo <= p.lo * (1 + 1e-6) or hi >= p.hi * (1 - 1e-6) if p.log else \
                 lo <= p.lo + 1e-9 * (p.hi - p.lo) or hi >= p.hi - 1e-9 * (p.hi - p.lo)
             if p.log:

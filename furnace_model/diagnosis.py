@@ -5,8 +5,9 @@ fit has not seen.
 The baseline is eq. 11 fitted with a constant offset per zone and experiment (thermocouple
 bias). Held-out data are scored with the model's parameters fixed; only what belongs to the
 record and not to the furnace is estimated on it (initial temperatures, thermocouple
-offsets). The noise floor comes from the data themselves (the thermocouple pairs), so that
-"no gap" means: the baseline already predicts the held-out data as well as the sensors allow.
+offsets). The noise floor comes from the data themselves (the thermocouple pairs), record by
+record (furnace_model.noisefloor), so that "no gap" means: the baseline already predicts each
+held-out record as well as that record's own sensors allow.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from .candidates import (
     CandidateResult,
     Task,
     check_effects,
-    pooled,
     rmse_per_zone,
     run_task,
     score_against,
@@ -36,6 +36,7 @@ from .effects import EFFECTS
 from .errors import FurnaceError
 from .experiment import Experiment
 from .fit import fit
+from .noisefloor import RecordFloor, limits, pooled_floor, record_floor
 from .residuals import (
     SUDDEN_WINDOW_MIN,
     ZONE_WORDS,
@@ -44,9 +45,7 @@ from .residuals import (
     regime,
     residual_tests,
     sensor_faults,
-    sensor_noise,
     sudden_change,
-    zone_noise_floor,
 )
 from .structure import ModelStructure
 
@@ -58,10 +57,14 @@ TAIL_SHARE = 0.3
 MIN_FIT_SAMPLES = 100
 MIN_HOLDOUT_SAMPLES = 30
 GAP_RATIO = 1.25
-"""A zone's held-out RMSE above this multiple of its noise floor is a gap."""
+"""A zone's held-out RMSE above this multiple of its noise floor is a gap (or further, where
+the held-out records hold few independent samples: `GAP_Z`)."""
+GAP_Z = 3.0
+"""Standard errors of the RMSE-to-floor ratio a gap must also exceed (noisefloor.limits)."""
 NEAR_RATIO = 1.5
 """An extension whose held-out RMSE is within this multiple of the floor in every zone
-explains the gap."""
+explains the gap (or within `NEAR_Z` standard errors of the ratio, if that is further)."""
+NEAR_Z = 4.0
 MIN_SHARE = 0.02
 """A located span holds at least this share of its zone's squared error."""
 MAX_EFFECTS = 3
@@ -134,6 +137,11 @@ class Diagnosis:
     elapsed_s: float
     gap_zones: tuple[str, ...] = ()
     sensor_noise_c: dict[str, float] | None = None
+    record_floors: list[RecordFloor] | None = None
+    """Each record's own floor, the fitted records first, then the held-out ones."""
+    noise_floor_fit_c: dict[str, float] | None = None
+    gap_limit_c: dict[str, float] | None = None
+    """Held-out RMSE per zone above which the zone has a gap."""
 
     def best(self) -> CandidateResult | None:
         if self.verdict.status == "explained":
@@ -161,6 +169,8 @@ class Diagnosis:
             "baseline": {"rmse_fit_c": _round(b.rmse_fit_c),
                          "rmse_holdout_c": _round(b.rmse_holdout_c),
                          "noise_floor_c": _round(self.noise_floor_c),
+                         "noise_floor_fit_c": _round(self.noise_floor_fit_c or {}),
+                         "gap_limit_c": _round(self.gap_limit_c or {}),
                          "params": _round(b.params),
                          "ci95": {k: [_r(v[0]), _r(v[1])] for k, v in b.ci95.items()},
                          "gap_zones": list(self.gap_zones)},
@@ -177,6 +187,8 @@ class Diagnosis:
             "data": [e.source or e.name for e in self.fit_data],
             "holdout": [e.source or e.name for e in self.holdout],
             "sensor_noise_c": _round(self.sensor_noise_c or {}),
+            "noise_floors": [{**f.to_json(), "role": "fit" if i < len(self.fit_data)
+                              else "holdout"} for i, f in enumerate(self.record_floors or [])],
             "residual_tests": self.residual_tests,
             "elapsed_s": _r(self.elapsed_s),
         }
@@ -207,26 +219,33 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     say("baseline", 0.0)
     base = run_task(Task((), {}, fit_data, hold, tail_of, None, seed))
     every = fit_data + hold
-    floor = zone_noise_floor(every)
-    tc_noise = sensor_noise(every)
+    floors = [record_floor(e) for e in every]
+    fit_floors, hold_floors = floors[:len(fit_data)], floors[len(fit_data):]
+    floor = pooled_floor(hold_floors)  # what the held-out RMSE, pooled alike, compares with
+    fit_limit = limits(fit_floors, GAP_RATIO, GAP_Z)
+    gap_limit = limits(hold_floors, GAP_RATIO, GAP_Z)
+    near = limits(hold_floors, NEAR_RATIO, NEAR_Z)
+    tc_noise = [{z: f.zones[z].tc_sd_c for z in ZONES} for f in floors]
     base_res = [e.zone_temp - p for e, p in zip(every, base.fit_pred + base.holdout_pred,
                                                 strict=True)]
     faults = sensor_faults(every, base.fit_pred + base.holdout_pred, tc_noise)
-    where = locate(every, base_res, floor, faults)
+    where = locate(every, base_res, floors, faults)
     tests = residual_tests(hold, [e.zone_temp - p for e, p in
                                   zip(hold, base.holdout_pred, strict=True)])
-    gap = tuple(z for z in ZONES if base.rmse_holdout_c[z] > GAP_RATIO * floor[z])
+    gap = tuple(z for z in ZONES if base.rmse_holdout_c[z] > gap_limit[z])
+    noise = {"record_floors": floors, "noise_floor_fit_c": pooled_floor(fit_floors),
+             "gap_limit_c": gap_limit, "sensor_noise_c": _pooled_tc(floors)}
 
     options = {"sensor_drift": {"sensor": drift_sensor(faults, every, base, tc_noise)},
                "radiation": {"exponent": 4.0}, "burner_nonlinearity": {"form": "linear"},
                "wall_storage": {"zones": ZONES}}
     if not gap:
         # Nothing to explain: no extension can beat the noise on held-out data.
-        verdict = judge(base, None, [], floor, gap, where)
+        verdict = judge(base, None, [], floor, near, gap, where)
         say("done", 1.0)
         return Diagnosis(fit_data, hold, how, base, floor, where, tests, [], verdict,
-                         time.perf_counter() - t_start, gap, tc_noise)
-    bent = any(base.rmse_fit_c[z] > GAP_RATIO * floor[z] for z in ZONES)
+                         time.perf_counter() - t_start, gap, **noise)
+    bent = any(base.rmse_fit_c[z] > fit_limit[z] for z in ZONES)
     say("candidates", 0.1)
     bounds = search_bounds(fit_data)
     starts = effect_starts(faults, every)
@@ -234,7 +253,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     if bent and "zone_burners" in names:
         inits["zone_burners"] = soak_burners_start(fit_data, seed) or inits["zone_burners"]
     tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of, inits[n], seed, bent,
-                  bounds, {z: GAP_RATIO * floor[z] for z in ZONES})
+                  bounds, fit_limit)
              for n in names]
     fitted = _run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f))
     for c in fitted:
@@ -247,11 +266,11 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         # that is radiation in most diagnoses, and searching it always took the paper's pair
         # from 47 to 190 s for a verdict it did not change. Linear candidates are searched
         # from scratch in their own task.
-        stuck = not any(_credit(c) and _near(c, floor) for c in fitted)
+        stuck = not any(_credit(c) and _near(c, near) for c in fitted)
         off = [i for i, c in enumerate(fitted)
                if not structure_of(c.effects, c.options).linear
                and (stuck or _helps(c))
-               and any(c.rmse_fit_c[z] > GAP_RATIO * floor[z] for z in ZONES)]
+               and any(c.rmse_fit_c[z] > fit_limit[z] for z in ZONES)]
         cold = _run_all([Task(fitted[i].effects, fitted[i].options, fit_data, hold, tail_of,
                               None, seed + 1, bounds=bounds, generations=COLD_GENERATIONS)
                          for i in off], lambda f: say("candidates", 0.6 + 0.05 * f))
@@ -264,9 +283,9 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     # but only while no candidate alone explains the gap (seen: a preheating-zone wall whose
     # warm law stayed off the floor, and a drift was added; searched every time, the laws
     # cost the paper pair 10%).
-    cold_laws = bent and not any(_credit(c) and _near(c, floor) for c in fitted)
+    cold_laws = bent and not any(_credit(c) and _near(c, near) for c in fitted)
     laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
-                 seed, cold_laws, bounds, {z: GAP_RATIO * floor[z] for z in ZONES})
+                 seed, cold_laws, bounds, fit_limit)
             for c, opts in further_laws(fitted)]
     more = _run_all(laws, lambda f: say("candidates", 0.65 + 0.05 * f))
     for c in more:
@@ -287,13 +306,26 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                     _opts_text(c.options[n]) for c in same)) if x)
         singles.append(same[0])
     singles.sort(key=_rank)
-    combos, kept = stepwise(singles, base, floor, fit_data, hold, tail_of, seed, options,
-                            bounds, starts, gap, lambda f: say("combinations", 0.7 + 0.3 * f))
+    combos, kept = stepwise(singles, base, floor, gap_limit, fit_data, hold, tail_of, seed,
+                            options, bounds, starts, gap,
+                            lambda f: say("combinations", 0.7 + 0.3 * f))
     candidates = sorted(singles + combos, key=_rank)
-    verdict = judge(base, kept, candidates, floor, gap, where, uncovered(fit_data, hold))
+    verdict = judge(base, kept, candidates, floor, near, gap, where, uncovered(fit_data, hold))
     say("done", 1.0)
     return Diagnosis(fit_data, hold, how, base, floor, where, tests, candidates, verdict,
-                     time.perf_counter() - t_start, gap, tc_noise)
+                     time.perf_counter() - t_start, gap, **noise)
+
+
+def _pooled_tc(floors: list[RecordFloor]) -> dict[str, float]:
+    """One thermocouple's noise sd per zone over the records, weighted by their readings."""
+    out = {}
+    for z in ZONES:
+        pairs = [(f.zones[z].tc_sd_c, f.zones[z].samples) for f in floors
+                 if f.zones[z].samples and np.isfinite(f.zones[z].tc_sd_c)]
+        out[z] = (float(np.sqrt(np.average([s * s for s, _ in pairs],
+                                           weights=[n for _, n in pairs])))
+                  if pairs else float("nan"))
+    return out
 
 
 def further_laws(fitted: list[CandidateResult]) -> list[tuple[CandidateResult, dict]]:
@@ -368,8 +400,9 @@ def _rank(c: CandidateResult) -> tuple:
     return (not _credit(c), c.evidence if _credit(c) else (r if np.isfinite(r) else np.inf))
 
 
-def _near(c: CandidateResult, floor: dict[str, float]) -> bool:
-    return all(c.rmse_holdout_c[z] <= NEAR_RATIO * floor[z] for z in ZONES)
+def _near(c: CandidateResult, near: dict[str, float]) -> bool:
+    """Held out within `near` (noisefloor.limits at NEAR_RATIO) in every zone."""
+    return all(c.rmse_holdout_c[z] <= near[z] for z in ZONES)
 
 
 def _run_all(tasks: list[Task], progress: Callable[[float], None]) -> list[CandidateResult]:
@@ -395,7 +428,7 @@ def _run_all(tasks: list[Task], progress: Callable[[float], None]) -> list[Candi
 
 
 def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[str, float],
-             fit_data, hold, tail_of, seed: int, options: dict, bounds: dict, starts: dict,
+             gap_limit: dict[str, float], fit_data, hold, tail_of, seed: int, options: dict, bounds: dict, starts: dict,
              gap: tuple[str, ...],
              progress: Callable[[float], None]
              ) -> tuple[list[CandidateResult], CandidateResult | None]:
@@ -407,7 +440,7 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
     kept = singles[0]
     tried: list[CandidateResult] = []
     for _step in range(MAX_EFFECTS - 1):
-        if all(kept.rmse_holdout_c[z] <= GAP_RATIO * floor[z] for z in ZONES):
+        if all(kept.rmse_holdout_c[z] <= gap_limit[z] for z in ZONES):
             break
         others = [c.effects[0] for c in singles if c.effects[0] not in kept.effects][:STEP_TRIES]
         tasks = []
@@ -472,7 +505,7 @@ def _closes(c: CandidateResult, kept: CandidateResult, floor: dict[str, float]) 
 
 
 def judge(base: CandidateResult, kept: CandidateResult | None,
-          candidates: list[CandidateResult], floor: dict[str, float],
+          candidates: list[CandidateResult], floor: dict[str, float], near: dict[str, float],
           gap: tuple[str, ...], where: list[Located], missing: Sequence[str] = ()) -> Verdict:
     """The verdict and its sentence; `missing`: zones whose burners fire only in the
     held-out data."""
@@ -484,7 +517,7 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
                        f"thermocouples allow (held-out RMSE {rb} °C against a noise floor of "
                        f"{fl} °C): there is no model error to explain, and no candidate "
                        f"effect was tried.")
-    if kept is not None and _near(kept, floor):
+    if kept is not None and _near(kept, near):
         best = kept
         physics = "; and ".join(EFFECTS[n].physics for n in best.effects)
         one = len(best.effects) == 1
@@ -603,7 +636,7 @@ def _zones_words(zones: list[str]) -> str:
 
 
 def locate(experiments: list[Experiment], residuals: list[np.ndarray],
-           floor: dict[str, float], faults) -> list[Located]:
+           floors: list[RecordFloor], faults) -> list[Located]:
     """The located error: thermocouples at fault first, then the residual's sharpest step if
     it stands out of the noise (where a disturbance entered), then the spans that hold most
     of the baseline's squared error above the floor."""
@@ -625,7 +658,7 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
                 else f"{f.sensor} departs by about {f.size_c:.0f} °C from its partner at times")
         out.append(_located(exp, z, f.sensor, f.i0, f.i1, share(f.experiment, z, f.i0, f.i1),
                             what, "sensor"))
-    change = sudden_change(experiments, residuals, floor)
+    change = sudden_change(experiments, residuals, floors)
     if change is not None:
         exp = experiments[change.experiment]
         what = (f"the sharpest change in any zone: {change.size_c:+.0f} °C within "
@@ -633,7 +666,7 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
         out.append(_located(exp, change.zone, None, change.i0, change.i1,
                             share(change.experiment, change.zone, change.i0, change.i1),
                             what, "change"))
-    for s in error_spans(experiments, residuals, floor):
+    for s in error_spans(experiments, residuals, [f.floor_c for f in floors]):
         exp = experiments[s.experiment]
         part = s.sse / total[s.zone] if total[s.zone] > 0 else 0.0
         if part < MIN_SHARE:
@@ -772,5 +805,4 @@ def soak_burners_start(fit_data: list[Experiment], seed: int) -> dict[str, float
     return {k: v for k, v in fr.params.items() if k not in fr.undetermined}
 
 
-def pooled_floor(floor: dict[str, float]) -> float:
-    return pooled(floor)
+

@@ -17,6 +17,7 @@ intervals and the determined combinations (furnace_model.uncertainty).
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -29,9 +30,10 @@ from .effects import Effect
 from .errors import FurnaceError
 from .experiment import Experiment
 from .ga import genetic_search
+from .profile import profile_interval
 from .scores import zone_metrics
 from .structure import Inputs, ModelStructure
-from .uncertainty import WIDE, Uncertainty, from_jacobian
+from .uncertainty import WIDE, Z95, Uncertainty, from_jacobian
 
 METHODS = ("fast", "ga")
 GA_DEFAULTS = {"fast": (32, 30), "ga": (20, 2000)}
@@ -117,6 +119,30 @@ class _Problem:
         self.block = 6 if zone_offsets else 3  # per experiment: x0, then offsets if fitted
         self.n = self.k + self.block * len(self.records)
         self.n_obs = int(sum(r.mask.sum() for r in self.records))
+
+    def holding(self, i: int, z_i: float) -> _Problem:
+        """The same problem with free parameter i held at z_i (search scale): what a
+        profile of the criterion refits at each trial value."""
+        sub = copy.copy(self)
+        keep = [j for j in range(self.k) if j != i]
+        value = float(np.exp(z_i)) if self.log[i] else float(z_i)
+        sub.fixed = {**self.fixed, self.names[i]: value}
+        sub.free = [self.free[j] for j in keep]
+        sub.names = [self.names[j] for j in keep]
+        sub.log, sub.lo, sub.hi = self.log[keep], self.lo[keep], self.hi[keep]
+        sub.lo_val, sub.hi_val = self.lo_val[keep], self.hi_val[keep]
+        sub.k, sub.n = self.k - 1, self.n - 1
+        return sub
+
+    def series(self) -> list[np.ndarray]:
+        """Positions in the residual vector of each record's zone series, in time order:
+        the unit whose noise has one variance and one colour."""
+        out, at = [], 0
+        for r in self.records:
+            for w in range(3):
+                out.append(at + np.nonzero(r.zone_of == w)[0])
+            at += r.zone_of.size
+        return out
 
     def to_z(self, v: np.ndarray) -> np.ndarray:
         v = np.asarray(v, dtype=float)
@@ -353,6 +379,8 @@ class FitResult:
     iterations: int = 0  # accepted polish steps of the best run's result
     generations: int = 0  # GA generations of the best run
     criteria: Criteria | None = None
+    ci95_white: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """The intervals were the residuals white (ci95 allows for their autocorrelation)."""
 
     def predict(self, exp: Experiment, x0: np.ndarray | None = None) -> np.ndarray:
         """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None.
@@ -435,7 +463,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         fixed: dict[str, float] | None = None,
         bounds: dict[str, tuple[float, float]] | None = None,
         progress: Callable[[float], None] | None = None,
-        time_budget_s: float | None = None, zone_offsets: bool = False) -> FitResult:
+        time_budget_s: float | None = None, zone_offsets: bool = False,
+        profile: bool = True) -> FitResult:
     """Fit the structure's parameters to the experiments (jointly; own initial state each).
 
     Run r uses seed + r. With `init` the global search is skipped: a warm-started polish,
@@ -443,7 +472,10 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     arithmetic mean of the runs is kept as the paper's 'genetic mean parameter'.
     `zone_offsets` adds a constant offset per zone and experiment: thermocouple biases the
     model cannot otherwise absorb, except by bending its parameters (per experiment, since
-    thermocouples are replaced and recalibrated between campaigns).
+    thermocouples are replaced and recalibrated between campaigns). `profile`: the
+    intervals of parameters the data leave wide follow the criterion (furnace_model.profile)
+    instead of its quadratic approximation; a refit per trial value, so callers that only
+    rank fits may leave it off.
     """
     t_start = time.perf_counter()
     if method not in METHODS:
@@ -492,12 +524,15 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     z = best_run.z
     res = prob.fun(z)
     J = prob.jac(z)
-    unc = from_jacobian(J, res, prob.names, prob.log, z[:prob.k])
+    unc = from_jacobian(J, res, prob.names, prob.log, z[:prob.k], prob.series())
     params = _param_dict(prob, z)
     ci = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val), strict=True))
+    ci_white = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val, white=True), strict=True))
     for name, v in prob.fixed.items():
-        ci[name] = (float(v), float(v))
+        ci[name] = ci_white[name] = (float(v), float(v))
     undetermined = unc.undetermined(prob.from_z(z[:prob.k]), prob.lo_val, prob.hi_val)
+    if profile:
+        ci.update(_profiled(prob, z, float(res @ res), unc, undetermined, deadline))
     named = unc.determined_combinations(undetermined)
     combos = [name for name, _ in named]
     combo_values = {}
@@ -529,7 +564,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         sigma_c=unc.sigma, combinations=combo_values,
         zone_offsets_c=([dict(zip(ZONES, map(float, prob.offsets_of(z, j)), strict=True))
                          for j in range(len(experiments))] if zone_offsets else None),
-        uncertainty=unc,
+        uncertainty=unc, ci95_white={n: ci_white[n] for n in structure.names},
         std={n: float(np.sqrt(max(cov[i, i], 0.0))) if np.isfinite(cov[i, i]) else float("nan")
              for i, n in enumerate(structure.names)},
         cov=cov, fixed=sorted(prob.fixed, key=structure.names.index),
@@ -549,6 +584,38 @@ class _Run:
     iterations: int  # accepted polish steps of the result's polish
     generations: int  # GA generations run
     truncated: bool  # some stage (GA or polish) stopped on the time budget
+
+
+def _profiled(prob: _Problem, z: np.ndarray, sse: float, unc: Uncertainty,
+              names: list[str], deadline: float | None) -> dict[str, tuple[float, float]]:
+    """Profile-likelihood intervals of the named (wide) parameters, in their own units; the
+    criterion's rise at the ends is the linearised interval's, with the residual's colour."""
+    out = {}
+    white = unc.cov_white if unc.cov_white is not None else unc.cov
+    for name in names:
+        i = prob.names.index(name)
+        if deadline is not None and time.perf_counter() > deadline:
+            break
+        colour = unc.cov[i, i] / white[i, i] if white[i, i] > 0 else 1.0
+        rise = Z95 ** 2 * unc.sigma ** 2 * colour
+        # Start each refit where the linearisation puts the others for that value (along
+        # the valley: d follows e at fixed d/e), not where they were.
+        along = np.delete(unc.cov[:, i] / unc.cov[i, i], i)
+        rest = np.delete(z, i)
+
+        def sse_at(z_i: float, i=i, rest=rest, along=along) -> float:
+            start = rest.copy()
+            start[:along.size] += along * (z_i - z[i])
+            r = prob.holding(i, z_i).polish(start, deadline, max_iter=30).r
+            return float(r @ r)
+
+        lo, hi = profile_interval(sse_at, float(z[i]), Z95 * float(np.sqrt(unc.cov[i, i])),
+                                  sse, rise, float(prob.lo[i]), float(prob.hi[i]))
+        if prob.log[i]:
+            out[name] = (float(np.exp(lo)), float(np.exp(hi)))
+        else:
+            out[name] = (float(lo), float(hi))
+    return out
 
 
 def _one_run(prob: _Problem, method: str, population: int, generations: int,

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.signal import lfilter
 
 from . import SENSORS
 from .experiment import Experiment
@@ -55,6 +56,8 @@ class Plant:
             self.bias = np.asarray(self.sensors.bias_c, dtype=float)
         else:
             self.bias = self.rng.normal(0.0, self.sensors.bias_sd_c, len(SENSORS))
+        self._noise: np.ndarray | None = None  # the coloured noise's last value per sensor
+        self._noise_t = 0.0
 
     @classmethod
     def from_scenario(cls, scenario: Scenario, seed: int | None = None) -> Plant:
@@ -63,8 +66,35 @@ class Plant:
     def read(self, sensed: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Thermocouple readings (N, 6) for sensed zone temperatures (N, 3) at times t."""
         offsets = self.structure.sensor_offsets(self.values, t)[0]
-        noise = self.rng.normal(0.0, self.sensors.noise_sd_c, (np.size(t), len(SENSORS)))
-        return sensed[:, SENSOR_ZONE] + self.bias + offsets + noise
+        return sensed[:, SENSOR_ZONE] + self.bias + offsets + self._draw_noise(np.atleast_1d(t))
+
+    def _draw_noise(self, t: np.ndarray) -> np.ndarray:
+        """Noise (N, 6) at times t, continuing the autoregression from the last call, so that
+        a stepped plant (one scan at a time) reads the same process as a whole run."""
+        spec, shape = self.sensors, (t.size, len(SENSORS))
+        u = self.rng.normal(0.0, 1.0, shape)
+        if spec.noise_ar_per_min <= 0.0:
+            noise = spec.noise_sd_c * u
+        else:
+            sd = spec.noise_sd_c
+            if self._noise is None:
+                prev, t_prev = sd * self.rng.normal(0.0, 1.0, len(SENSORS)), float(t[0])
+            else:
+                prev, t_prev = self._noise, self._noise_t
+            phi = spec.noise_ar_per_min ** np.maximum(np.diff(t, prepend=t_prev), 0.0)
+            gain = sd * np.sqrt(1.0 - phi * phi)
+            noise = np.empty(shape)
+            noise[0] = prev = phi[0] * prev + gain[0] * u[0]
+            if t.size > 1 and np.all(phi[1:] == phi[-1]):  # regular sampling: one filter call
+                noise[1:] = lfilter([1.0], [1.0, -phi[-1]], gain[1:, None] * u[1:], axis=0,
+                                    zi=(phi[-1] * prev)[None])[0]
+            else:
+                for k in range(1, t.size):
+                    noise[k] = prev = phi[k] * prev + gain[k] * u[k]
+            self._noise, self._noise_t = noise[-1].copy(), float(t[-1])
+        if spec.white_sd_c > 0.0:
+            noise = noise + self.rng.normal(0.0, spec.white_sd_c, shape)
+        return noise
 
     def run(self, inputs: Inputs, t: np.ndarray, x0_zone: np.ndarray,
             start_time: pd.Timestamp | None = None) -> PlantRun:

@@ -16,6 +16,7 @@ from scipy.ndimage import median_filter
 
 from . import SENSORS, ZONES
 from .experiment import Experiment
+from .noisefloor import RecordFloor
 
 MAD_TO_SD = 1.482602218505602
 Z99 = 2.5758293035489004
@@ -40,55 +41,6 @@ def robust_sd(x: np.ndarray) -> float:
     return float(MAD_TO_SD * np.median(np.abs(x - np.median(x))))
 
 
-def sensor_noise(experiments: list[Experiment]) -> dict[str, float]:
-    """Noise sd (degC) of single thermocouple readings per zone, from the data alone.
-
-    The two thermocouples of a zone see the same gas, so their difference holds only their
-    noise (plus biases and drifts, which change slowly); its first difference removes the
-    slow part, and a median-based scale ignores the odd spike or loose junction. With
-    equal white noise sd s on both, the first difference of the pair difference has sd 2 s.
-    A zone with one working thermocouple falls back on the second difference of its own
-    reading (sd sqrt(6) s for a signal smooth at the sample rate).
-    """
-    out: dict[str, float] = {}
-    for w, zone in enumerate(ZONES):
-        vals, weights = [], []
-        for exp in experiments:
-            pair = exp.tc[:, 2 * w:2 * w + 2]
-            both = np.all(np.isfinite(pair), axis=1)
-            if both.sum() > 20:
-                d = pair[:, 0] - pair[:, 1]
-                dd = np.diff(d)[both[1:] & both[:-1]]
-                vals.append(robust_sd(dd) / 2.0)
-                weights.append(dd.size)
-                continue
-            y = exp.zone_temp[:, w]
-            d2 = np.diff(y, 2)
-            d2 = d2[np.isfinite(d2)]
-            if d2.size > 20:
-                vals.append(robust_sd(d2) / np.sqrt(6.0))
-                weights.append(d2.size)
-        good = [(v, n) for v, n in zip(vals, weights, strict=True) if np.isfinite(v)]
-        out[zone] = (float(np.average([v for v, _ in good], weights=[n for _, n in good]))
-                     if good else float("nan"))
-    return out
-
-
-def zone_noise_floor(experiments: list[Experiment]) -> dict[str, float]:
-    """Noise sd (degC) of the zone temperature (the mean of the zone's good thermocouples):
-    the RMSE a perfect model would reach. Where a zone has both thermocouples in most
-    samples, averaging divides the variance by two."""
-    per_tc = sensor_noise(experiments)
-    out = {}
-    for w, zone in enumerate(ZONES):
-        counts = np.concatenate([np.isfinite(e.tc[:, 2 * w:2 * w + 2]).sum(axis=1)
-                                 for e in experiments])
-        counts = counts[counts > 0]
-        mean_inv = float(np.mean(1.0 / counts)) if counts.size else 1.0
-        out[zone] = per_tc[zone] * np.sqrt(mean_inv)
-    return out
-
-
 @dataclass
 class Span:
     """A contiguous stretch of one zone's residual in one experiment."""
@@ -103,19 +55,20 @@ class Span:
 
 
 def error_spans(experiments: list[Experiment], residuals: list[np.ndarray],
-                floor: dict[str, float], max_spans: int = 6) -> list[Span]:
+                floors: list[dict[str, float]], max_spans: int = 6) -> list[Span]:
     """The stretches that hold most of the error above the noise floor, largest first.
 
     Per zone and experiment, the maximum-sum run of (r^2 - 4 floor^2) is a stretch where
-    the residual stays well above the noise (noise-level samples count against it), found
-    in one pass; it is taken out and the search repeated for a second and third stretch.
+    the residual stays well above the noise of that record (`floors`, one per experiment;
+    noise-level samples count against it), found in one pass; it is taken out and the search repeated for a second and third stretch.
     """
     spans: list[Span] = []
     for j, r in enumerate(residuals):
         for w, zone in enumerate(ZONES):
             rz = r[:, w]
             sq = np.where(np.isfinite(rz), rz * rz, 0.0)
-            fl2 = floor[zone] ** 2 if np.isfinite(floor[zone]) else 0.0
+            fl = floors[j][zone]
+            fl2 = fl * fl if np.isfinite(fl) else 0.0
             gain = sq - 4.0 * fl2
             used = np.zeros(sq.size, dtype=bool)
             found: list[Span] = []
@@ -147,7 +100,7 @@ def _throughout(found: list[Span], sq: np.ndarray, fl2: float,
 SUDDEN_WINDOW_MIN = 15.0
 SUDDEN_SIGNIFICANCE = 8.0
 """A step between window means counts when it exceeds this many of its own noise sd (the
-zone's floor times sqrt(2 / samples per window)): the largest of some 1300 steps of pure
+sd of a window's mean of the record's noise, times sqrt(2)): the largest of some 1300 steps of pure
 noise (two 3500-minute records, three zones) is about 4 of them."""
 
 
@@ -162,7 +115,7 @@ class Change:
 
 
 def sudden_change(experiments: list[Experiment], residuals: list[np.ndarray],
-                  floor: dict[str, float]) -> Change | None:
+                  floors: list[RecordFloor]) -> Change | None:
     """The sharpest step of the residual between consecutive 15-minute means, over every
     zone and record, if it stands out of the noise. A disturbance entering one zone (a door
     left open) moves that zone's residual first and most steeply; the zones it drains follow
@@ -178,19 +131,31 @@ def sudden_change(experiments: list[Experiment], residuals: list[np.ndarray],
         if m < 2:
             continue
         for w, zone in enumerate(ZONES):
+            fl = floors[j].zones[zone].floor_c * _mean_sd_factor(floors[j].zones[zone].lag1, n)
             blocks = r[:m * n, w].reshape(m, n)
             with np.errstate(all="ignore"):
                 means = np.nanmean(blocks, axis=1) if np.isfinite(blocks).any() else None
-            if means is None or not np.isfinite(floor[zone]) or floor[zone] <= 0:
+            if means is None or not np.isfinite(fl) or fl <= 0:
                 continue
             steps = np.diff(means)
             if not np.isfinite(steps).any():
                 continue
             k = int(np.nanargmax(np.abs(steps)))
-            score = abs(steps[k]) / (floor[zone] * np.sqrt(2.0 / n))
+            score = abs(steps[k]) / (fl * np.sqrt(2.0))
             if score >= SUDDEN_SIGNIFICANCE and (best is None or score > best.score):
                 best = Change(zone, j, k * n, (k + 2) * n, float(steps[k]), float(score))
     return best
+
+
+def _mean_sd_factor(lag1: float, n: int) -> float:
+    """sd of the mean of n consecutive noise samples over the noise's own sd: 1/sqrt(n) for
+    white noise, more for low-pass noise, whose neighbours move together (first-order
+    autoregression with the record's lag-1 correlation)."""
+    phi = float(np.clip(lag1, 0.0, 0.999)) if np.isfinite(lag1) else 0.0
+    if phi == 0.0:
+        return float(1.0 / np.sqrt(n))
+    var = ((1 + phi) / (1 - phi) - 2 * phi * (1 - phi ** n) / (n * (1 - phi) ** 2)) / n
+    return float(np.sqrt(max(var, 1.0 / n)))
 
 
 def _max_subarray(g: np.ndarray) -> tuple[int, int, float]:
@@ -259,11 +224,12 @@ class SensorFault:
 
 
 def sensor_faults(experiments: list[Experiment], predictions: list[np.ndarray],
-                  tc_noise: dict[str, float]) -> list[SensorFault]:
+                  tc_noise: list[dict[str, float]]) -> list[SensorFault]:
     """Pairs whose difference grows over the record (a drifting thermocouple) or jumps away
     for episodes (a loose junction): the sensor, not the furnace, is to blame there.
 
-    Which of the two is at fault: the one whose reading departs more from the model's
+    `tc_noise`: one thermocouple's noise sd per zone, for each experiment. Which of the two
+    is at fault: the one whose reading departs more from the model's
     prediction over the span (the model may be wrong too, but equally for both)."""
     out: list[SensorFault] = []
     for j, exp in enumerate(experiments):
@@ -271,7 +237,7 @@ def sensor_faults(experiments: list[Experiment], predictions: list[np.ndarray],
         for w, zone in enumerate(ZONES):
             pair = exp.tc[:, 2 * w:2 * w + 2]
             both = np.all(np.isfinite(pair), axis=1)
-            s = tc_noise.get(zone, float("nan"))
+            s = tc_noise[j].get(zone, float("nan"))
             if both.sum() < 50 or not np.isfinite(s) or s <= 0:
                 continue
             t = exp.t_min[both]

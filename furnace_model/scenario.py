@@ -21,12 +21,20 @@ from .structure import Inputs, ModelStructure
 
 @dataclass(frozen=True)
 class SensorSpec:
-    """Two thermocouples per zone: each reads the zone plus its own bias plus white noise."""
+    """Two thermocouples per zone: each reads the zone plus its own bias plus noise.
+
+    The noise is white unless `noise_ar_per_min` is set: a real thermocouple is low-pass
+    (sheath, transmitter filter, gas turbulence), so its noise is a first-order
+    autoregression with that correlation per minute, and `white_sd_c` adds white noise on
+    top (the converter's own)."""
 
     noise_sd_c: float = 1.5
     bias_sd_c: float = 0.5
     bias_c: tuple[float, ...] | None = None
     """Fixed biases in SENSORS order; when absent they are drawn (sd bias_sd_c) from the seed."""
+    noise_ar_per_min: float = 0.0
+    """Correlation of the noise one minute apart (0: white); its sd stays noise_sd_c."""
+    white_sd_c: float = 0.0
 
 
 @dataclass
@@ -121,7 +129,8 @@ def load_scenario(path: str | Path) -> Scenario:
     if times[0] != 0.0:
         raise burners.child("steps").error("the first step must be at_min: 0")
 
-    sensors_node = root.child("sensors", {}).mapping({"noise_sd_c", "bias_sd_c", "bias_c"})
+    sensors_node = root.child("sensors", {}).mapping(
+        {"noise_sd_c", "bias_sd_c", "bias_c", "noise_ar_per_min", "white_sd_c"})
     bias = None
     if sensors_node.has("bias_c"):
         bias = tuple(n.number(lo=-50.0, hi=50.0)
@@ -130,6 +139,8 @@ def load_scenario(path: str | Path) -> Scenario:
         noise_sd_c=sensors_node.get_number("noise_sd_c", 1.5, lo=0.0, hi=100.0),
         bias_sd_c=sensors_node.get_number("bias_sd_c", 0.5, lo=0.0, hi=50.0),
         bias_c=bias,
+        noise_ar_per_min=sensors_node.get_number("noise_ar_per_min", 0.0, lo=0.0, hi=0.999),
+        white_sd_c=sensors_node.get_number("white_sd_c", 0.0, lo=0.0, hi=100.0),
     )
 
     effects, values = [], {}

@@ -57,6 +57,12 @@ OUT_OF_LIBRARY = ("door_open", "tc_reads_low")
 """Perturbations no candidate expresses: the diagnosis should say `unexplained`."""
 
 FORMS = ("candidate", "other")
+NOISE = ("white", "low-pass", "noisier-holdout")
+"""The thermocouples of a case: white noise of 1.5 degC in both heat-ups (the paper's
+reading); low-pass noise, as a sheathed thermocouple and its transmitter give (a first-order
+autoregression of 0.5-0.9 per minute, with white noise of 0.3-1.5 degC on top in half the
+draws); or the held-out heat-up's thermocouples one to three times as noisy as the fitted
+one's (a campaign with other thermocouples)."""
 
 SENSORS_SPEC = SensorSpec(noise_sd_c=1.5, bias_sd_c=0.5)
 SAMPLE_MIN = 1.0
@@ -109,9 +115,11 @@ class Case:
 
 
 def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
-              form: str = "candidate") -> Case:
+              form: str = "candidate",
+              sensors: tuple[SensorSpec, SensorSpec] = (SENSORS_SPEC, SENSORS_SPEC)) -> Case:
     """A random two-experiment case with `effect` (a contract name, one of OUT_OF_LIBRARY,
-    several of them, or None for a control) switched on in the plant."""
+    several of them, or None for a control) switched on in the plant; `sensors`: the
+    thermocouples of the fitted and of the held-out heat-up (campaigns differ)."""
     names: tuple[str, ...] = () if effect is None else (
         (effect,) if isinstance(effect, str) else tuple(effect))
     unknown = [n for n in names if n not in EFFECTS and n not in OUT_OF_LIBRARY]
@@ -148,7 +156,7 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
         t = np.arange(0.0, durations[j] + SAMPLE_MIN / 2, SAMPLE_MIN)
         x0 = np.full(3, t_air)
         inputs = _draw_schedule(rng, structure, values, t, x0, t_air, spread=(j == 0))
-        plant = Plant(structure, values, SENSORS_SPEC, seed=int(rng.integers(2**31)))
+        plant = Plant(structure, values, sensors[j], seed=int(rng.integers(2**31)))
         run = _run_with_door(plant, inputs, t, x0, door, j) if door else plant.run(inputs, t, x0)
         run.start_time = starts[j]
         if low:
@@ -393,6 +401,22 @@ def parse_label(label: str) -> str | tuple[str, ...] | None:
     return parts[0] if len(parts) == 1 else parts
 
 
+def draw_sensors(noise: str, rng: np.random.Generator) -> tuple[SensorSpec, SensorSpec]:
+    """The fitted and the held-out heat-up's thermocouples (`NOISE`)."""
+    if noise == "white":
+        return SENSORS_SPEC, SENSORS_SPEC
+    if noise == "low-pass":
+        white = float(rng.uniform(0.3, 1.5)) if rng.uniform() < 0.5 else 0.0
+        spec = SensorSpec(noise_sd_c=SENSORS_SPEC.noise_sd_c, bias_sd_c=SENSORS_SPEC.bias_sd_c,
+                          noise_ar_per_min=float(rng.uniform(0.5, 0.9)), white_sd_c=white)
+        return spec, spec
+    if noise == "noisier-holdout":
+        k = float(rng.uniform(1.0, 3.0))
+        return SENSORS_SPEC, SensorSpec(noise_sd_c=k * SENSORS_SPEC.noise_sd_c,
+                                        bias_sd_c=SENSORS_SPEC.bias_sd_c)
+    raise ValueError(f"noise must be one of {NOISE}, not {noise!r}")
+
+
 def case_rng(seed: int, label: str, draw: int) -> np.random.Generator:
     """The draw's own stream: the same seed, label and draw give the same case, whatever
     else is checked in the same run."""
@@ -436,17 +460,21 @@ def _where(w) -> str:
 
 
 def check(labels: list[str], draws: int, seed: int = 0, *, form: str = "candidate",
-          candidates: tuple[str, ...] | None = None,
+          candidates: tuple[str, ...] | None = None, noise: str = "white",
           report: Callable[[Outcome], None] | None = None) -> list[Outcome]:
     """Draw `draws` cases per label, diagnose each with its effect withheld (the diagnosis is
-    told nothing about it), and judge the verdict against the truth."""
+    told nothing about it), and judge the verdict against the truth. The thermocouples
+    (`noise`) are drawn from a stream of their own, so that a case's furnace and schedule
+    are the same whatever its thermocouples."""
     from .diagnosis import diagnose  # the diagnosis is the checked party, not a dependency
 
     out = []
     for label in labels:
         effect = parse_label(label)
         for k in range(draws):
-            case = draw_case(effect, case_rng(seed, label, k), form=form)
+            sensors = draw_sensors(noise, np.random.default_rng(
+                [seed, zlib.crc32(label.encode()), k, zlib.crc32(noise.encode())]))
+            case = draw_case(effect, case_rng(seed, label, k), form=form, sensors=sensors)
             t0 = time.perf_counter()
             d = diagnose(case.fit, case.holdout, effects=candidates, seed=seed)
             correct, absorbed, reason = judge_case(case, d)

@@ -17,6 +17,8 @@ from itertools import combinations
 
 import numpy as np
 
+from .autoregression import fit_ar
+
 Z95 = 1.959963984540054
 WIDE = 0.05
 """A 95% half-width above this (on the log scale: beyond about +-5%) is 'not determined'."""
@@ -33,6 +35,11 @@ class Uncertainty:
     sigma: float  # residual standard deviation, degC
     eigvals: np.ndarray = field(default_factory=lambda: np.zeros(0))  # Fisher information
     eigvecs: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    cov_white: np.ndarray | None = None
+    """The covariance were the residuals white: what the data would pin down under the
+    model's own noise, the question a candidate effect's 'determined' asks."""
+    correlation_time: float = 1.0
+    """Samples per independent sample of the residual, the worst series'."""
 
     @property
     def sd(self) -> np.ndarray:
@@ -53,10 +60,13 @@ class Uncertainty:
         c = self.cov / np.outer(sd, sd)
         return np.clip(c, -1.0, 1.0)
 
-    def ci95(self, lo: np.ndarray, hi: np.ndarray) -> list[tuple[float, float]]:
+    def ci95(self, lo: np.ndarray, hi: np.ndarray,
+             white: bool = False) -> list[tuple[float, float]]:
         """Intervals in the parameters' own units, cut to the search box (an interval that
-        reaches the box edge says: anywhere in the range the search was allowed)."""
-        half = Z95 * self.sd
+        reaches the box edge says: anywhere in the range the search was allowed); `white`:
+        as if the residuals were white (`cov_white`)."""
+        cov = self.cov_white if white and self.cov_white is not None else self.cov
+        half = Z95 * np.sqrt(np.maximum(np.diag(cov), 0.0))
         a, b = self.z - half, self.z + half
         out = []
         for i in range(self.z.size):
@@ -83,10 +93,16 @@ class Uncertainty:
     def unseen(self, lo: np.ndarray, hi: np.ndarray) -> list[str]:
         """Parameters the data do not see at all: even were every other parameter known
         (the initial states still estimated), the 95% interval would span the search box.
-        Not those that merely trade with another (d and e along d/e)."""
+        Not those that merely trade with another (d and e along d/e). Asked of the
+        information under white residuals: whether the data see a parameter at all is a
+        question of the records' excitation, not of the residual's colour."""
         if self.eigvals.size == 0:
             return []
-        info = (self.eigvecs ** 2) @ self.eigvals  # the Fisher information's diagonal
+        if self.cov_white is not None:
+            wc, Vc = np.linalg.eigh(self.cov_white)
+            info = (Vc ** 2) @ (1.0 / np.maximum(wc, 1e-300))
+        else:
+            info = (self.eigvecs ** 2) @ self.eigvals  # the Fisher information's diagonal
         half = Z95 / np.sqrt(np.maximum(info, 1e-300))
         zlo = np.where(self.log, np.log(np.maximum(lo, 1e-300)), lo)
         zhi = np.where(self.log, np.log(np.maximum(hi, 1e-300)), hi)
@@ -175,10 +191,18 @@ class Uncertainty:
 
 
 def from_jacobian(J: np.ndarray, residual: np.ndarray, names: list[str], log: np.ndarray,
-                  z: np.ndarray) -> Uncertainty:
-    """Linearised uncertainty of the first len(names) unknowns; the rest (initial states)
-    are nuisance parameters, marginalised out. Flat directions get a huge but finite
-    variance instead of being dropped by a pseudo-inverse (which would report them as exact)."""
+                  z: np.ndarray, series: list[np.ndarray] | None = None) -> Uncertainty:
+    """Linearised uncertainty of the first len(names) unknowns; the rest (initial states,
+    offsets) are nuisance parameters, marginalised out. Flat directions get a huge but
+    finite variance instead of being dropped by a pseudo-inverse (which would report them as
+    exact).
+
+    `series`: the residual's positions, one array per sensor series in time order. Each
+    series then gets its own autoregression (its own variance and colour), and the
+    covariance is the sandwich (J'J)^-1 J' Sigma J (J'J)^-1 under that noise: residuals that
+    move together carry less information than as many independent ones, and intervals that
+    assume white residuals exclude the truth (seen: b, c and f on a heat-up with low-pass
+    thermocouples). Without `series` the residual is taken as white."""
     k = len(names)
     m, n = J.shape
     J = np.nan_to_num(J, nan=0.0, posinf=0.0, neginf=0.0)
@@ -188,8 +212,28 @@ def from_jacobian(J: np.ndarray, residual: np.ndarray, names: list[str], log: np
     scale = np.where(d > 0, np.sqrt(np.where(d > 0, d, 1.0)), 1.0)  # a dead column stays 0
     S = JtJ / np.outer(scale, scale)
     w, V = np.linalg.eigh((S + S.T) / 2)
+    clipped = w < _EPS * max(float(w.max()), 1.0)
     w = np.maximum(w, _EPS * max(float(w.max()), 1.0))
-    cov = sigma2 * (V / w) @ V.T / np.outer(scale, scale)
+    white = sigma2 * (V / w) @ V.T / np.outer(scale, scale)
+    cov, tau = white, 1.0
+    if series:
+        meat = np.zeros((n, n))
+        dof = m / max(m - n, 1)
+        for idx in series:
+            if idx.size < 2:
+                continue
+            ar = fit_ar(residual[idx])
+            tau = max(tau, ar.correlation_time)
+            B = ar.adjoint(J[idx] / scale)
+            meat += dof * ar.innovation_var * (B.T @ B)
+        # In the eigenbasis of the scaled J'J: W^-1 V' M V W^-1. A direction the data do not
+        # see at all (clipped) keeps the white variance, huge: the sandwich would multiply
+        # two roundings there.
+        inner = (V.T @ meat @ V) / np.outer(w, w)
+        inner[clipped, :] = 0.0
+        inner[:, clipped] = 0.0
+        inner[clipped, clipped] = sigma2 / w[clipped]
+        cov = V @ inner @ V.T / np.outer(scale, scale)
     cov_p = (cov[:k, :k] + cov[:k, :k].T) / 2
     # Directions on the parameters' (log) scale: the covariance's eigenvectors are those of
     # the Fisher information, its eigenvalues the reciprocals.
@@ -197,4 +241,5 @@ def from_jacobian(J: np.ndarray, residual: np.ndarray, names: list[str], log: np
     fisher_w = 1.0 / np.maximum(wc, 1e-300)
     order = np.argsort(fisher_w)
     return Uncertainty(list(names), np.asarray(log, dtype=bool), np.asarray(z, dtype=float),
-                       cov_p, float(np.sqrt(sigma2)), fisher_w[order], Vc[:, order])
+                       cov_p, float(np.sqrt(sigma2)), fisher_w[order], Vc[:, order],
+                       (white[:k, :k] + white[:k, :k].T) / 2, tau)

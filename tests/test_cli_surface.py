@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from furnace_model.cli import build_parser as model_parser
-from furnace_model.cli.names import EFFECTS, METHODS, OUT_OF_LIBRARY
+from furnace_model.cli.names import EFFECTS, METHODS, NOISE, OUT_OF_LIBRARY
 
 ROOT = Path(__file__).resolve().parent.parent
 HEAVY = ("numpy", "pandas", "scipy", "matplotlib", "pymodbus", "mcap", "can", "pyarrow", "yaml")
@@ -188,6 +188,7 @@ def test_the_names_checked_before_loading_are_the_librarys():
     from furnace_model.effects import EFFECTS as LIBRARY_EFFECTS
     from furnace_model.fit import METHODS as LIBRARY_METHODS
     from furnace_model.parameters import BASELINE
+    from furnace_model.selfcheck import NOISE as LIBRARY_NOISE
     from furnace_model.selfcheck import OUT_OF_LIBRARY as LIBRARY_OOL
     from furnace_model.selfcheck import parse_label
     from furnace_model.structure import ModelStructure
@@ -195,6 +196,7 @@ def test_the_names_checked_before_loading_are_the_librarys():
     assert tuple(LIBRARY_EFFECTS) == EFFECTS
     assert OUT_OF_LIBRARY == LIBRARY_OOL
     assert METHODS == LIBRARY_METHODS
+    assert NOISE == LIBRARY_NOISE
     assert [p.name for p in BASELINE] == ModelStructure().names  # what fit --fix checks
     for label in ("none", "sensor_lag", "zone_burners+sensor_lag", "door_open", "warp",
                   "sensor_lag+", "+", "none+sensor_lag", ""):

@@ -32,9 +32,9 @@ from furnace_model.effects import EFFECTS
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import Experiment
 from furnace_model.fit import predict_held_out
+from furnace_model.noisefloor import pooled_floor, record_floor
 from furnace_model.parameters import PAPER_TABLE_V
 from furnace_model.plant import Plant
-from furnace_model.residuals import zone_noise_floor
 from furnace_model.scenario import SensorSpec
 from furnace_model.selfcheck import case_rng, draw_case
 from furnace_model.structure import Inputs, ModelStructure
@@ -170,7 +170,7 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
     assert start is not None and set(start) == {"a", "f"}
     for k in start:
         assert start[k] == pytest.approx(PAPER_TABLE_V[k], rel=0.03)
-    floor = zone_noise_floor(case.fit + case.holdout)
+    floor = pooled_floor([record_floor(e) for e in case.holdout])
     c = run_task(Task(("zone_burners",), {"zone_burners": {}}, case.fit, case.holdout, [None],
                       start, 0, True, search_bounds(case.fit),
                       {z: GAP_RATIO * floor[z] for z in ZONES}))
@@ -191,7 +191,7 @@ def test_nonlinear_candidate_searched_from_scratch_leaves_the_bent_baseline_vall
     c = run_task(Task(("radiation",), {"radiation": {"exponent": 4.0}}, case.fit, case.holdout,
                       [None], None, 1, bounds=search_bounds(case.fit),
                       generations=COLD_GENERATIONS))
-    floor = zone_noise_floor(case.fit + case.holdout)
+    floor = pooled_floor([record_floor(e) for e in case.holdout])
     for z in ZONES:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
     assert c.params["rad_share"] == pytest.approx(case.truth["radiation"]["rad_share"], abs=0.02)
@@ -342,7 +342,7 @@ def test_radiation_exponent_is_fitted_from_the_data():
     assert c.params["rad_share"] == pytest.approx(truth["rad_share"], abs=0.03)
     lo, hi = c.ci95["rad_exponent"]
     assert lo < truth["exponent"] < hi and hi - lo < 0.5
-    floor = zone_noise_floor(case.fit + case.holdout)
+    floor = pooled_floor([record_floor(e) for e in case.holdout])
     for z in ZONES:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
 
@@ -368,7 +368,7 @@ def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_dat
     c = run_task(Task(("zone_burners",), {"zone_burners": {}}, [soak_steady], [soak_steps],
                       [None], start, 0))
     assert c.held_out_fitted == ("f",) and "f unseen by the fitted data" in c.note, c.note
-    floor = zone_noise_floor([soak_steady, soak_steps])
+    floor = pooled_floor([record_floor(soak_steps)])
     for z in ZONES:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
     fixed = predict_held_out(c.params, [soak_steps], structure, zone_offsets=True)[0]
@@ -379,5 +379,5 @@ def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_dat
                       [None], start, 0))
     assert d.held_out_fitted == () and "unseen" not in d.note
     # and the verdict tells the plant engineer
-    v = judge(d, c, [c], floor, ZONES, [])
+    v = judge(d, c, [c], floor, {z: NEAR_RATIO * floor[z] for z in ZONES}, ZONES, [])
     assert v.status == "explained" and "do not show f (soaking-zone heating rate" in v.sentence

@@ -8,14 +8,13 @@ import pytest
 
 from furnace_model.diagnosis import Located, locate, where_lines
 from furnace_model.experiment import Experiment
+from furnace_model.noisefloor import record_floor
 from furnace_model.residuals import (
     error_spans,
     regime,
     residual_tests,
     sensor_faults,
-    sensor_noise,
     sudden_change,
-    zone_noise_floor,
 )
 
 
@@ -35,25 +34,13 @@ def _experiment(rng, n=3000, noise=(1.5, 1.0, 2.0), truth=None, burners=None) ->
     return Experiment("exp", t, tc, burners, np.full(n, 30.0))
 
 
-def test_noise_floor_recovers_sensor_noise_per_zone():
-    rng = np.random.default_rng(1)
-    exps = [_experiment(rng), _experiment(rng)]
-    per_tc = sensor_noise(exps)
-    for zone, sd in zip(("soak", "heat", "preheat"), (1.5, 1.0, 2.0), strict=True):
-        assert per_tc[zone] == pytest.approx(sd, rel=0.05)
-    floor = zone_noise_floor(exps)
-    assert floor["heat"] == pytest.approx(1.0 / np.sqrt(2), rel=0.05)
-
-
-def test_noise_floor_ignores_a_loose_junction_and_uses_a_lone_thermocouple():
-    rng = np.random.default_rng(2)
-    e = _experiment(rng)
-    e.tc[100:140, 2] -= 40.0  # heat_1 reads low for a while
-    e.tc[:, 5] = np.nan  # preheat_2 dead: one thermocouple left
-    per_tc = sensor_noise([e])
-    assert per_tc["heat"] == pytest.approx(1.0, rel=0.08)
-    assert per_tc["preheat"] == pytest.approx(2.0, rel=0.1)
-    assert zone_noise_floor([e])["preheat"] == pytest.approx(2.0, rel=0.1)
+def _unit_floors(exps: list[Experiment]) -> list:
+    """Each record's floor set to 1 degC of white noise, as the residuals drawn here have."""
+    floors = [record_floor(e) for e in exps]
+    for f in floors:
+        for zf in f.zones.values():
+            zf.floor_c, zf.lag1 = 1.0, 0.0
+    return floors
 
 
 def test_error_span_found_where_the_residual_is_large():
@@ -61,7 +48,7 @@ def test_error_span_found_where_the_residual_is_large():
     e = _experiment(rng)
     r = rng.normal(0, 1.0, (len(e), 3))
     r[1200:1500, 1] += 8.0 * np.sin(np.linspace(0, np.pi, 300))
-    spans = error_spans([e], [r], {"soak": 1.0, "heat": 1.0, "preheat": 1.0})
+    spans = error_spans([e], [r], [{"soak": 1.0, "heat": 1.0, "preheat": 1.0}])
     top = spans[0]
     assert top.zone == "heat"
     assert 1180 <= top.i0 <= 1260 and 1440 <= top.i1 <= 1520
@@ -75,16 +62,16 @@ def test_error_throughout_a_record_is_one_entry_and_a_local_one_keeps_its_stretc
     rng = np.random.default_rng(6)
     exps = [_experiment(rng), _experiment(rng)]
     n = len(exps[0])
-    floor = {"soak": 1.0, "heat": 1.0, "preheat": 1.0}
+    floors = _unit_floors(exps)
     r0, r1 = rng.normal(0, 1.0, (n, 3)), rng.normal(0, 1.0, (n, 3))
     r0[:, 1] += 6.0 * np.sin(2 * np.pi * np.arange(n) / 500.0)
     r1[1200:1500, 0] += 8.0 * np.sin(np.linspace(0, np.pi, 300))
-    spans = error_spans(exps, [r0, r1], floor)
+    spans = error_spans(exps, [r0, r1], [f.floor_c for f in floors])
     assert [(s.zone, s.experiment) for s in spans] == [("heat", 0), ("soak", 1)], spans
     whole, local = spans
     assert whole.throughout and (whole.i0, whole.i1) == (0, n)
     assert not local.throughout and 1180 <= local.i0 <= 1260 and 1440 <= local.i1 <= 1520
-    where = [w for w in locate(exps, [r0, r1], floor, []) if w.kind != "change"]
+    where = [w for w in locate(exps, [r0, r1], floors, []) if w.kind != "change"]
     assert [(w.zone, w.kind) for w in where] == [("heat", "throughout"), ("soak", "span")]
     assert (where[0].start_min, where[0].end_min) == (0.0, float(n - 1))
     assert where[0].share_of_error > 0.9
@@ -116,7 +103,7 @@ def test_sudden_change_points_at_the_zone_a_disturbance_enters():
     sharpest step is found in the heating zone at the minute. Noise alone gives none."""
     rng = np.random.default_rng(5)
     e = _experiment(rng)
-    floor = {"soak": 1.0, "heat": 1.0, "preheat": 1.0}
+    floor = _unit_floors([e])
     r = rng.normal(0, 1.0, (len(e), 3))
     assert sudden_change([e], [r], floor) is None
     t = np.arange(len(e), dtype=float) - 2000.0
@@ -146,7 +133,7 @@ def test_drifting_thermocouple_is_named(culprit):
     t = e.t_min
     e.tc[:, culprit] += 0.02 * np.maximum(t - 1000, 0.0)
     truth_pred = np.column_stack([300 + 0.2 * t, 250 + 0.15 * t, 100 + 0.05 * t])
-    faults = sensor_faults([e], [truth_pred], sensor_noise([e]))
+    faults = sensor_faults([e], [truth_pred], [{z: f.tc_sd_c for z, f in record_floor(e).zones.items()}])
     assert [f.sensor for f in faults] == [("heat_1", "heat_2")[culprit - 2]]
     assert faults[0].kind == "drift"
     assert 800 <= t[faults[0].i0] <= 1200
@@ -159,7 +146,7 @@ def test_episodes_of_low_readings_are_named_and_a_clean_pair_is_not():
         e.tc[lo:lo + 20, 1] -= 30.0  # soak_2 reads low at times
     t = e.t_min
     truth_pred = np.column_stack([300 + 0.2 * t, 250 + 0.15 * t, 100 + 0.05 * t])
-    faults = sensor_faults([e], [truth_pred], sensor_noise([e]))
+    faults = sensor_faults([e], [truth_pred], [{z: f.tc_sd_c for z, f in record_floor(e).zones.items()}])
     assert [(f.sensor, f.kind) for f in faults] == [("soak_2", "episodes")]
     assert faults[0].size_c == pytest.approx(30.0, rel=0.2)
 

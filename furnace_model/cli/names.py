@@ -13,5 +13,8 @@ EFFECTS: tuple[str, ...] = (
 OUT_OF_LIBRARY: tuple[str, ...] = ("door_open", "tc_reads_low")
 """`furnace_model.selfcheck.OUT_OF_LIBRARY`: perturbations no candidate expresses."""
 
+NOISE: tuple[str, ...] = ("white", "low-pass", "noisier-holdout")
+"""`furnace_model.selfcheck.NOISE`: the thermocouples a selfcheck case may have."""
+
 METHODS: tuple[str, ...] = ("fast", "ga")
 """`furnace_model.fit.METHODS`."""

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 from ..errors import FurnaceError
 from .arguments import output_file
 from .diagnose import effect_list
-from .names import EFFECTS, OUT_OF_LIBRARY
+from .names import EFFECTS, NOISE, OUT_OF_LIBRARY
 
 if TYPE_CHECKING:
     from ..selfcheck import Outcome, Row
@@ -42,6 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="draw effects in the candidates' formulation or in another one")
     p.add_argument("--candidates", metavar="a,b", type=partial(effect_list, what="candidate"),
                    help="limit the diagnosis to these candidates (default all nine)")
+    p.add_argument("--noise", choices=NOISE, default="white",
+                   help="the thermocouples: white noise (default), low-pass noise, or held-out "
+                        "ones 1-3 times as noisy as the fitted ones")
     p.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
     p.add_argument("--json", type=output_file, metavar="OUT",
                    help="write every case and the table")
@@ -65,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         check(labels, args.draws, args.seed, form=args.form, candidates=args.candidates,
-              report=progress)
+              noise=args.noise, report=progress)
     except KeyboardInterrupt:
         # A full check takes hours: stopping it must not throw away the cases diagnosed.
         if not outcomes:
@@ -89,7 +92,7 @@ def _report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool
     rows = summarize(outcomes)
     print(table(rows, outcomes))
     if args.json:
-        doc = {"seed": args.seed, "draws": args.draws, "form": args.form,
+        doc = {"seed": args.seed, "draws": args.draws, "form": args.form, "noise": args.noise,
                "candidates": list(args.candidates or EFFECTS), "complete": complete,
                "rows": [r.__dict__ for r in rows], "cases": [o.to_json() for o in outcomes]}
         try:

@@ -1,0 +1,219 @@
+"""The noise floor of a record: the RMSE a perfect model would reach on it, per zone.
+
+A model that predicts the furnace exactly still misses each reading by the thermocouples'
+noise, so a model's error means something only against that floor, and only against the
+floor of the record it is measured on: thermocouples are replaced between campaigns, and a
+noisier one makes a held-out record's floor higher than the fitted record's.
+
+The two thermocouples of a zone see the same gas, so their difference holds only their noise,
+their biases and any drift. Biases and drifts are slow: the difference minus its slow trend
+(block medians, interpolated) keeps the noise, whatever its colour. Real thermocouples are
+low-pass (sheath, transmitter filter, turbulence), so nothing here differences the signal:
+a first or second difference sees only the fast part of coloured noise and reads it low.
+The variance of the detrended pair difference is the sum of the two sensors' variances, and
+a quarter of it is the variance of their mean, the zone temperature. How sure that number is
+comes from the same difference: its autocorrelation (a low-order autoregression fitted to
+it) says how many independent samples it holds.
+
+A zone read by one thermocouple has no partner to compare with. Its floor is then borrowed
+from the record's pairs (a thermocouple of the same kind in another zone), or, with no pair
+anywhere in the record, read off the second differences of its own reading: that assumes
+white noise and is a lower bound where the noise is low-pass, and it says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import ZONES
+from .autoregression import acf, fit_ar
+from .experiment import Experiment
+
+TREND_MIN = 360.0
+"""Minutes per block of the slow trend taken out of a pair's difference. Long against the
+correlation time of thermocouple noise (minutes), so that the noise is kept (a trend over
+blocks of B samples takes about tau / B of a noise of integrated correlation time tau), and
+short against a drift's growth, which the interpolation between block medians follows."""
+CLIP_SD = 5.0
+"""Samples further than this many robust sd from the trend are left out (a loose junction's
+drop, a spike): the floor is the noise of working sensors, not of their faults."""
+MIN_PAIR = 20
+"""Samples with both thermocouples below which a pair does not give a floor."""
+
+
+@dataclass
+class ZoneFloor:
+    """One zone of one record."""
+
+    floor_c: float  # sd of the zone temperature's noise: the perfect model's RMSE
+    tc_sd_c: float  # sd of one thermocouple's noise
+    how: str  # pair | borrowed | second_difference | none
+    rel_sd: float  # relative standard error of floor_c (nan when unknown)
+    lag1: float  # autocorrelation of the noise one sample apart
+    n_eff: float  # independent samples the estimate rests on
+    samples: int  # readings of the zone in the record
+
+    def to_json(self) -> dict:
+        return {"floor_c": _r(self.floor_c), "tc_sd_c": _r(self.tc_sd_c), "how": self.how,
+                "rel_sd": _r(self.rel_sd), "lag1": _r(self.lag1), "n_eff": _r(self.n_eff),
+                "samples": self.samples}
+
+    def words(self) -> str:
+        """How the floor was estimated and how sure it is, for a reader of the report."""
+        sure = (f"+-{100 * self.rel_sd:.0f}%" if np.isfinite(self.rel_sd) else "uncertain")
+        return {"pair": f"from the thermocouple pair's difference ({sure})",
+                "borrowed": f"one thermocouple: borrowed from the record's pairs, assuming "
+                            f"thermocouples of one kind ({sure})",
+                "second_difference": "one thermocouple and no pair in the record: from the "
+                                     "second differences of its reading, which assumes white "
+                                     "noise (a lower bound if the noise is low-pass)",
+                "none": "no readings"}[self.how]
+
+
+@dataclass
+class RecordFloor:
+    """The floor of one record, per zone."""
+
+    record: str
+    zones: dict[str, ZoneFloor]
+
+    @property
+    def floor_c(self) -> dict[str, float]:
+        return {z: f.floor_c for z, f in self.zones.items()}
+
+    def to_json(self) -> dict:
+        return {"record": self.record, "zones": {z: f.to_json() for z, f in self.zones.items()}}
+
+
+def record_floor(exp: Experiment) -> RecordFloor:
+    """The noise floor of one record, each zone from its own thermocouples where it can."""
+    pairs: dict[str, tuple[float, float, float, int]] = {}
+    for w, zone in enumerate(ZONES):
+        est = _pair_variance(exp, w)
+        if est is not None:
+            pairs[zone] = est
+    zones = {}
+    for w, zone in enumerate(ZONES):
+        counts = np.isfinite(exp.tc[:, 2 * w:2 * w + 2]).sum(axis=1)
+        present = counts[counts > 0]
+        samples = int(present.size)
+        if not samples:
+            zones[zone] = ZoneFloor(np.nan, np.nan, "none", np.nan, np.nan, 0.0, 0)
+            continue
+        mean_inv = float(np.mean(1.0 / present))  # a zone mean of two halves the variance
+        if zone in pairs:
+            var_d, lag1, n_eff, _ = pairs[zone]
+            how = "pair"
+        elif pairs:
+            # Another zone's pair, weighted by how many independent samples each holds.
+            w_eff = np.array([p[2] for p in pairs.values()])
+            var_d = float(np.average([p[0] for p in pairs.values()], weights=w_eff))
+            lag1 = float(np.average([p[1] for p in pairs.values()], weights=w_eff))
+            n_eff, how = float(w_eff.sum()), "borrowed"
+        else:
+            tc_sd, lag1 = _second_difference_sd(exp.zone_temp[:, w])
+            var_d, n_eff, how = 2.0 * tc_sd * tc_sd, np.nan, "second_difference"
+        tc_sd = float(np.sqrt(var_d / 2.0))
+        rel = 1.0 / np.sqrt(2.0 * n_eff) if np.isfinite(n_eff) and n_eff > 0 else np.nan
+        zones[zone] = ZoneFloor(tc_sd * np.sqrt(mean_inv), tc_sd, how, float(rel), lag1,
+                                float(n_eff), samples)
+    return RecordFloor(exp.name, zones)
+
+
+def pooled_floor(floors: list[RecordFloor]) -> dict[str, float]:
+    """Per zone, the floor of several records scored together: the RMS of their floors
+    weighted by their readings, as a pooled RMSE weights them, so the two compare."""
+    out = {}
+    for zone in ZONES:
+        num = den = 0.0
+        for f in floors:
+            zf = f.zones[zone]
+            if zf.samples and np.isfinite(zf.floor_c):
+                num += zf.samples * zf.floor_c ** 2
+                den += zf.samples
+        out[zone] = float(np.sqrt(num / den)) if den else float("nan")
+    return out
+
+
+def _pair_variance(exp: Experiment, w: int) -> tuple[float, float, float, int] | None:
+    """(variance of the pair difference's noise, its lag-1 autocorrelation, effective
+    samples, samples) of zone w, or None when the zone has no working pair."""
+    pair = exp.tc[:, 2 * w:2 * w + 2]
+    both = np.all(np.isfinite(pair), axis=1)
+    if both.sum() < MIN_PAIR:
+        return None
+    t = exp.t_min[both]
+    d = pair[both, 0] - pair[both, 1]
+    e = d - _slow_trend(t, d)
+    robust = _robust_sd(e)
+    if not np.isfinite(robust):
+        return None
+    if robust == 0.0:
+        return 0.0, 0.0, float(e.size), int(e.size)
+    kept = np.abs(e) <= CLIP_SD * robust
+    e = np.where(kept, e, 0.0)  # a left-out sample leaves a zero, not a gap in the series
+    var = float(e @ e / max(kept.sum() - 1, 1))
+    n_eff = float(kept.sum()) / fit_ar(e).correlation_time
+    return var, float(acf(e, 1)[1]), n_eff, int(kept.sum())
+
+
+def _slow_trend(t: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Block medians of d over TREND_MIN-minute blocks, linear between block centres and
+    flat beyond the outer ones: follows a bias (a constant) and a drift (a slope), not the
+    noise."""
+    edges = np.arange(t[0], t[-1] + TREND_MIN, TREND_MIN)
+    idx = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, max(edges.size - 2, 0))
+    centres, medians = [], []
+    for b in np.unique(idx):
+        sel = idx == b
+        if sel.sum() >= 5:
+            centres.append(float(np.mean(t[sel])))
+            medians.append(float(np.median(d[sel])))
+    if not centres:
+        return np.full(d.size, float(np.median(d)))
+    return np.interp(t, centres, medians)
+
+
+def _robust_sd(x: np.ndarray) -> float:
+    x = x[np.isfinite(x)]
+    if x.size < 3:
+        return float("nan")
+    return float(1.482602218505602 * np.median(np.abs(x - np.median(x))))
+
+
+def _second_difference_sd(y: np.ndarray) -> tuple[float, float]:
+    """A lone thermocouple's noise sd from its second differences (sd sqrt(6) s for white
+    noise on a signal smooth at the sample rate), and nan for its colour, which this cannot
+    see."""
+    d2 = np.diff(y, 2)
+    d2 = d2[np.isfinite(d2)]
+    if d2.size < MIN_PAIR:
+        return float("nan"), float("nan")
+    return _robust_sd(d2) / np.sqrt(6.0), float("nan")
+
+
+def _r(x: float) -> float | None:
+    x = float(x)
+    return round(x, 6) if np.isfinite(x) else None
+
+
+def limits(floors: list[RecordFloor], ratio: float, z: float) -> dict[str, float]:
+    """Per zone, the RMSE above which records scored together are off their floor: `ratio`
+    times the pooled floor, or further where the records hold few independent samples.
+
+    A perfect model's RMSE and the floor are both estimates from the same noise, each with a
+    relative standard error of about 1/sqrt(2 n_eff), so their ratio scatters by
+    1/sqrt(n_eff); `z` of those are allowed. With white noise over a long record that is a
+    few percent and `ratio` decides; with low-pass noise a record of a thousand samples holds
+    some fifty independent ones, and a ratio of 1.25 would call noise a gap in one zone of
+    ten."""
+    floor = pooled_floor(floors)
+    out = {}
+    for zone in ZONES:
+        n_eff = sum(f.zones[zone].n_eff if np.isfinite(f.zones[zone].n_eff)
+                    else f.zones[zone].samples for f in floors)
+        spread = 1.0 / np.sqrt(n_eff) if n_eff > 0 else np.inf
+        out[zone] = floor[zone] * max(ratio, 1.0 + z * spread)
+    return out

@@ -1,0 +1,39 @@
+"""The diagnosis on thermocouples as plants have them: a held-out campaign with noisier
+thermocouples, and low-pass noise. A model at each record's own floor has no gap; a real
+effect is still named. Cases are the selfcheck's, with their thermocouples drawn apart."""
+
+from __future__ import annotations
+
+import pytest
+
+from furnace_model.selfcheck import check
+
+QUICK = ("zone_burners", "sensor_lag", "zone_losses", "fuel_change")
+
+
+@pytest.mark.parametrize("noise", ["noisier-holdout", "low-pass"])
+def test_no_effect_no_gap(noise):
+    """Held-out thermocouples one to three times as noisy as the fitted ones, or low-pass
+    noise (0.5-0.9 per minute, with and without white noise on top): judged against a floor
+    pooled over both records, or read off first differences, these were gaps."""
+    outcomes = check(["none"], 6, seed=0, noise=noise)
+    wrong = [(o.draw, o.status, o.description) for o in outcomes if not o.correct]
+    assert not wrong, wrong
+
+
+@pytest.mark.parametrize("noise", ["noisier-holdout", "low-pass"])
+def test_a_real_effect_is_still_named(noise):
+    outcomes = check(["zone_burners"], 1, seed=0, noise=noise, candidates=QUICK)
+    o = outcomes[0]
+    assert o.correct and o.named == ["zone_burners"], (o.status, o.named, o.reason)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("noise", ["noisier-holdout", "low-pass"])
+def test_every_effect_is_named_on_such_thermocouples(noise):
+    labels = ["none", "zone_burners", "zone_losses", "sensor_lag", "dead_time",
+              "fuel_change", "sensor_drift"]
+    outcomes = check(labels, 3, seed=1, noise=noise)
+    wrong = [(o.label, o.draw, o.status, o.named, o.reason) for o in outcomes
+             if not (o.correct or o.absorbed)]
+    assert len(wrong) <= 1, wrong

@@ -1,0 +1,104 @@
+"""The noise floor of each record, against the noise the plant simulator actually drew: white
+and low-pass thermocouples, a noisier campaign, a loose junction, a drift, a lone sensor."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from furnace_model import ZONES
+from furnace_model.noisefloor import limits, pooled_floor, record_floor
+from furnace_model.parameters import PAPER_TABLE_V
+from furnace_model.plant import Plant
+from furnace_model.scenario import SensorSpec
+from furnace_model.structure import Inputs, ModelStructure
+
+
+def _record(seed: int, n: int = 1500, **sensors) -> tuple:
+    """A heat-up of n minutes and the noise its zone temperatures carry (bias removed)."""
+    rng = np.random.default_rng(seed)
+    times = np.array([0.0, n / 3, 2 * n / 3])
+    counts = np.array([[6, 0, 0], [10, 3, 2], [8, 6, 4]], dtype=float)
+    inputs = Inputs(times, counts, np.full(3, 25.0))
+    spec = SensorSpec(**{"noise_sd_c": 1.5, "bias_sd_c": 0.5, **sensors})
+    plant = Plant(ModelStructure(), PAPER_TABLE_V, spec, seed=int(rng.integers(2**31)))
+    run = plant.run(inputs, np.arange(0.0, n), np.full(3, 25.0))
+    exp = run.to_experiment(f"run{seed}")
+    noise = exp.zone_temp - run.zone_true
+    return exp, noise - noise.mean(axis=0)
+
+
+@pytest.mark.parametrize("ar, white", [(0.0, 0.0), (0.5, 0.0), (0.7, 0.0), (0.9, 0.0),
+                                       (0.9, 0.7), (0.5, 1.0)])
+def test_floor_is_the_noise_the_zone_temperature_carries(ar, white):
+    """White or low-pass (first-order autoregression per minute, with or without white noise
+    on top): over 25 records the floor is unbiased against the drawn noise, and the
+    uncertainty it states is the scatter it shows."""
+    ratios, claimed = [], []
+    for seed in range(25):
+        exp, noise = _record(seed, noise_ar_per_min=ar, white_sd_c=white)
+        f = record_floor(exp)
+        for w, z in enumerate(ZONES):
+            ratios.append(f.zones[z].floor_c / np.std(noise[:, w]))
+            claimed.append(f.zones[z].rel_sd)
+            assert f.zones[z].how == "pair"
+    ratios = np.array(ratios)
+    # a white estimate of the same data (first differences) reads 0.32 at 0.9 per minute
+    assert abs(ratios.mean() - 1.0) < 0.04, ratios.mean()
+    # the ratio's scatter holds the floor's and the drawn noise's sample errors alike
+    scatter = ratios.std() / np.sqrt(2.0)
+    assert 0.6 < scatter / np.mean(claimed) < 1.6, (scatter, np.mean(claimed))
+
+
+def test_each_record_has_its_own_floor():
+    """A campaign whose thermocouples are three times as noisy has three times the floor;
+    pooled, the floors weigh as a pooled RMSE weighs the records."""
+    quiet, _ = _record(1, noise_sd_c=1.0)
+    noisy, _ = _record(2, noise_sd_c=3.0, n=3000)
+    fq, fn = record_floor(quiet), record_floor(noisy)
+    for z in ZONES:
+        assert fq.zones[z].floor_c == pytest.approx(1.0 / np.sqrt(2), rel=0.1)
+        assert fn.zones[z].floor_c == pytest.approx(3.0 / np.sqrt(2), rel=0.1)
+        pooled = pooled_floor([fq, fn])[z]
+        expected = np.sqrt((1500 * fq.zones[z].floor_c ** 2 + 3000 * fn.zones[z].floor_c ** 2)
+                           / 4500)
+        assert pooled == pytest.approx(expected, rel=1e-9)
+
+
+def test_a_gap_needs_more_with_few_independent_samples():
+    """The gap limit is 1.25 floors for white noise over a long record, and wider for
+    low-pass noise, whose samples are not independent."""
+    white = record_floor(_record(3)[0])
+    coloured = record_floor(_record(3, n=1000, noise_ar_per_min=0.9)[0])
+    for z in ZONES:
+        assert limits([white], 1.25, 3.0)[z] == pytest.approx(1.25 * white.zones[z].floor_c)
+        assert limits([coloured], 1.25, 3.0)[z] > 1.3 * coloured.zones[z].floor_c
+
+
+def test_faults_and_drifts_do_not_raise_the_floor():
+    exp, noise = _record(4)
+    exp.tc[300:340, 2] -= 40.0  # heat_1: a loose junction reads low for 40 minutes
+    exp.tc[:, 5] += 0.02 * np.maximum(exp.t_min - 500.0, 0.0)  # preheat_2 drifts 20 degC
+    f = record_floor(exp)
+    for w, z in enumerate(ZONES):
+        assert f.zones[z].floor_c == pytest.approx(np.std(noise[:, w]), rel=0.1), z
+
+
+def test_a_lone_thermocouple_borrows_the_floor_of_the_pairs_and_says_so():
+    exp, _ = _record(5, noise_ar_per_min=0.8)
+    exp.tc[:, 1] = np.nan  # soak_2 removed: the soaking zone has one thermocouple
+    f = record_floor(exp)
+    soak = f.zones["soak"]
+    assert soak.how == "borrowed" and "borrowed" in soak.words()
+    assert soak.floor_c == pytest.approx(1.5, rel=0.15)  # one sensor: its own sd
+    assert f.zones["heat"].floor_c == pytest.approx(1.5 / np.sqrt(2), rel=0.15)
+
+
+def test_with_no_pair_at_all_the_floor_says_it_assumes_white_noise():
+    exp, _ = _record(6)
+    exp.tc[:, 1::2] = np.nan  # one thermocouple per zone
+    f = record_floor(exp)
+    for z in ZONES:
+        assert f.zones[z].how == "second_difference"
+        assert "white" in f.zones[z].words() and not np.isfinite(f.zones[z].rel_sd)
+        assert f.zones[z].floor_c == pytest.approx(1.5, rel=0.15)

@@ -73,14 +73,16 @@ def render(d: Diagnosis) -> str:
         f"</span>{_e(v.sentence)}</p>",
         f'<p class="meta">Fitted: {_e(", ".join(e.name for e in d.fit_data))}; held out: '
         f"{_e(d.holdout_how)}. Diagnosed in {d.elapsed_s:.1f} s.</p>",
-        _section("Error per zone, before and after", _rmse_table(d, best),
+        _section("Error per zone, before and after", _rmse_table(d, best) + _floor_table(d),
                  _figure(_fig_noise(d, best), "noise",
                          "Held-out RMSE per zone against the noise floor the thermocouple pairs "
                          "allow: the baseline (paper's model), the best extension, and the floor."),
                  "Fit: the data the model was fitted to. Held out: data it never saw, scored "
                  "with the model's parameters fixed. The noise floor is estimated from the "
-                 "data themselves (the two thermocouples of a zone); an RMSE near it is as "
-                 "good as the sensors allow."),
+                 "data themselves, record by record (the two thermocouples of a zone); an "
+                 "RMSE near it is as good as the sensors allow, and a zone has a gap when "
+                 "its held-out RMSE passes the limit shown (1.25 floors, or more where the "
+                 "record holds few independent samples)."),
         _section("Measured and modelled temperatures", "",
                  _figure(_fig_traces(d, best), "traces",
                          "Zone temperature measured (grey), the paper's model (red) and "
@@ -133,23 +135,40 @@ def _g(x: float) -> str:
 
 def _rmse_table(d: Diagnosis, best: CandidateResult | None) -> str:
     b = d.baseline
-    head = ["zone", "noise floor (°C)", "baseline fit", "baseline held out"]
+    head = ["zone", "noise floor fitted (°C)", "baseline fit", "noise floor held out (°C)",
+            "baseline held out"]
     if best is not None:
         head += [f"{best.label} fit", f"{best.label} held out"]
-    head.append("gap")
+    head += ["gap above (°C)", "gap"]
     rows = []
+    fit_floor, limit = d.noise_floor_fit_c or {}, d.gap_limit_c or {}
     for z in ZONES:
-        cells = [ZONE_WORDS[z], _f(d.noise_floor_c[z]), _f(b.rmse_fit_c[z]),
-                 _f(b.rmse_holdout_c[z])]
+        cells = [ZONE_WORDS[z], _f(fit_floor.get(z, np.nan)), _f(b.rmse_fit_c[z]),
+                 _f(d.noise_floor_c[z]), _f(b.rmse_holdout_c[z])]
         if best is not None:
             cells += [_f(best.rmse_fit_c[z]), _f(best.rmse_holdout_c[z])]
-        cells.append("yes" if z in d.gap_zones else "no")
+        cells += [_f(limit.get(z, np.nan)), "yes" if z in d.gap_zones else "no"]
         rows.append(cells)
     caption = "RMSE per zone (°C)"
     if best is not None:
         caption += (f"; held-out error {best.shrink_pct:.0f}% smaller with {best.label} "
                     f"({best.gap_closed_pct:.0f}% of the gap above the noise floor closed)")
     return _table(head, rows, caption)
+
+
+def _floor_table(d: Diagnosis) -> str:
+    """Each record's own floor per zone, and how it was estimated and how sure it is."""
+    if not d.record_floors:
+        return ""
+    rows = []
+    for i, f in enumerate(d.record_floors):
+        role = "fitted" if i < len(d.fit_data) else "held out"
+        for z in ZONES:
+            zf = f.zones[z]
+            rows.append([f.record, role, ZONE_WORDS[z], _f(zf.floor_c), _f(zf.tc_sd_c),
+                         zf.words()])
+    return _table(["record", "role", "zone", "noise floor (°C)", "one thermocouple (°C)",
+                   "estimated"], rows, "Noise floor per record and zone")
 
 
 def _where_table(d: Diagnosis) -> str:
@@ -344,7 +363,9 @@ def _fig_residuals(d: Diagnosis) -> Figure:
             ax = axes[w, k]
             if base is not None:
                 ax.plot(exp.t_min, exp.zone_temp[:, w] - base[:, w], "-", lw=0.6, color="C3")
-            fl = d.noise_floor_c.get(z, np.nan)
+            floors = d.record_floors or []
+            at = k if k < len(floors) else None  # records in the same order: fit, held out
+            fl = floors[at].zones[z].floor_c if at is not None else d.noise_floor_c.get(z, np.nan)
             if np.isfinite(fl):
                 for s in (-1, 1):
                     ax.axhline(s * fl, color="k", lw=0.7, ls="--")

@@ -43,9 +43,18 @@ def test_diagnose_names_the_effect_and_writes_the_contract_json(case_files, tmp_
     order = [r.stdout.index(h) for h in ("Baseline (the paper's model", "Where the error lies",
                                          "Candidates, best first")]
     assert order == sorted(order)
-    assert "| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap |" in r.stdout
+    assert ("| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap above (°C) "
+            "| gap |") in r.stdout
+    assert "Noise floor per record" in r.stdout and "from the thermocouple pair's" in r.stdout
     assert "degC" not in r.stdout and " C;" not in r.stdout
     doc = json.loads(out.read_text())
+    # each record's own floor, per zone, and the one the held-out RMSE is judged against
+    assert [f["role"] for f in doc["noise_floors"]] == ["fit", "holdout"]
+    held = doc["noise_floors"][1]["zones"]
+    for z in ("soak", "heat", "preheat"):
+        assert held[z]["how"] == "pair" and 0.9 < held[z]["floor_c"] < 1.25
+        assert doc["baseline"]["noise_floor_c"][z] == pytest.approx(held[z]["floor_c"], abs=1e-6)
+        assert doc["baseline"]["gap_limit_c"][z] >= 1.25 * held[z]["floor_c"] - 1e-6
     assert set(doc["baseline"]) >= {"rmse_fit_c", "rmse_holdout_c", "noise_floor_c"}
     assert set(doc["baseline"]["rmse_holdout_c"]) == {"soak", "heat", "preheat"}
     assert doc["verdict"]["status"] == "explained"

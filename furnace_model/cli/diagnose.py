@@ -87,11 +87,24 @@ def summary(d: Diagnosis) -> str:
              v.sentence, "",
              f"Fitted: {', '.join(e.name for e in d.fit_data)}; held out: {d.holdout_how}", "",
              "Baseline (the paper's model, eq. 11):",
-             "| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap |",
-             "|---|---|---|---|---|"]
+             "| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap above (°C) "
+             "| gap |",
+             "|---|---|---|---|---|---|"]
+    limit = d.gap_limit_c or {}
     for z in ZONES:
         lines.append(f"| {z} | {b.rmse_fit_c[z]:.2f} | {b.rmse_holdout_c[z]:.2f} | "
-                     f"{d.noise_floor_c[z]:.2f} | {'yes' if z in d.gap_zones else 'no'} |")
+                     f"{d.noise_floor_c[z]:.2f} | {limit.get(z, float('nan')):.2f} | "
+                     f"{'yes' if z in d.gap_zones else 'no'} |")
+    if d.record_floors:
+        lines += ["", "Noise floor per record (°C per zone, soak/heat/preheat; the held-out "
+                  "RMSE is judged against the held-out records'):"]
+        for i, f in enumerate(d.record_floors):
+            role = "fitted" if i < len(d.fit_data) else "held out"
+            floors = "/".join(f"{f.zones[z].floor_c:.2f}" for z in ZONES)
+            hows = {f.zones[z].words() for z in ZONES}
+            lines.append(f"- {f.record} ({role}): {floors}; "
+                         + ("; ".join(f"{z}: {f.zones[z].words()}" for z in ZONES)
+                            if len(hows) > 1 else hows.pop()))
     if d.where:
         lines += ["", "Where the error lies:"]
         for w in where_lines(d.where):

@@ -801,7 +801,7 @@ def soak_burners_start(fit_data: list[Experiment], seed: int) -> dict[str, float
             heads.append(head)
     if not heads:
         return None
-    fr = fit(heads, seed=seed, zone_offsets=True)
+    fr = fit(heads, seed=seed, zone_offsets=True, profile=False)
     return {k: v for k, v in fr.params.items() if k not in fr.undetermined}
 
 

@@ -385,6 +385,8 @@ class FitResult:
     criteria: Criteria | None = None
     ci95_white: dict[str, tuple[float, float]] = field(default_factory=dict)
     """The intervals were the residuals white (ci95 allows for their autocorrelation)."""
+    profiled: list[str] = field(default_factory=list)
+    """Parameters whose interval follows the criterion (profile likelihood)."""
 
     def predict(self, exp: Experiment, x0: np.ndarray | None = None) -> np.ndarray:
         """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None.
@@ -439,6 +441,10 @@ class FitResult:
             "fixed": {k: self.params[k] for k in self.fixed},
             "bounds": {k: [lo, hi] for k, (lo, hi) in self.bounds.items()},
             "at_bound": dict(self.at_bound),
+            "ci95_white": {k: [v[0], v[1]] for k, v in self.ci95_white.items()},
+            "profiled": list(self.profiled),
+            "residual_correlation_time": (self.uncertainty.correlation_time
+                                          if self.uncertainty is not None else None),
             "stop_reason": self.stop_reason,
             "iterations": self.iterations,
             "generations": self.generations,
@@ -535,10 +541,12 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     for name, v in prob.fixed.items():
         ci[name] = ci_white[name] = (float(v), float(v))
     undetermined = unc.undetermined(prob.from_z(z[:prob.k]), prob.lo_val, prob.hi_val)
+    profiled = {}
     if profile:
         wide = [n for i, n in enumerate(prob.names)
                 if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE]
-        ci.update(_profiled(prob, z, float(res @ res), unc, wide, deadline))
+        profiled = _profiled(prob, z, float(res @ res), unc, wide, deadline)
+        ci.update(profiled)
     named = unc.determined_combinations(undetermined)
     combos = [name for name, _ in named]
     combo_values = {}
@@ -571,6 +579,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         zone_offsets_c=([dict(zip(ZONES, map(float, prob.offsets_of(z, j)), strict=True))
                          for j in range(len(experiments))] if zone_offsets else None),
         uncertainty=unc, ci95_white={n: ci_white[n] for n in structure.names},
+        profiled=list(profiled),
         std={n: float(np.sqrt(max(cov[i, i], 0.0))) if np.isfinite(cov[i, i]) else float("nan")
              for i, n in enumerate(structure.names)},
         cov=cov, fixed=sorted(prob.fixed, key=structure.names.index),

@@ -23,11 +23,15 @@ system-deps:
 demo: $(STAMP)
 	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo
 
+# Two workers (pytest-xdist), one per core of the 2-core target; a test module stays on one
+# worker, so its module-wide fixtures (a live daemon run, a fitted record) are built once.
+XDIST := -n 2 --dist loadfile
+
 test: $(STAMP) system-deps
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" $(XDIST)
 
 test-slow: $(STAMP) system-deps
-	$(BIN)/python -m pytest -q -m slow
+	$(BIN)/python -m pytest -q -m slow $(XDIST)
 
 lint: $(STAMP)
 	$(BIN)/ruff check furnace_model furnace_daq tests bench

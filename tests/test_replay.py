@@ -18,7 +18,6 @@ import yaml
 from daq_processes import (
     ROOT,
     config,
-    free_port,
     furnace_daq,
     messages,
     sim,
@@ -296,10 +295,9 @@ def test_a_failing_state_write_or_consumer_is_an_event_not_a_stop(tmp_path):
         raise RuntimeError("consumer bug")
 
     async def run():
-        port = free_port()
-        plc = await sim(port)
+        plc = await sim(0)
         try:
-            cfg = config(port, refit={"period_s": 600, "window_s": 1200, "step_s": 60,
+            cfg = config(plc.port, refit={"period_s": 600, "window_s": 1200, "step_s": 60,
                                       "state_dir": str(blocker / "state")})
             daemon, task = start_daemon(cfg, tmp_path / "logs", 5.0, on_model=consumer)
             return await task

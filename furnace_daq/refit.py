@@ -5,11 +5,11 @@ Why a chain. With `method: polish` (the default) window k is fitted starting fro
 of window k-1, so the result of a window depends only on the data and on the windows before
 it, never on when the host got round to fitting it. With `method: ga` every window is the
 paper's genetic search from scratch with a fixed seed: it depends on its own data alone,
-costs tens of times more, and ends where the GA stalls rather than at the optimum
-(docs/performance.md); the chain still carries the drift references. The live daemon and `furnace-daq replay` each hold one `RefitChain` and
-push the same windows through it in the same order: the same log gives the same timeline.
-No I/O here; the worker process (refitworker) runs `run_fit`, the daemon and replay move
-messages.
+costs 35-80 times as much, and ends where the GA stalls rather than at the optimum
+(docs/performance.md); the chain still carries the drift references. The live daemon and
+`furnace-daq replay` each hold one `RefitChain` and push the same windows through it in the
+same order: the same log gives the same timeline. No I/O here; the worker process
+(refitworker) runs `run_fit`, the daemon and replay move messages.
 
 Windows. A refit is due at every multiple of `period_s` of the PLC clock (publish time,
 aligned to the Unix epoch); its window is the `window_s` of data before that instant,

@@ -23,8 +23,13 @@ system-deps:
 demo: $(STAMP)
 	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo
 
+# Two workers (pytest-xdist), one per core of the 2-core target; a test module stays on one
+# worker, so its module-wide fixtures (a live daemon run, a fitted record) are built once.
+# The slow tests run one at a time: the 2-hour soak and the crash test judge reconnect times
+# and losses over long runs, which a second worker fitting at full speed beside them would
+# stretch.
 test: $(STAMP) system-deps
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" -n 2 --dist loadfile
 
 test-slow: $(STAMP) system-deps
 	$(BIN)/python -m pytest -q -m slow

@@ -19,6 +19,9 @@ from .registers import BIT_TABLES, DATA_TYPES, ORDERS, TABLES, BitRange, Point, 
 from .writeback import WriteBackConfig, parse_write_back
 
 BURNER_SOURCES = ("modbus", "can", "both")
+REFIT_METHODS = ("polish", "ga")
+"""How each refit window is fitted: `polish` starts from the previous window's model (the
+first window: `fit`'s fast search), `ga` runs the paper's genetic algorithm from scratch."""
 
 
 @dataclass(frozen=True)
@@ -89,6 +92,11 @@ class RefitConfig:
     window_s: float = 86400.0
     step_s: float = 60.0
     budget_s: float = 30.0
+    method: str = "polish"
+    population: int = 20
+    generations: int = 2000
+    """The GA's knobs (method ga only): the paper's population, and `fit --method ga`'s
+    generations."""
     max_gap_fraction: float = 0.2
     min_burner_steps: int = 1
     drift_windows: int = 2
@@ -204,9 +212,9 @@ def _log(node: Node) -> LogConfig:
 
 
 def _refit(node: Node) -> RefitConfig | None:
-    node.mapping({"enabled", "period_s", "window_s", "step_s", "budget_s", "max_gap_fraction",
-                  "min_burner_steps", "drift_windows", "drift_min_change", "queue_max",
-                  "state_dir"})
+    node.mapping({"enabled", "period_s", "window_s", "step_s", "budget_s", "method",
+                  "population", "generations", "max_gap_fraction", "min_burner_steps",
+                  "drift_windows", "drift_min_change", "queue_max", "state_dir"})
     if not node.get_bool("enabled", True):
         return None
     step = node.get_number("step_s", 60.0, lo=0.001, hi=86400.0)
@@ -219,10 +227,17 @@ def _refit(node: Node) -> RefitConfig | None:
     if window / step < 10:
         raise node.child("window_s").error(f"holds only {window / step:g} samples of "
                                            f"step_s; at least 10 are needed to fit")
+    method = node.get_string("method", "polish", choices=REFIT_METHODS)
+    for key in ("population", "generations"):
+        if method != "ga" and node.has(key):
+            raise node.child(key).error(f"applies to method: ga only (method is {method})")
     default_dir = os.environ.get("STATE_DIRECTORY", "state").split(":")[0]
     return RefitConfig(
         period_s=period, window_s=window, step_s=step,
         budget_s=node.get_number("budget_s", 30.0, lo=0.01, hi=86400.0),
+        method=method,
+        population=node.get_integer("population", 20, lo=4, hi=10000),
+        generations=node.get_integer("generations", 2000, lo=1, hi=10_000_000),
         max_gap_fraction=node.get_number("max_gap_fraction", 0.2, lo=0.0, hi=1.0),
         min_burner_steps=node.get_integer("min_burner_steps", 1, lo=0, hi=100000),
         drift_windows=node.get_integer("drift_windows", 2, lo=1, hi=1000),

@@ -1,12 +1,15 @@
-"""Online identification as a pure pipeline: windows cut on the data clock, one warm-started
-fit per window, the /model/parameters message and any /model/events (drift).
+"""Online identification as a pure pipeline: windows cut on the data clock, one fit per
+window, the /model/parameters message and any /model/events (drift).
 
-Why a chain. Window k is fitted starting from the result of window k-1, so the result of a
-window depends only on the data and on the windows before it, never on when the host got
-round to fitting it. The live daemon and `furnace-daq replay` each hold one `RefitChain` and
-push the same windows through it in the same order: the same log gives the same timeline.
-No I/O here; the worker process (refitworker) runs `run_fit`, the daemon and replay move
-messages.
+Why a chain. With `method: polish` (the default) window k is fitted starting from the result
+of window k-1, so the result of a window depends only on the data and on the windows before
+it, never on when the host got round to fitting it. With `method: ga` every window is the
+paper's genetic search from scratch with a fixed seed: it depends on its own data alone,
+costs 35-80 times as much, and ends where the GA stalls rather than at the optimum
+(docs/performance.md); the chain still carries the drift references. The live daemon and
+`furnace-daq replay` each hold one `RefitChain` and push the same windows through it in the
+same order: the same log gives the same timeline. No I/O here; the worker process
+(refitworker) runs `run_fit`, the daemon and replay move messages.
 
 Windows. A refit is due at every multiple of `period_s` of the PLC clock (publish time,
 aligned to the Unix epoch); its window is the `window_s` of data before that instant,
@@ -118,19 +121,34 @@ class FitJob:
     budget_s: float
     recent_from_min: float | None = None
     """Start of the recent span (minutes on the experiment's time) whose f is estimated."""
+    method: str = "polish"
+    population: int = 20
+    generations: int = 2000
 
 
 def run_fit(job: FitJob) -> dict:
     """One window's fit as a plain dict (the worker sends it back through a pipe). A fit that
     runs out of its time budget has status `failed`: a truncated search depends on the
-    host's speed, and a result that depends on the host is not one to keep."""
+    host's speed, and a result that depends on the host is not one to keep.
+
+    `polish` fits with zone offsets from `init` (the fast search when there is none); `ga`
+    is the paper's search on the paper's criterion, which has no offsets (the GA holds them
+    at zero), so none are fitted or reported."""
     t0 = time.perf_counter()
-    res = fit([job.experiment], init=job.init, seed=FITTING_SEED, zone_offsets=True,
-              time_budget_s=job.budget_s)
+    if job.method == "ga":
+        res = fit([job.experiment], method="ga", population=job.population,
+                  generations=job.generations, seed=FITTING_SEED, time_budget_s=job.budget_s)
+    else:
+        res = fit([job.experiment], init=job.init, seed=FITTING_SEED, zone_offsets=True,
+                  time_budget_s=job.budget_s)
     over = any(w.startswith("time budget") for w in res.warnings)
+    search = {"method": job.method, "warm_start": job.init is not None}
+    if job.method == "ga":
+        search.update(population=job.population, generations=int(res.runs[0]["generations"]))
     return {
         "status": "failed" if over else "ok",
         "detail": "; ".join(res.warnings),
+        "search": search,
         "params": dict(res.params),
         "ci95": {k: [float(v[0]), float(v[1])] for k, v in res.ci95.items()},
         "rmse_c": {z: float(res.per_zone[z]["rmse_c"]) for z in ZONES},
@@ -268,11 +286,14 @@ class RefitChain:
     def job(self, window: Window) -> FitJob:
         assert window.experiment is not None
         exp = window.experiment
-        init = None if self.model is None else {p: self.model[p] for p in PARAM_NAMES}
-        recent_ns = window.end_ns - int(round(RECENT_PERIODS * self.config.period_s * 1e9))
+        cfg = self.config
+        init = None if self.model is None or cfg.method == "ga" \
+            else {p: self.model[p] for p in PARAM_NAMES}
+        recent_ns = window.end_ns - int(round(RECENT_PERIODS * cfg.period_s * 1e9))
         t0 = exp.start_time.value if exp.start_time is not None else window.start_ns
         recent = (recent_ns - t0) / 60e9 if recent_ns > window.start_ns else None
-        return FitJob(exp, init, self.config.budget_s, recent)
+        return FitJob(exp, init, cfg.budget_s, recent, cfg.method, cfg.population,
+                      cfg.generations)
 
     def process(self, window: Window, fitter: Callable[[FitJob], dict] = run_fit
                 ) -> tuple[dict, list[dict]]:
@@ -318,12 +339,14 @@ class RefitChain:
             detail = outcome.get("detail") or "the fit returned non-finite values"
             msg = self.kept(window, "failed", detail)
             msg["elapsed_s"] = outcome.get("elapsed_s")
+            msg["search"] = outcome.get("search")
             return msg, []
         msg = self._base(window, "ok", outcome["detail"])
         msg.update({p: outcome["params"][p] for p in PARAM_NAMES})
         msg.update({k: outcome[k] for k in ("ci95", "rmse_c", "combinations",
                                             "determined_combinations", "undetermined",
-                                            "zone_offsets_c", "sigma_c", "elapsed_s")})
+                                            "zone_offsets_c", "sigma_c", "elapsed_s",
+                                            "search")})
         msg["model_window_start"] = msg["window_start"]
         msg["model_window_end"] = msg["window_end"]
         recent = outcome.get("recent")

@@ -5,7 +5,8 @@ hangs, crashes or eats memory can be killed without touching acquisition.
 or locks) reading jobs from a pipe and sending back results. `RefitRunner` is what the daemon
 and replay hold: it cuts windows (refit.WindowCutter), keeps them in a FIFO, hands them one
 at a time to the worker, feeds the outcomes to the chain (refit.RefitChain) and emits the
-messages. One window in flight at a time: window k + 1 warm-starts from window k.
+messages. One window in flight at a time: with `method: polish` window k + 1 starts from
+window k.
 
 Failures. A worker that dies, or runs past `KILL_FACTOR` x budget (+ `KILL_MARGIN_S`) of wall
 time, is killed and started anew; that window is published with status `failed` and the

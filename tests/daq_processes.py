@@ -98,7 +98,9 @@ def messages(log_dir: Path) -> list[tuple[str, dict, int]]:
 
 
 async def sim(port: int, **kw) -> SimPLC:
-    """The noise-free test plant at 600x, scanned every 0.05 s."""
+    """The noise-free test plant at 600x, scanned every 0.05 s. Port 0: a free port, chosen
+    when it binds (`plc.port`); a port from `free_port` is only for a test that must know it
+    before the PLC is there, since another process may take it meanwhile."""
     plc = SimPLC(load_scenario(SCENARIO), speed=600, port=port, scan_s=0.05, **kw)
     await plc.start()
     return plc

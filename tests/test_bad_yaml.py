@@ -4,8 +4,10 @@ line naming the file and the key (exit 2); nothing is ever evaluated."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -17,7 +19,9 @@ from furnace_model.cli import main as model_main
 
 GATEWAY = (ROOT / "config" / "gateway.yaml").read_text()
 SCENARIO = (ROOT / "config" / "scenarios" / "paper_exp1.yaml").read_text()
-PWNED = "/tmp/furnace-yaml-was-evaluated"
+PWNED = str(Path(tempfile.gettempdir()) / f"furnace-yaml-was-evaluated-{os.getpid()}")
+"""What a YAML tag that ran would create: one per process, so that runs side by side do not
+share it."""
 
 LAUGHS = "lol: &a0 [lol, lol, lol, lol, lol, lol, lol, lol, lol]\n" + "".join(
     f"l{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]\n" for i in range(1, 10))

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from daq_processes import config, free_port, sim, start_daemon
+from daq_processes import config, sim, start_daemon
 
 from furnace_daq.logclock import LogClock
 from furnace_daq.logschema import DAQ_EVENTS, THERMOCOUPLES
@@ -33,7 +33,7 @@ def test_steps_forward_and_back_keep_schedule_and_order(tmp_path):
     wall = SteppedClock()
 
     async def scenario():
-        plc = await sim(free_port())
+        plc = await sim(0)
         daemon, task = start_daemon(config(plc.port), tmp_path, DURATION, wall_ns=wall)
         await asyncio.sleep(0.7)
         wall.offset_ns = HOUR                      # forward one hour

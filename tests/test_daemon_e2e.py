@@ -5,11 +5,13 @@ recomputed at the PLC clock second the reading carries."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import yaml
-from daq_processes import ROOT, SCENARIO, furnace_daq, start_simplc, stop
+from daq_processes import ROOT, SCENARIO, start_simplc, stop
 
 from furnace_daq.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
 from furnace_daq.mcaplog import read_messages
@@ -31,16 +33,29 @@ def daemon_config(tmp_path: Path, **changes) -> Path:
     return path
 
 
+LAUNCH = ("import sys, furnace_daq.cli.run; from furnace_daq.cli import main; "
+          "print('imported', flush=True); port = input(); "
+          "sys.exit(main([*sys.argv[1:], '--plc', f'127.0.0.1:{port}']))")
+"""`furnace-daq run` with its modules imported before it is told the PLC's port: the plant's
+burner steps come 1.5-2 s apart at 600x, and a busy host takes longer than that to import
+numpy and pandas."""
+
+
 def test_sim_plc_to_mcap(tmp_path):
-    sim, port = start_simplc("--speed", str(SPEED))
+    daq = subprocess.Popen([sys.executable, "-c", LAUNCH, "run", "--config",
+                            str(daemon_config(tmp_path)), "--log-dir", str(tmp_path / "logs"),
+                            "--duration", str(DURATION)], cwd=ROOT, stdin=subprocess.PIPE,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    sim = None
     try:
-        daq = furnace_daq("run", "--config", str(daemon_config(tmp_path)), "--plc",
-                          f"127.0.0.1:{port}", "--log-dir", str(tmp_path / "logs"),
-                          "--duration", str(DURATION))
-        out, err = daq.communicate(timeout=60)
+        assert daq.stdout.readline() == "imported\n", daq.stderr.read()
+        sim, port = start_simplc("--speed", str(SPEED))
+        out, err = daq.communicate(f"{port}\n", timeout=60)
         assert daq.returncode == 0, err
     finally:
-        assert stop(sim) == 0
+        stop(daq)
+        if sim is not None:
+            assert stop(sim) == 0
     files = sorted((tmp_path / "logs").glob("*.mcap*"))  # not the directory lock
     assert [f.suffix for f in files] == [".mcap"], files  # finished, with a footer
     msgs = list(read_messages(files))

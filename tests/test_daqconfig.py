@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from furnace_daq.daqconfig import load_config
+from furnace_daq.daqconfig import DaqConfig, load_config, parse_config
 from furnace_daq.registers import ReadRequest, plan_reads
+from furnace_model.config import Node
 from furnace_model.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -20,6 +21,10 @@ GATEWAY = ROOT / "config" / "gateway.yaml"
 
 def gateway() -> dict:
     return yaml.safe_load(GATEWAY.read_text())
+
+
+def parse(doc: dict) -> DaqConfig:
+    return parse_config(Node(doc, "daq.yaml"))
 
 
 def write(tmp_path: Path, doc: dict) -> Path:
@@ -74,10 +79,13 @@ def test_cli_bad_configs_exit_2_with_one_line(tmp_path):
     wrong["thermocouples"]["soak_1"]["address"] = "zero"
     overlap = gateway()
     overlap["heartbeat"]["address"] = 8
+    knob = gateway()
+    knob["refit"]["generations"] = 500  # the default method, polish, has no generations
     cases = []
     for name, doc, words in [("a", unknown, "plc.prot: unknown key"),
                              ("b", wrong, "thermocouples.soak_1.address: expected a whole number"),
-                             ("c", overlap, "heartbeat: overlaps clock")]:
+                             ("c", overlap, "heartbeat: overlaps clock"),
+                             ("d", knob, "refit.generations: applies to method: ga only")]:
         (tmp_path / name).mkdir()
         cases.append((write(tmp_path / name, doc), words))
     cases.append((tmp_path / "missing.yaml", "file not found"))
@@ -88,3 +96,27 @@ def test_cli_bad_configs_exit_2_with_one_line(tmp_path):
         assert "Traceback" not in out.stderr and len(out.stderr.strip().splitlines()) == 1
     out = run_cli("--config", str(GATEWAY), "--plc", "nohost", "--log-dir", str(tmp_path))
     assert out.returncode == 2 and "HOST:PORT" in out.stderr
+
+
+def test_refit_method_and_its_ga_knobs():
+    doc = gateway()
+    assert load_config(GATEWAY).refit.method == "polish"  # the default: warm polish
+    doc["refit"].update(method="ga", population=12, generations=300)
+    refit = parse(doc).refit
+    assert (refit.method, refit.population, refit.generations) == ("ga", 12, 300)
+
+
+@pytest.mark.parametrize("changes, path, words", [
+    ({"method": "GA"}, "refit.method", "must be one of"),
+    ({"method": "ga", "population": 2}, "refit.population", "at least 4"),
+    ({"method": "ga", "generations": 0}, "refit.generations", "at least 1"),
+    ({"method": "ga", "generations": 1.5}, "refit.generations", "expected a whole number"),
+    ({"population": 40}, "refit.population", "applies to method: ga only"),
+    ({"method": "polish", "generations": 100}, "refit.generations", "applies to method: ga"),
+])
+def test_refit_method_mistakes_name_the_key_path(changes, path, words):
+    doc = gateway()
+    doc["refit"].update(changes)
+    with pytest.raises(ConfigError) as err:
+        parse(doc)
+    assert err.value.path == path and words in str(err.value), str(err.value)

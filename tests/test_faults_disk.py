@@ -90,7 +90,7 @@ def test_log_outage_while_running(tmp_path, monkeypatch, capsys, err):
     async def scenario():
         nonlocal broken
         listener = asyncio.create_task(listen())
-        plc = await sim(free_port())
+        plc = await sim(0)
         cfg = config(plc.port, status_interval_s=0.3)
         log = LogWriter(log_dir, flush_interval_s=0.2, retry_s=0.2)
         daemon, task = start_daemon(cfg, log_dir, WARM + BROKEN + AFTER,

@@ -97,7 +97,7 @@ def test_refused_block_is_comm_error_and_the_rest_stays_ok(tmp_path):
     tc_map["heat_1"]["address"], tc_map["heat_2"]["address"] = 100, 101
 
     async def scenario():
-        plc = await sim(free_port())
+        plc = await sim(0)
         daemon, task = start_daemon(config(plc.port, thermocouples=tc_map), tmp_path, 1.5)
         counters = await task
         await plc.stop()
@@ -126,7 +126,7 @@ def test_refused_block_is_comm_error_and_the_rest_stays_ok(tmp_path):
 
 def test_frozen_plc_is_stale_and_open_sensor_is_null(tmp_path):
     async def scenario():
-        plc = await sim(free_port())
+        plc = await sim(0)
         daemon, task = start_daemon(config(plc.port), tmp_path, 2.0)
         await asyncio.sleep(0.5)
         plc.open_sensors.add("heat_1")

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from daq_processes import config, free_port, messages, plant_readings, sim, start_daemon
+from daq_processes import config, messages, plant_readings, sim, start_daemon
 from faultproxy import FaultProxy
 
 from furnace_daq.logschema import DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
@@ -37,7 +37,7 @@ class Run:
 
 def run_with_fault(tmp_path, mode: str, **mode_args) -> Run:
     async def scenario():
-        plc = await sim(free_port())
+        plc = await sim(0)
         proxy = FaultProxy(plc.port)
         await proxy.start()
         daemon, task = start_daemon(config(proxy.port), tmp_path, WARM + FAULT + AFTER)

@@ -203,6 +203,9 @@ def test_chain_warm_starts_from_the_previous_window():
     by_hand = fit([windows[i].experiment], init={p: out[i - 1][p] for p in PARAM_NAMES},
                   zone_offsets=True, seed=0)
     assert all(by_hand.params[p] == out[i][p] for p in PARAM_NAMES)
+    assert out[i]["search"] == {"method": "polish", "warm_start": True}
+    first = next(m for m in out if m["status"] == "ok")
+    assert first["search"] == {"method": "polish", "warm_start": False}  # the fast search
 
 
 def test_a_chain_restored_from_its_state_goes_on_as_the_original():

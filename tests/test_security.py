@@ -53,7 +53,7 @@ def test_daemon_sends_only_read_function_codes(tmp_path):
     """Every table a map can name (coils, discrete inputs, holding and input registers),
     through a connection drop and redial: the PLC sees function codes 1-4 and nothing else."""
     async def scenario():
-        plc = await sim(free_port())
+        plc = await sim(0)
         proxy = FaultProxy(plc.port)
         await proxy.start()
         cfg = config(proxy.port,

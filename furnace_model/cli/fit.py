@@ -111,7 +111,10 @@ def _param_value(item: str, ranged: bool) -> tuple[str, float | tuple[float, flo
 class ProgressBar:
     """A one-line bar on stderr, only when stderr is a terminal (logs stay clean)."""
 
-    def __init__(self, label: str, stream=sys.stderr):
+    def __init__(self, label: str, stream=None):
+        # sys.stderr when the bar is made, not when this module was first imported: a
+        # caller (a test capturing output) may have replaced it since, and closed the old.
+        stream = sys.stderr if stream is None else stream
         self.label, self.stream = label, stream
         self.enabled = bool(getattr(stream, "isatty", lambda: False)())
         self.t0 = time.perf_counter()

@@ -3,9 +3,11 @@ Table V furnace) with thermocouple bias and white or low-pass noise, fitted as `
 by default (zone offsets on) and as the daemon's online refit does; over many noise draws
 each parameter's interval must hold the truth in 90-99% of them.
 
-Draws are seeded, so a run is repeatable; the quick tests start the fit at the truth
-(the same optimum the search finds, much sooner), the slow ones run the whole default
-search."""
+Draws are seeded, so a run is repeatable. The quick tests take the hardest thermocouples
+(low-pass with white noise on top) and start the fit near the truth (the same optimum the
+search finds, much sooner); the slow ones take every kind and run the whole default search.
+Under 100 draws a 99% upper bound cannot be checked (all draws covered is 100%), so every
+check has at least 100."""
 
 from __future__ import annotations
 
@@ -45,7 +47,12 @@ def _heat_ups(scenarios, noise: str, draws: int, seed0: int):
         yield Plant.from_scenario(sc, seed=seed0 + k).run_scenario(sc).to_experiment()
 
 
-@pytest.mark.parametrize("noise", list(NOISE))
+HARDEST = "low-pass and white"
+pytestmark = pytest.mark.timeout(1200)  # a hundred fits each, on a shared machine
+
+
+@pytest.mark.parametrize("noise", [
+    pytest.param(n, marks=() if n == HARDEST else pytest.mark.slow) for n in NOISE])
 def test_fit_intervals_hold_the_truth(scenarios, noise):
     intervals = [fit([exp], init=START, zone_offsets=True).ci95
                  for exp in _heat_ups(scenarios, noise, 100, 5000)]
@@ -55,22 +62,23 @@ def test_fit_intervals_hold_the_truth(scenarios, noise):
 def test_intervals_that_assume_white_residuals_do_not_hold_for_low_pass_noise(scenarios):
     """The check above can fail: the same fits' intervals under white residuals (what the
     fit reported before it allowed for autocorrelation) miss the truth far too often."""
-    white = [fit([exp], init=START, zone_offsets=True).ci95_white
-             for exp in _heat_ups(scenarios, "low-pass and white", 40, 5000)]
+    white = [fit([exp], init=START, zone_offsets=True, profile=False).ci95_white
+             for exp in _heat_ups(scenarios, HARDEST, 40, 5000)]
     assert min(_coverage(white).values()) < 0.8, _coverage(white)
 
 
 def _windows(scenarios, noise: str, draws: int, seed0: int):
-    """36-hour windows of a week of production, as the online refit cuts them."""
+    """24-hour windows of a week of production, as the online refit cuts them by default."""
     sc = replace(load_scenario(scenarios / "week_steps.yaml"), sensors=NOISE[noise])
     rng = np.random.default_rng(seed0)
     for k in range(draws):
         exp = Plant.from_scenario(sc, seed=seed0 + k).run_scenario(sc).to_experiment()
-        t0 = float(rng.uniform(0.0, exp.t_min[-1] - 2160.0))
-        yield exp.between(t0, t0 + 2160.0)
+        t0 = float(rng.uniform(0.0, exp.t_min[-1] - 1440.0))
+        yield exp.between(t0, t0 + 1440.0)
 
 
-@pytest.mark.parametrize("noise", ["white", "low-pass and white"])
+@pytest.mark.parametrize("noise", [
+    pytest.param(n, marks=() if n == HARDEST else pytest.mark.slow) for n in NOISE])
 def test_online_refit_intervals_hold_the_truth(scenarios, noise):
     intervals = []
     for window in _windows(scenarios, noise, 100, 7000):

@@ -4,8 +4,9 @@ by default (zone offsets on) and as the daemon's online refit does; over many no
 each parameter's interval must hold the truth in 90-99% of them.
 
 Draws are seeded, so a run is repeatable. The quick tests take the hardest thermocouples
-(low-pass with white noise on top) and start the fit near the truth (the same optimum the
-search finds, much sooner); the slow ones take every kind and run the whole default search.
+(low-pass with white noise on top) and start the fit near the truth, as the online refit
+starts from the last window's model (the same optimum the search finds, much sooner); the
+slow ones take every kind, the daemon's windows, and the whole default search.
 Under 100 draws a 99% upper bound cannot be checked (all draws covered is 100%), so every
 check has at least 100."""
 
@@ -77,9 +78,11 @@ def _windows(scenarios, noise: str, draws: int, seed0: int):
         yield exp.between(t0, t0 + 1440.0)
 
 
-@pytest.mark.parametrize("noise", [
-    pytest.param(n, marks=() if n == HARDEST else pytest.mark.slow) for n in NOISE])
+@pytest.mark.slow
+@pytest.mark.parametrize("noise", list(NOISE))
 def test_online_refit_intervals_hold_the_truth(scenarios, noise):
+    """The daemon's own call on its own windows. The quick fit check above runs the same
+    path (a polish from a given start, zone offsets on); this one adds the windows."""
     intervals = []
     for window in _windows(scenarios, noise, 100, 7000):
         out = run_fit(FitJob(window, START, budget_s=600.0))

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from heatups import TC_SD, ZONE_SD, heat_up
 
 from furnace_model.effects import SensorDrift
 from furnace_model.experiment import Experiment
@@ -15,19 +16,6 @@ from furnace_model.plant import Plant
 from furnace_model.scenario import SensorSpec, load_scenario
 from furnace_model.structure import Inputs, ModelStructure
 from furnace_model.uncertainty import from_jacobian
-
-TC_SD = 1.5
-ZONE_SD = TC_SD / np.sqrt(2)  # zone temperature = mean of two thermocouples, both reading
-
-
-def heat_up(scenarios, values, sample_min, seed=1, name="exp1", sensors=None,
-            structure=None) -> Experiment:
-    """The paper's first experiment's burner schedule, unbiased thermocouples (sd 1.5 C)."""
-    scn = load_scenario(scenarios / "paper_exp1.yaml")
-    plant = Plant(structure or ModelStructure(), values,
-                  sensors or SensorSpec(noise_sd_c=TC_SD, bias_sd_c=0.0), seed=seed)
-    t = np.arange(0.0, 3300.0 + 1e-9, sample_min)
-    return plant.run(scn.inputs(), t, scn.initial_c).to_experiment(name)
 
 
 def combination_truth(name: str, truth: dict) -> float:

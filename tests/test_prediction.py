@@ -6,32 +6,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from heatups import ZONE_SD, heat_up
 
 from furnace_model.effects import DeadTime, Radiation, SensorLag, WallStorage
 from furnace_model.errors import FurnaceError
-from furnace_model.experiment import Experiment
 from furnace_model.fit import predict
 from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.plant import Plant
 from furnace_model.prediction import _by_free_response, _by_windows, predict_ahead, score_ahead
-from furnace_model.scenario import SensorSpec, load_scenario
+from furnace_model.scenario import SensorSpec
 from furnace_model.scores import zone_metrics
 from furnace_model.structure import ModelStructure
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"
-TC_SD = 1.5
-ZONE_SD = TC_SD / np.sqrt(2)  # zone temperature = mean of two thermocouples
 EXACT = SensorSpec(noise_sd_c=0.0, bias_sd_c=0.0)
-
-
-def heat_up(scenarios, values, sample_min, seed=1, name="exp1", sensors=None,
-            structure=None) -> Experiment:
-    """The paper's first experiment's burner schedule, unbiased thermocouples (sd 1.5 °C)."""
-    scn = load_scenario(scenarios / "paper_exp1.yaml")
-    plant = Plant(structure or ModelStructure(), values,
-                  sensors or SensorSpec(noise_sd_c=TC_SD, bias_sd_c=0.0), seed=seed)
-    t = np.arange(0.0, 3300.0 + 1e-9, sample_min)
-    return plant.run(scn.inputs(), t, scn.initial_c).to_experiment(name)
 
 
 @pytest.fixture(scope="module")

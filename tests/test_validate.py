@@ -145,4 +145,4 @@ def test_a_horizon_of_no_samples_is_refused(fitted):
     r = cli("validate", "--params", str(fitted / "fit.json"), str(fitted / "paper_exp2.csv"),
             "--horizon", "0")
     assert r.returncode != 0
-    assert "--horizon: must be at least 1 sample" in r.stderr and "Traceback" not in r.stderr
+    assert "--horizon: must be at least 1, got 0" in r.stderr and "Traceback" not in r.stderr

@@ -65,6 +65,17 @@ def add_version(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--version", action=_Version)
 
 
+def positive_int(text: str) -> int:
+    """A whole number of at least 1 (runs, generations, a horizon in samples)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: '{text}'") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    return v
+
+
 def output_file(text: str) -> Path:
     """argparse type of an output file: its directory must exist and the path must not be
     one. A missing directory is a typo far more often than a wish, so it is refused, never

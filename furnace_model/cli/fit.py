@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from .. import ZONES
 from ..errors import FurnaceError
 from ..parameters import BASELINE
-from .arguments import output_dir, output_file
+from .arguments import output_dir, output_file, positive_int
 from .names import METHODS
 
 if TYPE_CHECKING:
@@ -29,9 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=METHODS, default="fast",
                    help="fast: evolutionary search + least-squares polish (default); "
                         "ga: the paper's genetic algorithm alone")
-    p.add_argument("--runs", type=_positive, default=1, help="independent runs (seed, seed+1, ...)")
-    p.add_argument("--population", type=_positive, help="GA population (fast 32, ga 20)")
-    p.add_argument("--generations", type=_positive, help="GA generations (fast 30, ga 2000)")
+    p.add_argument("--runs", type=positive_int, default=1, help="independent runs (seed, seed+1, ...)")
+    p.add_argument("--population", type=positive_int, help="GA population (fast 32, ga 20)")
+    p.add_argument("--generations", type=positive_int, help="GA generations (fast 30, ga 2000)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the first run (default 0)")
     p.add_argument("--zone-offsets", action=argparse.BooleanOptionalAction, default=True,
                    help="fit a constant offset per zone and file, the thermocouples' bias "
@@ -44,16 +44,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", type=output_dir, metavar="DIR",
                    help="write measured-vs-model PNGs here (created if missing)")
     p.set_defaults(run=run)
-
-
-def _positive(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: '{text}'") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
-    return v
 
 
 class _ParamValues(argparse.Action):

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from .. import ZONES
 from ..errors import FurnaceError
-from .arguments import output_dir, output_file
+from .arguments import output_dir, output_file, positive_int
 
 if TYPE_CHECKING:
     from ..structure import ModelStructure
@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--zone-offsets", action="store_true",
                    help="estimate each file's constant offset per zone (thermocouple bias) "
                         "before scoring")
-    p.add_argument("--horizon", type=_horizon, metavar="K",
+    p.add_argument("--horizon", type=positive_int, metavar="K",
                    help="also score the K-step-ahead prediction (the model restarted from the "
                         "readings K samples earlier), as System Identification Toolbox's "
                         "compare(data, model, K)")
@@ -37,16 +37,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", type=output_dir, metavar="DIR",
                    help="write measured-vs-model PNGs here (created if missing)")
     p.set_defaults(run=run)
-
-
-def _horizon(text: str) -> int:
-    try:
-        k = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number of samples: '{text}'") from None
-    if k < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1 sample, got {k}")
-    return k
 
 
 def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:

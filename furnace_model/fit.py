@@ -43,6 +43,9 @@ PROFILE_WIDE = 0.25
 """A linearised 95% half-width (search scale: about +-25% for a rate) beyond which the
 interval is profiled instead: nearer, the criterion is close enough to quadratic (b and c of
 a 1-minute heat-up, +-8%, held the truth in 57-59 of 60 draws linearised)."""
+PROFILE_GAIN_TOL = 1e-7
+"""A profile's refit is converged to this share of the criterion: its rise is wanted to a
+few percent, and it is thousands of times smaller than the criterion."""
 _FD_STEP = 1e-6
 _CELLS = 4_000_000
 """Model values (sets x samples x zones) per simulator call in the GA: about 32 MB each."""
@@ -271,9 +274,11 @@ class _Problem:
             blocks.append(block)
         return np.concatenate(blocks)
 
-    def polish(self, z0: np.ndarray, deadline: float | None, max_iter: int = POLISH_MAX_ITER
-               ) -> _Polished:
-        """Levenberg-Marquardt from z0, parameters kept in their box.
+    def polish(self, z0: np.ndarray, deadline: float | None, max_iter: int = POLISH_MAX_ITER,
+               gain_tol: float = 1e-10, damping: float = 1e-3) -> _Polished:
+        """Levenberg-Marquardt from z0, parameters kept in their box; converged when a step
+        lowers the cost by less than `gain_tol` of it. `damping`: the first step's, small
+        for a start already near the minimum (Gauss-Newton converges there in a few steps).
 
         The steps are those of scipy's least_squares, solved on the n x n normal equations
         instead of a QR or SVD of the tall Jacobian: with tens of thousands of residuals and
@@ -292,7 +297,7 @@ class _Problem:
         if self.n == 0:
             return _Polished(z, r, np.zeros((r.size, 0)), "converged", 0)
         J = self.jac(z)
-        mu, reason, done = 1e-3, "iteration_limit", 0
+        mu, reason, done = damping, "iteration_limit", 0
         for _ in range(max_iter):
             if deadline is not None and time.perf_counter() > deadline:
                 reason = "time_budget"
@@ -328,7 +333,7 @@ class _Problem:
             done += 1
             mu = max(mu / 5.0, 1e-9)
             J = self.jac(z)
-            if gain < 1e-10 or moved < 1e-9:
+            if gain < gain_tol or moved < 1e-9:
                 reason = "converged"
                 break
         return _Polished(z, r, J, reason, done)
@@ -614,14 +619,15 @@ def _profiled(prob: _Problem, z: np.ndarray, sse: float, unc: Uncertainty,
         colour = unc.cov[i, i] / white[i, i] if white[i, i] > 0 else 1.0
         rise = Z95 ** 2 * unc.sigma ** 2 * colour
         # Start each refit where the linearisation puts the others for that value (along
-        # the valley: d follows e at fixed d/e), not where they were.
+        # the valley: d follows e at fixed d/e), not where they were; from there Gauss-Newton
+        # steps (little damping) reach the minimum in two or three.
         along = np.delete(unc.cov[:, i] / unc.cov[i, i], i)
         rest = np.delete(z, i)
 
         def sse_at(z_i: float, i=i, rest=rest, along=along) -> float:
             start = rest.copy()
             start[:along.size] += along * (z_i - z[i])
-            r = prob.holding(i, z_i).polish(start, deadline, max_iter=30).r
+            r = prob.holding(i, z_i).polish(start, deadline, 30, PROFILE_GAIN_TOL, 1e-7).r
             return float(r @ r)
 
         lo, hi = profile_interval(sse_at, float(z[i]), Z95 * float(np.sqrt(unc.cov[i, i])),

@@ -41,6 +41,9 @@ def profile_interval(sse_at: Callable[[float], float], z_hat: float, half: float
         while steps < MAX_STEPS and outside is None:
             steps += 1
             d = sse_at(z_hat + side * t) - sse_min
+            if steps == 1 and np.isfinite(d) and abs(d / rise - 1.0) < 0.05:
+                inside = outside = min(t * np.sqrt(rise / max(d, 1e-12 * rise)), room)
+                break  # quadratic to 5% where the linearised interval ends: it holds
             if np.isfinite(d) and d < rise:
                 inside, d_in = t, max(d, 0.0)
                 if t >= room:
@@ -49,7 +52,7 @@ def profile_interval(sse_at: Callable[[float], float], z_hat: float, half: float
                 t = min(t * float(np.clip(grow, 1.5, 4.0)), room)
             else:
                 outside, d_out = t, d
-        while outside is not None and steps < MAX_STEPS and outside - inside > 0.01 * outside:
+        while outside is not None and steps < MAX_STEPS and outside - inside > 0.02 * outside:
             steps += 1
             a, b = np.sqrt(d_in), np.sqrt(d_out) if np.isfinite(d_out) else np.inf
             frac = (np.sqrt(rise) - a) / (b - a) if np.isfinite(b) and b > a else 0.5

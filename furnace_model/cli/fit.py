@@ -198,9 +198,12 @@ def render(result: FitResult, experiments) -> str:
     if len(result.runs) > 1:
         out.append("| mean | | | | | | " + " | ".join(_g(result.genetic_mean[k]) for k in names)
                    + " | | | | |")
+    tau = result.uncertainty.correlation_time if result.uncertainty is not None else 1.0
     out += ["", "Best fit: value, standard deviation and 95% interval (rates: the interval on "
             "the log scale, the sd in the parameter's units by the delta method, "
-            "sd = value × sd of its log)",
+            "sd = value × sd of its log; intervals allow for the residual's autocorrelation"
+            + (f", {tau:.1f} samples per independent one" if tau > 1.05 else ", white here")
+            + "; 'profile': the interval follows the criterion, not its quadratic)",
             "| parameter | value | sd | 95% interval | determined |", "|---|---|---|---|---|"]
     for k in names:
         lo, hi = result.ci95[k]
@@ -210,8 +213,10 @@ def render(result: FitResult, experiments) -> str:
         elif k in result.fixed:
             out.append(f"| {k} | {_g(result.params[k])} | 0 | - | fixed |")
         else:
+            how = " profile" if k in result.profiled else ""
             out.append(f"| {k} | {_g(result.params[k])} | {result.std[k]:.3g} | "
-                       f"[{_g(lo)}, {_g(hi)}] | {'no' if k in result.undetermined else 'yes'} |")
+                       f"[{_g(lo)}, {_g(hi)}]{how} | "
+                       f"{'no' if k in result.undetermined else 'yes'} |")
     if result.cov is not None:
         out += ["", "Covariance (parameters' units; rates by the delta method)",
                 "| | " + " | ".join(names) + " |", "|---" * (1 + len(names)) + "|"]

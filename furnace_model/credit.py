@@ -4,7 +4,8 @@ the one the report, the text summary and the JSON show, so that they cannot disa
 A candidate earns credit when the data determine its own strength, it lowers the
 information criterion on the fitted data (dBIC < 0) and it removes at least half of the
 baseline's held-out error above the noise floor. A candidate that makes the held-out error
-worse closes a negative share of the gap and never earns it.
+worse closes a negative share of the gap and never earns it; it is said to make it worse
+when that shows in a printed percent.
 """
 
 from __future__ import annotations
@@ -30,13 +31,12 @@ def shortfall(c: CandidateResult) -> list[str]:
         out.append("its strength is not determined by the data")
     if c.delta_bic >= 0:
         out.append(f"the information criterion is not lower (dBIC {c.delta_bic:+.0f})")
-    if c.gap_closed_pct < 0:
-        larger = -c.shrink_pct
-        size = f"{larger:.0f}" if larger >= 1 else f"{larger:.1g}"
-        out.append(f"it makes the held-out error worse ({size}% larger)")
+    if c.shrink_pct <= -0.5:  # worse by at least a percent, as it is printed
+        out.append(f"it makes the held-out error worse ({-c.shrink_pct:.0f}% larger)")
     elif c.gap_closed_pct < MIN_GAP_CLOSED:
-        out.append(f"it closes {c.gap_closed_pct:.0f}% of the held-out gap above the noise "
-                   f"floor, under {MIN_GAP_CLOSED:.0f}%")
+        closed = max(c.gap_closed_pct, 0.0)
+        out.append(f"it closes {closed:.0f}% of the held-out gap above the noise floor, under "
+                   f"{MIN_GAP_CLOSED:.0f}%")
     return out
 
 

@@ -36,6 +36,8 @@ TREND_MIN = 360.0
 correlation time of thermocouple noise (minutes), so that the noise is kept (a trend over
 blocks of B samples takes about tau / B of a noise of integrated correlation time tau), and
 short against a drift's growth, which the interpolation between block medians follows."""
+MAD_TO_SD = 1.482602218505602
+"""The median absolute deviation of normal noise times this is its sd."""
 CLIP_SD = 5.0
 """Samples further than this many robust sd from the trend are left out (a loose junction's
 drop, a spike): the floor is the noise of working sensors, not of their faults."""
@@ -180,7 +182,7 @@ def _robust_sd(x: np.ndarray) -> float:
     x = x[np.isfinite(x)]
     if x.size < 3:
         return float("nan")
-    return float(1.482602218505602 * np.median(np.abs(x - np.median(x))))
+    return float(MAD_TO_SD * np.median(np.abs(x - np.median(x))))
 
 
 def _second_difference_sd(y: np.ndarray) -> tuple[float, float]:

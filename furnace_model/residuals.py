@@ -1,5 +1,5 @@
-"""Where a model's error lies: the noise floor the data allow, the time spans and operating
-regimes that hold the error, thermocouples that disagree with their partner, and the
+"""Where a model's error lies, measured against each record's noise floor
+(furnace_model.noisefloor): the time spans and operating regimes that hold the error, thermocouples that disagree with their partner, and the
 whiteness and input cross-correlation tests of the residual (as MATLAB's `resid` draws them).
 
 Everything here reads measured data and a model's predictions; nothing is fitted except
@@ -18,7 +18,6 @@ from . import SENSORS, ZONES
 from .experiment import Experiment
 from .noisefloor import RecordFloor
 
-MAD_TO_SD = 1.482602218505602
 Z99 = 2.5758293035489004
 MAX_LAG = 25
 """Lags (in samples) of the whiteness and cross-correlation tests, MATLAB's default."""
@@ -31,14 +30,6 @@ THROUGHOUT_SHARE = 0.8
 the whole record: an error that runs through most of a record is not localised by cutting
 it where the residual happens to cross the noise band."""
 ZONE_WORDS = {"soak": "soaking", "heat": "heating", "preheat": "preheating"}
-
-
-def robust_sd(x: np.ndarray) -> float:
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    if x.size < 3:
-        return float("nan")
-    return float(MAD_TO_SD * np.median(np.abs(x - np.median(x))))
 
 
 @dataclass

@@ -196,7 +196,7 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
           f"({60 / args.polls_per_minute:g} simulated seconds), logging MCAP to {log_dir}; "
           f"a refit of the last {args.refit_window_h:g} h every {args.refit_period_h:g} h "
           "of PLC time")
-    print(f"   {'PLC time':>7}  {'thermocouples, C':^53}  burners")
+    print(f"   {'PLC time':>7}  {'thermocouples, °C':^53}  burners")
     print(f"   {'':7}  " + " ".join(f"{s:>8}" for s in SENSORS) + "  soak/heat/preheat")
     duration = scenario.duration_min * 60.0 / args.speed + 3 * poll_s
 
@@ -256,7 +256,7 @@ def _refit_line(msg: dict, start: pd.Timestamp | None) -> str:
         params += "; not determined: " + " ".join(f"{p} {msg[p]:.3g}" for p in loose)
     rmse = "/".join(f"{msg['rmse_c'][z]:.2f}" for z in ZONES)
     took = f", {msg['elapsed_s']:.2f} s" if isinstance(msg.get("elapsed_s"), float) else ""
-    return f"{head}: {params}; RMSE {rmse} C{took}"
+    return f"{head}: {params}; RMSE {rmse} °C{took}"
 
 
 def combination_value(name: str, params: dict[str, float]) -> float:
@@ -297,7 +297,7 @@ def _report(online: dict, whole: FitResult, scenario: Scenario) -> None:
             cells.append(_cell(c["value"], want, *c["ci95"]) if c else f"{'-':>28}")
         print(f"   {name:10}{want:10.5g}  {cells[0]}  {cells[1]}")
     rmse = lambda m: "/".join(f"{m[z]:.2f}" for z in ZONES)  # noqa: E731
-    print(f"   {'RMSE, C':10}{'':10}  {rmse(online['rmse_c']):>28}  "
+    print(f"   {'RMSE, °C':10}{'':10}  {rmse(online['rmse_c']):>28}  "
           f"{rmse({z: whole.per_zone[z]['rmse_c'] for z in ZONES}):>28}")
 
 

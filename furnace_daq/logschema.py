@@ -78,7 +78,7 @@ class Topic:
 
 _THERMOCOUPLES = _object(
     {
-        **{s: _number(f"thermocouple {s} in degC; null when the reading is not usable")
+        **{s: _number(f"thermocouple {s} in °C; null when the reading is not usable")
            for s in SENSORS},
         "quality": _object({s: _string(f"quality of {s}", QUALITIES) for s in SENSORS},
                            "quality per thermocouple; only 'ok' readings are averaged",
@@ -103,7 +103,7 @@ _BURNERS = _object(
 )
 
 _AMBIENT = _object(
-    {"t_air": _number("ambient air temperature in degC; null when the reading is not usable"),
+    {"t_air": _number("ambient air temperature in °C; null when the reading is not usable"),
      "quality": _string("quality of t_air (absent means ok)", QUALITIES)},
     "ambient temperature",
     ("t_air",),
@@ -141,7 +141,7 @@ _MODEL_PARAMETERS = _object(
         "ci95": _CI95,
         "window_start": _string("start of the data window of the fit, ISO 8601 UTC (PLC clock)"),
         "window_end": _string("end of the data window of the fit, ISO 8601 UTC (PLC clock)"),
-        "rmse_c": _object({z: _number(f"fit RMSE of the {z} zone in degC") for z in ZONES},
+        "rmse_c": _object({z: _number(f"fit RMSE of the {z} zone in °C") for z in ZONES},
                           "fit RMSE per zone"),
         "status": _string("outcome of the refit; unless ok, the previous model is kept",
                           MODEL_STATUSES),
@@ -152,7 +152,7 @@ _MODEL_PARAMETERS = _object(
         "gap_fraction": _number("share of the window's rows missing or without every zone"),
         "burner_steps": {"type": "integer", "description": "burner pattern changes in the window"},
         "elapsed_s": _number("wall time of the fit in s"),
-        "sigma_c": _number("residual standard deviation of the fit in degC"),
+        "sigma_c": _number("residual standard deviation of the fit in °C"),
         "determined_combinations": {"type": "array", "items": {"type": "string"},
                                     "description": "what the window's data determine"},
         "undetermined": {"type": "array", "items": {"type": "string"},

@@ -118,9 +118,9 @@ class ZoneBurners(Effect):
 
     def _params(self):
         return (
-            Param("f_heat", 0.15, 1e-4, 10.0, unit="degC/min per burner",
+            Param("f_heat", 0.15, 1e-4, 10.0, unit="°C/min per burner",
                   doc="heating-zone rise rate per heating-zone burner on"),
-            Param("f_preheat", 0.15, 1e-4, 10.0, unit="degC/min per burner",
+            Param("f_preheat", 0.15, 1e-4, 10.0, unit="°C/min per burner",
                   doc="preheating-zone rise rate per preheating-zone burner on"),
         )
 
@@ -351,7 +351,7 @@ class SensorDrift(Effect):
 
     def _params(self):
         return (
-            Param("drift_rate", 0.01, -1.0, 1.0, log=False, unit="degC/min",
+            Param("drift_rate", 0.01, -1.0, 1.0, log=False, unit="°C/min",
                   doc="rate at which the sensor's error grows"),
             Param("t_drift", 0.0, 0.0, 1e6, log=False, unit="min", doc="when the drift starts"),
         )

@@ -243,7 +243,7 @@ def _temperatures(v: np.ndarray, name: str, err) -> np.ndarray:
     out = np.nonzero((v < TEMPERATURE_RANGE_C[0]) | (v > TEMPERATURE_RANGE_C[1]))[0]
     if out.size:
         lo, hi = TEMPERATURE_RANGE_C
-        raise err(f"{v[out[0]]:g} degC is not a furnace temperature (expected {lo:g} to "
+        raise err(f"{v[out[0]]:g} °C is not a furnace temperature (expected {lo:g} to "
                   f"{hi:g})", name, int(out[0]))
     return v
 

@@ -28,7 +28,7 @@ BASELINE = (
     Param("c", 0.061544, 1e-4, 10.0, doc="1/(R2 C2): heating zone exchange with the preheating zone"),
     Param("d", 0.873573, 1e-3, 50.0, doc="1/(R2 C3): preheating zone fed by the heating zone"),
     Param("e", 0.727504, 1e-3, 50.0, doc="1/(R3 C3): preheating zone loss to ambient"),
-    Param("f", 0.224131, 1e-3, 10.0, unit="degC/min per burner",
+    Param("f", 0.224131, 1e-3, 10.0, unit="°C/min per burner",
           doc="1/C1 in the paper's units: soaking-zone heating rate per burner on"),
 )
 """a..f with the paper's 'genetic mean parameter' (Table V) as defaults."""

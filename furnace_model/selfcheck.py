@@ -58,9 +58,9 @@ OUT_OF_LIBRARY = ("door_open", "tc_reads_low")
 
 FORMS = ("candidate", "other")
 NOISE = ("white", "low-pass", "noisier-holdout")
-"""The thermocouples of a case: white noise of 1.5 degC in both heat-ups (the paper's
+"""The thermocouples of a case: white noise of 1.5 °C in both heat-ups (the paper's
 reading); low-pass noise, as a sheathed thermocouple and its transmitter give (a first-order
-autoregression of 0.5-0.9 per minute, with white noise of 0.3-1.5 degC on top in half the
+autoregression of 0.5-0.9 per minute, with white noise of 0.3-1.5 °C on top in half the
 draws); or the held-out heat-up's thermocouples one to three times as noisy as the fitted
 one's (a campaign with other thermocouples)."""
 

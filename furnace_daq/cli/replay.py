@@ -41,7 +41,7 @@ def summary(message: dict) -> str:
         return f"{head} {message.get('detail', '')}"
     params = " ".join(f"{p}={message[p]:.5g}" for p in PARAM_NAMES)
     rmse = "/".join(f"{v:.2f}" for v in message["rmse_c"].values())
-    return f"{head} {params}  rmse {rmse} C  ({message.get('elapsed_s', 0):.2f} s)"
+    return f"{head} {params}  rmse {rmse} °C  ({message.get('elapsed_s', 0):.2f} s)"
 
 
 def run(args: argparse.Namespace) -> int:

@@ -160,6 +160,14 @@ _MODEL_PARAMETERS = _object(
         "combinations": _COMBINATIONS,
         "zone_offsets_c": _object({z: _number(f"fitted thermocouple offset of the {z} zone")
                                    for z in ZONES}, "fitted thermocouple bias per zone"),
+        "search": _object({
+            "method": _string("refit.method: polish (from the previous model) or ga (the "
+                              "paper's GA from scratch)", ("polish", "ga")),
+            "warm_start": {"type": "boolean",
+                           "description": "started from the previous window's model"},
+            "population": {"type": "integer", "description": "GA population (ga only)"},
+            "generations": {"type": "integer", "description": "GA generations run (ga only)"},
+        }, "how this window was fitted"),
     },
     "an online refit of the three-zone model over one window of the data clock",
     (*PARAM_NAMES, "ci95", "window_start", "window_end", "rmse_c", "status"),

@@ -4,9 +4,11 @@ effect is still named. Cases are the selfcheck's, with their thermocouples drawn
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from furnace_model.selfcheck import check
+from furnace_model.diagnosis import diagnose
+from furnace_model.selfcheck import case_rng, check, draw_case
 
 QUICK = ("zone_burners", "sensor_lag", "zone_losses", "fuel_change")
 
@@ -37,3 +39,18 @@ def test_every_effect_is_named_on_such_thermocouples(noise):
     wrong = [(o.label, o.draw, o.status, o.named, o.reason) for o in outcomes
              if not (o.correct or o.absorbed)]
     assert len(wrong) <= 1, wrong
+
+
+def test_a_zone_with_one_thermocouple_says_how_its_floor_was_estimated():
+    """A held-out campaign whose soaking zone lost a thermocouple: its floor is borrowed from
+    the record's pairs (one sensor's noise, not a pair mean's), the JSON says so, and a model
+    at that floor still has no gap."""
+    case = draw_case(None, case_rng(0, "none", 0))
+    case.holdout[0].tc[:, 1] = np.nan  # soak_2 gone
+    d = diagnose(case.fit, case.holdout, seed=0)
+    assert d.verdict.status == "no_gap", d.verdict.sentence
+    held = d.to_json()["noise_floors"][1]["zones"]
+    assert held["soak"]["how"] == "borrowed" and held["heat"]["how"] == "pair"
+    # one thermocouple of sd 1.5 against the mean of two
+    assert held["soak"]["floor_c"] == pytest.approx(np.sqrt(2) * held["heat"]["floor_c"],
+                                                    rel=0.1)

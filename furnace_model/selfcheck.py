@@ -461,17 +461,18 @@ def _where(w) -> str:
 
 def check(labels: list[str], draws: int, seed: int = 0, *, form: str = "candidate",
           candidates: tuple[str, ...] | None = None, noise: str = "white",
-          report: Callable[[Outcome], None] | None = None) -> list[Outcome]:
+          report: Callable[[Outcome], None] | None = None, first: int = 0) -> list[Outcome]:
     """Draw `draws` cases per label, diagnose each with its effect withheld (the diagnosis is
     told nothing about it), and judge the verdict against the truth. The thermocouples
     (`noise`) are drawn from a stream of their own, so that a case's furnace and schedule
-    are the same whatever its thermocouples."""
+    are the same whatever its thermocouples. `first`: the first draw's number, so that a
+    check can be split into runs (draws 0-1, then 2-4) that together are the longer one."""
     from .diagnosis import diagnose  # the diagnosis is the checked party, not a dependency
 
     out = []
     for label in labels:
         effect = parse_label(label)
-        for k in range(draws):
+        for k in range(first, first + draws):
             sensors = draw_sensors(noise, np.random.default_rng(
                 [seed, zlib.crc32(label.encode()), k, zlib.crc32(noise.encode())]))
             case = draw_case(effect, case_rng(seed, label, k), form=form, sensors=sensors)

@@ -18,6 +18,7 @@ from furnace_model.selfcheck import (
     ABSORBED_REASON,
     OUT_OF_LIBRARY,
     Outcome,
+    check,
     draw_case,
     parse_label,
     summarize,
@@ -232,3 +233,10 @@ def test_selfcheck_command_refuses_unknown_names():
     proc = subprocess.run([sys.executable, "-m", "furnace_model.cli", "selfcheck",
                            "--candidates", "lag"], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "unknown candidate(s) lag" in proc.stderr
+
+
+def test_a_check_split_into_runs_draws_the_same_cases():
+    whole = check(["none"], 2, seed=3)
+    second = check(["none"], 1, seed=3, first=1)
+    assert [o.draw for o in second] == [1]
+    assert second[0].description == whole[1].description != whole[0].description

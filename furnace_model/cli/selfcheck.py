@@ -46,6 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the thermocouples: white noise (default), low-pass noise, or held-out "
                         "ones 1-3 times as noisy as the fitted ones")
     p.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
+    p.add_argument("--first-draw", type=int, default=0, metavar="K",
+                   help="number the draws from K (default 0): --draws 3 --first-draw 2 are "
+                        "draws 2-4 of a longer check, the same cases")
     p.add_argument("--json", type=output_file, metavar="OUT",
                    help="write every case and the table")
     p.set_defaults(run=run)
@@ -54,6 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..selfcheck import check
 
+    if args.first_draw < 0:
+        raise FurnaceError("--first-draw must be 0 or more")
     if args.draws < 1:
         raise FurnaceError("--draws must be at least 1")
     labels = list(args.effects or DEFAULT) + (list(EXTRA) if args.all else [])
@@ -68,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         check(labels, args.draws, args.seed, form=args.form, candidates=args.candidates,
-              noise=args.noise, report=progress)
+              noise=args.noise, report=progress, first=args.first_draw)
     except KeyboardInterrupt:
         # A full check takes hours: stopping it must not throw away the cases diagnosed.
         if not outcomes:
@@ -92,7 +97,8 @@ def _report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool
     rows = summarize(outcomes)
     print(table(rows, outcomes))
     if args.json:
-        doc = {"seed": args.seed, "draws": args.draws, "form": args.form, "noise": args.noise,
+        doc = {"seed": args.seed, "draws": args.draws, "first_draw": args.first_draw,
+               "form": args.form, "noise": args.noise,
                "candidates": list(args.candidates or EFFECTS), "complete": complete,
                "rows": [r.__dict__ for r in rows], "cases": [o.to_json() for o in outcomes]}
         try:

@@ -31,6 +31,7 @@ def test_a_real_effect_is_still_named(noise):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)  # 21 diagnoses, some of minutes each
 @pytest.mark.parametrize("noise", ["noisier-holdout", "low-pass"])
 def test_every_effect_is_named_on_such_thermocouples(noise):
     labels = ["none", "zone_burners", "zone_losses", "sensor_lag", "dead_time",

@@ -210,7 +210,10 @@ def test_selfcheck_stopped_keeps_the_cases_it_diagnosed(tmp_path):
     proc = subprocess.Popen(
         [sys.executable, "-m", "furnace_model.cli", "selfcheck", "--draws", "20", "--effects",
          "none", "--json", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        # Ctrl-C as at a terminal: a job started in the background of a shell (as a test
+        # run may be) passes SIGINT on ignored, and a child would never see it.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         assert proc.stderr.readline().startswith("none draw 0: no_gap")
         proc.send_signal(signal.SIGINT)

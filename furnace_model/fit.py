@@ -304,10 +304,8 @@ class _Problem:
                 break
             H, g = J.T @ J, J.T @ r
             d = np.maximum(np.diag(H), 1e-12 * max(np.diag(H).max(), 1e-300))
-            # The step is clipped to the box. Holding an unknown on its edge instead (an
-            # active set) ended bounded fits lower, but moved bent baselines of the diagnosis
-            # into other valleys, from which a fuel-switch candidate no longer found its
-            # switch (selfcheck fuel_change draw 2): not without a full selfcheck to show it.
+            # The step is clipped to the box: where the diagnosis's bent baselines end, and so
+            # where its candidates start, depends on it (docs/identification.md).
             accepted = False
             while mu < 1e12 and not accepted:
                 mus = mu * 4.0 ** np.arange(trials)

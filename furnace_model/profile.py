@@ -3,8 +3,8 @@
 A linearised interval is symmetric on the search scale. For a parameter the data pin down
 that is right; for one they leave wide it is not: the paper's d and e ride on the preheating
 zone's sub-minute time constant, and their estimates scatter with a long tail towards a slow
-zone, which a symmetric interval misses (on low-pass thermocouple noise it held the truth
-in 85-89% of draws). The profile follows the criterion itself: the parameter is held at
+zone, which a symmetric interval misses (docs/identification.md has the coverage). The
+profile follows the criterion itself: the parameter is held at
 trial values, everything else refitted, and the interval ends where the criterion has
 risen by as much as the linearised interval allows at its ends, calibrated by the residual's
 colour (the sandwich over the white variance, so that autocorrelated residuals widen it).

@@ -81,8 +81,16 @@ def test_sim_plc_to_mcap(tmp_path):
     assert all(q == "ok" for m, _, _ in tc for q in m["quality"].values())
     assert {m["t_air"] for m, _, _ in by_topic[AMBIENT]} == {scenario.t_air_c}
 
+    # The burner bits are a second request after the registers that carry the clock, and a
+    # PLC scan may fall between the two: each reading is the schedule at some second from its
+    # clock's to the next reading's.
     counts = np.array([[m[f"count_{z}"] for z in ZONES] for m, _, _ in by_topic[BURNERS]])
-    np.testing.assert_array_equal(counts, [scenario.burners_at(s / 60.0) for s in seconds])
+    ends = np.append(seconds[1:], seconds[-1] + SPEED * 1.0)
+    for i, (got, start, end) in enumerate(zip(counts, seconds, ends, strict=True)):
+        between = [scenario.burners_at(s / 60.0) for s in np.arange(start, end + 1)]
+        assert any(np.array_equal(got, b) for b in between), (i, start, end, got)
+    assert np.mean([np.array_equal(c, scenario.burners_at(s / 60.0))
+                    for c, s in zip(counts, seconds, strict=True)]) > 0.9
     assert len({tuple(c) for c in counts}) >= 3, "the run crosses burner steps"
 
     # time base: publish_time follows the PLC clock, log_time the host

@@ -22,23 +22,6 @@ from .fit import FitResult, fit, predict, predict_held_out
 from .residuals import lag1
 from .structure import ModelStructure
 
-NULL: dict[str, dict[str, float]] = {
-    "zone_losses": {"g_soak": 0.0, "g_heat": 0.0},
-    "sensor_lag": {"tau_lag": 0.0},
-    "dead_time": {"theta_dead": 0.0},
-    "wall_storage": {"k_gw": 0.0, "k_wg": float("nan")},
-    "radiation": {"rad_share": 0.0},
-    "burner_nonlinearity": {"k_nl": 0.0},
-    "fuel_change": {"fuel_ratio": 1.0},
-    "sensor_drift": {"drift_rate": 0.0},
-    "zone_burners": {"f_heat": float("nan"), "f_preheat": float("nan")},
-}
-"""Each effect's strength parameters and the value at which the effect vanishes (NaN: the
-parameter must merely be determined, either because the baseline is not nested in the
-extension or because it is felt only where the effect is: a wall's release rate, which
-stays determined when its exchange rate trades with the zone's own rates, seen with a
-preheating-zone wall)."""
-
 MAX_RATIO = 4.0
 """A positive strength parameter counts as determined when its 95% interval spans less than
 this factor: one that could be anything from a trace to a flood is not an estimate."""
@@ -262,7 +245,7 @@ def identifiable(fr: FitResult, effects: tuple[str, ...]) -> tuple[bool, str]:
         effect = next(e for e in fr.structure.effects if e.name == name)
         box = {p.name: p for p in effect.params}
         ok_any, why = False, []
-        for pname, null in NULL[name].items():
+        for pname, null in type(effect).null.items():
             if pname not in box:
                 continue
             # Under the candidate's own noise (white): whether the records pin its strength

@@ -32,7 +32,7 @@ from .candidates import (
 )
 from .credit import MIN_GAP_CLOSED
 from .credit import credited as _credit  # the one rule, shown as it is by report and summary
-from .effects import EFFECTS
+from .effects import EFFECTS, Clues
 from .errors import FurnaceError
 from .experiment import Experiment
 from .fit import fit
@@ -74,26 +74,6 @@ second effect may show nothing alone while a larger one dominates the error."""
 WORKERS = 2
 COLD_GENERATIONS = 15
 """Generations of the search from scratch for a nonlinear candidate (32 sets each)."""
-VARIANTS: dict[str, list[dict]] = {"radiation": [{"exponent": None}],
-                                   "burner_nonlinearity": [{"form": "power"},
-                                                           {"form": "exponential"}],
-                                   "wall_storage": [{"zones": (z,)} for z in ZONES]}
-"""Further laws of a candidate, the best kept, or a blend of two (`between_laws`): a
-furnace's effective radiation exponent depends on its gas and walls, not only on
-Stefan-Boltzmann (so it is fitted: exponent None), and its burner curve on its air supply
-(three shapes and blends of them). A wall that stores much heat in one zone only cannot be
-fitted by one exchange rate shared by the three (seen: a preheating-zone wall left 1.8 °C
-held out against a floor of 1.1 with walls in all zones). A burner curve fitted on few
-burners is extrapolated to the held-out data's many, where the laws part (seen: 3 °C held
-out against a floor of 1 after a straight-line fit to a power-law furnace). The further laws
-are fitted, warm from the effect's own law (and from scratch on a bent baseline, see
-`diagnose`), only when that law already removes part of the gap: the nonlinear fits are the
-slow ones."""
-BLENDED = ("radiation", "burner_nonlinearity")
-"""Effects whose further laws lie on one scale, so that a blend of two stands for a law
-between them; walls in different zones do not."""
-
-
 @dataclass
 class Located:
     zone: str
@@ -236,22 +216,21 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     noise = {"record_floors": floors, "noise_floor_fit_c": pooled_floor(fit_floors),
              "gap_limit_c": gap_limit, "sensor_noise_c": _pooled_tc(floors)}
 
-    options = {"sensor_drift": {"sensor": drift_sensor(faults, every, base, tc_noise)},
-               "radiation": {"exponent": 4.0}, "burner_nonlinearity": {"form": "linear"},
-               "wall_storage": {"zones": ZONES}}
+    clues = Clues(fit_data, every, faults, baseline_on=lambda heads: _determined(heads, seed))
     if not gap:
         # Nothing to explain: no extension can beat the noise on held-out data.
         verdict = judge(base, None, [], floor, near, gap, where)
         say("done", 1.0)
         return Diagnosis(fit_data, hold, how, base, floor, where, tests, [], verdict,
                          time.perf_counter() - t_start, gap, **noise)
-    bent = any(base.rmse_fit_c[z] > fit_limit[z] for z in ZONES)
+    clues.bent = bent = any(base.rmse_fit_c[z] > fit_limit[z] for z in ZONES)
     say("candidates", 0.1)
-    bounds = search_bounds(fit_data)
-    starts = effect_starts(faults, every)
-    inits = {n: {**base.params, **starts.get(n, {})} for n in names}
-    if bent and "zone_burners" in names:
-        inits["zone_burners"] = soak_burners_start(fit_data, seed) or inits["zone_burners"]
+    trials = {n: EFFECTS[n].trial(clues) for n in names}
+    options = {n: t.options for n, t in trials.items()}
+    starts = {n: t.start for n, t in trials.items() if t.from_baseline}
+    inits = {n: {**base.params, **t.start} if t.from_baseline else t.start
+             for n, t in trials.items()}
+    bounds = {k: v for n in names for k, v in EFFECTS[n].search_bounds(fit_data).items()}
     tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of, inits[n], seed, bent,
                   bounds, fit_limit)
              for n in names]
@@ -296,7 +275,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         same = sorted((c for c in fitted if c.effects == (n,)), key=_rank)
         if len(same) > 1:
             options[n] = same[0].options[n]  # combinations are simulated in one law
-            mix = between_laws(same, fit_data, hold) if n in BLENDED else None
+            mix = between_laws(same, fit_data, hold) if EFFECTS[n].blends else None
             if mix is not None:
                 score_against(mix, base, floor)
             if mix is not None and _rank(mix) < _rank(same[0]):
@@ -329,10 +308,13 @@ def _pooled_tc(floors: list[RecordFloor]) -> dict[str, float]:
 
 
 def further_laws(fitted: list[CandidateResult]) -> list[tuple[CandidateResult, dict]]:
-    """The further laws to fit (`VARIANTS`), each with the candidate it starts from: only
-    for a candidate that helps in its first law, since the nonlinear ones are slow."""
-    return [(c, opts) for c in fitted if c.effects[0] in VARIANTS and _helps(c)
-            for opts in VARIANTS[c.effects[0]]]
+    """The further laws to fit (`Effect.further_laws`), each with the candidate it starts
+    from: only for a candidate that helps in its first law, since the nonlinear ones are
+    slow. A furnace's radiation exponent, burner curve or storing walls are its own: the
+    laws are fitted warm from the effect's first law (and from scratch on a bent baseline,
+    see `diagnose`), and the best kept, or a blend of two (`between_laws`)."""
+    return [(c, dict(opts)) for c in fitted if _helps(c)
+            for opts in EFFECTS[c.effects[0]].further_laws]
 
 
 def between_laws(same: list[CandidateResult], fit_data: list[Experiment],
@@ -734,75 +716,13 @@ def _common_regime(regimes: list[str]) -> str:
     return "; ".join([*parts[0][:-1], f"{_and(bands)} °C"])
 
 
-def drift_sensor(faults, experiments: list[Experiment], base: CandidateResult,
-                 tc_noise: dict[str, float]) -> str:
-    """The thermocouple a drift candidate is tried on: one found drifting, else the one of
-    the pair whose difference changes most (for the zone mean either of a pair is the same
-    candidate, with the sign of the rate flipped)."""
-    for f in faults:
-        if f.kind == "drift":
-            return f.sensor
-    best, name = -1.0, "heat_2"
-    for w, z in enumerate(ZONES):
-        for e in experiments:
-            pair = e.tc[:, 2 * w:2 * w + 2]
-            ok = np.all(np.isfinite(pair), axis=1)
-            if ok.sum() < 50:
-                continue
-            d = pair[ok, 0] - pair[ok, 1]
-            n = d.size // 5
-            change = abs(np.median(d[-n:]) - np.median(d[:n]))
-            if change > best:
-                best, name = change, f"{z}_2"
-    return name
-
-
 def _opts_text(opts: dict) -> str:
     return ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} fitted" if v is None
                      else f"{k} {' '.join(v)}" if isinstance(v, tuple) else f"{k} {v}"
                      for k, v in opts.items())
 
 
-def search_bounds(fit_data: list[Experiment]) -> dict[str, tuple[float, float]]:
-    """Times of a fuel switch or a drift's onset lie within the fitted records (minutes from
-    each record's start, as the effects count them); a drift faster than 0.2 °C/min
-    (12 °C an hour) is a broken thermocouple, not a drift."""
-    t_end = max(float(e.t_min[-1]) for e in fit_data)
-    t_lo = min(float(e.t_min[0]) for e in fit_data)
-    return {"t_fuel": (t_lo, t_end), "t_drift": (t_lo, t_end), "drift_rate": (-0.2, 0.2)}
-
-
-def effect_starts(faults, experiments: list[Experiment]) -> dict[str, dict[str, float]]:
-    """Starting values read off the data where they show directly: a drifting
-    thermocouple's onset and rate from the hinge fitted to its pair's difference."""
-    for f in faults:
-        if f.kind == "drift":
-            exp = experiments[f.experiment]
-            t0, t1 = float(exp.t_min[f.i0]), float(exp.t_min[-1])
-            rate = f.size_c / max(t1 - t0, 1.0)
-            return {"sensor_drift": {"t_drift": t0, "drift_rate": rate}}
-    return {}
-
-
-def soak_burners_start(fit_data: list[Experiment], seed: int) -> dict[str, float] | None:
-    """Where the model errs because the heating- and preheating-zone burners heat their own
-    zones, it is still right while only soaking-zone burners fire: the baseline fitted on the
-    start of each record up to the first other burner, keeping what those data determine
-    (a and f; the rest, like the effect's own strengths, are searched). The baseline fitted
-    on everything has bent to absorb the other burners (seen: f at its bound), a start from
-    which the zone-burner fit stays in a side valley."""
-    if not any(np.any(e.burners[:, 1:] > 0) for e in fit_data):
-        return None  # no other burner fires: the baseline is as good a start
-    heads = []
-    for e in fit_data:
-        other = np.nonzero((e.burners[:, 1:] > 0).any(axis=1))[0]
-        head = e if not other.size else e.between(float(e.t_min[0]), float(e.t_min[other[0]]))
-        if len(head) >= MIN_FIT_SAMPLES and head.burner_steps > 0:
-            heads.append(head)
-    if not heads:
-        return None
-    fr = fit(heads, seed=seed, zone_offsets=True, profile=False)
+def _determined(records: list[Experiment], seed: int) -> dict[str, float]:
+    """The baseline fitted on `records`, with the parameters they determine."""
+    fr = fit(records, seed=seed, zone_offsets=True, profile=False)
     return {k: v for k, v in fr.params.items() if k not in fr.undetermined}
-
-
-

@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 
 from . import BURNERS_PER_ZONE, SENSORS, ZONES
-from .config import load_yaml
-from .effects import EFFECTS, Effect
+from .config import Node, load_yaml
+from .effects import EFFECTS, Effect, Option
 from .parameters import BASELINE
 from .structure import Inputs, ModelStructure
 
@@ -146,14 +146,12 @@ def load_scenario(path: str | Path) -> Scenario:
     effects, values = [], {}
     for key, node in root.child("effects", {}).items():
         if key not in EFFECTS:
-            raise node.error(f"unknown effect (expected one of: {', '.join(EFFECTS)})")
+            raise node.error(f"unknown effect (expected one of: {', '.join(EFFECTS)}; an "
+                             "effect of your own is loaded with --effects-from)")
         node.mapping()
         if not node.get_bool("enabled", True):
             continue
-        try:
-            effect, vals = EFFECTS[key].from_config(node)
-        except ValueError as exc:
-            raise node.error(str(exc)) from None
+        effect, vals = effect_from_yaml(EFFECTS[key], node)
         effects.append(effect)
         values.update(vals)
 
@@ -163,3 +161,30 @@ def load_scenario(path: str | Path) -> Scenario:
         effects=effects, effect_values=values, sensors=sensors,
         description=root.get_string("description", ""), start_time=start_time, file=str(path),
     )
+
+
+def effect_from_yaml(cls: type[Effect], node: Node) -> tuple[Effect, dict[str, float]]:
+    """`effects.<name>` of a scenario: the effect with its options, and its parameter values
+    (each within its search box); the options declared by the class are the keys allowed
+    beside its parameters."""
+    options = {key: _option(node.child(key), spec)
+               for key, spec in cls.option_specs.items() if node.has(key)}
+    implied = cls.options_from_params(set(node.keys()))
+    try:
+        effect = cls(**{**implied, **options})
+    except ValueError as exc:
+        raise node.error(str(exc)) from None
+    node.mapping({"enabled", *cls.option_specs, *(p.name for p in effect.params)})
+    return effect, {p.name: node.get_number(p.name, p.default, lo=p.lo, hi=p.hi)
+                    for p in effect.params}
+
+
+def _option(node: Node, spec: Option) -> object:
+    if spec.kind == "number":
+        return node.number(lo=spec.lo, hi=spec.hi)
+    if spec.kind == "integer":
+        return node.integer(lo=spec.lo, hi=spec.hi)
+    if spec.kind == "choice":
+        return node.string(spec.choices)
+    names = {n.string(spec.choices) for n in node.elements(min_len=1, max_len=len(spec.choices))}
+    return tuple(c for c in spec.choices if c in names)

@@ -14,7 +14,7 @@ preheating-zone burners fire for part of the run, so that an effect tied to them
 The effect belongs to the furnace, so its parameters are the same in both experiments; times
 (a fuel switch, the start of a drift) count from each heat-up's start: the switch comes at
 the same point of the heat-up procedure. Strengths are drawn from physically meaningful
-ranges (`RANGES`), not from what the diagnosis finds easy: a draw whose effect the baseline
+ranges (each effect's `ranges`), not from what the diagnosis finds easy: a draw whose effect the baseline
 absorbs is the selfcheck's to report, not to avoid.
 
 `form="other"` draws the effect in a formulation the diagnosis's candidate does not use (a
@@ -46,7 +46,7 @@ import numpy as np
 import pandas as pd
 
 from . import BURNERS_PER_ZONE, SENSORS, ZONES
-from .effects import EFFECTS, Effect
+from .effects import EFFECTS, Effect, ZoneLosses
 from .experiment import Experiment
 from .parameters import PAPER_TABLE_V
 from .plant import Plant, PlantRun
@@ -71,22 +71,13 @@ T_MAX_C = 1350.0
 """A schedule that would drive a zone past this is redrawn: no reheating furnace runs there."""
 
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
-    "zone_burners": {"f_heat": (0.5, 5.0), "f_preheat": (0.5, 5.0)},
-    "zone_losses": {"g": (0.002, 0.01)},
-    "sensor_lag": {"tau_lag": (4.0, 20.0)},
-    "dead_time": {"theta_dead": (5.0, 45.0)},
-    "wall_storage": {"k_gw": (0.02, 0.2), "k_wg": (0.001, 0.01), "k_wb": (0.002, 0.02),
-                     "k_bw": (0.0003, 0.003)},
-    "radiation": {"rad_share": (0.2, 0.8)},
-    "burner_nonlinearity": {"k_nl": (0.01, 0.03)},  # magnitude; sign drawn (mostly falling)
-    "fuel_change": {"t_fuel_frac": (0.3, 0.8), "fuel_ratio": (0.65, 0.9)},
-    "sensor_drift": {"drift_rate": (0.005, 0.03), "t_drift_frac": (0.15, 0.6)},
     "door_open": {"soak": (0.0005, 0.0015), "heat": (0.005, 0.02), "preheat": (0.1, 0.3)},
     "tc_reads_low": {"drop_c": (15.0, 60.0), "episodes": (4, 10), "minutes": (5.0, 40.0)},
 }
-"""Strength and timing ranges of each effect, in its own parameters (times as a fraction of
-the shorter heat-up). Rates compare with the furnace's own: a = 0.02/min couples the soaking
-and heating zones, e = 0.73/min is the preheating zone's loss to ambient."""
+"""Strengths of the perturbations outside the library; an effect's own are its `ranges`
+(times as a fraction of the shorter heat-up). Rates compare with the furnace's own:
+a = 0.02/min couples the soaking and heating zones, e = 0.73/min is the preheating zone's
+loss to ambient."""
 
 
 @dataclass
@@ -186,56 +177,7 @@ def _u(rng: np.random.Generator, name: str, key: str) -> float:
 def _draw_effect(name: str, rng: np.random.Generator, form: str,
                  duration: float) -> tuple[Effect, dict[str, float], dict]:
     """The effect object, its parameter values and its options (for the truth record)."""
-    other = form == "other"
-    cls = EFFECTS[name]
-    if name == "zone_burners":
-        eff = cls()
-        vals = {"f_heat": _u(rng, name, "f_heat"), "f_preheat": _u(rng, name, "f_preheat")}
-    elif name == "zone_losses":
-        zones = (("soak",), ("heat",))[int(rng.integers(2))] if other else ("soak", "heat")
-        eff = cls(zones=zones)
-        vals = {f"g_{z}": _u(rng, name, "g") for z in zones}
-    elif name == "sensor_lag":
-        eff = cls(order=int(rng.integers(2, 4)) if other else 1)
-        vals = {"tau_lag": _u(rng, name, "tau_lag")}
-    elif name == "dead_time":
-        eff = cls()
-        vals = {"theta_dead": _u(rng, name, "theta_dead")}
-    elif name == "wall_storage":
-        vals = {"k_gw": _u(rng, name, "k_gw"), "k_wg": _u(rng, name, "k_wg")}
-        if other:
-            # A wall of two layers, in every zone or in one: the candidate's walls have one.
-            zones = (ZONES, *((z,) for z in ZONES))[int(rng.integers(4))]
-            eff = cls(zones=zones, layers=2)
-            vals |= {"k_wb": _u(rng, name, "k_wb"), "k_bw": _u(rng, name, "k_bw")}
-        else:
-            eff = cls()
-    elif name == "radiation":
-        if other:
-            # No other exponent: the candidate fits its own. An emissivity that rises or
-            # falls with temperature is no power law at all (its local exponent at the
-            # reference is 4 + s); another reference temperature alone is no other law (the
-            # fitted exchange rates absorb it).
-            slope = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.4, 0.8))
-            eff = cls(emissivity_slope=slope, t_ref_c=float(rng.uniform(600.0, 1100.0)))
-        else:
-            eff = cls()
-        vals = {"rad_share": _u(rng, name, "rad_share")}
-    elif name == "burner_nonlinearity":
-        eff = cls(form="quadratic" if other else "linear")
-        sign = -1.0 if rng.uniform() < 0.75 else 1.0
-        vals = {"k_nl": sign * _u(rng, name, "k_nl")}
-    elif name == "fuel_change":
-        eff = cls()
-        vals = {"t_fuel": round(_u(rng, name, "t_fuel_frac") * duration),
-                "fuel_ratio": _u(rng, name, "fuel_ratio")}
-    elif name == "sensor_drift":
-        eff = cls(sensor=SENSORS[int(rng.integers(len(SENSORS)))])
-        sign = 1.0 if rng.uniform() < 0.5 else -1.0
-        vals = {"drift_rate": sign * _u(rng, name, "drift_rate"),
-                "t_drift": round(_u(rng, name, "t_drift_frac") * duration)}
-    else:  # pragma: no cover - EFFECTS and this list are kept in step by test_selfcheck
-        raise ValueError(name)
+    eff, vals = EFFECTS[name].draw(rng, form, duration)
     info = {k: (list(v) if isinstance(v, tuple) else v) for k, v in eff.options.items()}
     return eff, {k: float(v) for k, v in vals.items()}, info
 
@@ -316,7 +258,7 @@ def _run_with_door(plant: Plant, inputs: Inputs, t: np.ndarray, x0: np.ndarray, 
     if zone == "preheat":  # a loss to ambient from zone 3 is a larger e
         door_structure, door_values = base, {**values, "e": values["e"] + g}
     else:
-        door_structure = ModelStructure([*base.effects, EFFECTS["zone_losses"](zones=(zone,))])
+        door_structure = ModelStructure([*base.effects, ZoneLosses(zones=(zone,))])
         door_values = {**values, f"g_{zone}": g}
     states = np.empty((t.size, base.n_states))
     x = base.full_state(x0)[0]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .effects import DRIVE_ORDER, N_INPUTS, U_AIR, U_BURNERS, Effect, Theta
+from .effects import N_INPUTS, U_AIR, U_BURNERS, Effect, Theta
 from .lti import Drive, Modes, response
 from .parameters import BASELINE, Param
 
@@ -129,10 +129,8 @@ class ModelStructure:
         for eff in self.effects:
             u = eff.transform_levels(theta, u)
         drive = Drive.from_levels(inputs.t, u)
-        by_name = {e.name: e for e in self.effects}
-        for name in DRIVE_ORDER:
-            if name in by_name:
-                drive = by_name[name].transform_drive(theta, drive)
+        for eff in sorted(self.effects, key=lambda e: e.drive_stage):
+            drive = eff.transform_drive(theta, drive)
         return drive
 
     def full_state(self, x_zone: np.ndarray) -> np.ndarray:

@@ -19,16 +19,15 @@ from furnace_model.diagnosis import (
     COLD_GENERATIONS,
     GAP_RATIO,
     NEAR_RATIO,
-    VARIANTS,
+    _determined,
     blend_weight,
     diagnose,
     further_laws,
     judge,
-    search_bounds,
-    soak_burners_start,
     split,
 )
-from furnace_model.effects import EFFECTS
+from furnace_model.effects import EFFECTS, Clues, FuelChange, Radiation, SensorDrift, ZoneBurners
+from furnace_model.effects.zone_burners import soak_only_heads
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import Experiment
 from furnace_model.fit import predict_held_out
@@ -166,13 +165,15 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
     case = draw_case("zone_burners", case_rng(0, "zone_burners", 3))
     base = run_task(Task((), {}, case.fit, case.holdout, [None], None, 0))
     assert base.params["f"] < 0.1 * PAPER_TABLE_V["f"]
-    start = soak_burners_start(case.fit, 0)
-    assert start is not None and set(start) == {"a", "f"}
+    trial = ZoneBurners.trial(Clues(case.fit, case.fit + case.holdout, bent=True,
+                                    baseline_on=lambda heads: _determined(heads, 0)))
+    start = trial.start
+    assert not trial.from_baseline and set(start) == {"a", "f"}
     for k in start:
         assert start[k] == pytest.approx(PAPER_TABLE_V[k], rel=0.03)
     floor = pooled_floor([record_floor(e) for e in case.holdout])
     c = run_task(Task(("zone_burners",), {"zone_burners": {}}, case.fit, case.holdout, [None],
-                      start, 0, True, search_bounds(case.fit),
+                      start, 0, True, _bounds(case.fit),
                       {z: GAP_RATIO * floor[z] for z in ZONES}))
     for z in ZONES:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
@@ -180,7 +181,9 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
     # no other burner in the fitted data: nothing to start from but the baseline
     soak_only = Experiment("soak_only", case.fit[0].t_min, case.fit[0].tc,
                            case.fit[0].burners * [1, 0, 0], case.fit[0].t_air)
-    assert soak_burners_start([soak_only], 0) is None
+    assert soak_only_heads([soak_only]) is None
+    assert ZoneBurners.trial(Clues([soak_only], [soak_only], bent=True,
+                                   baseline_on=lambda heads: _determined(heads, 0))).from_baseline
 
 
 def test_nonlinear_candidate_searched_from_scratch_leaves_the_bent_baseline_valley():
@@ -189,7 +192,7 @@ def test_nonlinear_candidate_searched_from_scratch_leaves_the_bent_baseline_vall
     # at 1.0 again). Searched from scratch, it finds the plant.
     case = draw_case("radiation", case_rng(0, "radiation", 4))
     c = run_task(Task(("radiation",), {"radiation": {"exponent": 4.0}}, case.fit, case.holdout,
-                      [None], None, 1, bounds=search_bounds(case.fit),
+                      [None], None, 1, bounds=_bounds(case.fit),
                       generations=COLD_GENERATIONS))
     floor = pooled_floor([record_floor(e) for e in case.holdout])
     for z in ZONES:
@@ -226,7 +229,7 @@ def test_further_laws_only_for_a_candidate_that_helps():
                          cand("wall_storage", 60.0, 5.0),  # closes, but costs BIC
                          cand("burner_nonlinearity", 0.0, -10.0),  # closes nothing
                          cand("dead_time", 90.0, -900.0)])  # has one law
-    assert [(c.effects[0], o) for c, o in laws] == [("radiation", o) for o in VARIANTS["radiation"]]
+    assert [(c.effects[0], o) for c, o in laws] == [("radiation", o) for o in Radiation.further_laws]
     walls = further_laws([cand("wall_storage", 60.0, -50.0)])
     assert [o["zones"] for _, o in walls] == [(z,) for z in ZONES]
 
@@ -337,7 +340,7 @@ def test_radiation_exponent_is_fitted_from_the_data():
     truth = case.truth["radiation"]
     c = run_task(Task(("radiation",), {"radiation": {"exponent": None}}, case.fit, case.holdout,
                       [None], {**PAPER_TABLE_V, "rad_share": 0.3, "rad_exponent": 5.5}, 0,
-                      bounds=search_bounds(case.fit)))
+                      bounds=_bounds(case.fit)))
     assert c.params["rad_exponent"] == pytest.approx(truth["exponent"], abs=0.15)
     assert c.params["rad_share"] == pytest.approx(truth["rad_share"], abs=0.03)
     lo, hi = c.ci95["rad_exponent"]
@@ -381,3 +384,7 @@ def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_dat
     # and the verdict tells the plant engineer
     v = judge(d, c, [c], floor, {z: NEAR_RATIO * floor[z] for z in ZONES}, ZONES, [])
     assert v.status == "explained" and "do not show f (soaking-zone heating rate" in v.sentence
+
+
+def _bounds(fit_data):
+    return {**FuelChange.search_bounds(fit_data), **SensorDrift.search_bounds(fit_data)}

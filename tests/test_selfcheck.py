@@ -77,7 +77,7 @@ def test_every_effect_changes_the_furnace_and_records_its_truth(name, form):
     cls = EFFECTS[name]
     truth = case.truth[name]
     effect = cls(**{k: tuple(v) if isinstance(v, list) else v
-                    for k, v in truth.items() if k in cls.option_kinds})
+                    for k, v in truth.items() if k in cls.option_specs})
     structure = ModelStructure([effect])
     values = {**PAPER_TABLE_V, **{p.name: truth[p.name] for p in effect.params}}
     exp = case.fit[0]

@@ -1,0 +1,29 @@
+"""The unmodelled effects of CONTRACTS.md section 4, one class in one module each, and the
+registry that the plant simulator, the scenario loader, the diagnosis and the selfcheck
+read. A furnace's own effect is written the same way in the user's file and registered by
+`plugins.load_file` or an installed package's `furnace_model.effects` entry point."""
+
+from __future__ import annotations
+
+from .base import KELVIN, N_INPUTS, U_AIR, U_BURNERS, Clues, Effect, Option, Theta, Trial
+from .burner_nonlinearity import BurnerNonlinearity
+from .dead_time import DeadTime
+from .fuel_change import FuelChange
+from .radiation import Radiation
+from .sensor_drift import SensorDrift
+from .sensor_lag import SensorLag
+from .wall_storage import WallStorage
+from .zone_burners import ZoneBurners
+from .zone_losses import ZoneLosses
+
+EFFECTS: dict[str, type[Effect]] = {cls.name: cls for cls in (
+    ZoneBurners, ZoneLosses, SensorLag, DeadTime, WallStorage, Radiation,
+    BurnerNonlinearity, FuelChange, SensorDrift)}
+"""Every registered effect by name: the contract's nine in the contract's order, then the
+plug-ins in the order they were loaded."""
+
+BUILT_IN: tuple[str, ...] = tuple(EFFECTS)
+
+__all__ = ["BUILT_IN", "EFFECTS", "KELVIN", "N_INPUTS", "U_AIR", "U_BURNERS", "Clues", "Effect",
+           "Option", "Theta", "Trial", "BurnerNonlinearity", "DeadTime", "FuelChange",
+           "Radiation", "SensorDrift", "SensorLag", "WallStorage", "ZoneBurners", "ZoneLosses"]

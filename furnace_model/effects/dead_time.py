@@ -1,0 +1,34 @@
+"""Burner heat reaches the zone after a transport delay."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..lti import Drive
+from ..parameters import Param
+from .base import N_INPUTS, U_BURNERS, Effect
+
+
+class DeadTime(Effect):
+    name = "dead_time"
+    physics = "burner heat reaches the zone only after a transport delay"
+    null = {"theta_dead": 0.0}
+    ranges = {"theta_dead": (5.0, 45.0)}
+    drive_stage = 1  # carries to the zone whatever the burners give, a fuel switch included
+
+    def _params(self):
+        return (Param("theta_dead", 5.0, 0.01, 240.0, unit="min", doc="transport delay"),)
+
+    def transform_drive(self, theta, drive):
+        P = theta["theta_dead"].shape[0]
+        s = np.broadcast_to(drive.s, (P, drive.s.shape[-1]))
+        du = np.broadcast_to(drive.du, (P,) + drive.du.shape[1:])
+        burners = np.zeros(N_INPUTS)
+        burners[U_BURNERS] = 1.0
+        s_new = np.concatenate([s + theta["theta_dead"][:, None], s], axis=1)
+        du_new = np.concatenate([du * burners, du * (1.0 - burners)], axis=1)
+        return Drive(drive.t0, drive.u0, s_new, du_new)
+
+    @classmethod
+    def draw(cls, rng, form, duration_min):
+        return cls(), {"theta_dead": cls.uniform(rng, "theta_dead")}

@@ -1,0 +1,47 @@
+"""Heat per burner changes at one instant: a fuel switch."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..lti import Drive
+from ..parameters import Param
+from .base import U_BURNERS, Effect
+
+
+class FuelChange(Effect):
+    name = "fuel_change"
+    physics = "heat per burner changes at one instant (a fuel switch, e.g. natural gas to biogas)"
+    null = {"fuel_ratio": 1.0}
+    ranges = {"t_fuel_frac": (0.3, 0.8), "fuel_ratio": (0.65, 0.9)}
+    drive_stage = 0  # at the burner: a transport delay then carries it to the zone
+
+    def _params(self):
+        return (
+            Param("t_fuel", 1000.0, 0.0, 1e6, log=False, unit="min", doc="time of the switch"),
+            Param("fuel_ratio", 0.8, 0.1, 3.0, unit="-", doc="heat per burner after / before"),
+        )
+
+    def transform_drive(self, theta, drive):
+        tc, rho = theta["t_fuel"], theta["fuel_ratio"]
+        P = tc.shape[0]
+        s = np.broadcast_to(drive.s, (P, drive.s.shape[-1]))
+        du = np.array(np.broadcast_to(drive.du, (P,) + drive.du.shape[1:]))
+        u0 = np.broadcast_to(drive.u0, (P, drive.u0.shape[-1]))
+        u_at = u0 + np.einsum("pk,pkm->pm", (s < tc[:, None]).astype(float), du)
+        du[..., U_BURNERS] *= np.where(s >= tc[:, None], rho[:, None], 1.0)[..., None]
+        jump = np.zeros((P, 1, du.shape[-1]))
+        jump[:, 0, U_BURNERS] = (rho - 1.0)[:, None] * u_at[:, U_BURNERS]
+        return Drive(drive.t0, drive.u0, np.concatenate([s, tc[:, None]], axis=1),
+                     np.concatenate([du, jump], axis=1))
+
+    @classmethod
+    def search_bounds(cls, fit_data):
+        """The switch lies within the fitted records (minutes from each record's start)."""
+        return {"t_fuel": (min(float(e.t_min[0]) for e in fit_data),
+                           max(float(e.t_min[-1]) for e in fit_data))}
+
+    @classmethod
+    def draw(cls, rng, form, duration_min):
+        return cls(), {"t_fuel": round(cls.uniform(rng, "t_fuel_frac") * duration_min),
+                       "fuel_ratio": cls.uniform(rng, "fuel_ratio")}

@@ -1,0 +1,77 @@
+"""Heat exchange by radiation: the fourth power of absolute temperature, not linear."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..parameters import Param
+from .base import KELVIN, U_AIR, Effect, Option
+
+
+class Radiation(Effect):
+    name = "radiation"
+    physics = "heat exchange grows with the fourth power of absolute temperature, not linearly"
+    linear = False
+    option_specs = {
+        "exponent": Option(4.0, "number", lo=1.5, hi=6.0,
+                           doc="power of absolute temperature (None: fitted)"),
+        "t_ref_c": Option(900.0, "number", lo=100.0, hi=2000.0,
+                          doc="where the law's slope equals the paper's linear exchange"),
+        "emissivity_slope": Option(0.0, "number", lo=-1.0, hi=1.0,
+                                   doc="emissivity change with temperature: no power law"),
+    }
+    null = {"rad_share": 0.0}
+    candidate_options = {"exponent": 4.0}
+    further_laws = ({"exponent": None},)
+    """A furnace's effective exponent depends on its gas and walls, not only on
+    Stefan-Boltzmann: fitted too."""
+    blends = True
+    ranges = {"rad_share": (0.2, 0.8)}
+
+    def _params(self):
+        share = Param("rad_share", 0.5, 0.0, 1.0, log=False, unit="-",
+                      doc="share of each exchange that is radiative at the reference temperature")
+        if self.options["exponent"] is not None:
+            return (share,)
+        return (share, Param("rad_exponent", 4.0, 1.5, 6.0, log=False, unit="-",
+                             doc="effective exponent: a furnace's gas and walls set it, not "
+                                 "only Stefan-Boltzmann"))
+
+    def nonlinear_rhs(self, theta, x, A, B, u):
+        # Each linear exchange k (Tj - Ti) becomes k [(1-w)(Tj - Ti) + w (rho(Tj) - rho(Ti))]
+        # with rho(T) = T_K^p / (p T_ref^(p-1)), whose slope is 1 at T_ref: the paper's model is
+        # the linearisation of this one at the reference temperature. An emissivity that
+        # changes with temperature, 1 + s (T_K / T_ref - 1), makes the law other than a power
+        # of T (the furnace's own law, for the diagnosis's robustness check).
+        p, tref = self.options["exponent"], self.options["t_ref_c"] + KELVIN
+        s = self.options["emissivity_slope"]
+        if p is None:
+            p = theta["rad_exponent"][:, None]
+
+        def excess(T):
+            ratio = np.maximum(T + KELVIN, 1.0) / tref
+            law = ratio ** p
+            if s:  # the hot path of every radiation fit: no work for a power law
+                law *= np.maximum(1.0 + s * (ratio - 1.0), 0.0)
+            return tref / (p + s) * law - T
+
+        w = theta["rad_share"][:, None]
+        r = excess(x[:, :3])
+        r_air = excess(u[:, U_AIR][:, None])
+        K = A[:, :3, :3] * (1.0 - np.eye(3))
+        k_air = B[:, :3, U_AIR]
+        dx = np.zeros_like(x)
+        dx[:, :3] = w * (np.einsum("pij,pj->pi", K, r) - K.sum(axis=2) * r + k_air * (r_air - r))
+        return dx
+
+    @classmethod
+    def draw(cls, rng, form, duration_min):
+        effect = cls()
+        if form == "other":
+            # No other exponent: the candidate fits its own. An emissivity that rises or
+            # falls with temperature is no power law at all (its local exponent at the
+            # reference is 4 + s); another reference temperature alone is no other law (the
+            # fitted exchange rates absorb it).
+            slope = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.4, 0.8))
+            effect = cls(emissivity_slope=slope, t_ref_c=float(rng.uniform(600.0, 1100.0)))
+        return effect, {"rad_share": cls.uniform(rng, "rad_share")}

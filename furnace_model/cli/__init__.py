@@ -10,7 +10,8 @@ import importlib
 import sys
 
 from ..errors import FurnaceError
-from .arguments import CommandParser, add_version
+from .arguments import CommandParser, add_version, preload_effects
+from .names import sync_plugins
 
 COMMANDS = ("simulate", "fit", "validate", "diagnose", "selfcheck")
 """Subcommand modules of this package, in the order `--help` lists them."""
@@ -29,8 +30,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        preload_effects(argv)
+    except FurnaceError as exc:
+        print(f"furnace-model: error: {exc}", file=sys.stderr)
+        return exc.exit_code
     args = build_parser().parse_args(argv)
     try:
+        sync_plugins(installed=True)
         return int(args.run(args) or 0)
     except FurnaceError as exc:
         print(f"furnace-model {args.command}: error: {exc}", file=sys.stderr)

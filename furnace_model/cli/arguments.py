@@ -96,3 +96,26 @@ def output_dir(text: str) -> Path:
     if path.exists() and not path.is_dir():
         raise argparse.ArgumentTypeError(f"{path} exists and is not a directory")
     return path
+
+
+def add_effects_from(parser: argparse.ArgumentParser) -> None:
+    """--effects-from, read before the rest of the command line (`preload_effects`), so that
+    the effects it defines are names like ours in every other argument."""
+    parser.add_argument("--effects-from", action="append", type=Path, metavar="PATH.py",
+                        help="load effects written as Python classes in this file (repeatable); "
+                             "installed packages' effects load by themselves")
+
+
+def preload_effects(argv: list[str]) -> None:
+    """Load the plug-in files of --effects-from; a broken one is a PluginError naming it."""
+    pre = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    pre.add_argument("--effects-from", action="append", default=[])
+    files = pre.parse_known_args(argv)[0].effects_from
+    if not files:
+        return
+    from ..effects.plugins import load_file
+    from .names import sync_plugins
+
+    for path in files:
+        load_file(path)
+    sync_plugins()

@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING
 
 from .. import ZONES
 from ..errors import FurnaceError
-from .arguments import output_file
-from .names import EFFECTS
+from .arguments import add_effects_from, output_file
+from .names import EFFECTS, effect_names, is_effect
 
 if TYPE_CHECKING:
     from ..diagnosis import Diagnosis
@@ -31,7 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--report", type=output_file, metavar="OUT.html",
                    help="write a self-contained HTML report")
     p.add_argument("--effects", type=effect_list, metavar="a,b",
-                   help=f"candidates to try (default all: {','.join(EFFECTS)})")
+                   help=f"candidates to try (default all: {','.join(EFFECTS)} and those of "
+                        "plug-ins)")
+    add_effects_from(p)
     p.add_argument("--seed", type=int, default=0, help="random seed of the searches (default 0)")
     p.set_defaults(run=run)
 
@@ -39,11 +41,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 def effect_list(text: str, what: str = "effect") -> tuple[str, ...]:
     """A comma-separated list of effect names (CONTRACTS.md section 4), for argparse."""
     names = tuple(n.strip() for n in text.split(",") if n.strip())
-    bad = [n for n in names if n not in EFFECTS]
+    bad = [n for n in names if not is_effect(n)]
     if bad or not names:
         raise argparse.ArgumentTypeError(
             f"unknown {what}(s) {', '.join(bad) or '(none given)'}; expected names from "
-            f"{', '.join(EFFECTS)}")
+            f"{', '.join(effect_names())}")
     return names
 
 

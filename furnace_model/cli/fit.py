@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING
 from .. import ZONES
 from ..errors import FurnaceError
 from ..parameters import BASELINE
-from .arguments import output_dir, output_file, positive_int
+from .arguments import add_effects_from, output_dir, output_file, positive_int
+from .diagnose import effect_list
 from .names import METHODS
 
 if TYPE_CHECKING:
@@ -40,6 +41,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="hold parameters at known values, e.g. d=0.87 (repeatable)")
     p.add_argument("--bounds", action=_ParamValues, dest="bounds", metavar="NAME=LO:HI[,...]",
                    help="search parameters only between LO and HI, e.g. d=0.1:2 (repeatable)")
+    p.add_argument("--effects", type=effect_list, metavar="a,b",
+                   help="fit the model extended with these effects, in their first law "
+                        "(default: the paper's model alone)")
+    add_effects_from(p)
     p.add_argument("--json", type=output_file, metavar="OUT", help="write the result as JSON")
     p.add_argument("--plot", type=output_dir, metavar="DIR",
                    help="write measured-vs-model PNGs here (created if missing)")
@@ -131,9 +136,14 @@ class ProgressBar:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from ..effects import EFFECTS
+    from ..effects.plugins import guarded
     from ..experiment import load_experiment
     from ..fit import fit
+    from ..structure import ModelStructure
 
+    structure = ModelStructure([EFFECTS[n](**EFFECTS[n].candidate_options)
+                                for n in args.effects or ()])
     experiments = [load_experiment(p) for p in args.data]
     names = [e.name for e in experiments]
     if len(set(names)) != len(names):
@@ -142,9 +152,10 @@ def run(args: argparse.Namespace) -> int:
     fixed, bounds = args.fixed or {}, args.bounds or {}
     bar = ProgressBar("fitting")
     try:
-        result = fit(experiments, method=args.method, runs=args.runs, population=args.population,
-                     generations=args.generations, seed=args.seed, progress=bar,
-                     zone_offsets=args.zone_offsets, fixed=fixed, bounds=bounds)
+        result = guarded(structure.effects, lambda: fit(
+            experiments, structure, method=args.method, runs=args.runs,
+            population=args.population, generations=args.generations, seed=args.seed,
+            progress=bar, zone_offsets=args.zone_offsets, fixed=fixed, bounds=bounds))
     finally:
         bar.close()
     print(render(result, experiments))

@@ -18,14 +18,13 @@ from functools import partial
 from typing import TYPE_CHECKING
 
 from ..errors import FurnaceError
-from .arguments import output_file
+from .arguments import add_effects_from, output_file
 from .diagnose import effect_list
-from .names import EFFECTS, NOISE, OUT_OF_LIBRARY
+from .names import NOISE, OUT_OF_LIBRARY, effect_names, is_effect
 
 if TYPE_CHECKING:
     from ..selfcheck import Outcome, Row
 
-DEFAULT = ("none", *EFFECTS)
 EXTRA = ("zone_burners+sensor_lag", *OUT_OF_LIBRARY)
 
 
@@ -35,13 +34,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--draws", type=int, default=10, help="random cases per effect (default 10)")
     p.add_argument("--effects", nargs="+", metavar="NAME", type=_label,
                    help="what to switch on: 'none' (control), effect names, a+b for two at "
-                        f"once, or {', '.join(OUT_OF_LIBRARY)} (default: none and all nine)")
+                        f"once, or {', '.join(OUT_OF_LIBRARY)} (default: none and every "
+                        "effect: the nine and those of plug-ins)")
     p.add_argument("--all", action="store_true",
                    help=f"also {', '.join(EXTRA)}")
     p.add_argument("--form", choices=("candidate", "other"), default="candidate",
                    help="draw effects in the candidates' formulation or in another one")
     p.add_argument("--candidates", metavar="a,b", type=partial(effect_list, what="candidate"),
-                   help="limit the diagnosis to these candidates (default all nine)")
+                   help="limit the diagnosis to these candidates (default all)")
     p.add_argument("--noise", choices=NOISE, default="white",
                    help="the thermocouples: white noise (default), low-pass noise, or held-out "
                         "ones 1-3 times as noisy as the fitted ones")
@@ -51,6 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "draws 2-4 of a longer check, the same cases")
     p.add_argument("--json", type=output_file, metavar="OUT",
                    help="write every case and the table")
+    add_effects_from(p)
     p.set_defaults(run=run)
 
 
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         raise FurnaceError("--first-draw must be 0 or more")
     if args.draws < 1:
         raise FurnaceError("--draws must be at least 1")
-    labels = list(args.effects or DEFAULT) + (list(EXTRA) if args.all else [])
+    labels = list(args.effects or ("none", *effect_names())) + (list(EXTRA) if args.all else [])
     outcomes: list[Outcome] = []
 
     def progress(o):
@@ -99,7 +100,7 @@ def _report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool
     if args.json:
         doc = {"seed": args.seed, "draws": args.draws, "first_draw": args.first_draw,
                "form": args.form, "noise": args.noise,
-               "candidates": list(args.candidates or EFFECTS), "complete": complete,
+               "candidates": list(args.candidates or effect_names()), "complete": complete,
                "rows": [r.__dict__ for r in rows], "cases": [o.to_json() for o in outcomes]}
         try:
             args.json.write_text(json.dumps(doc, indent=1, default=_plain) + "\n")
@@ -111,11 +112,11 @@ def _report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool
 def _label(text: str) -> str:
     """What `selfcheck.parse_label` accepts, checked without loading the library."""
     parts = text.split("+")
-    bad = [p for p in parts if p not in EFFECTS and p not in OUT_OF_LIBRARY]
+    bad = [p for p in parts if p not in OUT_OF_LIBRARY and not is_effect(p)]
     if text != "none" and (bad or not all(parts)):
         raise argparse.ArgumentTypeError(
             f"unknown effect(s) {', '.join(bad) or repr(text)}; expected 'none', names from "
-            f"{', '.join([*EFFECTS, *OUT_OF_LIBRARY])}, or a+b")
+            f"{', '.join([*effect_names(), *OUT_OF_LIBRARY])}, or a+b")
     return text
 
 

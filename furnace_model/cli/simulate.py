@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError
-from .arguments import output_file
+from .arguments import add_effects_from, output_file
 
 MAX_ROWS = 10_000_000
 """About 1 GB of CSV: beyond it a scenario's sampling is a typo, not a data set."""
@@ -20,10 +20,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", required=True, type=Path, help="scenario YAML")
     p.add_argument("--out", required=True, type=output_file, help="output .csv or .parquet")
     p.add_argument("--seed", type=int, default=0, help="noise and sensor-bias seed (default 0)")
+    add_effects_from(p)
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..effects.plugins import guarded
     from ..experiment import write_table
     from ..plant import Plant
     from ..scenario import load_scenario
@@ -33,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(str(args.scenario), "sample_min",
                           f"{scenario.duration_min:g} min sampled every {scenario.sample_min:g} "
                           f"min is more than {MAX_ROWS:,} rows: sample less often")
-    result = Plant.from_scenario(scenario, seed=args.seed).run_scenario(scenario)
+    result = guarded(scenario.effects, lambda: Plant.from_scenario(
+        scenario, seed=args.seed).run_scenario(scenario))
     write_table(result.to_frame(), args.out)
     print(f"{scenario.name}: {result.t_min.size} samples over {scenario.duration_min:g} min "
           f"-> {args.out}", file=sys.stderr)

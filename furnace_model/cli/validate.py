@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from .. import ZONES
 from ..errors import FurnaceError
-from .arguments import output_dir, output_file, positive_int
+from .arguments import add_effects_from, output_dir, output_file, positive_int
 
 if TYPE_CHECKING:
     from ..structure import ModelStructure
@@ -34,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "readings K samples earlier), as System Identification Toolbox's "
                         "compare(data, model, K)")
     p.add_argument("--json", type=output_file, metavar="OUT", help="write the scores as JSON")
+    add_effects_from(p)
     p.add_argument("--plot", type=output_dir, metavar="DIR",
                    help="write measured-vs-model PNGs here (created if missing)")
     p.set_defaults(run=run)

@@ -1,0 +1,211 @@
+"""Effects written by users: registered like ours from one file, used by the simulator, the
+diagnosis and the selfcheck with no change elsewhere; and a broken plug-in stopped with one
+line that names its file and what is wrong."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from furnace_model import ZONES
+from furnace_model.diagnosis import diagnose
+from furnace_model.effects import EFFECTS, U_AIR, Effect, plugins
+from furnace_model.parameters import Param
+from furnace_model.plant import Plant
+from furnace_model.scenario import load_scenario
+from furnace_model.selfcheck import case_rng, draw_case, judge_case
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLE = ROOT / "examples" / "slab_charging"
+
+
+class HeatZoneLeak(Effect):
+    """A toy: the heating zone loses heat to ambient through a door seal."""
+
+    name = "heat_zone_leak"
+    physics = "the heating zone loses heat to ambient through a leaking door seal"
+    null = {"g_leak": 0.0}
+    ranges = {"g_leak": (0.01, 0.02)}
+
+    def _params(self):
+        return (Param("g_leak", 0.005, 1e-6, 1.0, doc="heating-zone leak rate to ambient"),)
+
+    def extend(self, A, B, C, theta, first):
+        A[:, 1, 1] -= theta["g_leak"]
+        B[:, 1, U_AIR] += theta["g_leak"]
+
+    @classmethod
+    def draw(cls, rng, form, duration_min):
+        return cls(), {"g_leak": cls.uniform(rng, "g_leak")}
+
+
+@pytest.fixture
+def toy():
+    plugins.register(HeatZoneLeak, "tests/test_plugins.py")
+    yield HeatZoneLeak
+    plugins.unregister(HeatZoneLeak.name)
+
+
+def test_an_effect_in_one_file_serves_simulator_diagnosis_and_selfcheck(toy, tmp_path):
+    assert "heat_zone_leak" in EFFECTS
+    # the scenario loader reads it from YAML and the plant simulates it
+    doc = (ROOT / "config" / "scenarios" / "paper_exp1.yaml").read_text()
+    path = tmp_path / "leak.yaml"
+    path.write_text(doc.replace("effects: {}", "effects:\n  heat_zone_leak: {g_leak: 0.02}"))
+    scenario = load_scenario(path)
+    assert [e.name for e in scenario.effects] == ["heat_zone_leak"]
+    leaky = Plant.from_scenario(scenario, seed=0).run_scenario(scenario)
+    plain = load_scenario(ROOT / "config" / "scenarios" / "paper_exp1.yaml")
+    tight = Plant.from_scenario(plain, seed=0).run_scenario(plain)
+    heat = ZONES.index("heat")
+    assert np.mean(tight.zone_true[:, heat] - leaky.zone_true[:, heat]) > 5.0
+    # the selfcheck draws it, and the diagnosis tries it and names it
+    case = draw_case("heat_zone_leak", case_rng(0, "heat_zone_leak", 0))
+    assert case.expected_status == "explained" and "g_leak" in case.truth["heat_zone_leak"]
+    d = diagnose(case.fit, case.holdout, effects=("heat_zone_leak", "dead_time"))
+    correct, _absorbed, why = judge_case(case, d)
+    assert correct, (why, d.verdict.sentence)
+    best = d.best()
+    assert best.effects == ("heat_zone_leak",)
+    truth = case.truth["heat_zone_leak"]["g_leak"]
+    assert best.ci95["g_leak"][0] <= truth <= best.ci95["g_leak"][1]
+    assert "leaking door seal" in d.verdict.sentence
+
+
+def test_a_plug_in_whose_physics_fails_in_a_fit_costs_its_candidate_only(tmp_path):
+    path = tmp_path / "fragile.py"
+    path.write_text(textwrap.dedent('''
+        from furnace_model.effects import Effect
+        from furnace_model.parameters import Param
+
+        class Fragile(Effect):
+            name = "fragile"
+            physics = "works at its default strength only"
+            null = {"k_fragile": 0.0}
+
+            def _params(self):
+                return (Param("k_fragile", 0.01, 1e-4, 1.0),)
+
+            def extend(self, A, B, C, theta, first):
+                if abs(float(theta["k_fragile"].max()) - 0.01) > 1e-12:
+                    raise RuntimeError("fragile physics")
+    '''))
+    plugins.load_file(path)
+    try:
+        case = draw_case("zone_burners", np.random.default_rng(21))
+        d = diagnose(case.fit, case.holdout, effects=("zone_burners", "fragile"))
+    finally:
+        plugins.unregister("fragile")
+    assert d.verdict.status == "explained" and d.verdict.effects == ["zone_burners"]
+    failed = next(c for c in d.candidates if c.effects == ("fragile",))
+    assert "fit failed: RuntimeError: fragile physics" in failed.note and not failed.identifiable
+
+
+GOOD = '''
+from furnace_model.effects import Effect, U_AIR
+from furnace_model.parameters import Param
+
+class Leak(Effect):
+    name = "leak"
+    physics = "the soaking zone leaks"
+    null = {"g_soak_leak": 0.0}
+
+    def _params(self):
+        return (Param("g_soak_leak", 0.005, 1e-6, 1.0),)
+
+    def extend(self, A, B, C, theta, first):
+        A[:, 0, 0] -= theta["g_soak_leak"]
+        B[:, 0, U_AIR] += theta["g_soak_leak"]
+'''
+
+BROKEN = {
+    "syntax": (GOOD.replace("def _params(self):", "def _params(self)"),
+               r"broken\.py: line 10: syntax error"),
+    "import": ("import no_such_module_here\n" + GOOD,
+               r"broken\.py: fails when loaded at line 1: ModuleNotFoundError"),
+    "no effect": ("X = 1\n", r"broken\.py: defines no effect"),
+    "no physics": (GOOD.replace('    physics = "the soaking zone leaks"\n', ""),
+                   r"broken\.py: effect 'leak': `physics` must say"),
+    "no null": (GOOD.replace('    null = {"g_soak_leak": 0.0}\n', ""),
+                r"broken\.py: effect 'leak': `null` must name"),
+    "bad bounds": (GOOD.replace("Param(\"g_soak_leak\", 0.005, 1e-6, 1.0)",
+                                "Param(\"g_soak_leak\", 0.005, 1.0, 1e-6)"),
+                   r"broken\.py: effect 'leak': parameter 'g_soak_leak': bounds 1\.\.1e-06 "),
+    "taken name": (GOOD.replace('name = "leak"', 'name = "dead_time"'),
+                   r"broken\.py: effect 'dead_time': the name 'dead_time' is taken"),
+    "physics raises": (GOOD.replace("        A[:, 0, 0] -= theta",
+                                    "        1 / 0\n        A[:, 0, 0] -= theta"),
+                       r"broken\.py: effect 'leak': its physics fails on a short heat-up at "
+                       r"its default values at line 14: ZeroDivisionError"),
+}
+
+
+@pytest.mark.parametrize("kind", list(BROKEN))
+def test_a_broken_plug_in_is_one_line_naming_its_file(kind, tmp_path):
+    text, pattern = BROKEN[kind]
+    path = tmp_path / "broken.py"
+    path.write_text(text)
+    with pytest.raises(plugins.PluginError, match=pattern):
+        plugins.load_file(path)
+    assert set(EFFECTS) == set(plugins.BUILT_IN), "nothing half-registered"
+
+
+def test_broken_plug_in_on_the_command_line_exits_2_without_a_traceback(tmp_path):
+    path = tmp_path / "broken.py"
+    path.write_text(BROKEN["bad bounds"][0])
+    r = subprocess.run([sys.executable, "-m", "furnace_model.cli", "simulate", "--scenario",
+                        "config/scenarios/paper_exp1.yaml", "--out", str(tmp_path / "x.csv"),
+                        "--effects-from", str(path)],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.count("\n") == 1 and str(path) in r.stderr, r.stderr
+    assert not (tmp_path / "x.csv").exists()
+
+
+def model(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "furnace_model.cli", *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def charging(tmp_path_factory) -> tuple[Path, Path]:
+    """docs/diagnosis.md's worked example: the paper's two experiments in a furnace that
+    charges cold slabs into its preheating zone, simulated through the plug-in."""
+    d = tmp_path_factory.mktemp("charging")
+    out = []
+    for k, seed in ((1, "0"), (2, "1")):
+        path = d / f"charging_exp{k}.csv"
+        r = model("simulate", "--scenario", str(EXAMPLE / f"exp{k}.yaml"), "--out", str(path),
+                  "--seed", seed, "--effects-from", str(EXAMPLE / "slab_charging.py"))
+        assert r.returncode == 0, r.stderr
+        out.append(path)
+    return out[0], out[1]
+
+
+def test_the_plug_in_names_slab_charging_and_closes_the_gap(charging, tmp_path):
+    fit, hold = charging
+    r = model("diagnose", str(fit), "--holdout", str(hold), "--effects", "slab_charging",
+              "--effects-from", str(EXAMPLE / "slab_charging.py"), "--json", str(tmp_path / "d.json"))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith("Verdict: explained (slab_charging)"), r.stdout[:2000]
+    import json
+
+    doc = json.loads((tmp_path / "d.json").read_text())
+    assert doc["verdict"]["gap_closed_pct"] >= 50
+    lo, hi = doc["candidates"][0]["ci95"]["q_charge"]
+    assert lo <= 9.0 <= hi, (lo, hi)
+
+
+@pytest.mark.slow
+def test_without_the_plug_in_the_gap_is_unexplained_and_in_the_preheating_zone(charging):
+    fit, hold = charging
+    r = model("diagnose", str(fit), "--holdout", str(hold))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith("Verdict: unexplained"), r.stdout[:2000]
+    first = r.stdout[:r.stdout.index("\n\n")]
+    assert "preheating zone" in first, first

@@ -185,7 +185,7 @@ def test_no_option_that_takes_several_values_precedes_a_positional():
 
 def test_the_names_checked_before_loading_are_the_librarys():
     from furnace_model.cli.selfcheck import _label
-    from furnace_model.effects import EFFECTS as LIBRARY_EFFECTS
+    from furnace_model.effects import BUILT_IN as LIBRARY_EFFECTS
     from furnace_model.fit import METHODS as LIBRARY_METHODS
     from furnace_model.parameters import BASELINE
     from furnace_model.selfcheck import NOISE as LIBRARY_NOISE

@@ -14,67 +14,72 @@ import pytest
 
 from furnace_model import ZONES
 from furnace_model.diagnosis import diagnose
-from furnace_model.effects import EFFECTS, U_AIR, Effect, plugins
+from furnace_model.effects import EFFECTS, FuelChange, Option, plugins
 from furnace_model.parameters import Param
 from furnace_model.plant import Plant
 from furnace_model.scenario import load_scenario
 from furnace_model.selfcheck import case_rng, draw_case, judge_case
+from furnace_model.structure import ModelStructure
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "examples" / "slab_charging"
 
 
-class HeatZoneLeak(Effect):
-    """A toy: the heating zone loses heat to ambient through a door seal."""
+class BurnerDerate(FuelChange):
+    """A toy: from a time the plant's log gives, every burner gives a share of its heat (a
+    derated gas supply); the physics is the fuel switch's, at a known instant."""
 
-    name = "heat_zone_leak"
-    physics = "the heating zone loses heat to ambient through a leaking door seal"
-    null = {"g_leak": 0.0}
-    ranges = {"g_leak": (0.01, 0.02)}
+    name = "burner_derate"
+    physics = "from a known time on, every burner gives only a share of its heat"
+    option_specs = {"at_min": Option(1500.0, "number", lo=0.0, hi=1e6, doc="the derating")}
+    null = {"derate": 1.0}
+    ranges = {"derate": (0.6, 0.8)}
 
     def _params(self):
-        return (Param("g_leak", 0.005, 1e-6, 1.0, doc="heating-zone leak rate to ambient"),)
+        return (Param("derate", 0.9, 0.1, 2.0, unit="-", doc="heat per burner after / before"),)
 
-    def extend(self, A, B, C, theta, first):
-        A[:, 1, 1] -= theta["g_leak"]
-        B[:, 1, U_AIR] += theta["g_leak"]
+    def transform_drive(self, theta, drive):
+        at = np.full_like(theta["derate"], self.options["at_min"])
+        return super().transform_drive({"t_fuel": at, "fuel_ratio": theta["derate"]}, drive)
 
     @classmethod
     def draw(cls, rng, form, duration_min):
-        return cls(), {"g_leak": cls.uniform(rng, "g_leak")}
+        return cls(), {"derate": cls.uniform(rng, "derate")}  # at the time the log gives
 
 
 @pytest.fixture
 def toy():
-    plugins.register(HeatZoneLeak, "tests/test_plugins.py")
-    yield HeatZoneLeak
-    plugins.unregister(HeatZoneLeak.name)
+    plugins.register(BurnerDerate, "tests/test_plugins.py")
+    yield BurnerDerate
+    plugins.unregister(BurnerDerate.name)
 
 
 def test_an_effect_in_one_file_serves_simulator_diagnosis_and_selfcheck(toy, tmp_path):
-    assert "heat_zone_leak" in EFFECTS
+    assert "burner_derate" in EFFECTS
     # the scenario loader reads it from YAML and the plant simulates it
-    doc = (ROOT / "config" / "scenarios" / "paper_exp1.yaml").read_text()
-    path = tmp_path / "leak.yaml"
-    path.write_text(doc.replace("effects: {}", "effects:\n  heat_zone_leak: {g_leak: 0.02}"))
+    doc = (ROOT / "config" / "scenarios" / "paper_exp2.yaml").read_text()  # fires 18 burners
+    path = tmp_path / "own.yaml"
+    path.write_text(doc.replace("effects: {}", "effects:\n  burner_derate: {at_min: 2000, derate: 0.7}")
+                    )
     scenario = load_scenario(path)
-    assert [e.name for e in scenario.effects] == ["heat_zone_leak"]
-    leaky = Plant.from_scenario(scenario, seed=0).run_scenario(scenario)
-    plain = load_scenario(ROOT / "config" / "scenarios" / "paper_exp1.yaml")
-    tight = Plant.from_scenario(plain, seed=0).run_scenario(plain)
-    heat = ZONES.index("heat")
-    assert np.mean(tight.zone_true[:, heat] - leaky.zone_true[:, heat]) > 5.0
+    assert [e.name for e in scenario.effects] == ["burner_derate"]
+    own = Plant.from_scenario(scenario, seed=0).run_scenario(scenario)
+    paper = Plant(ModelStructure(), scenario.values(), scenario.sensors, seed=0).run_scenario(
+        scenario)
+    soak = ZONES.index("soak")
+    gap = paper.zone_true[:, soak] - own.zone_true[:, soak]
+    assert np.all(gap[own.t_min < 2000] == 0) and np.max(gap) > 50.0
     # the selfcheck draws it, and the diagnosis tries it and names it
-    case = draw_case("heat_zone_leak", case_rng(0, "heat_zone_leak", 0))
-    assert case.expected_status == "explained" and "g_leak" in case.truth["heat_zone_leak"]
-    d = diagnose(case.fit, case.holdout, effects=("heat_zone_leak", "dead_time"))
+    case = draw_case("burner_derate", case_rng(0, "burner_derate", 0))
+    assert case.expected_status == "explained" and "derate" in case.truth["burner_derate"]
+    d = diagnose(case.fit, case.holdout, effects=("burner_derate", "dead_time"))
     correct, _absorbed, why = judge_case(case, d)
     assert correct, (why, d.verdict.sentence)
     best = d.best()
-    assert best.effects == ("heat_zone_leak",)
-    truth = case.truth["heat_zone_leak"]["g_leak"]
-    assert best.ci95["g_leak"][0] <= truth <= best.ci95["g_leak"][1]
-    assert "leaking door seal" in d.verdict.sentence
+    assert best.effects == ("burner_derate",)
+    truth = case.truth["burner_derate"]["derate"]
+    assert best.ci95["derate"][0] <= truth <= best.ci95["derate"][1]
+    assert "only a share of its heat" in d.verdict.sentence
 
 
 def test_a_plug_in_whose_physics_fails_in_a_fit_costs_its_candidate_only(tmp_path):

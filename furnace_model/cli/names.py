@@ -19,12 +19,13 @@ def effect_names() -> tuple[str, ...]:
 
 
 def is_effect(name: str) -> bool:
-    """Whether `name` is a registered effect; an unknown one first loads the installed
-    plug-ins, which costs their imports only when a name needs them."""
+    """Whether `name` is a registered effect or an installed plug-in's (entry points are
+    named as their effects: read without loading them, or any library)."""
     if name in EFFECTS or name in PLUGGED:
         return True
-    sync_plugins(installed=True)
-    return name in PLUGGED
+    from importlib.metadata import entry_points
+
+    return any(ep.name == name for ep in entry_points(group="furnace_model.effects"))
 
 
 def sync_plugins(installed: bool = False) -> None:

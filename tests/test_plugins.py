@@ -4,6 +4,7 @@ line that names its file and what is wrong."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -214,3 +215,36 @@ def test_without_the_plug_in_the_gap_is_unexplained_and_in_the_preheating_zone(c
     assert r.stdout.startswith("Verdict: unexplained"), r.stdout[:2000]
     first = r.stdout[:r.stdout.index("\n\n")]
     assert "preheating zone" in first, first
+
+
+def _install(site: Path, name: str, module_text: str) -> None:
+    """A package with an entry point in `furnace_model.effects`, as pip would leave it."""
+    (site / f"{name}.py").write_text(module_text)
+    info = site / f"{name}-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text(f"[furnace_model.effects]\nleak = {name}:Leak\n")
+
+
+def test_an_installed_package_registers_its_effect_and_a_broken_one_is_skipped(tmp_path):
+    site = tmp_path / "site"
+    site.mkdir()
+    _install(site, "leakplug", GOOD)
+    scenario = tmp_path / "leak.yaml"
+    scenario.write_text((ROOT / "config" / "scenarios" / "paper_exp1.yaml").read_text()
+                        .replace("effects: {}", "effects:\n  leak: {g_soak_leak: 0.01}"))
+    env = {"PYTHONPATH": f"{site}:{ROOT}"}
+    argv = [sys.executable, "-m", "furnace_model.cli", "simulate", "--scenario", str(scenario),
+            "--out", str(tmp_path / "leak.csv")]
+    r = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=60,
+                       env={**os.environ, **env})
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr
+    assert (tmp_path / "leak.csv").exists()
+    # the same package broken: the command says so once, and what needs no plug-in still runs
+    (site / "leakplug.py").write_text(BROKEN["bad bounds"][0])
+    argv[5] = str(ROOT / "config" / "scenarios" / "paper_exp1.yaml")
+    r = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=60,
+                       env={**os.environ, **env})
+    assert r.returncode == 0, r.stderr
+    assert "warning: effect plug-in not loaded: entry point leak (leakplug:Leak)" in r.stderr
+    assert "bounds 1..1e-06" in r.stderr and "Traceback" not in r.stderr

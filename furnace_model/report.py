@@ -19,9 +19,9 @@ from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
 
 from . import ZONES
-from .candidates import CandidateResult
-from .credit import MIN_GAP_CLOSED, RULE, shortfall
 from .diagnosis import Diagnosis, where_lines
+from .diagnosis.credit import MIN_GAP_CLOSED, RULE, shortfall
+from .diagnosis.fitting import CandidateResult
 from .experiment import Experiment
 from .residuals import ZONE_WORDS
 

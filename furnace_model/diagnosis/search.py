@@ -20,24 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import ZONES
-from .candidates import (
-    CandidateResult,
-    Task,
-    check_effects,
-    rmse_per_zone,
-    run_task,
-    score_against,
-    structure_of,
-)
-from .credit import MIN_GAP_CLOSED
-from .credit import credited as _credit  # the one rule, shown as it is by report and summary
-from .effects import EFFECTS, Clues
-from .errors import FurnaceError
-from .experiment import Experiment
-from .fit import fit
-from .noisefloor import RecordFloor, limits, pooled_floor, record_floor
-from .residuals import (
+from .. import ZONES
+from ..effects import EFFECTS, Clues
+from ..errors import FurnaceError
+from ..experiment import Experiment
+from ..fit import fit
+from ..noisefloor import RecordFloor, limits, pooled_floor, record_floor
+from ..residuals import (
     SUDDEN_WINDOW_MIN,
     ZONE_WORDS,
     error_spans,
@@ -47,7 +36,18 @@ from .residuals import (
     sensor_faults,
     sudden_change,
 )
-from .structure import ModelStructure
+from ..structure import ModelStructure
+from .credit import MIN_GAP_CLOSED
+from .credit import credited as _credit  # the one rule, shown as it is by report and summary
+from .fitting import (
+    CandidateResult,
+    Task,
+    check_effects,
+    rmse_per_zone,
+    run_task,
+    score_against,
+    structure_of,
+)
 
 __all__ = ["CandidateResult", "Diagnosis", "Located", "Verdict", "WhereLine", "diagnose",
            "where_lines"]

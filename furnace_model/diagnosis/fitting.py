@@ -14,13 +14,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import ZONES
-from .effects import EFFECTS, Effect
-from .errors import FurnaceError
-from .experiment import Experiment
-from .fit import FitResult, fit, predict, predict_held_out
-from .residuals import lag1
-from .structure import ModelStructure
+from .. import ZONES
+from ..effects import EFFECTS, Effect
+from ..errors import FurnaceError
+from ..experiment import Experiment
+from ..fit import FitResult, fit, predict, predict_held_out
+from ..residuals import lag1
+from ..structure import ModelStructure
 
 MAX_RATIO = 4.0
 """A positive strength parameter counts as determined when its 95% interval spans less than

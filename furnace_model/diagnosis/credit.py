@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .candidates import CandidateResult
+from .fitting import CandidateResult
 
 MIN_GAP_CLOSED = 50.0
 """Percent of the baseline's held-out error above the floor an effect must remove to count;

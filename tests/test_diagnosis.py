@@ -17,14 +17,16 @@ from furnace_model.diagnosis import (
     COLD_GENERATIONS,
     GAP_RATIO,
     NEAR_RATIO,
+    CandidateResult,
+    Task,
     blend_weight,
+    credited,
     diagnose,
     further_laws,
     judge,
+    run_task,
     split,
 )
-from furnace_model.diagnosis.credit import credited
-from furnace_model.diagnosis.fitting import CandidateResult, Task, run_task
 from furnace_model.diagnosis.search import _determined
 from furnace_model.effects import EFFECTS, Clues, FuelChange, Radiation, SensorDrift, ZoneBurners
 from furnace_model.effects.zone_burners import soak_only_heads

@@ -6,14 +6,37 @@ information criterion on the fitted data (dBIC < 0) and it removes at least half
 baseline's held-out error above the noise floor. A candidate that makes the held-out error
 worse closes a negative share of the gap and never earns it; it is said to make it worse
 when that shows in a printed percent.
+
+A candidate's own parameters must be determined and away from the value at which the
+effect vanishes: an extension that improves the fit with an interval reaching "no effect"
+has merely bent to the noise or to another effect.
+
+A candidate is also measured against the noise: a zone has a gap when its held-out error
+stands clear of the noise floor (`GAP_RATIO`), and a candidate explains it when it comes
+near the floor in every zone (`NEAR_RATIO`). The search ranks candidates, and decides what
+is worth a further law or a further effect, by the same rules.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .fitting import CandidateResult
+from .. import ZONES
+from ..fit import FitResult
+from .candidate import CandidateResult
 
+MAX_RATIO = 4.0
+"""A positive strength parameter counts as determined when its 95% interval spans less than
+this factor: one that could be anything from a trace to a flood is not an estimate."""
+GAP_RATIO = 1.25
+"""A zone's held-out RMSE above this multiple of its noise floor is a gap (or further, where
+the held-out records hold few independent samples: `GAP_Z`)."""
+GAP_Z = 3.0
+"""Standard errors of the RMSE-to-floor ratio a gap must also exceed (noisefloor.limits)."""
+NEAR_RATIO = 1.5
+"""An extension whose held-out RMSE is within this multiple of the floor in every zone
+explains the gap (or within `NEAR_Z` standard errors of the ratio, if that is further)."""
+NEAR_Z = 4.0
 MIN_GAP_CLOSED = 50.0
 """Percent of the baseline's held-out error above the floor an effect must remove to count;
 for a further effect in a stepwise combination, of the error the kept ones leave."""
@@ -42,3 +65,98 @@ def shortfall(c: CandidateResult) -> list[str]:
 
 def credited(c: CandidateResult) -> bool:
     return not shortfall(c)
+
+
+def identifiable(fr: FitResult, effects: tuple[str, ...]) -> tuple[bool, str]:
+    """Whether every effect has a strength parameter that the data determine away from the
+    value at which it vanishes; else the reason, in words."""
+    notes = []
+    for name in effects:
+        effect = next(e for e in fr.structure.effects if e.name == name)
+        box = {p.name: p for p in effect.params}
+        ok_any, why = False, []
+        for pname, null in type(effect).null.items():
+            if pname not in box:
+                continue
+            # Under the candidate's own noise (white): whether the records pin its strength
+            # down; a residual the other effects of a combination leave would otherwise
+            # hide a first effect that the data do determine.
+            p, (lo, hi), v = box[pname], fr.ci95_white[pname], fr.params[pname]
+            at_edge = lo <= p.lo * (1 + 1e-6) or hi >= p.hi * (1 - 1e-6) if p.log else \
+                lo <= p.lo + 1e-9 * (p.hi - p.lo) or hi >= p.hi - 1e-9 * (p.hi - p.lo)
+            if p.log:
+                wide = not (lo > 0 and hi / lo < MAX_RATIO)
+            else:
+                wide = not np.isnan(null) and lo <= null <= hi
+            if wide or at_edge:
+                why.append(f"{pname} = {v:.4g} with 95% interval [{lo:.3g}, {hi:.3g}]"
+                           + (" reaching its search bound" if at_edge and not wide else ""))
+            else:
+                ok_any = True
+        if not ok_any:
+            notes.append(f"{name}: the data do not determine it ({'; '.join(why)})")
+    return not notes, "; ".join(notes)
+
+
+
+def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, float]) -> None:
+    """Fill the candidate's comparison with the baseline: held-out RMSE shrink (pooled over
+    zones), the share of the baseline's held-out gap above the noise floor it closes, and
+    the change of BIC on the fitted data with an effective sample size."""
+    rb, rc = base.rmse_holdout_pooled(), c.rmse_holdout_pooled()
+    if not np.isfinite(rc):
+        c.shrink_pct = c.gap_closed_pct = c.delta_bic = float("nan")
+        c.evidence = float("inf")
+        return
+    c.shrink_pct = float(100.0 * (1.0 - rc / rb)) if rb > 0 else 0.0
+    fl2 = float(np.mean([floor[z] ** 2 for z in ZONES]))
+    excess = rb * rb - fl2
+    c.gap_closed_pct = float(100.0 * (rb * rb - rc * rc) / excess) if excess > 0 else 0.0
+    n = c.n_obs
+    if n and c.sse_fit > 0 and base.sse_fit > 0:
+        neff = c.n_eff()
+        c.delta_bic = float(neff * np.log(c.sse_fit / base.sse_fit)
+                            + (c.n_params - base.n_params) * np.log(neff))
+    else:
+        c.delta_bic = 0.0
+    # Held-out evidence: the Gaussian log-likelihood ratio on data the fit has not seen,
+    # counted in effective samples; with the fit's BIC it ranks candidates whose held-out
+    # errors are within noise of each other (a lag and a dead time both near the floor).
+    # A parameter estimated on the held-out data is charged as BIC charges one.
+    rho = c.rho1_holdout
+    n_ho = c.n_holdout * (1 - rho) / (1 + rho)
+    c.evidence = c.delta_bic + (n_ho * np.log(rc * rc / (rb * rb)) if rb > 0 and rc > 0 else 0.0)
+    if n_ho > 1:
+        c.evidence += (len(c.held_out_fitted) - len(base.held_out_fitted)) * np.log(n_ho)
+
+
+
+def helps(c: CandidateResult) -> bool:
+    """Closes part of the gap and lowers the BIC: worth a further law or a second search."""
+    return c.gap_closed_pct > 0 and c.delta_bic < 0
+
+
+
+def rank(c: CandidateResult) -> tuple:
+    r = c.rmse_holdout_pooled()
+    return (not credited(c), c.evidence if credited(c) else (r if np.isfinite(r) else np.inf))
+
+
+
+def near_floor(c: CandidateResult, near: dict[str, float]) -> bool:
+    """Held out within `near` (noisefloor.limits at NEAR_RATIO) in every zone."""
+    return all(c.rmse_holdout_c[z] <= near[z] for z in ZONES)
+
+
+
+def closes(c: CandidateResult, kept: CandidateResult, floor: dict[str, float]) -> bool:
+    """Whether c (kept plus one effect) removes most of the held-out gap kept leaves, with
+    a lower BIC on the fitted data and its own strength determined."""
+    if not c.identifiable or not np.isfinite(c.sse_fit) or not np.isfinite(kept.sse_fit):
+        return False
+    fl2 = float(np.mean([floor[z] ** 2 for z in ZONES]))
+    left = kept.rmse_holdout_pooled() ** 2 - fl2
+    gain = kept.rmse_holdout_pooled() ** 2 - c.rmse_holdout_pooled() ** 2
+    bic = c.n_eff() * np.log(c.sse_fit / kept.sse_fit) + \
+        (c.n_params - kept.n_params) * np.log(c.n_eff())
+    return bool(left > 0 and gain >= MIN_GAP_CLOSED / 100 * left and bic < 0)

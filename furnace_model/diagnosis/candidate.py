@@ -49,7 +49,6 @@ class CandidateResult:
                              self.n_params + 10, max(self.n_obs, self.n_params + 10)))
 
 
-
 def pooled(per_zone: dict[str, float]) -> float:
     v = [x for x in per_zone.values() if np.isfinite(x)]
     return float(np.sqrt(np.mean(np.square(v)))) if v else float("nan")

@@ -98,7 +98,6 @@ def identifiable(fr: FitResult, effects: tuple[str, ...]) -> tuple[bool, str]:
     return not notes, "; ".join(notes)
 
 
-
 def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, float]) -> None:
     """Fill the candidate's comparison with the baseline: held-out RMSE shrink (pooled over
     zones), the share of the baseline's held-out gap above the noise floor it closes, and
@@ -130,11 +129,9 @@ def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, fl
         c.evidence += (len(c.held_out_fitted) - len(base.held_out_fitted)) * np.log(n_ho)
 
 
-
 def helps(c: CandidateResult) -> bool:
     """Closes part of the gap and lowers the BIC: worth a further law or a second search."""
     return c.gap_closed_pct > 0 and c.delta_bic < 0
-
 
 
 def rank(c: CandidateResult) -> tuple:
@@ -142,11 +139,9 @@ def rank(c: CandidateResult) -> tuple:
     return (not credited(c), c.evidence if credited(c) else (r if np.isfinite(r) else np.inf))
 
 
-
 def near_floor(c: CandidateResult, near: dict[str, float]) -> bool:
     """Held out within `near` (noisefloor.limits at NEAR_RATIO) in every zone."""
     return all(c.rmse_holdout_c[z] <= near[z] for z in ZONES)
-
 
 
 def closes(c: CandidateResult, kept: CandidateResult, floor: dict[str, float]) -> bool:

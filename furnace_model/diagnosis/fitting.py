@@ -43,11 +43,9 @@ class Task:
     """Generations of a search from scratch (init None); None: the fit's default."""
 
 
-
 def structure_of(effects: tuple[str, ...], options: dict[str, dict]) -> ModelStructure:
     items: list[Effect] = [EFFECTS[n](**options.get(n, {})) for n in effects]
     return ModelStructure(items)
-
 
 
 def run_task(task: Task) -> CandidateResult:
@@ -65,7 +63,6 @@ def run_task(task: Task) -> CandidateResult:
                                note=f"fit failed: {type(exc).__name__}: {exc}",
                                options={n: dict(task.options.get(n, {})) for n in task.effects},
                                elapsed_s=time.perf_counter() - t0)
-
 
 
 def _run_task(task: Task, t0: float) -> CandidateResult:
@@ -117,7 +114,6 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         held_out_fitted=unseen, elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
 
 
-
 def unseen_by_fit(fr: FitResult, bounds: dict[str, tuple[float, float]]) -> tuple[str, ...]:
     """The paper's parameters the fitted data do not see at all. An extension can take away
     what the baseline saw: with the heating- and preheating-zone burners heating their own
@@ -133,7 +129,6 @@ def unseen_by_fit(fr: FitResult, bounds: dict[str, tuple[float, float]]) -> tupl
     return tuple(n for n in ModelStructure().names if n in out)
 
 
-
 def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray]:
     """The fitted model as the thermocouples read it, its zone offsets included."""
     out = []
@@ -142,7 +137,6 @@ def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray
         off = np.array([fr.zone_offsets_c[j][z] for z in ZONES]) if fr.zone_offsets_c else 0.0
         out.append(y + off)
     return out
-
 
 
 def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Experiment],
@@ -170,13 +164,11 @@ def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Exp
     return [p for p in out if p is not None]
 
 
-
 def join(head: Experiment, tail: Experiment) -> Experiment:
     return Experiment(head.name, np.concatenate([head.t_min, tail.t_min]),
                       np.concatenate([head.tc, tail.tc]),
                       np.concatenate([head.burners, tail.burners]),
                       np.concatenate([head.t_air, tail.t_air]), head.start_time, head.source)
-
 
 
 def rmse_per_zone(data: list[Experiment], preds: list[np.ndarray]) -> dict[str, float]:

@@ -75,7 +75,6 @@ def split(data: list[Experiment], holdout: list[Experiment] | None
     return fit_data, hold, tail_of, how
 
 
-
 def uncovered(fit_data: list[Experiment], holdout: list[Experiment]) -> list[str]:
     """Zones whose burners fire in the held-out data but never in the fitted data."""
     def firing(data):

@@ -22,7 +22,6 @@ def further_laws(fitted: list[CandidateResult]) -> list[tuple[CandidateResult, d
             for opts in EFFECTS[c.effects[0]].further_laws]
 
 
-
 def between_laws(same: list[CandidateResult], fit_data: list[Experiment],
                  hold: list[Experiment]) -> CandidateResult | None:
     """An effect's law between two of the candidate's (a burner curve between a straight
@@ -46,7 +45,6 @@ def between_laws(same: list[CandidateResult], fit_data: list[Experiment],
     return best
 
 
-
 def blend_weight(p: list[np.ndarray], q: list[np.ndarray], data: list[Experiment]) -> float:
     """Least-squares weight w of q in (1 - w) p + w q against the zone readings."""
     num = den = 0.0
@@ -56,7 +54,6 @@ def blend_weight(p: list[np.ndarray], q: list[np.ndarray], data: list[Experiment
         num += float(np.sum(d[m] * r[m]))
         den += float(np.sum(d[m] * d[m]))
     return float(np.clip(num / den, 0.0, 1.0)) if den > 0 else 0.0
-
 
 
 def _blend(p: CandidateResult, q: CandidateResult, w: float, fit_data: list[Experiment],
@@ -78,7 +75,6 @@ def _blend(p: CandidateResult, q: CandidateResult, w: float, fit_data: list[Expe
         sse_fit=(1 - w) * p.sse_fit + w * q.sse_fit, n_obs=major.n_obs,
         n_params=major.n_params + 1, rho1=major.rho1, rho1_holdout=major.rho1_holdout,
         n_holdout=major.n_holdout, elapsed_s=p.elapsed_s + q.elapsed_s)
-
 
 
 def opts_text(opts: dict) -> str:

@@ -35,7 +35,6 @@ class Located:
     zone's error runs through the whole record: `residuals.THROUGHOUT_SHARE`)."""
 
 
-
 def locate(experiments: list[Experiment], residuals: list[np.ndarray],
            floors: list[RecordFloor], faults) -> list[Located]:
     """The located error: thermocouples at fault first, then the residual's sharpest step if
@@ -77,12 +76,10 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
     return out
 
 
-
 def _located(exp: Experiment, zone: str, sensor: str | None, i0: int, i1: int, share: float,
              words: str, kind: str = "span") -> Located:
     a, b = float(exp.t_min[i0]), float(exp.t_min[max(i1 - 1, i0)])
     return Located(zone, sensor, exp.name, a, b, iso(exp, a), iso(exp, b), share, words, kind)
-
 
 
 @dataclass
@@ -97,7 +94,6 @@ class WhereLine:
     share: str  # of the zone's squared error: "41%", or "92%, 93% and 93%" for zones
     regime: str
     kind: str
-
 
 
 def where_lines(where: list[Located]) -> list[WhereLine]:
@@ -121,7 +117,6 @@ def where_lines(where: list[Located]) -> list[WhereLine]:
         out.append(WhereLine(zones, w.experiment, span, clock, share,
                              _common_regime([x.regime for x in same]), w.kind))
     return out
-
 
 
 def _common_regime(regimes: list[str]) -> str:

@@ -86,16 +86,13 @@ class Diagnosis:
         }
 
 
-
 def _r(x: float) -> float | None:
     x = float(x)
     return round(x, 6) if np.isfinite(x) else None
 
 
-
 def _round(d: dict) -> dict:
     return {k: _r(v) for k, v in d.items()}
-
 
 
 def _plain(d: dict) -> dict:

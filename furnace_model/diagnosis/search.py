@@ -55,7 +55,6 @@ def check_effects(names) -> tuple[str, ...]:
     return names
 
 
-
 def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
              effects: Sequence[str] | None = None, seed: int = 0,
              progress: Callable[[str, float], None] | None = None) -> Diagnosis:
@@ -163,7 +162,6 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                      time.perf_counter() - t_start, gap, **noise)
 
 
-
 def _pooled_tc(floors: list[RecordFloor]) -> dict[str, float]:
     """One thermocouple's noise sd per zone over the records, weighted by their readings."""
     out = {}
@@ -174,7 +172,6 @@ def _pooled_tc(floors: list[RecordFloor]) -> dict[str, float]:
                                            weights=[n for _, n in pairs])))
                   if pairs else float("nan"))
     return out
-
 
 
 def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[str, float],
@@ -235,12 +232,10 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
     return tried, kept
 
 
-
 def _not_kept(kept: CandidateResult) -> str:
     return (f"not kept: the stepwise search keeps {kept.label} (a further effect must remove "
             f"at least {MIN_GAP_CLOSED:.0f}% of the held-out error above the floor that the "
             "kept ones leave, with its strength determined and a lower BIC)")
-
 
 
 def _determined(records: list[Experiment], seed: int) -> dict[str, float]:

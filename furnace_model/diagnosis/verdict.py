@@ -28,7 +28,6 @@ class Verdict:
     plain RMSE reduction, cannot pass 1 - floor / baseline RMSE)."""
 
 
-
 def judge(base: CandidateResult, kept: CandidateResult | None,
           candidates: list[CandidateResult], floor: dict[str, float], near: dict[str, float],
           gap: tuple[str, ...], where: list[Located], missing: Sequence[str] = ()) -> Verdict:
@@ -79,7 +78,6 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
            f"fitted data never fire: what those burners do cannot be learnt from the fitted "
            f"data. Given together as DATA, without --holdout, the experiments are split so "
            f"that the fitted ones fire every burner the held-out one does." if missing else ""))
-
 
 
 def _unseen_words(c: CandidateResult) -> str:

@@ -10,6 +10,5 @@ def zones_words(zones: list[str]) -> str:
     return and_words([ZONE_WORDS[z] for z in zones])
 
 
-
 def and_words(words: list[str]) -> str:
     return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"

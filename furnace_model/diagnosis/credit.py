@@ -98,6 +98,24 @@ def identifiable(fr: FitResult, effects: tuple[str, ...]) -> tuple[bool, str]:
     return not notes, "; ".join(notes)
 
 
+def delta_bic(c: CandidateResult, ref: CandidateResult) -> float:
+    """The change of BIC on the fitted data from `ref` to `c` (which extends it), in c's
+    effective samples (`CandidateResult.n_eff`): counted as independent, autocorrelated
+    residuals would make any lower fit error look like evidence. The one BIC of the
+    diagnosis: against the baseline for credit, against the kept set for a further effect."""
+    neff = c.n_eff()
+    return float(neff * np.log(c.sse_fit / ref.sse_fit) + (c.n_params - ref.n_params) * np.log(neff))
+
+
+def gap_closed_pct(c: CandidateResult, ref: CandidateResult, floor: dict[str, float]) -> float:
+    """Percent of ref's held-out squared error above the noise floor (pooled over zones)
+    that c removes: 100 when c reaches the floor, whatever the noise level; 0 when ref is at
+    the floor already, since there is nothing to close."""
+    rr, rc = ref.rmse_holdout_pooled(), c.rmse_holdout_pooled()
+    excess = rr * rr - float(np.mean([floor[z] ** 2 for z in ZONES]))
+    return float(100.0 * (rr * rr - rc * rc) / excess) if excess > 0 else 0.0
+
+
 def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, float]) -> None:
     """Fill the candidate's comparison with the baseline: held-out RMSE shrink (pooled over
     zones), the share of the baseline's held-out gap above the noise floor it closes, and
@@ -108,16 +126,8 @@ def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, fl
         c.evidence = float("inf")
         return
     c.shrink_pct = float(100.0 * (1.0 - rc / rb)) if rb > 0 else 0.0
-    fl2 = float(np.mean([floor[z] ** 2 for z in ZONES]))
-    excess = rb * rb - fl2
-    c.gap_closed_pct = float(100.0 * (rb * rb - rc * rc) / excess) if excess > 0 else 0.0
-    n = c.n_obs
-    if n and c.sse_fit > 0 and base.sse_fit > 0:
-        neff = c.n_eff()
-        c.delta_bic = float(neff * np.log(c.sse_fit / base.sse_fit)
-                            + (c.n_params - base.n_params) * np.log(neff))
-    else:
-        c.delta_bic = 0.0
+    c.gap_closed_pct = gap_closed_pct(c, base, floor)
+    c.delta_bic = delta_bic(c, base) if c.n_obs and c.sse_fit > 0 and base.sse_fit > 0 else 0.0
     # Held-out evidence: the Gaussian log-likelihood ratio on data the fit has not seen,
     # counted in effective samples; with the fit's BIC it ranks candidates whose held-out
     # errors are within noise of each other (a lag and a dead time both near the floor).
@@ -145,13 +155,9 @@ def near_floor(c: CandidateResult, near: dict[str, float]) -> bool:
 
 
 def closes(c: CandidateResult, kept: CandidateResult, floor: dict[str, float]) -> bool:
-    """Whether c (kept plus one effect) removes most of the held-out gap kept leaves, with
-    a lower BIC on the fitted data and its own strength determined."""
+    """Whether c (kept plus one effect) earns credit against kept as a candidate does
+    against the baseline: its own strength determined, a lower BIC on the fitted data, and
+    at least `MIN_GAP_CLOSED` of the held-out gap kept leaves closed."""
     if not c.identifiable or not np.isfinite(c.sse_fit) or not np.isfinite(kept.sse_fit):
         return False
-    fl2 = float(np.mean([floor[z] ** 2 for z in ZONES]))
-    left = kept.rmse_holdout_pooled() ** 2 - fl2
-    gain = kept.rmse_holdout_pooled() ** 2 - c.rmse_holdout_pooled() ** 2
-    bic = c.n_eff() * np.log(c.sse_fit / kept.sse_fit) + \
-        (c.n_params - kept.n_params) * np.log(c.n_eff())
-    return bool(left > 0 and gain >= MIN_GAP_CLOSED / 100 * left and bic < 0)
+    return gap_closed_pct(c, kept, floor) >= MIN_GAP_CLOSED and delta_bic(c, kept) < 0

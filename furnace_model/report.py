@@ -19,9 +19,7 @@ from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
 
 from . import ZONES
-from .candidates import CandidateResult
-from .credit import MIN_GAP_CLOSED, RULE, shortfall
-from .diagnosis import Diagnosis, where_lines
+from .diagnosis import MIN_GAP_CLOSED, RULE, CandidateResult, Diagnosis, shortfall, where_lines
 from .experiment import Experiment
 from .residuals import ZONE_WORDS
 

@@ -12,20 +12,22 @@ import numpy as np
 import pytest
 
 from furnace_model import ZONES
-from furnace_model.candidates import CandidateResult, Task, run_task
 from furnace_model.cli.diagnose import summary
-from furnace_model.credit import credited
 from furnace_model.diagnosis import (
     COLD_GENERATIONS,
     GAP_RATIO,
     NEAR_RATIO,
-    _determined,
+    CandidateResult,
+    Task,
     blend_weight,
+    credited,
     diagnose,
     further_laws,
     judge,
+    run_task,
     split,
 )
+from furnace_model.diagnosis.search import _determined
 from furnace_model.effects import EFFECTS, Clues, FuelChange, Radiation, SensorDrift, ZoneBurners
 from furnace_model.effects.zone_burners import soak_only_heads
 from furnace_model.errors import FurnaceError

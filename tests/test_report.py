@@ -11,10 +11,14 @@ import numpy as np
 import pytest
 
 from furnace_model import ZONES
-from furnace_model.candidates import CandidateResult, rmse_per_zone, score_against
 from furnace_model.cli.diagnose import summary
-from furnace_model.credit import credited
-from furnace_model.diagnosis import diagnose
+from furnace_model.diagnosis import (
+    CandidateResult,
+    credited,
+    diagnose,
+    rmse_per_zone,
+    score_against,
+)
 from furnace_model.report import write_report
 from furnace_model.selfcheck import draw_case
 

@@ -81,8 +81,7 @@ def _write(path: Path, text: str) -> None:
 
 def summary(d: Diagnosis) -> str:
     """The verdict first, then the evidence behind it, in the report's order and words."""
-    from ..credit import RULE, shortfall
-    from ..diagnosis import where_lines
+    from ..diagnosis import RULE, shortfall, where_lines
 
     b, v = d.baseline, d.verdict
     lines = [f"Verdict: {v.status}" + (f" ({', '.join(v.effects)})" if v.effects else ""),

@@ -1,11 +1,5 @@
 """Candidate extensions of the paper's model: each fitted on the fit data, warm-started from
-the baseline, and scored on held-out data, by an information criterion and by whether the
-data determine the effect at all.
-
-A candidate earns credit only when its own parameters are determined and away from the
-value at which the effect vanishes: an extension that improves the fit with an interval
-reaching "no effect" has merely bent to the noise or to another effect.
-"""
+the baseline, and predicted on held-out data with its parameters fixed."""
 
 from __future__ import annotations
 
@@ -14,63 +8,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import ZONES
-from .effects import EFFECTS, Effect
-from .errors import FurnaceError
-from .experiment import Experiment
-from .fit import FitResult, fit, predict, predict_held_out
-from .residuals import lag1
-from .structure import ModelStructure
-
-MAX_RATIO = 4.0
-"""A positive strength parameter counts as determined when its 95% interval spans less than
-this factor: one that could be anything from a trace to a flood is not an estimate."""
-
-
-@dataclass
-class CandidateResult:
-    effects: tuple[str, ...]
-    params: dict[str, float]
-    ci95: dict[str, tuple[float, float]]
-    rmse_fit_c: dict[str, float]
-    rmse_holdout_c: dict[str, float]
-    shrink_pct: float = 0.0
-    delta_bic: float = 0.0
-    identifiable: bool = True
-    note: str = ""
-    fit_pred: list[np.ndarray] = field(default_factory=list)
-    holdout_pred: list[np.ndarray] = field(default_factory=list)
-    # added fields (the JSON may carry them)
-    options: dict[str, dict] = field(default_factory=dict)
-    sse_fit: float = float("nan")
-    n_obs: int = 0
-    n_params: int = 0
-    rho1: float = 0.0  # lag-1 autocorrelation of the fit residual
-    rho1_holdout: float = 0.0
-    n_holdout: int = 0
-    evidence: float = 0.0  # lower is better: delta_bic plus the held-out log-likelihood ratio
-    gap_closed_pct: float = 0.0
-    held_out_fitted: tuple[str, ...] = ()  # parameters estimated on the held-out data too
-    elapsed_s: float = 0.0
-    warnings: list[str] = field(default_factory=list)
-
-    @property
-    def label(self) -> str:
-        return "+".join(self.effects) or "baseline"
-
-    def rmse_holdout_pooled(self) -> float:
-        return pooled(self.rmse_holdout_c)
-
-    def n_eff(self) -> float:
-        """Effective sample size of the fit residual: autocorrelated samples carry less
-        information than independent ones (AR(1) reading, n (1 - rho) / (1 + rho))."""
-        return float(np.clip(self.n_obs * (1 - self.rho1) / (1 + self.rho1),
-                             self.n_params + 10, max(self.n_obs, self.n_params + 10)))
-
-
-def pooled(per_zone: dict[str, float]) -> float:
-    v = [x for x in per_zone.values() if np.isfinite(x)]
-    return float(np.sqrt(np.mean(np.square(v)))) if v else float("nan")
+from .. import ZONES
+from ..effects import EFFECTS, Effect
+from ..experiment import Experiment
+from ..fit import FitResult, fit, predict, predict_held_out
+from ..residuals import lag1
+from ..structure import ModelStructure
+from .candidate import CandidateResult
+from .credit import identifiable
 
 
 @dataclass
@@ -235,74 +180,3 @@ def rmse_per_zone(data: list[Experiment], preds: list[np.ndarray]) -> dict[str, 
         v = r[:, w][np.isfinite(r[:, w])]
         out[z] = float(np.sqrt(np.mean(v * v))) if v.size else float("nan")
     return out
-
-
-def identifiable(fr: FitResult, effects: tuple[str, ...]) -> tuple[bool, str]:
-    """Whether every effect has a strength parameter that the data determine away from the
-    value at which it vanishes; else the reason, in words."""
-    notes = []
-    for name in effects:
-        effect = next(e for e in fr.structure.effects if e.name == name)
-        box = {p.name: p for p in effect.params}
-        ok_any, why = False, []
-        for pname, null in type(effect).null.items():
-            if pname not in box:
-                continue
-            # Under the candidate's own noise (white): whether the records pin its strength
-            # down; a residual the other effects of a combination leave would otherwise
-            # hide a first effect that the data do determine.
-            p, (lo, hi), v = box[pname], fr.ci95_white[pname], fr.params[pname]
-            at_edge = lo <= p.lo * (1 + 1e-6) or hi >= p.hi * (1 - 1e-6) if p.log else \
-                lo <= p.lo + 1e-9 * (p.hi - p.lo) or hi >= p.hi - 1e-9 * (p.hi - p.lo)
-            if p.log:
-                wide = not (lo > 0 and hi / lo < MAX_RATIO)
-            else:
-                wide = not np.isnan(null) and lo <= null <= hi
-            if wide or at_edge:
-                why.append(f"{pname} = {v:.4g} with 95% interval [{lo:.3g}, {hi:.3g}]"
-                           + (" reaching its search bound" if at_edge and not wide else ""))
-            else:
-                ok_any = True
-        if not ok_any:
-            notes.append(f"{name}: the data do not determine it ({'; '.join(why)})")
-    return not notes, "; ".join(notes)
-
-
-def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, float]) -> None:
-    """Fill the candidate's comparison with the baseline: held-out RMSE shrink (pooled over
-    zones), the share of the baseline's held-out gap above the noise floor it closes, and
-    the change of BIC on the fitted data with an effective sample size."""
-    rb, rc = base.rmse_holdout_pooled(), c.rmse_holdout_pooled()
-    if not np.isfinite(rc):
-        c.shrink_pct = c.gap_closed_pct = c.delta_bic = float("nan")
-        c.evidence = float("inf")
-        return
-    c.shrink_pct = float(100.0 * (1.0 - rc / rb)) if rb > 0 else 0.0
-    fl2 = float(np.mean([floor[z] ** 2 for z in ZONES]))
-    excess = rb * rb - fl2
-    c.gap_closed_pct = float(100.0 * (rb * rb - rc * rc) / excess) if excess > 0 else 0.0
-    n = c.n_obs
-    if n and c.sse_fit > 0 and base.sse_fit > 0:
-        neff = c.n_eff()
-        c.delta_bic = float(neff * np.log(c.sse_fit / base.sse_fit)
-                            + (c.n_params - base.n_params) * np.log(neff))
-    else:
-        c.delta_bic = 0.0
-    # Held-out evidence: the Gaussian log-likelihood ratio on data the fit has not seen,
-    # counted in effective samples; with the fit's BIC it ranks candidates whose held-out
-    # errors are within noise of each other (a lag and a dead time both near the floor).
-    # A parameter estimated on the held-out data is charged as BIC charges one.
-    rho = c.rho1_holdout
-    n_ho = c.n_holdout * (1 - rho) / (1 + rho)
-    c.evidence = c.delta_bic + (n_ho * np.log(rc * rc / (rb * rb)) if rb > 0 and rc > 0 else 0.0)
-    if n_ho > 1:
-        c.evidence += (len(c.held_out_fitted) - len(base.held_out_fitted)) * np.log(n_ho)
-
-
-def check_effects(names) -> tuple[str, ...]:
-    names = tuple(names)
-    bad = [n for n in names if n not in EFFECTS]
-    if bad:
-        raise FurnaceError(f"unknown effect(s) {', '.join(bad)}: expected names from "
-                           f"{', '.join(EFFECTS)}")
-    return names

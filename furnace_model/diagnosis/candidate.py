@@ -1,0 +1,54 @@
+"""One candidate extension of the paper's model, fitted and scored: what the search
+compares, the credit rules judge and the verdict, the report and the JSON show."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class CandidateResult:
+    effects: tuple[str, ...]
+    params: dict[str, float]
+    ci95: dict[str, tuple[float, float]]
+    rmse_fit_c: dict[str, float]
+    rmse_holdout_c: dict[str, float]
+    shrink_pct: float = 0.0
+    delta_bic: float = 0.0
+    identifiable: bool = True
+    note: str = ""
+    fit_pred: list[np.ndarray] = field(default_factory=list)
+    holdout_pred: list[np.ndarray] = field(default_factory=list)
+    # added fields (the JSON may carry them)
+    options: dict[str, dict] = field(default_factory=dict)
+    sse_fit: float = float("nan")
+    n_obs: int = 0
+    n_params: int = 0
+    rho1: float = 0.0  # lag-1 autocorrelation of the fit residual
+    rho1_holdout: float = 0.0
+    n_holdout: int = 0
+    evidence: float = 0.0  # lower is better: delta_bic plus the held-out log-likelihood ratio
+    gap_closed_pct: float = 0.0
+    held_out_fitted: tuple[str, ...] = ()  # parameters estimated on the held-out data too
+    elapsed_s: float = 0.0
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def label(self) -> str:
+        return "+".join(self.effects) or "baseline"
+
+    def rmse_holdout_pooled(self) -> float:
+        return pooled(self.rmse_holdout_c)
+
+    def n_eff(self) -> float:
+        """Effective sample size of the fit residual: autocorrelated samples carry less
+        information than independent ones (AR(1) reading, n (1 - rho) / (1 + rho))."""
+        return float(np.clip(self.n_obs * (1 - self.rho1) / (1 + self.rho1),
+                             self.n_params + 10, max(self.n_obs, self.n_params + 10)))
+
+
+def pooled(per_zone: dict[str, float]) -> float:
+    v = [x for x in per_zone.values() if np.isfinite(x)]
+    return float(np.sqrt(np.mean(np.square(v)))) if v else float("nan")

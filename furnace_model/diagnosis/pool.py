@@ -1,0 +1,35 @@
+"""Candidates fitted side by side in a pool of processes: each fit is independent and
+seconds to minutes long."""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+
+from .candidate import CandidateResult
+from .fitting import Task, run_task, structure_of
+
+WORKERS = 2
+
+
+def run_all(tasks: list[Task], progress: Callable[[float], None]) -> list[CandidateResult]:
+    if not tasks:
+        return []
+    out: list[CandidateResult] = []
+    if WORKERS > 1 and len(tasks) > 1:
+        ctx = multiprocessing.get_context("fork")
+        # nonlinear (slow) fits first, so that one does not finish last alone
+        order = sorted(range(len(tasks)), key=lambda i: structure_of(
+            tasks[i].effects, tasks[i].options).linear)
+        with ProcessPoolExecutor(max_workers=WORKERS, mp_context=ctx) as pool:
+            futures = {i: pool.submit(run_task, tasks[i]) for i in order}
+            results = {}
+            for k, i in enumerate(order):
+                results[i] = futures[i].result()
+                progress((k + 1) / len(tasks))
+        return [results[i] for i in range(len(tasks))]
+    for k, t in enumerate(tasks):
+        out.append(run_task(t))
+        progress((k + 1) / len(tasks))
+    return out

@@ -1,0 +1,100 @@
+"""A diagnosis as it is returned, and its JSON (CONTRACTS.md section 6 and the detail behind
+it)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..experiment import Experiment
+from ..noisefloor import RecordFloor
+from .candidate import CandidateResult
+from .credit import credited
+from .locate import Located
+from .verdict import Verdict
+
+
+@dataclass
+class Diagnosis:
+    fit_data: list[Experiment]
+    holdout: list[Experiment]
+    holdout_how: str
+    baseline: CandidateResult
+    noise_floor_c: dict[str, float]
+    where: list[Located]
+    residual_tests: dict
+    candidates: list[CandidateResult]
+    verdict: Verdict
+    elapsed_s: float
+    gap_zones: tuple[str, ...] = ()
+    sensor_noise_c: dict[str, float] | None = None
+    record_floors: list[RecordFloor] | None = None
+    """Each record's own floor, the fitted records first, then the held-out ones."""
+    noise_floor_fit_c: dict[str, float] | None = None
+    gap_limit_c: dict[str, float] | None = None
+    """Held-out RMSE per zone above which the zone has a gap."""
+
+    def best(self) -> CandidateResult | None:
+        if self.verdict.status == "explained":
+            for c in self.candidates:
+                if list(c.effects) == self.verdict.effects:
+                    return c
+        return self.candidates[0] if self.candidates else None
+
+    def to_json(self) -> dict:
+        """CONTRACTS.md section 6, plus the detail behind it."""
+        def cand(c: CandidateResult) -> dict:
+            return {"effect": "+".join(c.effects), "effects": list(c.effects),
+                    "params": _round(c.params), "ci95": {k: [_r(v[0]), _r(v[1])]
+                                                         for k, v in c.ci95.items()},
+                    "options": _plain(c.options),
+                    "rmse_fit_c": _round(c.rmse_fit_c), "rmse_holdout_c": _round(c.rmse_holdout_c),
+                    "shrink_pct": _r(c.shrink_pct), "gap_closed_pct": _r(c.gap_closed_pct),
+                    "delta_bic": _r(c.delta_bic), "evidence": _r(c.evidence),
+                    "identifiable": c.identifiable, "credit": credited(c),
+                    "held_out_fitted": list(c.held_out_fitted),
+                    "note": c.note, "elapsed_s": _r(c.elapsed_s)}
+
+        b = self.baseline
+        return {
+            "baseline": {"rmse_fit_c": _round(b.rmse_fit_c),
+                         "rmse_holdout_c": _round(b.rmse_holdout_c),
+                         "noise_floor_c": _round(self.noise_floor_c),
+                         "noise_floor_fit_c": _round(self.noise_floor_fit_c or {}),
+                         "gap_limit_c": _round(self.gap_limit_c or {}),
+                         "params": _round(b.params),
+                         "ci95": {k: [_r(v[0]), _r(v[1])] for k, v in b.ci95.items()},
+                         "gap_zones": list(self.gap_zones)},
+            "where": [{"zone": w.zone, "sensor": w.sensor, "start": w.start, "end": w.end,
+                       "share_of_error": _r(w.share_of_error), "regime": w.regime,
+                       "experiment": w.experiment, "start_min": _r(w.start_min),
+                       "end_min": _r(w.end_min), "kind": w.kind} for w in self.where],
+            "candidates": [cand(c) for c in self.candidates],
+            "verdict": {"status": self.verdict.status, "effects": list(self.verdict.effects),
+                        "shrink_pct": _r(self.verdict.shrink_pct),
+                        "gap_closed_pct": _r(self.verdict.gap_closed_pct),
+                        "sentence": self.verdict.sentence},
+            "holdout_how": self.holdout_how,
+            "data": [e.source or e.name for e in self.fit_data],
+            "holdout": [e.source or e.name for e in self.holdout],
+            "sensor_noise_c": _round(self.sensor_noise_c or {}),
+            "noise_floors": [{**f.to_json(), "role": "fit" if i < len(self.fit_data)
+                              else "holdout"} for i, f in enumerate(self.record_floors or [])],
+            "residual_tests": self.residual_tests,
+            "elapsed_s": _r(self.elapsed_s),
+        }
+
+
+def _r(x: float) -> float | None:
+    x = float(x)
+    return round(x, 6) if np.isfinite(x) else None
+
+
+def _round(d: dict) -> dict:
+    return {k: _r(v) for k, v in d.items()}
+
+
+def _plain(d: dict) -> dict:
+    return {k: {o: list(v) if isinstance(v, tuple) else v for o, v in opts.items()}
+            for k, opts in d.items()}

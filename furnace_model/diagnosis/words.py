@@ -1,0 +1,14 @@
+"""The diagnosis's words for lists of zones, shared by the held-out split, the located
+error and the verdict, so that they name zones alike."""
+
+from __future__ import annotations
+
+from ..residuals import ZONE_WORDS
+
+
+def zones_words(zones: list[str]) -> str:
+    return and_words([ZONE_WORDS[z] for z in zones])
+
+
+def and_words(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"

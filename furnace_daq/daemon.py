@@ -6,10 +6,20 @@ drifts; when a tick is missed (a slow read, a stalled host) the loop skips to th
 point and counts the skipped ticks instead of bursting to catch up. A read never takes longer
 than the PLC timeout.
 
-Connection. The daemon starts whether or not the PLC answers; a connector task dials with
-exponential backoff (capped) while the PLC is down, and a run of failed polls drops the
-connection and hands it back to the connector. Every change of state is one message on
-/daq/status, so a gap in the data is always explained next to it.
+Connection. The daemon starts whether or not the PLC answers; a connector task redials
+while the PLC is down, and a run of failed polls drops the connection and hands it back to
+the connector. A dial the PLC does not accept (refused, unreachable, unanswered) costs it no
+session and is retried at a short fixed interval for the first minutes of an outage, so a
+restarted PLC is polled within about a second of accepting connections; a PLC that accepts
+and hangs up, or one down for longer, gets exponential backoff (capped). The first poll on a
+new connection runs at once and the tick grid restarts there. Every change of state is one
+message on /daq/status, so a gap in the data is always explained next to it.
+
+Journal. Every change of connection state, every kind of failure and every event also goes
+to stderr with an sd-daemon priority prefix (journal.Journal: `<3>` errors, `<4>` warnings,
+`<5>` notices), each kind at most once per `stderr_interval_s` with a count of the repeats,
+so `journalctl -p err` shows why the data stopped. Failed polls are counted by kind
+(`Counters.failures`): a tick while disconnected counts as the kind of the outage.
 
 Time. log_time is host UTC at acquisition. publish_time is the PLC's clock when the map has
 one: epoch + PLC seconds, the epoch given in the config or anchored at the first reading (and
@@ -32,23 +42,40 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Protocol
 
 from furnace_model import SENSORS, ZONES
 
 from .daqconfig import DaqConfig
+from .journal import ERR, INFO, NOTICE, WARNING, Journal
 from .logclock import LogClock
-from .logschema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
+from .logschema import (
+    AMBIENT,
+    BURNERS,
+    DAQ_EVENTS,
+    DAQ_STATUS,
+    MODEL_EVENTS,
+    MODEL_PARAMETERS,
+    THERMOCOUPLES,
+)
 from .refitworker import RefitRunner
 from .registers import COMM_ERROR, OK, STALE
 from .sdnotify import Notifier
-from .sources import CanSource, ModbusSource, Sample, Source, SourceError
+from .sources import (
+    CONNECT_FAILURES,
+    CanSource,
+    ModbusSource,
+    Sample,
+    Source,
+    SourceError,
+    exception_text,
+    failure_kind,
+)
 from .statefile import write_json_atomic
 
 MODEL_FILE = "model.json"
@@ -56,6 +83,16 @@ CHAIN_FILE = "refit_chain.json"
 STOP_WAIT_S = 10.0
 """At stop, how long windows already cut may still be fitted."""
 FURNACE_TOPICS = frozenset((THERMOCOUPLES, BURNERS, AMBIENT))
+EVENT_PRIORITY = {
+    "can_unavailable": ERR, "refit_error": ERR, "state_write_failed": ERR, "on_model_error": ERR,
+    "write_back_failed": ERR,
+    "clock_step": WARNING, "missed_tick": WARNING, "burner_disagreement": WARNING,
+    "state_unusable": WARNING, "refit_abandoned": WARNING, "window_dropped": WARNING,
+    "log_recovered": WARNING, "log_gap": WARNING,
+    "plc_clock_reset": NOTICE, "burner_agreement": NOTICE, "write_back_ok": NOTICE,
+    "drift": NOTICE, "refit_resumed": INFO,
+}
+"""Journal priority of each /daq/events and /model/events kind (others: notice)."""
 
 
 class Log(Protocol):
@@ -80,14 +117,42 @@ class Counters:
     connect_attempts: int = 0
     can_frames: int = 0
     disagreements: int = 0
+    failures: dict[str, int] = field(default_factory=dict)
+    """Polls that gave no data, by kind ('connection refused', 'poll timeout', ...); a tick
+    while disconnected counts as the kind of failure that keeps the PLC away."""
+    incomplete: dict[str, int] = field(default_factory=dict)
+    """Polls that were logged with a block the PLC refused, by block and exception."""
+
+
+def _by_kind(counts: dict[str, int]) -> str:
+    return ", ".join(f"{n} {kind}" for kind, n in sorted(counts.items(), key=lambda kv: -kv[1]))
+
+
+def summary(counters: Counters) -> tuple[int, str]:
+    """The journal priority and text of the line the daemon ends with: the counters, then
+    the failed polls by kind, so the journal says why there was no data without the log."""
+    c = counters
+    text = (f"stopped: {c.ok_polls}/{c.polls} polls ok, {c.comm_errors} errors, "
+            f"{c.skipped_ticks} skipped ticks, {c.disconnects} drops")
+    failed = sum(c.failures.values())
+    if failed:
+        text += f"; {failed} failed: {_by_kind(c.failures)}"
+    if c.incomplete:
+        text += f"; {sum(c.incomplete.values())} incomplete: {_by_kind(c.incomplete)}"
+    priority = INFO
+    if failed or c.incomplete:
+        priority = ERR if c.polls and not c.ok_polls else WARNING
+    return priority, text
 
 
 class Daemon:
     def __init__(self, config: DaqConfig, log: Log, *, plc: Source | None = None,
                  flame: Source | None = None, notifier: Notifier | None = None,
                  wall_ns: Callable[[], int] = time.time_ns,
-                 on_model: Callable[[dict], None] | None = None):
+                 on_model: Callable[[dict], None] | None = None,
+                 journal: Journal | None = None):
         self.config = config
+        self.journal = journal if journal is not None else Journal(config.stderr_interval_s)
         self.log = log
         self.plc = plc if plc is not None else ModbusSource(config)
         self.flame = flame
@@ -99,6 +164,8 @@ class Daemon:
         self.state = "disconnected"
         self.detail = "starting"
         self._stop = asyncio.Event()
+        self._wake = asyncio.Event()  # stop, or a new connection to poll at once
+        self._poll_now = False
         self._connected = asyncio.Event()
         self._need_dial = asyncio.Event()
         self._need_dial.set()
@@ -106,6 +173,14 @@ class Daemon:
         self._last_missed_event = float("-inf")
         self._consecutive_errors = 0
         self._dials_since_ok = 0  # dials since the last good poll: the backoff's step
+        self._down_kind = "no connection yet"  # why the PLC is away, for the failure count
+        self._outage_since = time.monotonic()  # the fast redial phase counts from here
+        self._where = f"{getattr(self.plc, 'host', '?')}:{getattr(self.plc, 'port', '?')}"
+        self._qualities: dict[str, str] = {}  # last quality of each point, told on change
+        self._was_stale = self._last_stale = False
+        self._told_bad: set[str] = set()  # kinds whose bad news reached the journal
+        self._hangups = 0  # connections lost before one good poll: the backoff's step
+        self._slow_steps = 0  # backoff waits after the fast redial phase
         self._epoch_ns: int | None = None
         if config.clock is not None and config.clock.epoch is not None:
             self._epoch_ns = config.clock.epoch.value
@@ -128,11 +203,12 @@ class Daemon:
     # -- life cycle ----------------------------------------------------------------------------
     def stop(self) -> None:
         self._stop.set()
+        self._wake.set()
 
     async def run(self, duration_s: float | None = None) -> Counters:
         """Poll until stop() (SIGTERM) or `duration_s`; always ends with a finished log."""
-        t_start = time.monotonic()
-        where = f"{getattr(self.plc, 'host', '?')}:{getattr(self.plc, 'port', '?')}"
+        t_start = self._outage_since = time.monotonic()
+        where = self._where
         self.notifier.ready(f"polling {where} every {self.config.poll_period_s:g} s")
         self._status("disconnected", f"starting; dialling PLC at {where}")
         if self.refit is not None:
@@ -160,6 +236,7 @@ class Daemon:
             if self.flame is not None:
                 await self.flame.close()
             await self._finish_refits()
+            self.journal.flush()
             self._status("disconnected", "stopping")
             self.log.close()
             self.notifier.close()
@@ -174,11 +251,19 @@ class Daemon:
             if end is not None and due >= end:
                 break
             delay = due - time.monotonic()
-            if delay > 0:
+            if delay > 0 and not self._poll_now:
+                self._wake.clear()
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self._stop.wait(), delay)
+                    await asyncio.wait_for(self._wake.wait(), delay)
                 if self._stop.is_set():
                     break
+            if self._poll_now:
+                # A new connection is polled at once, not up to a period later; the grid
+                # restarts from here, so no two polls come closer than a period.
+                t0, k = time.monotonic(), 0
+                if end is not None and t0 >= end:
+                    break
+            self._poll_now = False
             await self.tick()
             k += 1
             late = time.monotonic() - (t0 + k * period)
@@ -213,18 +298,23 @@ class Daemon:
                                      "step_s": step / 1e9}, log_ns, log_ns)
         plc_sample: Sample | None = None
         if self._connected.is_set() and not self.plc.connected:
-            self._lost("connection closed by the PLC")
+            self._lost("connection closed by the PLC", "connection lost")
         if self._connected.is_set():
             try:
                 plc_sample = await asyncio.wait_for(self.plc.read(), self.config.plc.timeout_s)
             except (SourceError, TimeoutError, OSError) as exc:
-                await self._poll_failed(log_ns, str(exc) or "timeout")
+                await self._poll_failed(log_ns, str(exc) or "timeout", failure_kind(exc))
             except Exception as exc:  # a malformed reply must not end acquisition
-                await self._poll_failed(log_ns, f"{type(exc).__name__}: {exc}")
+                await self._poll_failed(log_ns, f"{type(exc).__name__}: {exc}",
+                                        failure_kind(exc))
             else:
                 self._consecutive_errors = self._dials_since_ok = 0
+                self._hangups = self._slow_steps = 0
                 c.ok_polls += 1
                 self._log_plc(plc_sample, log_ns)
+                self._tell_sample(plc_sample)
+        else:
+            self._count_failure(self._down_kind)
         flame_sample = None
         if self.flame is not None and self.flame.connected:
             with contextlib.suppress(SourceError):
@@ -242,27 +332,97 @@ class Daemon:
         self.log.maybe_flush(now)
         if self.log.error != self._log_error_told:  # a full disk is news at once, journal too
             self._log_error_told = self.log.error
-            print(f"log: {self.log.error or 'writing again'}", file=sys.stderr, flush=True)
+            if self.log.error:
+                self.journal.say(ERR, f"log: {self.log.error}")
+            else:
+                self.journal.say(NOTICE, "log: writing again")
             self._status(self.state, self.detail)
+        self.journal.pump()
         self.notifier.watchdog(now)
 
-    async def _poll_failed(self, log_ns: int, reason: str) -> None:
+    def _count_failure(self, kind: str, counts: dict[str, int] | None = None) -> None:
+        counts = self.counters.failures if counts is None else counts
+        counts[kind] = counts.get(kind, 0) + 1
+
+    async def _poll_failed(self, log_ns: int, reason: str, kind: str) -> None:
         self.counters.comm_errors += 1
         self._consecutive_errors += 1
+        self._count_failure(kind)
+        self.journal.say(WARNING, f"PLC {self._where}: poll failed ({kind}): {reason}",
+                         f"poll:{kind}")
         msg: dict = {s: None for s in SENSORS}
         msg["quality"] = {s: COMM_ERROR for s in SENSORS}
         msg["error"] = reason
         self._write(THERMOCOUPLES, msg, log_ns, log_ns)
         if self._consecutive_errors >= self.config.plc.max_consecutive_errors:
             await self.plc.close()
-            self._lost(f"{self._consecutive_errors} failed polls in a row, last: {reason}")
+            self._lost(f"{self._consecutive_errors} failed polls in a row, last: {reason}", kind)
 
-    def _lost(self, why: str) -> None:
+    def _lost(self, why: str, kind: str) -> None:
         self._connected.clear()
         self._need_dial.set()
         self._consecutive_errors = 0
         self.counters.disconnects += 1
+        self._down_kind = kind
+        if self._dials_since_ok:  # lost before one good poll: the PLC accepts and hangs up
+            self._hangups += 1
+        else:  # the last poll was good: an outage starts here
+            self._outage_since = time.monotonic()
         self._status("disconnected", why)
+        self._bad_news(ERR, f"PLC {self._where}: connection lost: {why}", "lost")
+
+    def _tell_sample(self, sample: Sample) -> None:
+        """The journal hears of a block the PLC refuses and of each point whose quality
+        changes, not of every poll that repeats them."""
+        keys = self.config.key_paths()
+        for req, code in sample.refused.items():
+            block = f"{req.table} {req.address}+{req.count}"
+            self._count_failure(f"{block} refused with exception code "
+                                f"{'?' if code is None else code}", self.counters.incomplete)
+            names = [keys.get(item.name, item.name) for item in self.plc_items()
+                     if item.table == req.table and req.address <= item.address < req.end]
+            self.journal.say(ERR, f"PLC {self._where}: {block} refused with "
+                                  f"{exception_text(code)}: {', '.join(names) or 'no point'} "
+                                  f"not read (check the register map)", f"refused:{block}")
+        stale = self._was_stale
+        for name, quality in sample.quality.items():
+            before = self._qualities.get(name, OK)
+            self._qualities[name] = quality
+            if quality == before or quality in (COMM_ERROR, STALE):
+                continue  # refused blocks are told above, staleness below
+            key = keys.get(name, name)
+            if quality == OK:
+                self._good_news(NOTICE, f"{key}: ok again", f"quality:{name}")
+            else:
+                self._bad_news(WARNING, f"{key}: {quality}", f"quality:{name}")
+        now_stale = self._last_stale
+        if now_stale != stale:
+            self._was_stale = now_stale
+            if now_stale:
+                self._bad_news(WARNING, f"PLC {self._where}: values stale, heartbeat "
+                                        f"unchanged for {self.config.stale_after_s:g} s "
+                                        "(PLC program stopped?)", "stale")
+            else:
+                self._good_news(NOTICE, f"PLC {self._where}: values moving again", "stale")
+
+    def _bad_news(self, priority: int, text: str, kind: str) -> None:
+        if self.journal.say(priority, text, kind):
+            self._told_bad.add(kind)
+        else:
+            self._told_bad.discard(kind)
+
+    def _good_news(self, priority: int, text: str, kind: str, first: bool = False) -> None:
+        """The end of a trouble the journal was told of is always told: a reader must not
+        be left believing the PLC is still away. Recoveries from troubles it was not told
+        of (held back as repeats) are rate-limited like them."""
+        if first or kind in self._told_bad:
+            self._told_bad.discard(kind)
+            self.journal.say(priority, text)
+        else:
+            self.journal.say(priority, text, f"{kind}:recovered")
+
+    def plc_items(self) -> list:
+        return list(getattr(self.plc, "items", ()))
 
     # -- logging a PLC sample -------------------------------------------------------------------
     def _publish_ns(self, sample: Sample, log_ns: int) -> int:
@@ -292,7 +452,7 @@ class Daemon:
 
     def _log_plc(self, sample: Sample, log_ns: int) -> None:
         pub = self._publish_ns(sample, log_ns)
-        stale = self._stale(sample)
+        stale = self._last_stale = self._stale(sample)
         quality = {k: (STALE if stale and q == OK else q) for k, q in sample.quality.items()}
         tc: dict = {s: sample.values.get(s) for s in SENSORS}
         tc["quality"] = {s: quality.get(s, COMM_ERROR) for s in SENSORS}
@@ -346,31 +506,51 @@ class Daemon:
 
     # -- connections ------------------------------------------------------------------------------
     async def _connector(self, source: Source) -> None:
-        """Dial while disconnected, waiting longer after each failure (capped). A connection
-        lost before one good poll counts as a failure too: a PLC that accepts and hangs up at
-        once (its connection limit reached) must not be redialled at every tick."""
-        delay = self.config.plc.reconnect.delay
+        """Dial while disconnected. A dial the PLC did not accept (refused, unreachable, no
+        answer) is retried every `retry_s` for the first `fast_for_s` of the outage: it costs
+        the PLC no session, and a restarted PLC is found within that interval. After that,
+        and whenever a connection is lost before one good poll (a PLC that accepts and hangs
+        up at once, its connection limit reached), the waits grow exponentially up to
+        `max_s`, so such a PLC is not redialled at every tick."""
+        backoff = self.config.plc.reconnect
         while not self._stop.is_set():
             if not self._need_dial.is_set():
                 await self._need_dial.wait()
-                if self._dials_since_ok:
-                    await self._sleep(delay(self._dials_since_ok - 1))
+                if self._hangups:
+                    await self._sleep(backoff.delay(self._hangups - 1))
                 continue
             attempt = self._dials_since_ok
             self._dials_since_ok += 1
             self.counters.connect_attempts += 1
+            started = time.monotonic()
             try:
                 await source.connect()
             except SourceError as exc:
-                self.detail = f"{exc}; retry {attempt + 1} in {delay(attempt):g} s"
-                await self._sleep(delay(attempt))
+                now = time.monotonic()
+                self._down_kind = exc.kind
+                if exc.kind in CONNECT_FAILURES and now - self._outage_since < backoff.fast_for_s:
+                    wait = max(0.0, backoff.fast_s - (now - started))  # start to start
+                    how = f"every {backoff.fast_s:g} s"
+                else:
+                    wait = backoff.delay(self._slow_steps)
+                    self._slow_steps += 1
+                    how = f"in {wait:g} s (backing off up to {backoff.max_s:g} s)"
+                self.detail = f"{exc}; retry {attempt + 1} in {wait:.3g} s"
+                self.journal.say(ERR, f"PLC: {exc}; retrying {how}", f"dial:{exc.kind}")
+                await self._sleep(wait)
                 continue
             self.counters.connects += 1
             self._consecutive_errors = 0
             self._heartbeat = None
             self._need_dial.clear()
             self._connected.set()
+            self._poll_now = True  # poll at once, not at the next tick of the grid
+            self._wake.set()
             self._status("connected", f"connected after {attempt + 1} attempt(s)")
+            again = "" if self.counters.connects == 1 else \
+                f", {time.monotonic() - self._outage_since:.1f} s after it went away"
+            self._good_news(NOTICE, f"PLC {self._where}: connected after {attempt + 1} "
+                                    f"attempt(s){again}", "lost", first=self.counters.connects == 1)
 
     async def _open_flame(self) -> None:
         assert self.flame is not None
@@ -380,9 +560,11 @@ class Daemon:
                 await self.flame.connect()
             except SourceError as exc:
                 now = self.wall_ns()
-                self._write(DAQ_EVENTS, {"kind": "can_unavailable", "detail": str(exc)}, now, now)
+                self._event({"kind": "can_unavailable", "detail": str(exc)}, now)
                 await self._sleep(self.config.plc.reconnect.delay(attempt))
                 attempt += 1
+        if self.flame.connected and attempt:
+            self.journal.say(NOTICE, "CAN bus open again", "event:can_unavailable")
 
     async def _sleep(self, seconds: float) -> None:
         with contextlib.suppress(TimeoutError):
@@ -408,8 +590,20 @@ class Daemon:
 
     def _write(self, topic: str, message: dict, log_ns: int, pub_ns: int) -> None:
         self.log.write(topic, message, log_ns, pub_ns)
+        if topic == DAQ_EVENTS:
+            self._tell_event(message)
         if self.refit is not None and topic in FURNACE_TOPICS:
             self._guarded(self.refit.feed, topic, message, pub_ns)
+
+    def _event(self, message: dict, now_ns: int) -> None:
+        """A /daq/events message, also told to the journal."""
+        self.log.write(DAQ_EVENTS, message, now_ns, now_ns)
+        self._tell_event(message)
+
+    def _tell_event(self, message: dict) -> None:
+        kind = str(message.get("kind", "event"))
+        self.journal.say(EVENT_PRIORITY.get(kind, NOTICE),
+                         f"{kind}: {message.get('detail', '')}", f"event:{kind}")
 
     # -- refits -----------------------------------------------------------------------------------
     def _guarded(self, call: Callable, *args) -> None:
@@ -419,9 +613,8 @@ class Daemon:
             call(*args)
         except Exception as exc:  # noqa: BLE001
             now = self.wall_ns()
-            self.log.write(DAQ_EVENTS, {"kind": "refit_error",
-                                        "detail": f"refit pipeline: {type(exc).__name__}: {exc}"},
-                           now, now)
+            self._event({"kind": "refit_error",
+                         "detail": f"refit pipeline: {type(exc).__name__}: {exc}"}, now)
 
     def _pump_refits(self) -> None:
         assert self.refit is not None
@@ -434,12 +627,13 @@ class Daemon:
             self._state_reported = error
             if error is not None:
                 now = self.wall_ns()
-                self.log.write(DAQ_EVENTS, {"kind": "state_write_failed",
-                                            "detail": f"latest model not saved: {error}"},
-                               now, now)
+                self._event({"kind": "state_write_failed",
+                             "detail": f"latest model not saved: {error}"}, now)
 
     def _model_message(self, topic: str, message: dict, pub_ns: int) -> None:
         self.log.write(topic, message, self.wall_ns(), pub_ns)
+        if topic == MODEL_EVENTS:
+            self._tell_event(message)
         if topic != MODEL_PARAMETERS:
             return
         if self.on_model is not None:
@@ -447,8 +641,8 @@ class Daemon:
                 self.on_model(message)
             except Exception as exc:  # noqa: BLE001 - a consumer's bug is not ours to die of
                 now = self.wall_ns()
-                self.log.write(DAQ_EVENTS, {"kind": "on_model_error",
-                                            "detail": f"{type(exc).__name__}: {exc}"}, now, now)
+                self._event({"kind": "on_model_error",
+                             "detail": f"{type(exc).__name__}: {exc}"}, now)
         if self._state_writer is not None and self.config.refit is not None:
             state_dir = self.config.refit.state_dir
             files = [(state_dir / MODEL_FILE, message)]
@@ -469,12 +663,12 @@ class Daemon:
             return
         except (OSError, UnicodeDecodeError, ValueError) as exc:
             detail = f"{path}: {getattr(exc, 'strerror', None) or exc}; refits start afresh"
-            self.log.write(DAQ_EVENTS, {"kind": "state_unusable", "detail": detail}, now, now)
+            self._event({"kind": "state_unusable", "detail": detail}, now)
             return
         model = self.refit.chain.model
         detail = (f"from {path}: model of the window to {model['window_end']}"
                   if model is not None else f"from {path}: no model fitted yet")
-        self.log.write(DAQ_EVENTS, {"kind": "refit_resumed", "detail": detail}, now, now)
+        self._event({"kind": "refit_resumed", "detail": detail}, now)
 
     def _write_state(self, files: list[tuple[Path, dict]]) -> None:
         """In the writer thread; a failure is remembered and reported once per kind."""
@@ -499,8 +693,8 @@ class Daemon:
         left = len(self.refit.queue) + (self.refit.in_flight is not None)
         if left:
             now = self.wall_ns()
-            self.log.write(DAQ_EVENTS, {"kind": "refit_abandoned", "detail":
-                                        f"{left} refit window(s) not fitted at stop"}, now, now)
+            self._event({"kind": "refit_abandoned",
+                         "detail": f"{left} refit window(s) not fitted at stop"}, now)
         self.refit.close()
         if self._state_writer is not None:
             self._state_writer.shutdown(wait=True)

@@ -26,13 +26,27 @@ first window: `fit`'s fast search), `ga` runs the paper's genetic algorithm from
 
 @dataclass(frozen=True)
 class Backoff:
+    """When to redial the PLC (docs/reliability.md, "Reconnect").
+
+    A dial the PLC never accepted (refused, unreachable, no answer) costs it no session, so
+    for the first `fast_for_s` of an outage those are retried every `retry_s`: a restarted
+    PLC is found within that interval. Everything else (a PLC that accepts and hangs up, an
+    outage longer than `fast_for_s`) backs off exponentially from `initial_s` to `max_s`."""
+
     initial_s: float = 0.5
-    max_s: float = 30.0
+    max_s: float = 5.0
     factor: float = 2.0
+    retry_s: float = 0.5
+    fast_for_s: float = 120.0
 
     def delay(self, attempt: int) -> float:
         """Wait before reconnect attempt number `attempt` (0 = first retry)."""
         return min(self.max_s, self.initial_s * self.factor ** min(attempt, 64))
+
+    @property
+    def fast_s(self) -> float:
+        """The fixed interval in use: `retry_s`, never longer than the backoff cap."""
+        return min(self.retry_s, self.max_s)
 
 
 @dataclass(frozen=True)
@@ -122,6 +136,8 @@ class DaqConfig:
     status_interval_s: float
     log: LogConfig
     file: str = ""
+    stderr_interval_s: float = 60.0
+    """The same kind of message goes to stderr (the journal) at most this often."""
     refit: RefitConfig | None = None
     write_back: WriteBackConfig | None = None
     """None when online identification is off (no `refit:` section or `enabled: false`)."""
@@ -134,6 +150,14 @@ class DaqConfig:
         if self.burner_source in ("modbus", "both"):
             items += self.burner_bits
         return items
+
+    def key_paths(self) -> dict[str, str]:
+        """Where each Modbus item's entry is in the config file, by item name: errors and
+        `furnace-daq check` name the key an engineer edits."""
+        where = {p.name: f"thermocouples.{p.name}" for p in self.thermocouples}
+        where.update(t_air="ambient", clock="clock", heartbeat="heartbeat")
+        where.update({z: f"burners.modbus.{z}" for z in ZONES})
+        return where
 
 
 def _point(node: Node, name: str, extra: tuple[str, ...] = ()) -> Point:
@@ -253,16 +277,19 @@ def load_config(path: str | Path) -> DaqConfig:
 
 def parse_config(root: Node) -> DaqConfig:
     root.mapping({"plc", "poll_period_s", "thermocouples", "ambient", "ambient_default_c",
-                  "clock", "heartbeat", "stale_after_s", "burners", "status_interval_s", "log",
-                  "refit", "write_back"})
+                  "clock", "heartbeat", "stale_after_s", "burners", "status_interval_s",
+                  "stderr_interval_s", "log", "refit", "write_back"})
 
     plc_node = root.child("plc", {}).mapping(
         {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
          "max_consecutive_errors", "reconnect"})
-    rc = plc_node.child("reconnect", {}).mapping({"initial_s", "max_s", "factor"})
+    rc = plc_node.child("reconnect", {}).mapping({"initial_s", "max_s", "factor", "retry_s",
+                                                  "fast_for_s"})
     backoff = Backoff(rc.get_number("initial_s", 0.5, lo=0.01, hi=3600.0),
-                      rc.get_number("max_s", 30.0, lo=0.01, hi=86400.0),
-                      rc.get_number("factor", 2.0, lo=1.0, hi=10.0))
+                      rc.get_number("max_s", 5.0, lo=0.01, hi=86400.0),
+                      rc.get_number("factor", 2.0, lo=1.0, hi=10.0),
+                      rc.get_number("retry_s", 0.5, lo=0.01, hi=3600.0),
+                      rc.get_number("fast_for_s", 120.0, lo=0.0, hi=86400.0))
     if backoff.max_s < backoff.initial_s:
         raise rc.child("max_s").error(f"must be at least initial_s ({backoff.initial_s:g})")
     plc = PlcConfig(
@@ -304,6 +331,7 @@ def parse_config(root: Node) -> DaqConfig:
         burner_source=source, burner_bits=bits, can=can,
         disagreement_polls=bn.get_integer("disagreement_polls", 2, lo=1, hi=10000),
         status_interval_s=root.get_number("status_interval_s", 10.0, lo=0.1, hi=86400.0),
+        stderr_interval_s=root.get_number("stderr_interval_s", 60.0, lo=0.0, hi=86400.0),
         log=_log(root.child("log", {})), file=root.file,
         refit=_refit(root.child("refit")) if root.has("refit") else None,
         write_back=parse_write_back(root.child("write_back", None)))
@@ -313,9 +341,7 @@ def parse_config(root: Node) -> DaqConfig:
 
 def _check_overlaps(root: Node, config: DaqConfig) -> None:
     """Two entries that share an address are almost always a copy-paste slip in the map."""
-    where = {p.name: f"thermocouples.{p.name}" for p in config.thermocouples}
-    where.update(t_air="ambient", clock="clock", heartbeat="heartbeat")
-    where.update({z: f"burners.modbus.{z}" for z in ZONES})
+    where = config.key_paths()
     items = config.modbus_items()
     hit = overlaps(items)
     if hit is not None:

@@ -6,22 +6,75 @@ protocol delivered a value. Everything behind `read()` is plain data.
 from __future__ import annotations
 
 import asyncio
+import errno
+import os
+import socket
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
 import can
 from pymodbus.client import AsyncModbusTcpClient
-from pymodbus.exceptions import ModbusException
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from furnace_model import BURNERS_PER_ZONE, ZONES
 
 from .daqconfig import CanConfig, DaqConfig
-from .registers import COMM_ERROR, OK, STALE, Image, plan_reads
+from .registers import COMM_ERROR, OK, STALE, Image, ReadRequest, plan_reads
+
+CONNECT_FAILURES = frozenset({"connection refused", "connect timeout", "host unreachable",
+                              "network unreachable", "name not resolved", "cannot connect"})
+"""Kinds of failure where the device never accepted the TCP connection: a dial that costs
+it nothing (no session), so the daemon may retry these at a short fixed interval."""
+
+EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
+                   4: "server device failure", 5: "acknowledge", 6: "server device busy",
+                   8: "memory parity error", 10: "gateway path unavailable",
+                   11: "gateway target device failed to respond"}
+"""Modbus exception codes as the protocol specification names them."""
+
+
+def exception_text(code: int | None) -> str:
+    """'Modbus exception code 2 (illegal data address)': the code a PLC manual lists, and
+    what it means for whoever reads the journal without the manual."""
+    name = EXCEPTION_NAMES.get(code) if code is not None else None
+    return f"Modbus exception code {'?' if code is None else code}" + (f" ({name})" if name else "")
+
+
+def failure_kind(exc: BaseException) -> str:
+    """A short, stable class of a failed dial or poll ('connection refused', 'poll timeout'):
+    what the journal is rate-limited by and what the final count is grouped by, where the
+    full message would make every occurrence unique."""
+    if isinstance(exc, SourceError):
+        return exc.kind
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused"
+    if isinstance(exc, socket.gaierror):
+        return "name not resolved"
+    if isinstance(exc, TimeoutError):
+        return "poll timeout"
+    if isinstance(exc, ConnectionException):
+        return "connection lost"
+    if isinstance(exc, ModbusIOException):
+        return "no response"
+    if isinstance(exc, OSError):
+        named = {errno.EHOSTUNREACH: "host unreachable", errno.ENETUNREACH: "network unreachable",
+                 errno.ECONNRESET: "connection reset", errno.EPIPE: "connection lost",
+                 errno.ETIMEDOUT: "connect timeout"}
+        return named.get(exc.errno or 0, (exc.strerror or type(exc).__name__).lower())
+    if isinstance(exc, ModbusException):
+        return "Modbus error"
+    return "malformed reply"
 
 
 class SourceError(Exception):
-    """The source could not deliver: connection refused or lost, timeout, Modbus exception."""
+    """The source could not deliver: connection refused or lost, timeout, Modbus exception.
+
+    `kind` is its class (see `failure_kind`); the message says the rest."""
+
+    def __init__(self, message: str, kind: str = "error"):
+        super().__init__(message)
+        self.kind = kind
 
 
 @dataclass
@@ -36,6 +89,8 @@ class Sample:
     burner_quality: str = OK
     errors: list[str] = field(default_factory=list)
     """Blocks the PLC refused in this read (their points are comm_error)."""
+    refused: dict[ReadRequest, int | None] = field(default_factory=dict)
+    """The same blocks with the Modbus exception code the PLC gave for each."""
 
 
 class Source(ABC):
@@ -81,18 +136,35 @@ class ModbusSource(Source):
     def connected(self) -> bool:
         return self._client is not None and self._client.connected
 
+    @property
+    def where(self) -> str:
+        return f"{self.host}:{self.port}"
+
     async def connect(self) -> None:
         await self.close()
-        client = AsyncModbusTcpClient(self.host, port=self.port, timeout=self.config.plc.timeout_s,
+        timeout = self.config.plc.timeout_s
+        client = AsyncModbusTcpClient(self.host, port=self.port, timeout=timeout,
                                       retries=0, reconnect_delay=0)
+        failed = _note_connect_failure(client)
+        t0 = time.monotonic()
         try:
-            ok = await asyncio.wait_for(client.connect(), self.config.plc.timeout_s)
+            ok = await asyncio.wait_for(client.connect(), timeout)
         except (TimeoutError, OSError, ModbusException) as exc:
             client.close()
-            raise SourceError(f"cannot connect to {self.host}:{self.port}: {exc or 'timeout'}") from None
+            kind = "connect timeout" if isinstance(exc, TimeoutError) else failure_kind(exc)
+            raise SourceError(f"cannot connect to {self.where}: {exc or 'timeout'}",
+                              kind) from None
         if not ok:
             client.close()
-            raise SourceError(f"cannot connect to {self.host}:{self.port}: refused or unreachable")
+            if failed:  # why the client gave up, which it keeps to itself
+                exc = failed[0]
+                kind = failure_kind(exc)
+                why = os.strerror(exc.errno) if exc.errno else str(exc)
+            elif time.monotonic() - t0 >= 0.9 * timeout:
+                kind, why = "connect timeout", f"no answer within {timeout:g} s"
+            else:
+                kind, why = "cannot connect", "refused or unreachable"
+            raise SourceError(f"cannot connect to {self.where}: {why}", kind)
         self._client = client
 
     async def close(self) -> None:
@@ -100,35 +172,44 @@ class ModbusSource(Source):
             self._client.close()
             self._client = None
 
-    async def read(self) -> Sample:
+    async def read_image(self) -> tuple[Image, dict[ReadRequest, int | None]]:
+        """Every planned request once: the words and bits read, and the blocks the PLC
+        refused (with the exception code it gave). Raises SourceError when the link fails
+        or every block is refused."""
         client = self._client
         if client is None or not client.connected:
-            raise SourceError("not connected")
+            raise SourceError("not connected", "connection lost")
         image = Image()
         methods = {"input": client.read_input_registers, "holding": client.read_holding_registers,
                    "discrete": client.read_discrete_inputs, "coil": client.read_coils}
         device_id = self.config.plc.device_id
-        refused: list[str] = []
+        refused: dict[ReadRequest, int | None] = {}
         for req in self.requests:
             try:
                 rr = await methods[req.table](req.address, count=req.count, device_id=device_id)
             except ModbusException as exc:
-                raise SourceError(f"{req.table} {req.address}+{req.count}: {exc}") from None
+                raise SourceError(f"{req.table} {req.address}+{req.count}: {exc}",
+                                  failure_kind(exc)) from None
             if rr.isError():
                 # The PLC answered, refusing one block: the link is fine and the other
                 # blocks stay good; this block's points decode as comm_error.
-                refused.append(f"{req.table} {req.address}+{req.count}: Modbus exception "
-                               f"code {getattr(rr, 'exception_code', '?')}")
+                refused[req] = getattr(rr, "exception_code", None)
                 continue
             values = rr.bits if req.table in ("discrete", "coil") else rr.registers
             if len(values) < req.count:
                 raise SourceError(f"{req.table} {req.address}+{req.count}: short response "
-                                  f"({len(values)} values)")
+                                  f"({len(values)} values)", "short response")
             image.put(req, values)
         if refused and len(refused) == len(self.requests):
-            raise SourceError("; ".join(refused))
+            raise SourceError("; ".join(_refused_text(r, c) for r, c in refused.items()),
+                              "all blocks refused")
+        return image, refused
+
+    async def read(self) -> Sample:
+        image, refused = await self.read_image()
         sample = self.decode(image)
-        sample.errors = refused
+        sample.errors = [_refused_text(r, c) for r, c in refused.items()]
+        sample.refused = refused
         return sample
 
     def decode(self, image: Image) -> Sample:
@@ -162,6 +243,31 @@ class ModbusSource(Source):
         return sample
 
 
+def _refused_text(req: ReadRequest, code: int | None) -> str:
+    return f"{req.table} {req.address}+{req.count}: Modbus exception code {'?' if code is None else code}"
+
+
+def _note_connect_failure(client: AsyncModbusTcpClient) -> list[OSError]:
+    """The OSError behind a failed connect (refused, unreachable), which pymodbus catches
+    and reduces to False. Wraps the client's connection factory; if a pymodbus version
+    lays its transport out differently the list stays empty and the reason is generic."""
+    failed: list[OSError] = []
+    ctx = getattr(client, "ctx", None)
+    create = getattr(ctx, "call_create", None)
+    if create is None:
+        return failed
+
+    async def create_noting_failure():
+        try:
+            return await create()
+        except OSError as exc:
+            failed.append(exc)
+            raise
+
+    ctx.call_create = create_noting_failure
+    return failed
+
+
 class CanSource(Source):
     """Flame scanners broadcasting burner states on a CAN bus. Frames arrive on their own
     schedule; `read()` returns the latest state of each zone, `stale` when a zone has been
@@ -175,6 +281,8 @@ class CanSource(Source):
         self._notifier: can.Notifier | None = None
         self._latest: dict[str, tuple[list[bool], float]] = {}
         self.frames = 0
+        self.last_data: dict[tuple[int, bool], bytes] = {}
+        """The latest payload of each frame id (what `furnace-daq check` shows raw)."""
         self._by_id: dict[tuple[int, bool], list[tuple[str, int, int]]] = {}
         for i, zone in enumerate(ZONES):
             f = config.frames[zone]
@@ -192,7 +300,7 @@ class CanSource(Source):
             bus = can.Bus(interface=self.config.interface, channel=self.config.channel, **kwargs)
         except (can.CanError, OSError, ValueError, ImportError) as exc:
             raise SourceError(f"cannot open CAN {self.config.interface}:{self.config.channel}: "
-                              f"{exc}") from None
+                              f"{exc}", "CAN unavailable") from None
         self._bus = bus
         self._notifier = can.Notifier(bus, [self.on_message], loop=asyncio.get_running_loop())
 
@@ -200,6 +308,7 @@ class CanSource(Source):
         zones = self._by_id.get((msg.arbitration_id, bool(msg.is_extended_id)))
         if not zones or msg.is_error_frame or msg.is_remote_frame:
             return
+        self.last_data[(msg.arbitration_id, bool(msg.is_extended_id))] = bytes(msg.data)
         value = int.from_bytes(bytes(msg.data), "little")
         now = time.monotonic()
         for zone, start, n in zones:
@@ -207,9 +316,14 @@ class CanSource(Source):
                 self._latest[zone] = ([bool(value >> (start + k) & 1) for k in range(n)], now)
         self.frames += 1
 
+    def latest(self, zone: str) -> list[bool] | None:
+        """The zone's burner states of its latest frame; None before one came."""
+        got = self._latest.get(zone)
+        return None if got is None else list(got[0])
+
     async def read(self) -> Sample:
         if self._bus is None:
-            raise SourceError("CAN bus not open")
+            raise SourceError("CAN bus not open", "CAN unavailable")
         if len(self._latest) < len(ZONES):
             return Sample(burners=None, burner_quality=COMM_ERROR)
         now = time.monotonic()

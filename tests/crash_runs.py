@@ -115,7 +115,7 @@ def wait_polling(proc, timeout: float = 30.0) -> str:
         if ready:
             chunk = os.read(fd, 65536)
             seen += chunk
-            if b"\npolling " in b"\n" + seen or not chunk:
+            if b"\n<6>polling " in b"\n" + seen or not chunk:
                 return seen.decode(errors="replace")
     raise RuntimeError(f"furnace-daq run did not start polling: {seen!r}")
 

@@ -130,9 +130,11 @@ def test_log_outage_while_running(tmp_path, monkeypatch, capsys, err):
     assert len(gaps) == 1 and text in gaps[0]["error"] and gaps[0]["dropped"] == 0
     # stderr (the journal under systemd): when it breaks (again if the error changes, not at
     # every retry), and once when it heals
-    told = [line for line in capsys.readouterr().err.splitlines() if line.startswith("log: ")]
+    # with its journal priority: an error while broken, a notice when healed
+    told = [line for line in capsys.readouterr().err.splitlines() if line[3:].startswith("log: ")]
     assert 2 <= len(told) <= 4 and all(text in line for line in told[:-1]), told
-    assert told[-1] == "log: writing again"
+    assert all(line.startswith("<3>log: ") for line in told[:-1]), told
+    assert told[-1] == "<5>log: writing again"
 
 
 def unprivileged(cmd: list[str]) -> list[str]:
@@ -181,7 +183,7 @@ def test_unwritable_log_dir_at_start_never_stops_the_service(tmp_path):
                           "--plc", f"127.0.0.1:{port}", "--log-dir", str(log_dir)]),
             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        early = wait_for_line(daq, "polling ")
+        early = wait_for_line(daq, "<6>polling ")
         time.sleep(1.0)
         assert daq.poll() is None, daq.communicate()
         assert not list(log_dir.iterdir())
@@ -314,7 +316,7 @@ def test_real_disk_full_on_a_tiny_tmpfs(tmp_path):
     try:
         daq = furnace_daq("run", "--config", str(cfg), "--plc", f"127.0.0.1:{port}",
                           "--log-dir", str(log_dir))
-        early = wait_for_line(daq, "polling ")
+        early = wait_for_line(daq, "<6>polling ")
         time.sleep(1.0)
         # every free block, until the kernel says ENOSPC; unbuffered, or the bytes of a short
         # last write stay in the buffer and raise ENOSPC again when the file is closed

@@ -5,13 +5,18 @@ state is on /daq/status, and qualities say which values are good."""
 from __future__ import annotations
 
 import asyncio
+import time
+from dataclasses import replace
 
 import numpy as np
-from daq_processes import config, free_port, messages, plant_readings, sim, start_daemon
+import yaml
+from daq_processes import ROOT, config, free_port, messages, plant_readings, sim, start_daemon
 
+from furnace_daq.daqconfig import parse_config
 from furnace_daq.logschema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
 from furnace_daq.mcaplog import read_messages
 from furnace_model import SENSORS
+from furnace_model.config import Node
 
 
 def test_down_at_start_then_dropped_then_back(tmp_path):
@@ -144,3 +149,75 @@ def test_frozen_plc_is_stale_and_open_sensor_is_null(tmp_path):
     n_stale = sum(m["quality"]["soak_1"] == "stale" for m in tc)
     # frozen for ~1.2 s, stale after 0.5 s without a heartbeat change: ~14 of 20 Hz ticks
     assert 8 <= n_stale <= 16, n_stale
+
+
+def shipped_config(port: int, **plc):
+    """config/gateway.yaml as shipped (poll every 1 s, the shipped redial schedule), on
+    loopback, without refits; `plc` overrides keys of its plc block."""
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["refit"]["enabled"] = False
+    doc["plc"].update(host="127.0.0.1", port=port, **plc)
+    return parse_config(Node(doc, "gateway.yaml"))
+
+
+def test_restarted_plc_is_polled_within_the_retry_interval(tmp_path):
+    """The shipped redial schedule: a PLC that refuses is redialled every retry_s (0.5 s),
+    and a new connection is polled at once. So once the daemon has seen the connection go
+    (the PLC is down here for more than a poll period) and the restarted PLC accepts
+    connections, the first good sample comes within retry_s + one connect + one read, each
+    of which the daemon waits for at most timeout_s: 0.5 + 2 x 0.5 s here, whatever the
+    poll period (the shipped 1 s) and however long the PLC was down within fast_for_s. The
+    old schedule (backoff doubling from 0.5 s) was waiting 2 s by then, and then up to a
+    period for the next tick."""
+    down_s = 2.3
+    cfg = shipped_config(free_port(), timeout_s=0.5)
+    backoff = cfg.plc.reconnect
+    assert (backoff.retry_s, backoff.fast_for_s, cfg.poll_period_s) == (0.5, 120.0, 1.0)
+    bound_s = backoff.retry_s + 2 * cfg.plc.timeout_s
+
+    async def scenario():
+        plc = await sim(cfg.plc.port)
+        daemon, task = start_daemon(cfg, tmp_path, 6.0)
+        await asyncio.sleep(1.5)
+        await plc.stop()
+        attempts_before = daemon.counters.connect_attempts
+        await asyncio.sleep(down_s)
+        plc = await sim(cfg.plc.port)     # accepting from here (or a little earlier)
+        accepting_ns = time.time_ns()
+        attempts_down = daemon.counters.connect_attempts - attempts_before
+        counters = await task
+        await plc.stop()
+        return counters, accepting_ns, attempts_down
+
+    counters, accepting_ns, attempts_down = asyncio.run(scenario())
+    assert counters.connects == 2 and counters.disconnects == 1
+    # not a storm while it was down: one dial per retry_s at most (and one at the edge)
+    assert 2 <= attempts_down <= down_s / backoff.retry_s + 2, attempts_down
+    ok = [lt for t, m, lt in messages(tmp_path) if t == THERMOCOUPLES
+          and all(q == "ok" for q in m["quality"].values())]
+    first_back = min(lt for lt in ok if lt > accepting_ns)
+    assert (first_back - accepting_ns) / 1e9 <= bound_s, (first_back - accepting_ns) / 1e9
+    assert counters.failures.get("connection refused", 0) >= 1, counters.failures
+
+
+def test_a_plc_down_for_long_is_dialled_with_backoff_after_the_fast_phase(tmp_path):
+    """Refused dials are retried every retry_s only for fast_for_s; after that they back off
+    to max_s, so a PLC that stays down is not dialled twice a second for days."""
+    cfg = config(free_port())
+    cfg = replace(cfg, plc=replace(cfg.plc, reconnect=replace(
+        cfg.plc.reconnect, retry_s=0.05, fast_for_s=0.5, initial_s=0.2, max_s=0.4)))
+
+    async def scenario():
+        daemon, task = start_daemon(cfg, tmp_path, 2.5)
+        await asyncio.sleep(0.45)
+        fast = daemon.counters.connect_attempts
+        await asyncio.sleep(1.0)
+        slow = daemon.counters.connect_attempts - fast
+        await task
+        return fast, slow
+
+    fast, slow = asyncio.run(scenario())
+    # 0.45 s at one dial per 0.05 s, then 1 s of 0.2, 0.4, 0.4 ... waits
+    assert fast >= 5 and slow <= 5, (fast, slow)
+    details = [m["detail"] for t, m, _ in messages(tmp_path) if t == DAQ_STATUS]
+    assert details[0].startswith("starting")

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import os
 import signal
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -17,6 +16,7 @@ from furnace_model.errors import ConfigError, FurnaceError
 from ..logschema import DAQ_EVENTS
 
 if TYPE_CHECKING:
+    from ..journal import Journal
     from ..mcaplog import LogWriter
 
 
@@ -46,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from ..daqconfig import load_config
+    from ..journal import ERR, WARNING, Journal
     from ..mcaplog import LogWriter
 
     config = load_config(args.config)
@@ -63,11 +64,12 @@ def run(args: argparse.Namespace) -> int:
     # Connection trouble is reported on /daq/status; the client library's own log lines
     # would only repeat it on stderr at every retry.
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    journal = Journal(config.stderr_interval_s)
     lc = config.log
     try:
         lc.dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # not fatal: the writer retries and /daq/status says why
-        print(f"log: {lc.dir}: {exc.strerror or exc}", file=sys.stderr, flush=True)
+        journal.say(ERR, f"log: {lc.dir}: {exc.strerror or exc}")
     try:
         log = LogWriter(lc.dir, prefix=lc.prefix, flush_interval_s=lc.flush_interval_s,
                         rotate_s=lc.rotate_s, rotate_bytes=lc.rotate_bytes,
@@ -76,11 +78,11 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         raise FurnaceError(f"log directory {lc.dir}: {exc}") from None
     for note in recovered:  # files of a daemon that died: in the journal and in the log
-        print(f"log recovery: {note}", file=sys.stderr, flush=True)
+        journal.say(WARNING, f"log recovery: {note}")
         now = time.time_ns()
         log.write(DAQ_EVENTS, {"kind": "log_recovered", "detail": note}, now, now)
     try:
-        return asyncio.run(_main(config, log, args.duration))
+        return asyncio.run(_main(config, log, args.duration, journal))
     finally:
         if lock is not None:
             os.close(lock)
@@ -103,10 +105,11 @@ def _recover_at_start(log_dir: Path, prefix: str) -> tuple[int | None, list[str]
         raise
 
 
-async def _main(config, log: LogWriter, duration: float | None) -> int:
+async def _main(config, log: LogWriter, duration: float | None, journal: Journal) -> int:
     import asyncio
 
-    from ..daemon import Daemon
+    from ..daemon import Daemon, summary
+    from ..journal import ERR, INFO
     from ..sdnotify import Notifier
     from ..writeback import WriteBack
 
@@ -118,20 +121,18 @@ async def _main(config, log: LogWriter, duration: float | None) -> int:
         write_back = WriteBack(config.write_back, config.plc.host, config.plc.port,
                                device_id=config.plc.device_id, timeout_s=config.plc.timeout_s,
                                events=event)
-    daemon = Daemon(config, log, notifier=Notifier(),
+    daemon = Daemon(config, log, notifier=Notifier(), journal=journal,
                     on_model=None if write_back is None else write_back.on_model)
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, daemon.stop)
-    print(f"polling {daemon.plc.host}:{daemon.plc.port} every {config.poll_period_s:g} s, "
-          f"logging to {config.log.dir}", file=sys.stderr, flush=True)
+    journal.say(INFO, f"polling {daemon.plc.host}:{daemon.plc.port} every "
+                      f"{config.poll_period_s:g} s, logging to {config.log.dir}")
     counters = await daemon.run(duration)
     if write_back is not None:
         write_back.events = None  # the log is closed
         await write_back.close()
-    print(f"stopped: {counters.ok_polls}/{counters.polls} polls ok, {counters.comm_errors} "
-          f"errors, {counters.skipped_ticks} skipped ticks, {counters.disconnects} drops",
-          file=sys.stderr, flush=True)
+    journal.say(*summary(counters))
     if log.error:
-        print(f"log: {log.error}", file=sys.stderr, flush=True)
+        journal.say(ERR, f"log: {log.error}")
     return 0

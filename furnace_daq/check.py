@@ -1,0 +1,201 @@
+"""Commissioning check: dial every configured device, read every configured point once, and
+say for each what came back, as `telegraf --test` does for its inputs.
+
+A wrong address, word order or scale in the map is otherwise found hours later in the MCAP
+file; here it is one table on the terminal. The reads, the decoding and the qualities are
+the daemon's own (sources.ModbusSource, registers.Point), so a point that is ok here is ok
+for the daemon. Bounded in time: one connect and one read within `plc.timeout_s` each, and
+at most `burners.can.timeout_s` listening to the CAN bus.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from dataclasses import dataclass, field
+
+from furnace_model import BURNERS_PER_ZONE, ZONES
+
+from .daqconfig import DaqConfig
+from .registers import BIT_TABLES, COMM_ERROR, OK, BitRange, Image, Point, ReadRequest
+from .sources import CanSource, ModbusSource, SourceError, exception_text
+
+NOT_READ = "not read"
+
+
+@dataclass
+class PointCheck:
+    """One configured point as read: the row of the table."""
+
+    key: str
+    """Key path in the config file (thermocouples.soak_1, burners.modbus.heat)."""
+    where: str
+    """Table and address(es), or the CAN frame and bits."""
+    raw: str = ""
+    value: str = ""
+    quality: str = COMM_ERROR
+    error: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.quality == OK
+
+
+@dataclass
+class CheckReport:
+    devices: list[tuple[str, str]] = field(default_factory=list)
+    """(device, what happened when dialling it)."""
+    points: list[PointCheck] = field(default_factory=list)
+    elapsed_s: float = 0.0
+
+    @property
+    def failed(self) -> list[PointCheck]:
+        return [p for p in self.points if not p.ok]
+
+    @property
+    def ok(self) -> bool:
+        return bool(self.points) and not self.failed
+
+
+def _where(item: Point | BitRange) -> str:
+    last = item.address + item.count - 1
+    return f"{item.table} {item.address}" + (f"-{last}" if last > item.address else "")
+
+
+def _block_of(item: Point | BitRange, refused: dict[ReadRequest, int | None]) -> int | None:
+    for req, code in refused.items():
+        if req.table == item.table and req.address <= item.address < req.end:
+            return code if code is not None else -1
+    return None
+
+
+def _row(item: Point | BitRange, key: str, image: Image,
+         refused: dict[ReadRequest, int | None]) -> PointCheck:
+    row = PointCheck(key, _where(item))
+    code = _block_of(item, refused)
+    if code is not None:
+        row.error = f"block refused: {exception_text(None if code < 0 else code)}"
+        return row
+    words = image.words(item)
+    if words is None:
+        row.error = NOT_READ
+        return row
+    if item.table in BIT_TABLES:
+        assert isinstance(item, BitRange)
+        states = item.states([bool(b) for b in words])
+        row.raw = "".join(str(int(b)) for b in words)
+        row.value = f"{sum(states)} of {len(states)} on"
+        row.quality = OK
+        return row
+    assert isinstance(item, Point)
+    row.raw = " ".join(str(w) for w in words)
+    value, row.quality = item.value(words)
+    if value is not None:
+        row.value = f"{value:g}"
+        return row
+    raw = item.raw(words)
+    if raw != raw:
+        row.error = "float NaN: open sensor"
+    elif raw in item.sentinels:
+        row.error = f"raw {raw:g} is a sentinel: open sensor"
+    else:
+        row.value = f"{raw * item.scale + item.offset:g}"
+        lo = "-inf" if item.lo is None else f"{item.lo:g}"
+        hi = "inf" if item.hi is None else f"{item.hi:g}"
+        row.error = f"outside range [{lo}, {hi}]"
+    return row
+
+
+async def check_modbus(config: DaqConfig, report: CheckReport) -> None:
+    """Dial the PLC, read every request of the daemon's plan once, one row per point."""
+    source = ModbusSource(config)
+    keys = config.key_paths()
+    device = f"Modbus TCP {source.where} (unit {config.plc.device_id})"
+    image, refused = Image(), {}
+    error = ""
+    try:
+        await source.connect()
+        try:
+            image, refused = await asyncio.wait_for(source.read_image(), config.plc.timeout_s)
+        except TimeoutError:
+            error = f"no answer within {config.plc.timeout_s:g} s"
+        except SourceError as exc:
+            error = str(exc)
+        report.devices.append((device, error or
+                               f"connected, {len(source.requests)} read request(s)"))
+    except SourceError as exc:
+        error = str(exc)
+        report.devices.append((device, error))
+    finally:
+        await source.close()
+    for item in source.items:
+        row = _row(item, keys.get(item.name, item.name), image, refused)
+        if error:
+            row.error, row.quality = error, COMM_ERROR
+        report.points.append(row)
+
+
+async def check_can(config: DaqConfig, report: CheckReport) -> None:
+    """Listen to the flame scanners' bus until every zone's frame came, at most the CAN
+    timeout; one row per zone."""
+    can_cfg = config.can
+    assert can_cfg is not None
+    source = CanSource(can_cfg)
+    device = f"CAN {can_cfg.interface}:{can_cfg.channel}"
+    error = ""
+    try:
+        await source.connect()
+        deadline = time.monotonic() + can_cfg.timeout_s
+        while time.monotonic() < deadline and not all(source.latest(z) for z in ZONES):
+            await asyncio.sleep(0.02)
+        report.devices.append((device, f"open, {source.frames} frame(s) heard"))
+    except SourceError as exc:
+        error = str(exc)
+        report.devices.append((device, error))
+    try:
+        for i, zone in enumerate(ZONES):
+            frame, n = can_cfg.frames[zone], BURNERS_PER_ZONE[i]
+            row = PointCheck(f"burners.can.{zone}", f"CAN id 0x{frame.can_id:x} bits "
+                                                    f"{frame.start_bit}-{frame.start_bit + n - 1}")
+            data = source.last_data.get((frame.can_id, frame.extended))
+            latest = source.latest(zone)
+            if error:
+                row.error = error
+            elif data is None:
+                row.error = f"no frame within {can_cfg.timeout_s:g} s"
+            elif latest is None:
+                row.raw = data.hex(" ")
+                row.error = f"frame of {len(data)} byte(s) too short for these bits"
+            else:
+                row.raw = data.hex(" ")
+                row.value = f"{sum(latest)} of {n} on"
+                row.quality = OK
+            report.points.append(row)
+    finally:
+        await source.close()
+
+
+async def check(config: DaqConfig) -> CheckReport:
+    """Every configured device dialled and every configured point read once."""
+    t0 = time.monotonic()
+    report = CheckReport()
+    if config.modbus_items():
+        await check_modbus(config, report)
+    if config.burner_source in ("can", "both") and config.can is not None:
+        await check_can(config, report)
+    report.elapsed_s = time.monotonic() - t0
+    return report
+
+
+def format_report(report: CheckReport) -> str:
+    """The devices, then one aligned row per point: key, where, raw, value, quality, error."""
+    lines = [f"{device}: {what}" for device, what in report.devices]
+    header = ("key", "table/address", "raw", "value", "quality", "error")
+    rows = [header] + [(p.key, p.where, p.raw or "-", p.value or "-", p.quality, p.error)
+                       for p in report.points]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(header) - 1)]
+    lines.append("")
+    for r in rows:
+        lines.append("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=False))
+                     + "  " + r[-1])
+    return "\n".join(line.rstrip() for line in lines)

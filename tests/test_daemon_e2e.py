@@ -91,7 +91,8 @@ def test_sim_plc_to_mcap(tmp_path):
         assert any(np.array_equal(got, b) for b in between), (i, start, end, got)
     assert np.mean([np.array_equal(c, scenario.burners_at(s / 60.0))
                     for c, s in zip(counts, seconds, strict=True)]) > 0.9
-    assert len({tuple(c) for c in counts}) >= 3, "the run crosses burner steps"
+    # half the run's PLC time (checked above) spans more than the 15-20 min between steps
+    assert len({tuple(c) for c in counts}) >= 2, "the run crosses a burner step"
 
     # time base: publish_time follows the PLC clock, log_time the host
     pubs = np.array([p for _, _, p in tc], dtype=np.int64)

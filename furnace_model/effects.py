@@ -85,6 +85,12 @@ class Effect:
         """Additive error of each thermocouple (P, N, 6), or None."""
         return None
 
+    def nonlinear_off(self, theta: Theta) -> np.ndarray:
+        """Parameter sets (P,) whose `nonlinear_rhs` is zero at every state: the simulator
+        takes those in closed form (a fit that drives the effect to its null value keeps
+        evaluating it there, and its Jacobian's other columns stay there too)."""
+        return np.zeros(next(iter(theta.values())).shape[0], dtype=bool)
+
     @classmethod
     def from_config(cls, node: Node) -> tuple[Effect, dict[str, float]]:
         """Read `effects.<name>` of a scenario: options and parameter values."""
@@ -261,6 +267,9 @@ class Radiation(Effect):
         return (share, Param("rad_exponent", 4.0, 1.5, 6.0, log=False, unit="-",
                              doc="effective exponent: a furnace's gas and walls set it, not "
                                  "only Stefan-Boltzmann"))
+
+    def nonlinear_off(self, theta):
+        return theta["rad_share"] == 0.0
 
     def nonlinear_rhs(self, theta, x, A, B, u):
         # Each linear exchange k (Tj - Ti) becomes k [(1-w)(Tj - Ti) + w (rho(Tj) - rho(Ti))]

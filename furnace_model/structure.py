@@ -51,12 +51,15 @@ class Inputs:
         t = np.asarray(t, dtype=float)
         burners = np.asarray(burners, dtype=float)
         t_air = np.asarray(t_air, dtype=float)
+        # Every burner change is kept, so the pattern last kept is the previous sample's.
+        changed = [False, *np.any(burners[1:] != burners[:-1], axis=1).tolist()]
+        air = t_air.tolist()
         keep = [0]
-        held_air = t_air[0]
+        held_air = air[0] if air else 0.0
         for i in range(1, t.size):
-            if np.any(burners[i] != burners[keep[-1]]) or abs(t_air[i] - held_air) > air_deadband_c:
+            if changed[i] or abs(air[i] - held_air) > air_deadband_c:
                 keep.append(i)
-                held_air = t_air[i]
+                held_air = air[i]
         idx = np.array(keep)
         return cls(t[idx], burners[idx], t_air[idx])
 

@@ -51,12 +51,15 @@ class Inputs:
         t = np.asarray(t, dtype=float)
         burners = np.asarray(burners, dtype=float)
         t_air = np.asarray(t_air, dtype=float)
+        # Every burner change is kept, so the pattern last kept is the previous sample's.
+        changed = [False, *np.any(burners[1:] != burners[:-1], axis=1).tolist()]
+        air = t_air.tolist()
         keep = [0]
-        held_air = t_air[0]
+        held_air = air[0] if air else 0.0
         for i in range(1, t.size):
-            if np.any(burners[i] != burners[keep[-1]]) or abs(t_air[i] - held_air) > air_deadband_c:
+            if changed[i] or abs(air[i] - held_air) > air_deadband_c:
                 keep.append(i)
-                held_air = t_air[i]
+                held_air = air[i]
         idx = np.array(keep)
         return cls(t[idx], burners[idx], t_air[idx])
 
@@ -160,6 +163,99 @@ class ModelStructure:
             return response(sys.A, sys.B, x0, t0, drive, t, C=C, modes=Modes.of(sys.A))
         return self._integrate(theta, sys, drive, x0, t0, t, C)
 
+    def nonlinear_off(self, values: Mapping[str, float | np.ndarray]) -> np.ndarray:
+        """Parameter sets (P,) in which every nonlinear term vanishes: linear ones."""
+        theta = self.theta(values)
+        off = np.ones(next(iter(theta.values())).shape[0], dtype=bool)
+        for eff in self.effects:
+            if not eff.linear:
+                off &= eff.nonlinear_off(theta)
+        return off
+
+    def simulate_first_order(self, values: Mapping[str, float | np.ndarray], inputs: Inputs,
+                             t: np.ndarray, x0: np.ndarray,
+                             t0: float | None = None) -> np.ndarray:
+        """Sensed zone temperatures (P, N, 3) to first order in the nonlinear terms: the
+        linear response x_l plus d, where d' = A d + N(x_l(t)) and d(t0) = 0.
+
+        Why: about a set whose nonlinear terms vanish (radiation's share at zero), a small
+        step of the effect's strength moves the solution by d to first order, and d is a
+        linear convolution of a known forcing, with no state-dependent linearisation to step
+        through. A finite difference of this against `simulate` at the vanishing set is the
+        sensitivity to that strength (`_Problem.jac`), for the cost of one closed-form
+        response and one quadrature instead of a whole nonlinear integration.
+
+        The quadrature runs on the steps the nonlinear integrator takes (`_step_bounds`),
+        with N(x_l) quadratic in time on each (its values at the step's start, middle and
+        end), integrated exactly against the modes of A.
+        """
+        theta = self.theta(values)
+        sys = self.system(theta)
+        drive = self.drive(theta, inputs)
+        P, n = sys.A.shape[0], self.n_states
+        x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+        if x0.shape[-1] == 3 and n != 3:
+            x0 = self.full_state(x0)
+        x0 = np.broadcast_to(x0, (P, n))
+        t0 = float(inputs.t[0]) if t0 is None else float(t0)
+        t = np.asarray(t, dtype=float)
+        modes = Modes.of(sys.A)
+        x_lin = response(sys.A, sys.B, x0, t0, drive, t, modes=modes)
+        end = max(float(t[-1]), t0) if t.size else t0
+        cuts = np.unique(np.ravel(drive.s))
+        edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
+        starts, lengths, levels = [], [], []
+        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+            if hi <= lo:
+                continue
+            bounds = _step_bounds(lo, hi)
+            starts.append(bounds[:-1])
+            lengths.append(np.diff(bounds))
+            u = np.broadcast_to(drive.level_at(lo), (P, sys.B.shape[2]))
+            levels.append(np.repeat(u[:, None], bounds.size - 1, axis=1))
+        if not starts:
+            return np.einsum("pqn,pNn->pNq", sys.C, x_lin)
+        a, h = np.concatenate(starts), np.concatenate(lengths)
+        u = np.concatenate(levels, axis=1)  # (P, K, m): the input on each step
+        K = a.size
+        nodes = np.empty(2 * K + 1)
+        nodes[0:-1:2], nodes[1::2], nodes[-1] = a, a + h / 2, a[-1] + h[-1]
+        x_nodes = response(sys.A, sys.B, x0, t0, drive, nodes, modes=modes)  # (P, 2K+1, n)
+        X = np.stack([x_nodes[:, 0:-1:2], x_nodes[:, 1::2], x_nodes[:, 2::2]], axis=2)
+        S = 3 * K
+        rep = {k: np.repeat(v, S) for k, v in theta.items()}
+        g = np.zeros((P * S, n))
+        uu = np.repeat(u, 3, axis=1).reshape(P * S, -1)
+        As, Bs = np.repeat(sys.A, S, axis=0), np.repeat(sys.B, S, axis=0)
+        for eff in self.effects:
+            if not eff.linear:
+                g += eff.nonlinear_rhs(rep, X.reshape(P * S, n), As, Bs, uu)
+        lam, V, Vinv = modes.lam, modes.V, modes.Vinv
+        gm = np.einsum("pij,pksj->pksi", Vinv, g.reshape(P, K, 3, n))  # modal forcing
+        g0, gh, g1 = gm[:, :, 0], gm[:, :, 1], gm[:, :, 2]
+        hh = h[None, :, None]
+        c1 = (4.0 * gh - 3.0 * g0 - g1) / hh  # N(x_l(a + s)) = g0 + c1 s + c2 s^2
+        c2 = 2.0 * (g1 - 2.0 * gh + g0) / (hh * hh)
+
+        def convolve(sig, tau, c0, c1, c2):
+            z = lam[:, None, :] * tau
+            e, p1, p2, p3 = _phi123(z)
+            return e * sig + tau * (p1 * c0 + tau * (p2 * c1 + 2.0 * tau * p3 * c2))
+
+        zero = np.zeros((P, 1, n), dtype=gm.dtype)
+        step = convolve(zero, hh, g0, c1, c2)  # each step's own contribution
+        E = np.exp(lam[:, None, :] * hh)
+        sig = np.empty((P, K, n), dtype=gm.dtype)  # d at each step's start, modal
+        sig[:, 0] = 0.0
+        for k in range(1, K):
+            sig[:, k] = E[:, k - 1] * sig[:, k - 1] + step[:, k - 1]
+        k_of = np.clip(np.searchsorted(a, t, side="left") - 1, 0, K - 1)
+        tau = np.maximum(t - a[k_of], 0.0)[None, :, None]
+        d = convolve(sig[:, k_of], tau, g0[:, k_of], c1[:, k_of], c2[:, k_of])
+        d[:, t <= t0] = 0.0
+        x = x_lin + np.einsum("pij,pNj->pNi", V, d).real
+        return np.einsum("pqn,pNn->pNq", sys.C, x)
+
     def sensor_offsets(self, values: Mapping[str, float | np.ndarray], t: np.ndarray) -> np.ndarray:
         """Per-thermocouple additive errors (P, N, 6) from sensor effects; zeros without."""
         theta = self.theta(values)
@@ -172,6 +268,34 @@ class ModelStructure:
         return out
 
     def _integrate(self, theta, sys, drive, x0, t0, t, C):
+        """Nonlinear structures: the sets whose nonlinear terms all vanish (radiation's share
+        at zero) are linear and take the closed form, the others `_exprb`. Both are the same
+        function of the parameters: on a linear system the exponential scheme is exact, so
+        the two agree to rounding and a finite difference may straddle them."""
+        P, n = sys.A.shape[0], self.n_states
+        off = np.ones(P, dtype=bool)
+        for eff in self.effects:
+            if not eff.linear:
+                off &= eff.nonlinear_off(theta)
+        if not off.any() or (t.size and t[0] < t0):
+            return self._exprb(theta, sys, drive, x0, t0, t, C)
+        x0 = np.broadcast_to(x0, (P, n))
+        lin = np.nonzero(off)[0]
+        A, B = sys.A[lin], sys.B[lin]
+        y_lin = response(A, B, x0[lin], t0, _take_drive(drive, lin), t,
+                         C=None if C is None else C[lin], modes=Modes.of(A))
+        if lin.size == P:
+            return y_lin
+        out = np.empty((P,) + y_lin.shape[1:])
+        out[lin] = y_lin
+        rest = np.nonzero(~off)[0]
+        out[rest] = self._exprb({k: v[rest] for k, v in theta.items()},
+                                System(sys.A[rest], sys.B[rest], sys.C[rest]),
+                                _take_drive(drive, rest), x0[rest], t0, t,
+                                None if C is None else C[rest])
+        return out
+
+    def _exprb(self, theta, sys, drive, x0, t0, t, C):
         """Nonlinear structures (radiation): all parameter sets at once by an exponential
         Rosenbrock scheme (exprb32, third order) on steps that never straddle an input change.
 
@@ -384,6 +508,29 @@ def _phi13(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     series = ((z / 5040 + 1 / 720) * z + 1 / 120) * z + 1 / 24  # z^j / (j+4)!, j < 4
     phi3 = np.where(small, series * z + 1 / 6, (em1 - z - z * z / 2) / nz ** 3)
     return phi1, phi3
+
+
+def _phi123(z: np.ndarray) -> tuple[np.ndarray, ...]:
+    """e^z and phi_j(z) = (e^z - sum_{i<j} z^i / i!) / z^j for j = 1, 2, 3: the weights of
+    a constant, linear and quadratic forcing convolved with one mode. Near zero each is
+    its Taylor series (the closed form cancels there), accurate to rounding for |z| < 0.5."""
+    e = np.exp(z)
+    small = np.abs(z) < 0.5
+    zs = np.where(small, z, 0.0)
+    nz = np.where(small, 1.0, z)
+    em1 = np.expm1(z)
+    out = [e]
+    for j in (1, 2, 3):
+        series = np.zeros_like(zs)
+        for i in range(16, -1, -1):  # sum_i z^i / (i + j)!
+            series = series * zs + 1.0 / _FACT[i + j]
+        closed = em1 / nz if j == 1 else (out[-1] - 1.0 / _FACT[j - 1]) / nz
+        out.append(np.where(small, series, closed))
+    return tuple(out)
+
+
+_FACT = np.cumprod(np.concatenate(([1.0], np.arange(1.0, 21.0))))
+"""k! for k = 0..20."""
 
 
 def _take_drive(drive: Drive, p: np.ndarray) -> Drive:

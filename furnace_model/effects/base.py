@@ -156,6 +156,12 @@ class Effect:
         """Additive error of each thermocouple (P, N, 6), or None."""
         return None
 
+    def nonlinear_off(self, theta: Theta) -> np.ndarray:
+        """Parameter sets (P,) whose `nonlinear_rhs` is zero at every state: the simulator
+        takes those in closed form (a fit that drives the effect to its null value keeps
+        evaluating it there, and its Jacobian's other columns stay there too)."""
+        return np.zeros(next(iter(theta.values())).shape[0], dtype=bool)
+
     # -- scenarios -----------------------------------------------------------------------------
     @classmethod
     def options_from_params(cls, given: set[str]) -> dict[str, Any]:

@@ -37,6 +37,9 @@ class Radiation(Effect):
                              doc="effective exponent: a furnace's gas and walls set it, not "
                                  "only Stefan-Boltzmann"))
 
+    def nonlinear_off(self, theta):
+        return theta["rad_share"] == 0.0
+
     def nonlinear_rhs(self, theta, x, A, B, u):
         # Each linear exchange k (Tj - Ti) becomes k [(1-w)(Tj - Ti) + w (rho(Tj) - rho(Ti))]
         # with rho(T) = T_K^p / (p T_ref^(p-1)), whose slope is 1 at T_ref: the paper's model is

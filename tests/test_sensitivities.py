@@ -1,0 +1,148 @@
+"""The fit's Jacobian against central differences of its own residuals, for linear,
+drive-transforming, sensor-offsetting and nonlinear structures; and the shortcuts the
+Jacobian takes where the nonlinear terms vanish (closed form, first order in them)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from heatups import TC_SD
+
+from furnace_model.effects import (
+    DeadTime,
+    FuelChange,
+    Radiation,
+    SensorDrift,
+    SensorLag,
+    ZoneBurners,
+)
+from furnace_model.fit import _Problem
+from furnace_model.parameters import PAPER_TABLE_V
+from furnace_model.plant import Plant
+from furnace_model.scenario import SensorSpec, load_scenario
+from furnace_model.structure import ModelStructure
+
+SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"
+
+
+@pytest.fixture(scope="module")
+def record():
+    # Table V's furnace with some radiation and burners in every zone, so that every
+    # parameter moves the residuals and none of the structures fits them exactly; 2-minute
+    # samples keep the nonlinear integrations short.
+    scn = load_scenario(SCENARIOS / "paper_exp2_zone_burners.yaml")
+    plant = Plant(ModelStructure([Radiation()]), {**PAPER_TABLE_V, "rad_share": 0.2},
+                  SensorSpec(noise_sd_c=TC_SD, bias_sd_c=0.0), seed=1)
+    t = np.arange(0.0, 3800.0 + 1e-9, 2.0)
+    return plant.run(scn.inputs(), t, scn.initial_c).to_experiment("exp1")
+
+
+CASES = [
+    ([], {}),
+    ([ZoneBurners(), DeadTime()], {"f_heat": 0.3, "f_preheat": 0.2, "theta_dead": 7.5}),
+    ([FuelChange()], {"t_fuel": 1201.0, "fuel_ratio": 0.85}),
+    ([SensorDrift(sensor="heat_2")], {"drift_rate": 0.004, "t_drift": 901.0}),
+    ([SensorLag()], {"tau_lag": 3.0}),
+    ([Radiation()], {"rad_share": 0.3}),
+    ([Radiation()], {"rad_share": 0.0}),
+    ([Radiation(exponent=None)], {"rad_share": 0.0, "rad_exponent": 4.5}),
+    ([Radiation(), SensorLag()], {"rad_share": 0.0, "tau_lag": 3.0}),
+    ([Radiation(), ZoneBurners()], {"rad_share": 0.1, "f_heat": 0.3, "f_preheat": 0.2}),
+]
+
+
+def _problem(effects, values, record):
+    structure = ModelStructure(effects)
+    prob = _Problem([record], structure, {}, {}, zone_offsets=True)
+    v = {**PAPER_TABLE_V, **values}
+    z = prob.start(prob.to_z(np.array([v[n] for n in prob.names])))
+    z[prob.k:prob.k + 3] += np.array([4.0, -3.0, 2.0])  # off the readings' start
+    z[prob.k + 3:prob.k + 6] = np.array([0.5, -0.4, 0.3])
+    return prob, z
+
+
+def _central(prob: _Problem, z: np.ndarray) -> np.ndarray:
+    cols = []
+    for i in range(z.size):
+        h = 1e-5 * max(1.0, abs(z[i])) if i < prob.k else 1e-2
+        up, down = z.copy(), z.copy()
+        up[i] += h
+        down[i] -= h
+        R = prob.fun_many(np.array([up, down]))
+        cols.append((R[0] - R[1]) / (2 * h))
+    return np.array(cols).T
+
+
+@pytest.mark.parametrize(("effects", "values"), CASES,
+                         ids=[("+".join(e.name for e in c[0]) or "baseline")
+                              + "".join(f"-{k}{v:g}" for k, v in c[1].items() if "rad" in k)
+                              for c in CASES])
+def test_jacobian_agrees_with_central_differences(effects, values, record):
+    prob, z = _problem(effects, values, record)
+    J = prob.jac(z)
+    ref = _central(prob, z)
+    assert J.shape == ref.shape == (prob.fun(z).size, prob.n)
+    for i, name in enumerate(prob.names + [f"x0_{w}" for w in range(3)]
+                             + [f"offset_{w}" for w in range(3)]):
+        scale = np.abs(ref[:, i]).max()
+        if scale == 0.0:  # unseen: no radiation, no exponent; no preheating burner fires
+            assert name in ("rad_exponent", "f_preheat") and not J[:, i].any(), name
+            continue
+        if name == "rad_share":
+            assert scale > 1.0  # the column that switches radiation on is felt
+        # A switch instant's forward difference errs by its step (1e-6 of it, about a
+        # thousandth of a minute) times the fast mode's rate: about 1e-3 of the column.
+        tol = 2e-3 if name.startswith("t_") else 1e-4
+        err = np.abs(J[:, i] - ref[:, i]).max()
+        assert err <= tol * scale, f"{name}: {err:.3g} against a column of {scale:.3g}"
+
+
+def test_null_share_is_the_linear_model(record):
+    """At zero share the radiation structure is eq. 11: the closed form it takes there is
+    what the exponential integrator gives, to rounding."""
+    inputs, t = record.inputs(), record.t_min
+    x0 = record.zone_temp[0]
+    rad = ModelStructure([Radiation()])
+    values = {**PAPER_TABLE_V, "rad_share": np.array([0.0, 0.0])}
+    fast = rad.simulate(values, inputs, t, x0)
+    theta = rad.theta(values)
+    sysm = rad.system(theta)
+    stepped = rad._exprb(theta, sysm, rad.drive(theta, inputs), np.atleast_2d(x0),
+                         float(inputs.t[0]), t, sysm.C)
+    plain = ModelStructure().simulate(PAPER_TABLE_V, inputs, t, x0)
+    assert np.abs(fast - stepped).max() < 1e-8
+    assert np.array_equal(fast[0], plain[0])
+
+
+def test_first_order_is_the_derivative_at_zero_share(record):
+    """simulate_first_order departs from the integrated solution by the square of the
+    share (so its difference quotient at zero is the derivative), and its derivative is
+    the integrator's to some hundred-thousandths (the two schemes' discretisations)."""
+    inputs, t = record.inputs(), record.t_min
+    x0 = record.zone_temp[0]
+    rad = ModelStructure([Radiation()])
+    base = rad.simulate({**PAPER_TABLE_V, "rad_share": 0.0}, inputs, t, x0)[0]
+    gaps = []
+    for w in (1e-2, 1e-3):
+        v = {**PAPER_TABLE_V, "rad_share": w}
+        full = rad.simulate(v, inputs, t, x0)[0]
+        first = rad.simulate_first_order(v, inputs, t, x0)[0]
+        gaps.append(np.abs(full - first).max())
+        assert np.abs(first - base).max() > 10 * gaps[-1]  # the first order carries the change
+    assert gaps[0] / gaps[1] > 50  # second order in the share
+    h = 1e-6
+    v = {**PAPER_TABLE_V, "rad_share": h}
+    fd = (rad.simulate(v, inputs, t, x0)[0] - base) / h
+    fo = (rad.simulate_first_order(v, inputs, t, x0)[0] - base) / h
+    assert np.abs(fo - fd).max() <= 5e-5 * np.abs(fd).max()
+
+
+def test_first_order_of_a_linear_set_is_its_response(record):
+    inputs, t = record.inputs(), record.t_min
+    rad = ModelStructure([Radiation(), SensorLag()])
+    v = {**PAPER_TABLE_V, "rad_share": 0.0, "tau_lag": 4.0}
+    x0 = record.zone_temp[0]
+    assert np.abs(rad.simulate_first_order(v, inputs, t, x0)
+                  - rad.simulate(v, inputs, t, x0)).max() < 1e-9

@@ -28,8 +28,9 @@ import pandas as pd
 from furnace_model import SENSORS, ZONES
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import experiment_from_frame, write_table
-from furnace_model.fit import FitResult, fit, predict
+from furnace_model.fit import FitResult, Model, fit
 from furnace_model.scenario import Scenario, load_scenario
+from furnace_model.structure import ModelStructure
 
 from .daemon import Daemon
 from .daqconfig import RefitConfig, load_config
@@ -112,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
     from furnace_model.plots import plot_fit  # matplotlib: not for the refit worker's import
 
     label = f"online model of {_hours(last['window_end'], start)} h"
-    plots = plot_fit(exp, predict({p: last[p] for p in PARAM_NAMES}, exp), args.out, label)
+    online = Model(ModelStructure(), {p: last[p] for p in PARAM_NAMES})
+    plots = plot_fit(exp, online.predict(exp), args.out, label)
     plots.append(plot_refits(good, scenario, args.out / "refits.png"))
     print(f"\n   MCAP log:   {', '.join(map(str, logs))}")
     state = args.out / "state" / "model.json"

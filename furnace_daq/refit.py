@@ -58,7 +58,6 @@ import pandas as pd
 from furnace_model import ZONES
 from furnace_model.experiment import Experiment
 from furnace_model.fit import FitResult, fit
-from furnace_model.structure import ModelStructure
 
 from .daqconfig import RefitConfig
 from .logexport import Resampler
@@ -169,38 +168,20 @@ def recent_f(res: FitResult, exp: Experiment, from_min: float) -> dict | None:
     the share of the window after a change). The zone temperatures at the span's start are
     estimated with it, starting from the window model's: right after a change that model's
     state is off (it ran the old f), and held fixed it pushed a fuel switch's f to -35%
-    instead of -20%. The model is linear in f and in the initial state, so this is one
-    least-squares step. None when no burner fires in the span: f is seen only with heat
-    input."""
+    instead of -20%. The window's thermocouple offsets are held (a short span cannot tell
+    them from the start), and its noise level scales f's standard error (a short span's own
+    residual says little about the thermocouples). None when no burner fires in the span: f
+    is seen only with heat input."""
     span = exp.between(from_min, math.inf)
     if len(span) < 8 or not np.any(span.burners > 0):
         return None
-    structure = ModelStructure()
-    params = {k: float(v) for k, v in res.params.items()}
-    states = structure.simulate(params, exp.inputs(), exp.t_min, np.asarray(res.x0[0])[None],
-                                states=True)[0]
-    x_span = states[np.searchsorted(exp.t_min, span.t_min[0])]
-    inputs = span.inputs()
-
-    def run(values: dict, x: np.ndarray) -> np.ndarray:
-        return structure.simulate(values, inputs, span.t_min, x[None])[0]
-
-    base = run(params, x_span)
-    columns = [run({**params, "f": 2.0 * params["f"]}, x_span) - base]  # d y / d f times f
-    columns += [run(params, x_span + unit) - base for unit in np.eye(x_span.size)[:3]]
-    offsets = np.array([(res.zone_offsets_c or [dict.fromkeys(ZONES, 0.0)])[0][z]
-                        for z in ZONES])
-    resid = span.zone_temp - offsets - base
-    good = np.isfinite(resid)
-    design = np.stack([c[good] for c in columns], axis=1)
-    normal = design.T @ design
-    if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
+    start = res.response(0).state_at(span.t_min[0])[0]
+    recent = res.refine([span], free=("f",), x0=[start], offsets=[res.offsets(0)],
+                        sigma=float(res.sigma_c))
+    f, se = recent.params["f"], recent.std["f"]
+    if not (math.isfinite(f) and math.isfinite(se)):
         return None
-    cov = np.linalg.inv(normal)
-    step = cov @ (design.T @ resid[good])
-    f = params["f"] * (1.0 + float(step[0]))
-    se = params["f"] * float(res.sigma_c) * math.sqrt(float(cov[0, 0]))
-    return {"f": f, "se": se, "n_samples": int(good.any(axis=1).sum())}
+    return {"f": f, "se": se, "n_samples": int(np.isfinite(span.zone_temp).any(axis=1).sum())}
 
 
 STATE_VERSION = 1

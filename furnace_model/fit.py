@@ -26,11 +26,11 @@ import numpy as np
 
 from . import ZONES
 from .criteria import Criteria, criteria
-from .effects import Effect
 from .errors import FurnaceError
 from .experiment import Experiment
 from .ga import genetic_search
 from .profile import profile_interval
+from .response import Response, weights
 from .scores import zone_metrics
 from .structure import Inputs, ModelStructure
 from .uncertainty import WIDE, Z95, Uncertainty, from_jacobian
@@ -86,17 +86,10 @@ class _Record:
             if not mask[:, w].any():
                 raise FurnaceError(f"{exp.source or exp.name}: zone '{zone}' has no readings")
             guess[w] = y[np.argmax(mask[:, w]), w]
-        weight = None
-        if with_sensor_offsets:
-            good = np.isfinite(exp.tc).reshape(-1, 3, 2).astype(float)
-            weight = (good / np.maximum(good.sum(axis=2, keepdims=True), 1)).reshape(-1, 6)
+        weight = weights(np.isfinite(exp.tc)) if with_sensor_offsets else None
         zone_of = np.broadcast_to(np.arange(3), mask.shape)[mask]
         return cls(exp.t_min, np.where(mask, y, 0.0), mask, exp.inputs(), guess, weight,
                    bool(mask.all()), zone_of)
-
-
-def _has_sensor_offsets(structure: ModelStructure) -> bool:
-    return any(type(e).sensor_offsets is not Effect.sensor_offsets for e in structure.effects)
 
 
 class _Problem:
@@ -105,7 +98,7 @@ class _Problem:
 
     def __init__(self, experiments: list[Experiment], structure: ModelStructure,
                  fixed: dict[str, float], bounds: dict[str, tuple[float, float]],
-                 zone_offsets: bool = False):
+                 zone_offsets: bool = False, held_offsets: Sequence[np.ndarray] | None = None):
         unknown = sorted(set(fixed) - set(structure.names)) + sorted(set(bounds) - set(structure.names))
         if unknown:
             raise FurnaceError(f"unknown parameter(s) {unknown}; the model has {structure.names}")
@@ -120,8 +113,10 @@ class _Problem:
             raise FurnaceError("parameter bounds must have lo < hi (and lo > 0 for rates)")
         self.lo_val, self.hi_val = lo, hi
         self.lo, self.hi = self.to_z(lo), self.to_z(hi)
-        offsets = _has_sensor_offsets(structure)
-        self.records = [_Record.of(e, offsets) for e in experiments]
+        self.records = [_Record.of(e, structure.has_sensor_offsets) for e in experiments]
+        # Known thermocouple offsets per record (3,), added to the model: a span of a record
+        # whose offsets were estimated on more data than it holds.
+        self.held = None if held_offsets is None else [np.asarray(o, float) for o in held_offsets]
         self.k = len(self.free)
         self.block = 6 if zone_offsets else 3  # per experiment: x0, then offsets if fitted
         self.n = self.k + self.block * len(self.records)
@@ -173,16 +168,13 @@ class _Problem:
         r = self.records[j]
         with np.errstate(all="ignore"):
             if first_order is None:
-                y = self._simulate(values, r, x0)
+                response = self._simulate(values, r, x0)
             else:
-                y = self._simulate_split(values, r, x0, first_order)
-            if r.tc_weight is not None:
-                off = self.structure.sensor_offsets(values, r.t) * r.tc_weight
-                pair = off.reshape(off.shape[0], -1, 3, 2)
-                y = y + (pair[..., 0] + pair[..., 1])  # a sum over the pair, without a slow reduce
-        return y
+                response = self._simulate_split(values, r, x0, first_order)
+            y = response.readings(weight=r.tc_weight)
+        return y if self.held is None else y + self.held[j]
 
-    def _simulate(self, values: dict[str, np.ndarray], r: _Record, x0: np.ndarray) -> np.ndarray:
+    def _simulate(self, values: dict[str, np.ndarray], r: _Record, x0: np.ndarray) -> Response:
         try:
             return self.structure.simulate(values, r.inputs, r.t, x0)
         except IndexError:
@@ -200,21 +192,21 @@ class _Problem:
             out = np.full((bad.size, r.t.size, 3), np.nan)
             if good.size:
                 out[good] = self.structure.simulate({k: v[good] for k, v in theta.items()},
-                                                    r.inputs, r.t, x0[good])
-            return out
+                                                    r.inputs, r.t, x0[good]).zones
+            return Response(r.t, out, self.structure, theta)
 
     def _simulate_split(self, values: dict[str, np.ndarray], r: _Record, x0: np.ndarray,
-                        first_order: np.ndarray) -> np.ndarray:
+                        first_order: np.ndarray) -> Response:
         x0 = np.broadcast_to(x0, (first_order.size, x0.shape[-1]))
         fo, full = np.nonzero(first_order)[0], np.nonzero(~first_order)[0]
         out = np.empty((first_order.size, r.t.size, 3))
-        out[full] = self._simulate({k: v[full] for k, v in values.items()}, r, x0[full])
+        out[full] = self._simulate({k: v[full] for k, v in values.items()}, r, x0[full]).zones
         try:
             out[fo] = self.structure.simulate_first_order({k: v[fo] for k, v in values.items()},
                                                           r.inputs, r.t, x0[fo])
         except IndexError:  # a mode too slow for the closed form: as _simulate does
-            out[fo] = self._simulate({k: v[fo] for k, v in values.items()}, r, x0[fo])
-        return out
+            out[fo] = self._simulate({k: v[fo] for k, v in values.items()}, r, x0[fo]).zones
+        return Response(r.t, out, self.structure, values)
 
     def residuals(self, j: int, values: dict[str, np.ndarray], x0: np.ndarray,
                   first_order: np.ndarray | None = None) -> np.ndarray:
@@ -393,8 +385,69 @@ def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
+class _Predicts:
+    """Prediction from parameter values and, for the records a result was estimated on, its
+    initial states and thermocouple offsets. Needs `structure`, `params`, `data`, `x0` and
+    `zone_offsets_c` (None: no offsets), and `zone_offsets` (bool: a new record's offsets
+    are estimated with its initial state)."""
+
+    structure: ModelStructure
+    params: dict[str, float]
+    data: list[Experiment]
+    x0: list[np.ndarray]
+    zone_offsets_c: list[dict[str, float]] | None
+    zone_offsets: bool
+
+    @property
+    def model(self) -> Model:
+        """The structure with these parameter values, without records."""
+        return Model(self.structure, dict(self.params), self.zone_offsets)
+
+    def offsets(self, j: int) -> np.ndarray:
+        """Record j's zone offsets (3,), zeros where none were estimated or held."""
+        if self.zone_offsets_c is None:
+            return np.zeros(3)
+        return np.array([self.zone_offsets_c[j][z] for z in ZONES], dtype=float)
+
+    def _record(self, j: int) -> Experiment:
+        if not 0 <= j < len(self.data):
+            raise IndexError(f"record {j}: this result holds {len(self.data)} record(s)")
+        return self.data[j]
+
+    def response(self, record: int | Experiment, x0: np.ndarray | None = None,
+                 states: bool = True) -> Response:
+        """The simulated run on a record: an own record (index) from its fitted initial
+        state, a new one from x0 (estimated from its data if None)."""
+        if isinstance(record, int | np.integer):
+            return self.model.response(self._record(int(record)), self.x0[int(record)], states)
+        return self.model.response(record, x0, states)
+
+    def predict(self, record: int | Experiment, x0: np.ndarray | None = None,
+                offsets: np.ndarray | None = None) -> np.ndarray:
+        """What the thermocouples read (N, 3) on a record, as its zone means.
+
+        An own record (an index into `data`) starts from its fitted initial state and gets
+        its fitted zone offsets. A new record (an Experiment): with x0 None its initial
+        state, and its offsets where this result estimated offsets, are estimated from its
+        data under these parameters (a new campaign's start and thermocouple biases are not
+        the model's to predict); with x0 given the run starts there and `offsets` (3,; none
+        if None) are added."""
+        if isinstance(record, int | np.integer):
+            j = int(record)
+            return self.model.predict(self._record(j), self.x0[j], self.offsets(j))
+        return self.model.predict(record, x0, offsets)
+
+    def refine(self, data: Sequence[Experiment], free: Sequence[str] = (), *,
+               x0: Sequence[np.ndarray] | None = None,
+               offsets: Sequence[np.ndarray] | None = None,
+               sigma: float | None = None) -> Refinement:
+        """Re-estimate the parameters in `free` on other data, the others held at these
+        values; see `Model.refine`."""
+        return self.model.refine(data, free, x0=x0, offsets=offsets, sigma=sigma)
+
+
 @dataclass
-class FitResult:
+class FitResult(_Predicts):
     structure: ModelStructure
     params: dict[str, float]
     x0: list[np.ndarray]
@@ -428,12 +481,13 @@ class FitResult:
     """The intervals were the residuals white (ci95 allows for their autocorrelation)."""
     profiled: list[str] = field(default_factory=list)
     """Parameters whose interval follows the criterion (profile likelihood)."""
+    data: list[Experiment] = field(default_factory=list)
+    """The fitted records, in order: `predict(j)` is record j as the fit models it."""
 
-    def predict(self, exp: Experiment, x0: np.ndarray | None = None) -> np.ndarray:
-        """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None.
-        Fitted zone offsets are not added: they belong to the thermocouples of the fitted
-        records, not to the furnace."""
-        return predict(self.params, exp, self.structure, x0)
+    @property
+    def zone_offsets(self) -> bool:
+        """Whether the fit estimated thermocouple offsets: a new record gets them too."""
+        return self.zone_offsets_c is not None
 
     @property
     def stop_description(self) -> str:
@@ -628,7 +682,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
                 for n, lo, hi in zip(prob.names, prob.lo_val, prob.hi_val, strict=True)},
         at_bound=at_bound, stop_reason=best_run.stop_reason, iterations=best_run.iterations,
         generations=best_run.generations,
-        criteria=criteria(_residual_matrix(prob, z), n_estimated))
+        criteria=criteria(_residual_matrix(prob, z), n_estimated), data=list(experiments))
 
 
 @dataclass
@@ -774,28 +828,6 @@ def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: li
     return out
 
 
-def initial_state(params: dict[str, float], exp: Experiment,
-                  structure: ModelStructure | None = None,
-                  zone_offsets: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Initial zone temperatures (3,) and zone offsets (3,; zeros unless `zone_offsets`)
-    that fit exp best under fixed parameters: what `score` estimates before it scores."""
-    structure = structure or ModelStructure()
-    prob = _Problem([exp], structure, {n: float(params[n]) for n in structure.names}, {},
-                    zone_offsets)
-    z = prob.polish(prob.start(np.zeros(0)), None).z
-    return prob.x0_of(z, 0).copy(), prob.offsets_of(z, 0).copy()
-
-
-def predict(params: dict[str, float], exp: Experiment, structure: ModelStructure | None = None,
-            x0: np.ndarray | None = None) -> np.ndarray:
-    """Model zone temperatures (N, 3) on exp's samples; x0 estimated from exp if None."""
-    structure = structure or ModelStructure()
-    if x0 is None:
-        x0 = initial_state(params, exp, structure)[0]
-    prob = _Problem([exp], structure, dict(params), {})
-    return prob.predict(0, prob.values(np.zeros((1, 0))), np.asarray(x0, float)[None])[0]
-
-
 def score(params: dict, experiments: list[Experiment],
           structure: ModelStructure | None = None, zone_offsets: bool = False) -> dict:
     """Per-zone MAE, RMSE and fit % of given parameters on experiments (the paper's
@@ -805,31 +837,155 @@ def score(params: dict, experiments: list[Experiment],
     missing = [n for n in structure.names if n not in params]
     if missing:
         raise FurnaceError(f"parameter(s) {', '.join(missing)} missing for {structure.label}")
-    values = {n: float(params[n]) for n in structure.names}
-    prob = _Problem(experiments, structure, values, {}, zone_offsets)
-    return _per_zone(prob, prob.polish(prob.start(np.zeros(0)), None).z)
+    return Model(structure, params, zone_offsets).refine(experiments).per_zone
 
 
-def predict_held_out(params: dict, experiments: list[Experiment],
-                     structure: ModelStructure | None = None,
-                     zone_offsets: bool = False, free: Sequence[str] = ()) -> list[np.ndarray]:
-    """What the thermocouples would read (N, 3) per experiment under fixed parameters, each
-    experiment's initial state (and with `zone_offsets` its offsets, which are included)
-    estimated from its own data: held-out records are scored this way, because the furnace's
-    starting temperatures and a new campaign's thermocouple biases are not the model's to
-    predict. Parameters named in `free` are estimated too, once for all the experiments,
-    from the given values: those the fitted data do not see, which fixed at an arbitrary
-    value would make the score a lottery."""
-    structure = structure or ModelStructure()
-    values = {n: float(params[n]) for n in structure.names}
-    fixed = {n: v for n, v in values.items() if n not in free}
-    out = []
-    for group in ([experiments] if free else [[e] for e in experiments]):
-        prob = _Problem(group, structure, fixed, {}, zone_offsets)
-        z = prob.polish(prob.start(prob.to_z(np.array([values[n] for n in prob.names]))),
-                        None).z
-        vals = prob.values(z[None, :prob.k])
-        for j in range(len(group)):
-            y = prob.predict(j, vals, prob.x0_of(z, j)[None])[0]
-            out.append(y + prob.offsets_of(z, j))
-    return out
+@dataclass
+class Model:
+    """A structure with parameter values and no records: what a parameter file holds.
+    `zone_offsets`: a record's thermocouple offsets are estimated with its initial state."""
+
+    structure: ModelStructure
+    params: dict[str, float]
+    zone_offsets: bool = False
+
+    def __post_init__(self):
+        missing = [n for n in self.structure.names if n not in self.params]
+        if missing:
+            raise FurnaceError(f"parameter(s) {', '.join(missing)} missing for "
+                               f"{self.structure.label}")
+        self.params = {n: float(self.params[n]) for n in self.structure.names}
+
+    @property
+    def model(self) -> Model:
+        return self
+
+    def response(self, exp: Experiment, x0: np.ndarray | None = None,
+                 states: bool = True) -> Response:
+        """The simulated run on exp's samples from zone temperatures (or all states) x0;
+        x0 estimated from exp's data if None."""
+        if x0 is None:
+            x0 = self.refine([exp]).x0[0]
+        return self.structure.simulate(self.params, exp.inputs(), exp.t_min,
+                                       np.asarray(x0, dtype=float)[None], states=states)
+
+    def predict(self, exp: Experiment, x0: np.ndarray | None = None,
+                offsets: np.ndarray | None = None) -> np.ndarray:
+        """What exp's thermocouples read (N, 3) as zone means. With x0 None the initial
+        state (and with `zone_offsets` the offsets) are estimated from exp; else the run
+        starts at x0 and `offsets` (3,; none if None) are added."""
+        if x0 is None:
+            return self.refine([exp]).predict(0)
+        prob = _Problem([exp], self.structure, self.params, {},
+                        held_offsets=None if offsets is None else [offsets])
+        return prob.predict(0, prob.values(np.zeros((1, 0))), np.asarray(x0, float)[None])[0]
+
+    def refine(self, data: Sequence[Experiment], free: Sequence[str] = (), *,
+               x0: Sequence[np.ndarray] | None = None,
+               offsets: Sequence[np.ndarray] | None = None,
+               sigma: float | None = None) -> Refinement:
+        """Re-estimate the parameters named in `free` on `data`, the others held at these
+        values, with each record's initial state (and with `zone_offsets` its thermocouple
+        offsets): what scoring held-out records needs (their start and biases are theirs,
+        and a parameter the fitted data did not see is theirs to set), and what a recent
+        span of a long window says about one parameter.
+
+        The free parameters are shared by all records. With none free each record is
+        estimated alone: its initial state cannot depend on which other records were passed.
+        x0 (per record, zone temperatures or all states) starts the search of the initial
+        states (the first readings if None). `offsets` (per record, (3,)) are held, not
+        estimated: offsets known from more data than a span holds. `sigma` (°C) is the
+        noise level for the free parameters' covariance; None takes the refinement's own
+        residual.
+        """
+        data = list(data)
+        free = tuple(free)
+        unknown = [n for n in free if n not in self.structure.names]
+        if unknown:
+            raise FurnaceError(f"unknown parameter(s) {unknown}; the model has "
+                               f"{self.structure.names}")
+        if not data:
+            raise FurnaceError("no data to refine on")
+        fixed = {n: v for n, v in self.params.items() if n not in free}
+        estimate = self.zone_offsets and offsets is None
+        groups = [list(range(len(data)))] if free else [[j] for j in range(len(data))]
+        x0s: list[np.ndarray] = [np.zeros(3)] * len(data)
+        offs: list[np.ndarray] = [np.zeros(3)] * len(data)
+        params = dict(self.params)
+        sse, n_obs, reasons, iterations = 0.0, 0, [], 0
+        cov = np.zeros((len(free), len(free)))
+        for group in groups:
+            prob = _Problem([data[j] for j in group], self.structure, fixed, {}, estimate,
+                            None if offsets is None else [offsets[j] for j in group])
+            start = prob.start(prob.to_z(np.array([self.params[n] for n in prob.names])))
+            if x0 is not None:
+                for i, j in enumerate(group):
+                    at = prob.k + prob.block * i
+                    start[at:at + 3] = np.asarray(x0[j], dtype=float)[:3]
+            p = prob.polish(start, None)
+            for i, j in enumerate(group):
+                x0s[j] = prob.x0_of(p.z, i).copy()
+                offs[j] = (prob.offsets_of(p.z, i).copy() if offsets is None
+                           else np.asarray(offsets[j], dtype=float))
+            sse += float(p.r @ p.r)
+            n_obs += prob.n_obs
+            reasons.append(p.reason)
+            iterations += p.iterations
+            if free:
+                params.update(_param_dict(prob, p.z))
+                cov = _free_cov(prob, p, sigma)
+        std = {n: float(np.sqrt(cov[i, i])) if np.isfinite(cov[i, i]) else float("nan")
+               for i, n in enumerate(free)}
+        by_zone = None
+        if estimate or offsets is not None:
+            by_zone = [dict(zip(ZONES, map(float, o), strict=True)) for o in offs]
+        return Refinement(
+            structure=self.structure, params=params, free=free, data=data, x0=x0s,
+            zone_offsets_c=by_zone, zone_offsets=self.zone_offsets, std=std, cov=cov,
+            sse=sse, n_obs=n_obs,
+            stop_reason=next((r for r in reasons if r != "converged"), "converged"),
+            iterations=iterations)
+
+
+def _free_cov(prob: _Problem, polished: _Polished, sigma: float | None) -> np.ndarray:
+    """Covariance (own units) of the free parameters, the initial states and offsets
+    marginalised out, the residuals taken as white with standard deviation sigma (the
+    refinement's own if None). NaN where the data do not determine them."""
+    J = polished.J
+    k = prob.k
+    if sigma is None:
+        sigma = float(np.sqrt(polished.r @ polished.r / max(J.shape[0] - J.shape[1], 1)))
+    normal = J.T @ J
+    if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
+        return np.full((k, k), np.nan)
+    cov = sigma ** 2 * np.linalg.inv(normal)[:k, :k]
+    scale = np.where(prob.log, prob.from_z(polished.z[:k]), 1.0)  # d p = p d log p
+    return cov * np.outer(scale, scale)
+
+
+@dataclass
+class Refinement(_Predicts):
+    """Parameters re-estimated on records (`free`; the others held), with the records'
+    initial states and offsets: it predicts its records, and new ones, as a fit does."""
+
+    structure: ModelStructure
+    params: dict[str, float]
+    free: tuple[str, ...]
+    data: list[Experiment]
+    x0: list[np.ndarray]
+    zone_offsets_c: list[dict[str, float]] | None
+    zone_offsets: bool
+    std: dict[str, float]
+    """The free parameters' standard deviations, own units (white residuals of `sigma`)."""
+    cov: np.ndarray
+    """Their covariance, own units, in `free` order."""
+    sse: float
+    n_obs: int
+    stop_reason: str
+    iterations: int
+
+    @property
+    def per_zone(self) -> dict[str, dict[str, float]]:
+        """MAE, RMSE and fit % per zone over the records (the paper's Table VI)."""
+        return zone_metrics(np.concatenate([e.zone_temp for e in self.data]),
+                            np.concatenate([self.predict(j) for j in range(len(self.data))]))

@@ -99,10 +99,9 @@ class Plant:
     def run(self, inputs: Inputs, t: np.ndarray, x0_zone: np.ndarray,
             start_time: pd.Timestamp | None = None) -> PlantRun:
         t = np.asarray(t, dtype=float)
-        states = self.structure.simulate(self.values, inputs, t, x0_zone, states=True)[0]
-        sensed = states @ self.structure.system(self.structure.theta(self.values)).C[0].T
+        run = self.structure.simulate(self.values, inputs, t, x0_zone, states=True)
         j = np.searchsorted(inputs.t, t, side="right") - 1
-        return PlantRun(t, states[:, :3], self.read(sensed, t), inputs.burners[j],
+        return PlantRun(t, run.states[0, :, :3], self.read(run.zones[0], t), inputs.burners[j],
                         inputs.t_air[j], start_time)
 
     def run_scenario(self, scenario: Scenario) -> PlantRun:
@@ -159,7 +158,8 @@ class PlantStepper:
             return
         inputs = Inputs(np.array(self._t), np.array(self._burners), np.array(self._air))
         self.x = self.plant.structure.simulate(self.plant.values, inputs, np.array([t_new]),
-                                               self.x[None], t0=self.t, states=True)[0, 0]
+                                               self.x[None], t0=self.t,
+                                               states=True).final_state[0]
         self.t = float(t_new)
 
     def zone_true(self) -> np.ndarray:

@@ -24,7 +24,7 @@ from scipy.linalg import expm
 
 from .errors import FurnaceError
 from .experiment import Experiment
-from .fit import initial_state, predict
+from .fit import Model
 from .scores import zone_metrics
 from .structure import ModelStructure
 
@@ -39,16 +39,16 @@ def predict_ahead(params: dict[str, float], exp: Experiment, horizon: int,
         raise FurnaceError(f"the prediction horizon must be a whole number of samples of at "
                            f"least 1, got {horizon}")
     k = int(horizon)
-    structure = structure or ModelStructure()
-    values = {n: float(params[n]) for n in structure.names}
+    model = Model(structure or ModelStructure(), params)
+    structure, values = model.structure, model.params
     if x0 is None:
-        x0 = initial_state(values, exp, structure)[0]
+        x0 = model.refine([exp]).x0[0]
     off = np.zeros(3) if offsets is None else np.asarray(offsets, dtype=float)
-    simulated = predict(values, exp, structure, x0) + off
+    run = model.response(exp, x0)
+    simulated = run.readings(np.isfinite(exp.tc))[0] + off
     if k >= len(exp):
         return simulated
-    states = structure.simulate(values, exp.inputs(), exp.t_min, np.asarray(x0, float)[None],
-                                states=True)[0]
+    states = run.states[0]
     C = structure.system(structure.theta(values)).C[0]
     # the measured minus the simulated reading, put into the states the readings are of
     miss = np.nan_to_num(exp.zone_temp - simulated, nan=0.0) @ np.linalg.pinv(C).T
@@ -76,7 +76,7 @@ def _by_windows(values, exp, k, structure, simulated, states, miss) -> np.ndarra
     t, inputs = exp.t_min, exp.inputs()
     for i in range(len(exp) - k):
         start = (states[i] + miss[i])[None]
-        end = structure.simulate(values, inputs, t[i:i + k + 1], start, t0=float(t[i]))[0, -1]
+        end = structure.simulate(values, inputs, t[i:i + k + 1], start, t0=float(t[i])).zones[0, -1]
         out[i + k] = end + additive[i + k]
     return out
 
@@ -87,11 +87,11 @@ def score_ahead(params: dict[str, float], experiments: list[Experiment], horizon
     """Per-zone MAE, RMSE and fit % of the `horizon`-step-ahead prediction, per experiment
     (by name) and pooled; each experiment's initial state (and with `zone_offsets` its
     offsets) estimated from its data as `score` does for the simulation."""
-    structure = structure or ModelStructure()
+    model = Model(structure or ModelStructure(), params, zone_offsets)
     per_exp, measured, predicted = {}, [], []
     for exp in experiments:
-        x0, off = initial_state(params, exp, structure, zone_offsets)
-        y = predict_ahead(params, exp, horizon, structure, x0, off)
+        start = model.refine([exp])
+        y = predict_ahead(params, exp, horizon, model.structure, start.x0[0], start.offsets(0))
         per_exp[exp.name] = zone_metrics(exp.zone_temp, y)
         measured.append(exp.zone_temp)
         predicted.append(y)

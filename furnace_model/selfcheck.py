@@ -212,7 +212,7 @@ def _draw_schedule(rng: np.random.Generator, structure: ModelStructure, values: 
         if spread and not np.any((counts[:, 1] > 0) & (counts[:, 2] > 0)):
             continue
         inputs = Inputs(times, counts, np.full(k, t_air))
-        y = structure.simulate(values, inputs, t, x0)[0]
+        y = structure.simulate(values, inputs, t, x0).zones[0]
         if np.nanmax(y) < T_MAX_C:
             return inputs
     raise RuntimeError("no burner schedule below the temperature limit was found")
@@ -267,7 +267,8 @@ def _run_with_door(plant: Plant, inputs: Inputs, t: np.ndarray, x0: np.ndarray, 
                                  (base, values, float(t[-1]) + 1.0)):
         idx = np.nonzero((t >= t_from) & (t < end))[0]
         grid = np.append(t[idx], min(end, float(t[-1]) + 1.0))
-        piece = structure.simulate(vals, inputs, grid, x[None], t0=t_from, states=True)[0]
+        piece = structure.simulate(vals, inputs, grid, x[None], t0=t_from,
+                                   states=True).states[0]
         states[idx] = piece[:-1]
         x, t_from = piece[-1], end
     C = base.system(base.theta(values)).C[0]

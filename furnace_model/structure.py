@@ -18,6 +18,7 @@ from scipy.integrate import solve_ivp
 from .effects import N_INPUTS, U_AIR, U_BURNERS, Effect, Theta
 from .lti import Drive, Modes, response
 from .parameters import BASELINE, Param
+from .response import Response
 
 
 @dataclass(frozen=True)
@@ -143,12 +144,18 @@ class ModelStructure:
         extra = [z for e in self.effects for z in e.state_zones]
         return np.concatenate([x_zone, x_zone[:, extra]], axis=1)
 
+    @property
+    def has_sensor_offsets(self) -> bool:
+        """Whether some effect adds its own error to single thermocouples (a drift)."""
+        return any(type(e).sensor_offsets is not Effect.sensor_offsets for e in self.effects)
+
     def simulate(self, values: Mapping[str, float | np.ndarray], inputs: Inputs, t: np.ndarray,
-                 x0: np.ndarray, t0: float | None = None, states: bool = False) -> np.ndarray:
-        """Sensed zone temperatures (P, N, 3) at times t, from zone temperatures x0 at t0.
+                 x0: np.ndarray, t0: float | None = None, states: bool = False) -> Response:
+        """The run at times t from zone temperatures x0 at t0, for P parameter sets.
 
         x0 is (P|1, 3) zone temperatures, or (P|1, n) full states. t0 defaults to the first
-        input time. With states=True return all states (P, N, n) instead.
+        input time. The zone outputs are simulated; with states=True the states are too (one
+        simulation gives both), else a response computes them on first use.
         """
         theta = self.theta(values)
         sys = self.system(theta)
@@ -158,10 +165,16 @@ class ModelStructure:
             x0 = self.full_state(x0)
         t0 = float(inputs.t[0]) if t0 is None else float(t0)
         t = np.asarray(t, dtype=float)
-        C = None if states else sys.C
-        if self.linear:
-            return response(sys.A, sys.B, x0, t0, drive, t, C=C, modes=Modes.of(sys.A))
-        return self._integrate(theta, sys, drive, x0, t0, t, C)
+
+        def run(C: np.ndarray | None) -> np.ndarray:
+            if self.linear:
+                return response(sys.A, sys.B, x0, t0, drive, t, C=C, modes=Modes.of(sys.A))
+            return self._integrate(theta, sys, drive, x0, t0, t, C)
+
+        if states:
+            x = run(None)
+            return Response(t, np.einsum("pqn,pNn->pNq", sys.C, x), self, theta, states=x)
+        return Response(t, run(sys.C), self, theta, recompute_states=lambda: run(None))
 
     def nonlinear_off(self, values: Mapping[str, float | np.ndarray]) -> np.ndarray:
         """Parameter sets (P,) in which every nonlinear term vanishes: linear ones."""

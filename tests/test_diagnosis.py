@@ -32,7 +32,7 @@ from furnace_model.effects import EFFECTS, Clues, FuelChange, Radiation, SensorD
 from furnace_model.effects.zone_burners import soak_only_heads
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import Experiment
-from furnace_model.fit import predict_held_out
+from furnace_model.fit import Model
 from furnace_model.noisefloor import pooled_floor, record_floor
 from furnace_model.parameters import PAPER_TABLE_V
 from furnace_model.plant import Plant
@@ -376,7 +376,7 @@ def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_dat
     floor = pooled_floor([record_floor(soak_steps)])
     for z in ZONES:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
-    fixed = predict_held_out(c.params, [soak_steps], structure, zone_offsets=True)[0]
+    fixed = Model(structure, c.params, zone_offsets=True).refine([soak_steps]).predict(0)
     rmse_fixed = np.sqrt(np.nanmean((soak_steps.zone_temp - fixed) ** 2, axis=0))
     assert rmse_fixed.max() > 2 * NEAR_RATIO * max(floor.values()), rmse_fixed
     # the same fit on a record whose soaking burners step sees every parameter

@@ -30,7 +30,7 @@ STEP = Inputs(np.array([0.0, 2000.0]), np.array([[2, 0, 0], [10, 8, 4.0]]), np.f
 
 def run(effects=(), **values):
     ms = ModelStructure(list(effects))
-    return ms.simulate({**ms.defaults(), **PAPER_TABLE_V, **values}, STEP, T, X0)[0]
+    return ms.simulate({**ms.defaults(), **PAPER_TABLE_V, **values}, STEP, T, X0).zones[0]
 
 
 BASE = run()
@@ -74,8 +74,8 @@ def test_dead_time_shifts_the_response():
     ms = ModelStructure([DeadTime()])
     sysm = ModelStructure().system(ModelStructure().theta(PAPER_TABLE_V))
     rest = -np.linalg.solve(sysm.A[0], sysm.B[0] @ np.r_[STEP.burners[0], STEP.t_air[0]])
-    base = ModelStructure().simulate(PAPER_TABLE_V, STEP, T, rest)[0]
-    y = ms.simulate({**PAPER_TABLE_V, "theta_dead": 20.0}, STEP, T, rest)[0]
+    base = ModelStructure().simulate(PAPER_TABLE_V, STEP, T, rest).zones[0]
+    y = ms.simulate({**PAPER_TABLE_V, "theta_dead": 20.0}, STEP, T, rest).zones[0]
     np.testing.assert_allclose(y[20:], base[:-20], rtol=1e-9)
     np.testing.assert_allclose(y[:2021], np.broadcast_to(rest, (2021, 3)), rtol=1e-9)
 
@@ -86,8 +86,8 @@ def test_wall_storage_slows_heating_but_keeps_the_steady_state():
     long = np.arange(0.0, 600001.0, 1000.0)  # the wall slows the slowest mode
     ms = ModelStructure([WallStorage()])
     inputs = Inputs(np.array([0.0]), np.array([[4, 0, 0.0]]), np.array([30.0]))
-    ys = ms.simulate({**PAPER_TABLE_V, "k_gw": 0.2, "k_wg": 0.01}, inputs, long, X0)[0]
-    yb = ModelStructure().simulate(PAPER_TABLE_V, inputs, long, X0)[0]
+    ys = ms.simulate({**PAPER_TABLE_V, "k_gw": 0.2, "k_wg": 0.01}, inputs, long, X0).zones[0]
+    yb = ModelStructure().simulate(PAPER_TABLE_V, inputs, long, X0).zones[0]
     np.testing.assert_allclose(ys[-1], yb[-1], rtol=1e-6)
 
 
@@ -109,20 +109,20 @@ def test_wall_of_two_layers_and_wall_in_one_zone():
 def test_radiation_weakens_exchange_below_and_strengthens_it_above_the_reference():
     t = np.arange(0.0, 1501.0, 10.0)
     inputs = Inputs(np.array([0.0]), np.array([[4, 0, 0.0]]), np.array([30.0]))
-    base = ModelStructure().simulate(PAPER_TABLE_V, inputs, t, X0)[0]
+    base = ModelStructure().simulate(PAPER_TABLE_V, inputs, t, X0).zones[0]
     assert base.max() < 700
     none = ModelStructure([Radiation()]).simulate({**PAPER_TABLE_V, "rad_share": 0.0},
-                                                  inputs, t, X0)[0]
+                                                  inputs, t, X0).zones[0]
     np.testing.assert_allclose(none, base, rtol=1e-6)
     # everything below the 900 C reference: weaker exchange, the burner zone keeps its heat
     cold = ModelStructure([Radiation()]).simulate({**PAPER_TABLE_V, "rad_share": 0.8},
-                                                  inputs, t, X0)[0]
+                                                  inputs, t, X0).zones[0]
     assert np.all(cold[5:, 0] > base[5:, 0])
     # a furnace far above a 100 C reference: stronger exchange, the burner zone passes heat on
     warm = X0 + 500.0
-    base_warm = ModelStructure().simulate(PAPER_TABLE_V, inputs, t, warm)[0]
+    base_warm = ModelStructure().simulate(PAPER_TABLE_V, inputs, t, warm).zones[0]
     hot = ModelStructure([Radiation(t_ref_c=100.0)]).simulate(
-        {**PAPER_TABLE_V, "rad_share": 0.8}, inputs, t, warm)[0]
+        {**PAPER_TABLE_V, "rad_share": 0.8}, inputs, t, warm).zones[0]
     assert np.all(hot[5:, 0] < base_warm[5:, 0])
 
 
@@ -198,7 +198,8 @@ def test_plant_without_effects_or_noise_equals_the_model(scenarios):
     scn = load_scenario(scenarios / "paper_exp2.yaml")
     plant = Plant(ModelStructure(), scn.params, SensorSpec(noise_sd_c=0.0, bias_sd_c=0.0), seed=1)
     run_ = plant.run_scenario(scn)
-    model = ModelStructure().simulate(scn.params, scn.inputs(), scn.sample_times(), scn.initial_c)
+    model = ModelStructure().simulate(scn.params, scn.inputs(), scn.sample_times(),
+                                      scn.initial_c).zones
     np.testing.assert_array_equal(run_.tc[:, ::2], model[0])
     np.testing.assert_array_equal(run_.tc[:, 1::2], model[0])
 

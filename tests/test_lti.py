@@ -74,7 +74,7 @@ def test_exact_against_solve_ivp_random(seed):
     # irregular sample times, some of them exactly on input changes
     t = np.unique(np.concatenate((np.sort(rng.uniform(0, 2000, 400)), inputs.t[1:3], [0.0])))
     x0 = rng.uniform(20, 900, 3)
-    y = ms.simulate(values, inputs, t, x0)[0]
+    y = ms.simulate(values, inputs, t, x0).zones[0]
     ref = reference(ms, values, inputs, t, x0)
     assert np.max(np.abs(y - ref) / np.abs(ref)) < 1e-6
 
@@ -90,7 +90,7 @@ def test_exact_extended_structures_against_solve_ivp(effects):
     t = np.linspace(0, 2000, 701)
     x0 = np.array([400.0, 300.0, 150.0])
     ref = reference(ms, values, inputs, t, x0)
-    y = ms.simulate(values, inputs, t, x0)[0]
+    y = ms.simulate(values, inputs, t, x0).zones[0]
     assert np.max(np.abs(y - ref) / np.abs(ref)) < 1e-6
 
 
@@ -103,7 +103,7 @@ def test_per_parameter_step_times_dead_time_exact():
     x0 = np.array([300.0, 250.0, 100.0])
     delays = np.array([0.5, 7.0, 33.3])
     values = {**PAPER_TABLE_V, "theta_dead": delays}
-    y = ms.simulate(values, inputs, t, x0)
+    y = ms.simulate(values, inputs, t, x0).zones
     for p, delay in enumerate(delays):
         ref = reference(ModelStructure(), PAPER_TABLE_V, inputs, t, x0, delay=delay)
         assert np.max(np.abs(y[p] - ref) / np.abs(ref)) < 1e-6
@@ -117,10 +117,10 @@ def test_fuel_change_equals_scaled_schedule():
                     np.full(3, 25.0))
     t = np.linspace(0, 2500, 1001)
     x0 = np.full(3, 25.0)
-    y = ms.simulate({**PAPER_TABLE_V, "t_fuel": 1000.0, "fuel_ratio": 0.7}, inputs, t, x0)[0]
+    y = ms.simulate({**PAPER_TABLE_V, "t_fuel": 1000.0, "fuel_ratio": 0.7}, inputs, t, x0).zones[0]
     scaled = Inputs(np.array([0.0, 500.0, 1000.0, 1500.0]),
                     np.array([[2, 0, 0], [6, 0, 0], [4.2, 0, 0], [7, 2.8, 0.0]]), np.full(4, 25.0))
-    ref = ModelStructure().simulate(PAPER_TABLE_V, scaled, t, x0)[0]
+    ref = ModelStructure().simulate(PAPER_TABLE_V, scaled, t, x0).zones[0]
     np.testing.assert_allclose(y, ref, rtol=1e-9)
 
 
@@ -131,9 +131,10 @@ def test_batched_call_equals_loop_of_single_calls():
         inputs = random_inputs(rng)
         t = np.linspace(0, 2000, 300)
         x0 = rng.uniform(20, 500, (40, 3))
-        batch = structure.simulate(values, inputs, t, x0)
+        batch = structure.simulate(values, inputs, t, x0).zones
         for p in range(40):
-            single = structure.simulate({k: v[p] for k, v in values.items()}, inputs, t, x0[p])
+            single = structure.simulate({k: v[p] for k, v in values.items()}, inputs, t,
+                                        x0[p]).zones
             np.testing.assert_allclose(batch[p], single[0], rtol=1e-10, atol=1e-9)
 
 
@@ -153,7 +154,7 @@ def test_lag_coinciding_with_a_furnace_mode_stays_exact():
     inputs = Inputs(np.array([0.0, 100.0]), np.array([[2, 0, 0], [8, 0, 0.0]]), np.full(2, 30.0))
     t = np.linspace(0, 400, 201)
     x0 = np.array([300.0, 200.0, 100.0])
-    y = ms.simulate(values, inputs, t, x0)[0]
+    y = ms.simulate(values, inputs, t, x0).zones[0]
     ref = reference(ms, values, inputs, t, x0)
     assert np.max(np.abs(y - ref) / np.abs(ref)) < 1e-6
 
@@ -169,7 +170,7 @@ def test_per_parameter_step_times_on_an_irregular_grid():
     delays = np.array([0.3, 12.5, 600.0])
     values = {**PAPER_TABLE_V, "theta_dead": delays, "t_fuel": np.array([700.0, 1e5, 50.0]),
               "fuel_ratio": 1.0, "f_heat": 0.4, "f_preheat": 0.2}
-    y = ms.simulate(values, inputs, t, x0)
+    y = ms.simulate(values, inputs, t, x0).zones
     for p, delay in enumerate(delays):
         ref = reference(ModelStructure([ZoneBurners()]), {**PAPER_TABLE_V, "f_heat": 0.4,
                                                           "f_preheat": 0.2},
@@ -190,9 +191,9 @@ def test_many_per_parameter_step_times_in_blocks_equal_single_calls():
     inputs = random_inputs(rng)
     t = np.arange(0.0, 2001.0)
     x0 = rng.uniform(20, 500, (P, 3))
-    batch = ms.simulate(values, inputs, t, x0)
+    batch = ms.simulate(values, inputs, t, x0).zones
     for p in (0, 7, 150, 299):
-        single = ms.simulate({k: v[p] for k, v in values.items()}, inputs, t, x0[p])
+        single = ms.simulate({k: v[p] for k, v in values.items()}, inputs, t, x0[p]).zones
         np.testing.assert_allclose(batch[p], single[0], rtol=1e-9, atol=1e-8)
 
 
@@ -240,7 +241,7 @@ def test_radiation_batched_integrator_against_tight_radau(effects, values):
     t = np.arange(0.0, 2601.0)
     x0 = np.full(3, 25.0)
     shares = np.array([0.1, values["rad_share"]])
-    y = ms.simulate({**PAPER_TABLE_V, **values, "rad_share": shares}, inputs, t, x0)
+    y = ms.simulate({**PAPER_TABLE_V, **values, "rad_share": shares}, inputs, t, x0).zones
     for p, share in enumerate(shares):
         ref = reference_nonlinear(ms, {**PAPER_TABLE_V, **values, "rad_share": share}, inputs,
                                   t, x0)
@@ -255,7 +256,7 @@ def test_radiation_with_per_set_step_times():
     t = np.arange(0.0, 1201.0, 2.0)
     x0 = np.full(3, 30.0)
     delays = np.array([3.3, 40.0])
-    y = ms.simulate({**PAPER_TABLE_V, "rad_share": 0.6, "theta_dead": delays}, inputs, t, x0)
+    y = ms.simulate({**PAPER_TABLE_V, "rad_share": 0.6, "theta_dead": delays}, inputs, t, x0).zones
     for p, delay in enumerate(delays):
         shifted = Inputs(np.array([0.0, 400.0 + delay, 900.0 + delay]), inputs.burners,
                          inputs.t_air)
@@ -271,7 +272,7 @@ def test_a_diverged_set_is_nan_and_leaves_the_batch_alone():
     inputs = Inputs(np.array([0.0, 300.0]), np.array([[2, 0, 0], [6, 0, 0.0]]), np.full(2, 30.0))
     t = np.arange(0.0, 601.0, 5.0)
     x0 = np.array([[30.0, 30.0, 30.0], [np.nan, 30.0, 30.0]])
-    y = ms.simulate({**PAPER_TABLE_V, "rad_share": np.array([0.5, 0.5])}, inputs, t, x0)
-    alone = ms.simulate({**PAPER_TABLE_V, "rad_share": 0.5}, inputs, t, x0[:1])
+    y = ms.simulate({**PAPER_TABLE_V, "rad_share": np.array([0.5, 0.5])}, inputs, t, x0).zones
+    alone = ms.simulate({**PAPER_TABLE_V, "rad_share": 0.5}, inputs, t, x0[:1]).zones
     assert np.isnan(y[1]).all()
     np.testing.assert_allclose(y[0], alone[0], rtol=0, atol=1e-9)

@@ -10,7 +10,7 @@ from heatups import ZONE_SD, heat_up
 
 from furnace_model.effects import DeadTime, Radiation, SensorLag, WallStorage
 from furnace_model.errors import FurnaceError
-from furnace_model.fit import predict
+from furnace_model.fit import Model
 from furnace_model.parameters import PAPER_TABLE_V
 from furnace_model.prediction import _by_free_response, _by_windows, predict_ahead, score_ahead
 from furnace_model.scenario import SensorSpec
@@ -31,7 +31,7 @@ def test_on_exact_data_the_prediction_is_the_data_whatever_the_start():
     the model predicts the next ones exactly, even from a simulation started 40 °C off."""
     exp = heat_up(SCENARIOS, PAPER_TABLE_V, 1.0, sensors=EXACT)
     x0 = exp.zone_temp[0] + np.array([40.0, -25.0, 10.0])
-    sim = predict(PAPER_TABLE_V, exp, x0=x0)
+    sim = Model(ModelStructure(), PAPER_TABLE_V).predict(exp, x0)
     assert np.abs(sim - exp.zone_temp).max() > 5  # the simulation itself is off
     for k in (1, 7):
         ahead = predict_ahead(PAPER_TABLE_V, exp, k, x0=x0)
@@ -46,8 +46,8 @@ def test_hidden_states_restart_from_the_simulation(scenarios):
     values = {**structure.defaults(), **PAPER_TABLE_V}
     exp = heat_up(scenarios, values, 1.0, structure=structure).between(0, 700)
     x0 = exp.zone_temp[0] + np.array([20.0, -10.0, 5.0])  # a simulation the readings correct
-    sim = predict(values, exp, structure, x0)
-    states = structure.simulate(values, exp.inputs(), exp.t_min, x0[None], states=True)[0]
+    sim = Model(structure, values).predict(exp, x0)
+    states = structure.simulate(values, exp.inputs(), exp.t_min, x0[None], states=True).states[0]
     C = structure.system(structure.theta(values)).C[0]
     miss = np.nan_to_num(exp.zone_temp - sim) @ np.linalg.pinv(C).T
     for k in (1, 6):
@@ -78,7 +78,7 @@ def test_a_biased_model_is_trusted_less_the_further_it_predicts(noisy):
     """f 10% high: the simulation drifts tens of degrees away, a short prediction does not;
     the fit falls with the horizon and reaches the simulation's when K spans the record."""
     wrong = {**PAPER_TABLE_V, "f": PAPER_TABLE_V["f"] * 1.1}
-    sim = zone_metrics(noisy.zone_temp, predict(wrong, noisy))
+    sim = zone_metrics(noisy.zone_temp, Model(ModelStructure(), wrong).predict(noisy))
     fits = {k: zone_metrics(noisy.zone_temp, predict_ahead(wrong, noisy, k))
             for k in (1, 5, 30, 300, len(noisy))}
     for zone in sim:

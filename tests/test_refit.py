@@ -289,3 +289,50 @@ def test_1hz_polls_averaged_into_minutes_recover_b_and_c():
         assert abs(m["d"] / m["e"] / (s.params["d"] / s.params["e"]) - 1) < 0.03
         assert all(v < 0.2 for v in m["rmse_c"].values())  # 1.5 / sqrt(2 x 60) = 0.14
     assert events == []
+
+
+def _recent_f_one_step(res, exp, from_min):
+    """The recent span's f as one least-squares step of f and the span's starting
+    temperatures, the window's offsets held: the model is affine in both, so this is the
+    exact minimum the refinement has to reach."""
+    from furnace_model import ZONES
+    from furnace_model.structure import ModelStructure
+
+    span = exp.between(from_min, np.inf)
+    structure = ModelStructure()
+    params = dict(res.params)
+    states = structure.simulate(params, exp.inputs(), exp.t_min, res.x0[0][None],
+                                states=True).states[0]
+    x = states[np.searchsorted(exp.t_min, span.t_min[0])]
+
+    def run(values, x):
+        return structure.simulate(values, span.inputs(), span.t_min, x[None]).zones[0]
+
+    base = run(params, x)
+    cols = [run({**params, "f": 2 * params["f"]}, x) - base]
+    cols += [run(params, x + u) - base for u in np.eye(3)]
+    resid = span.zone_temp - np.array([res.zone_offsets_c[0][z] for z in ZONES]) - base
+    good = np.isfinite(resid)
+    D = np.stack([c[good] for c in cols], axis=1)
+    cov = np.linalg.inv(D.T @ D)
+    step = cov @ (D.T @ resid[good])
+    return params["f"] * (1 + step[0]), params["f"] * res.sigma_c * np.sqrt(cov[0, 0])
+
+
+def test_recent_f_is_the_least_squares_f_of_the_span():
+    """The recent span's f and its standard error are the exact least-squares answer with the
+    window's offsets held and its noise level, before and after a fuel switch."""
+    from furnace_daq.refit import recent_f
+
+    s = scenario("fuel_switch", duration_min=3300)
+    exp = simulate(s).to_experiment("w")
+    for end in (2400.0, 3100.0):
+        window = exp.between(end - 1440.0, end)
+        res = fit([window], zone_offsets=True, seed=0, profile=False)
+        for span_min in (360.0, 180.0):
+            got = recent_f(res, window, end - span_min)
+            f, se = _recent_f_one_step(res, window, end - span_min)
+            assert got["f"] == pytest.approx(f, rel=1e-7)
+            assert got["se"] == pytest.approx(se, rel=1e-4)
+            assert got["n_samples"] == span_min
+    assert got["f"] == pytest.approx(0.8 * s.params["f"], rel=0.03)  # 3 h after the switch

@@ -106,12 +106,12 @@ def test_null_share_is_the_linear_model(record):
     x0 = record.zone_temp[0]
     rad = ModelStructure([Radiation()])
     values = {**PAPER_TABLE_V, "rad_share": np.array([0.0, 0.0])}
-    fast = rad.simulate(values, inputs, t, x0)
+    fast = rad.simulate(values, inputs, t, x0).zones
     theta = rad.theta(values)
     sysm = rad.system(theta)
     stepped = rad._exprb(theta, sysm, rad.drive(theta, inputs), np.atleast_2d(x0),
                          float(inputs.t[0]), t, sysm.C)
-    plain = ModelStructure().simulate(PAPER_TABLE_V, inputs, t, x0)
+    plain = ModelStructure().simulate(PAPER_TABLE_V, inputs, t, x0).zones
     assert np.abs(fast - stepped).max() < 1e-8
     assert np.array_equal(fast[0], plain[0])
 
@@ -123,18 +123,18 @@ def test_first_order_is_the_derivative_at_zero_share(record):
     inputs, t = record.inputs(), record.t_min
     x0 = record.zone_temp[0]
     rad = ModelStructure([Radiation()])
-    base = rad.simulate({**PAPER_TABLE_V, "rad_share": 0.0}, inputs, t, x0)[0]
+    base = rad.simulate({**PAPER_TABLE_V, "rad_share": 0.0}, inputs, t, x0).zones[0]
     gaps = []
     for w in (1e-2, 1e-3):
         v = {**PAPER_TABLE_V, "rad_share": w}
-        full = rad.simulate(v, inputs, t, x0)[0]
+        full = rad.simulate(v, inputs, t, x0).zones[0]
         first = rad.simulate_first_order(v, inputs, t, x0)[0]
         gaps.append(np.abs(full - first).max())
         assert np.abs(first - base).max() > 10 * gaps[-1]  # the first order carries the change
     assert gaps[0] / gaps[1] > 50  # second order in the share
     h = 1e-6
     v = {**PAPER_TABLE_V, "rad_share": h}
-    fd = (rad.simulate(v, inputs, t, x0)[0] - base) / h
+    fd = (rad.simulate(v, inputs, t, x0).zones[0] - base) / h
     fo = (rad.simulate_first_order(v, inputs, t, x0)[0] - base) / h
     assert np.abs(fo - fd).max() <= 5e-5 * np.abs(fd).max()
 
@@ -145,4 +145,4 @@ def test_first_order_of_a_linear_set_is_its_response(record):
     v = {**PAPER_TABLE_V, "rad_share": 0.0, "tau_lag": 4.0}
     x0 = record.zone_temp[0]
     assert np.abs(rad.simulate_first_order(v, inputs, t, x0)
-                  - rad.simulate(v, inputs, t, x0)).max() < 1e-9
+                  - rad.simulate(v, inputs, t, x0).zones).max() < 1e-9

@@ -134,7 +134,6 @@ class ProgressBar:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
 
     from ..effects import EFFECTS
     from ..effects.plugins import guarded
@@ -166,9 +165,8 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         from ..plots import plot_fit  # matplotlib only when plots are asked for
 
-        offsets = result.zone_offsets_c or [dict.fromkeys(ZONES, 0.0)] * len(experiments)
-        for exp, x0, off in zip(experiments, result.x0, offsets, strict=True):
-            model = result.predict(exp, x0) + np.array([off[z] for z in ZONES])
+        for j, exp in enumerate(experiments):
+            model = result.predict(j)
             try:
                 plot_fit(exp, model, args.plot, label=result.method)
             except OSError as exc:

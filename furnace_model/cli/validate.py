@@ -82,7 +82,7 @@ def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
 
 def run(args: argparse.Namespace) -> int:
     from ..experiment import load_experiment
-    from ..fit import predict, score
+    from ..fit import Model, score
 
     params, structure = load_params(args.params)
     experiments = [load_experiment(p) for p in args.data]
@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
 
         for exp in experiments:
             try:
-                plot_fit(exp, predict(params, exp, structure), args.plot, label="validation")
+                plot_fit(exp, Model(structure, params).predict(exp), args.plot, label="validation")
             except OSError as exc:
                 raise FurnaceError(f"{args.plot}: cannot write plots: "
                                    f"{exc.strerror or exc}") from None

@@ -11,7 +11,7 @@ import numpy as np
 from .. import ZONES
 from ..effects import EFFECTS, Effect
 from ..experiment import Experiment
-from ..fit import FitResult, fit, predict, predict_held_out
+from ..fit import FitResult, fit
 from ..residuals import lag1
 from ..structure import ModelStructure
 from .candidate import CandidateResult
@@ -131,12 +131,7 @@ def unseen_by_fit(fr: FitResult, bounds: dict[str, tuple[float, float]]) -> tupl
 
 def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray]:
     """The fitted model as the thermocouples read it, its zone offsets included."""
-    out = []
-    for j, exp in enumerate(data):
-        y = predict(fr.params, exp, fr.structure, fr.x0[j])
-        off = np.array([fr.zone_offsets_c[j][z] for z in ZONES]) if fr.zone_offsets_c else 0.0
-        out.append(y + off)
-    return out
+    return [fr.predict(j) for j in range(len(data))]
 
 
 def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Experiment],
@@ -150,17 +145,14 @@ def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Exp
     out: list[np.ndarray | None] = [None] * len(holdout)
     whole = [i for i, j in enumerate(tail_of) if j is None]
     if whole:
-        preds = predict_held_out(fr.params, [holdout[i] for i in whole], fr.structure,
-                                 zone_offsets=True, free=unseen)
-        for i, p in zip(whole, preds, strict=True):
-            out[i] = p
+        refined = fr.refine([holdout[i] for i in whole], free=unseen)
+        for k, i in enumerate(whole):
+            out[i] = refined.predict(k)
     for i, j in enumerate(tail_of):
         if j is None:
             continue
         joined = join(data[j], holdout[i])
-        y = predict(fr.params, joined, fr.structure, fr.x0[j])
-        off = np.array([fr.zone_offsets_c[j][z] for z in ZONES]) if fr.zone_offsets_c else 0.0
-        out[i] = (y + off)[len(data[j]):]
+        out[i] = fr.predict(joined, fr.x0[j], fr.offsets(j))[len(data[j]):]
     return [p for p in out if p is not None]
 
 

@@ -41,10 +41,17 @@ from pathlib import Path
 from typing import Protocol
 
 from furnace_model import SENSORS, ZONES
+from furnace_model.logschema import (
+    AMBIENT,
+    BURNERS,
+    DAQ_EVENTS,
+    DAQ_STATUS,
+    MODEL_PARAMETERS,
+    THERMOCOUPLES,
+)
 
 from .daqconfig import DaqConfig
 from .logclock import LogClock
-from .logschema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
 from .refitworker import RefitRunner
 from .registers import COMM_ERROR, OK, STALE
 from .sdnotify import Notifier

@@ -10,8 +10,7 @@ from typing import TYPE_CHECKING
 
 from furnace_model.cli.arguments import output_file
 from furnace_model.errors import DataError
-
-from ..logschema import DAQ_STATUS, THERMOCOUPLES
+from furnace_model.logschema import DAQ_STATUS, THERMOCOUPLES
 
 if TYPE_CHECKING:
     import numpy as np
@@ -51,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_info(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ..mcaplog import decode, iso_time, open_log
+    from furnace_model.logread import decode, iso_time, open_log
 
     counts: Counter[str] = Counter()
     tc_times: list[int] = []
@@ -100,7 +99,7 @@ def run_info(args: argparse.Namespace) -> int:
 def _print_gaps(t: np.ndarray) -> None:
     import numpy as np
 
-    from ..mcaplog import iso_time
+    from furnace_model.logread import iso_time
 
     if t.size < 3:
         print(f"{THERMOCOUPLES} gaps: too few messages to tell")
@@ -126,14 +125,13 @@ def _duration(s: float) -> str:
 
 def run_export(args: argparse.Namespace) -> int:
     from furnace_model.experiment import write_table
-
-    from ..logexport import export_frame, parse_time
+    from furnace_model.logresample import parse_time, resample_logs
 
     if args.out.suffix.lower() not in (".csv", ".parquet", ".pq"):
         raise DataError(str(args.out), "unsupported output type: use .csv or .parquet")
     start = parse_time(args.start, "--start") if args.start else None
     end = parse_time(args.end, "--end") if args.end else None
-    frame = export_frame(args.files, args.period, start, end)
+    frame = resample_logs(args.files, args.period, start, end)
     write_table(frame, args.out)
     tc = frame.filter(like="tc_")
     empty = int(tc.isna().all(axis=1).sum())
@@ -144,8 +142,9 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_recover(args: argparse.Namespace) -> int:
+    from furnace_model.logread import iso_time
+
     from ..logrecover import recover
-    from ..mcaplog import iso_time
 
     r = recover(args.file, args.out)
     note = "the input was complete already" if r.was_complete else r.cut

@@ -3,6 +3,8 @@
 Everything that breaks the contract is refused with the file, the column and the row (CSV:
 the line number as an editor shows it) and nothing is guessed: an empty thermocouple cell is
 a missing reading, not a zero, and a burner count must be a whole number within the zone.
+MCAP logs become the same table through `logexperiment` (the resampling of `logs export`)
+and are checked here like any file.
 """
 
 from __future__ import annotations
@@ -144,9 +146,9 @@ def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
                     period_s: float | None = None) -> Experiment:
     """Read and check one file of the tabular contract, or one log file or log directory
     (`load_experiments` says how)."""
-    path = Path(path)
     from .logexperiment import is_log
 
+    path = Path(path)
     if is_log(path):
         return load_experiments([path], t_air_default, start=start, end=end,
                                 period_s=period_s)[0]

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from furnace_daq.logexport import export_frame
 from furnace_daq.logrecover import recover
 from furnace_daq.mcaplog import LogWriter
 from furnace_model import SENSORS
+from furnace_model.logresample import resample_logs
 
 T0 = 1_772_431_200 * 10**9
 S = 10**9
@@ -66,7 +66,7 @@ def main() -> None:
         rows.append(("bytes per hour, 1 Hz, 5 s chunks, zstd", f"{total / args.hours / 1e6:.2f} MB"))
         rows.append(("files (hourly rotation)", str(len(files))))
         t = time.perf_counter()
-        frame = export_frame(files, 60.0)
+        frame = resample_logs(files, 60.0)
         rows.append((f"export {args.hours:g} h to 60 s rows ({len(frame)} rows)",
                      f"{time.perf_counter() - t:.2f} s"))
         cut = d / "cut.mcap.part"

@@ -21,9 +21,10 @@ import numpy as np
 
 from furnace_daq.daemon import Daemon
 from furnace_daq.daqconfig import load_config
-from furnace_daq.logschema import THERMOCOUPLES
-from furnace_daq.mcaplog import LogWriter, read_messages
+from furnace_daq.mcaplog import LogWriter
 from furnace_daq.sources import ModbusSource
+from furnace_model.logread import read_messages
+from furnace_model.logschema import THERMOCOUPLES
 
 ROOT = Path(__file__).resolve().parents[1]
 

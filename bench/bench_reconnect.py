@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from daq_processes import free_port, messages, sim, start_daemon  # noqa: E402
 
 from furnace_daq.daqconfig import parse_config  # noqa: E402
-from furnace_daq.logschema import THERMOCOUPLES  # noqa: E402
+from furnace_model.logschema import THERMOCOUPLES  # noqa: E402
 from furnace_model.config import Node  # noqa: E402
 
 

@@ -21,9 +21,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from furnace_daq.daqconfig import RefitConfig
-from furnace_daq.logschema import MODEL_EVENTS, MODEL_PARAMETERS
 from furnace_daq.plantlog import run_messages
 from furnace_daq.refitworker import RefitRunner
+from furnace_model.logschema import MODEL_EVENTS, MODEL_PARAMETERS
 from furnace_model.plant import Plant
 from furnace_model.scenario import load_scenario
 

@@ -18,10 +18,10 @@ import time
 from pathlib import Path
 
 from furnace_daq.daqconfig import RefitConfig
-from furnace_daq.logexport import export_frame
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.plantlog import write_run
 from furnace_daq.replay import replay
+from furnace_model.logresample import resample_logs
 from furnace_model.plant import Plant
 from furnace_model.scenario import load_scenario
 
@@ -62,7 +62,7 @@ def main() -> None:
     assert RefitConfig() == RefitConfig(period_s=900.0, window_s=86400.0, step_s=60.0)
 
     t0, c0 = time.perf_counter(), time.process_time()
-    frame = export_frame(files, period_s=60.0)
+    frame = resample_logs(files, period_s=60.0)
     t_read, c_read = time.perf_counter() - t0, time.process_time() - c0
 
     t0, c0 = time.perf_counter(), time.process_time()

@@ -50,11 +50,7 @@ from pathlib import Path
 from typing import Protocol
 
 from furnace_model import SENSORS, ZONES
-
-from .daqconfig import DaqConfig
-from .journal import ERR, INFO, NOTICE, WARNING, Journal
-from .logclock import LogClock
-from .logschema import (
+from furnace_model.logschema import (
     AMBIENT,
     BURNERS,
     DAQ_EVENTS,
@@ -63,6 +59,10 @@ from .logschema import (
     MODEL_PARAMETERS,
     THERMOCOUPLES,
 )
+
+from .daqconfig import DaqConfig
+from .journal import ERR, INFO, NOTICE, WARNING, Journal
+from .logclock import LogClock
 from .refitworker import RefitRunner
 from .registers import COMM_ERROR, OK, STALE
 from .sdnotify import Notifier

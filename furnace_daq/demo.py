@@ -29,13 +29,13 @@ from furnace_model import SENSORS, ZONES
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import experiment_from_frame, write_table
 from furnace_model.fit import FitResult, Model, fit
+from furnace_model.logresample import resample_logs
+from furnace_model.logschema import BURNERS, PARAM_NAMES, THERMOCOUPLES
 from furnace_model.scenario import Scenario, load_scenario
 from furnace_model.structure import ModelStructure
 
 from .daemon import Daemon
 from .daqconfig import RefitConfig, load_config
-from .logexport import export_frame
-from .logschema import BURNERS, PARAM_NAMES, THERMOCOUPLES
 from .mcaplog import LogWriter
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"   MCAP log: {', '.join(map(str, logs))}")
 
     print("\n3. The whole run, exported from the log and fitted once (for comparison)")
-    frame = export_frame(logs, period_s=60.0)
+    frame = resample_logs(logs, period_s=60.0)
     data = args.out / f"{scenario.name}.csv"
     write_table(frame, data)
     exp = experiment_from_frame(frame, str(data))

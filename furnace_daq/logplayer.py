@@ -24,9 +24,9 @@ import numpy as np
 
 from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
 from furnace_model.errors import DataError
+from furnace_model.logread import iso_time, read_messages
+from furnace_model.logschema import AMBIENT, BURNERS, THERMOCOUPLES
 
-from .logschema import AMBIENT, BURNERS, THERMOCOUPLES
-from .mcaplog import iso_time, read_messages
 from .registers import COMM_ERROR
 from .simplc import N_BURNERS, PlcValues, states_from_counts
 

@@ -14,9 +14,9 @@ import numpy as np
 import pandas as pd
 
 from furnace_model import SENSORS, ZONES
+from furnace_model.logschema import AMBIENT, BURNERS, THERMOCOUPLES
 from furnace_model.plant import PlantRun
 
-from .logschema import AMBIENT, BURNERS, THERMOCOUPLES
 from .mcaplog import LogWriter
 from .simplc import states_from_counts
 

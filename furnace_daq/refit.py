@@ -13,7 +13,7 @@ same order: the same log gives the same timeline. No I/O here; the worker proces
 
 Windows. A refit is due at every multiple of `period_s` of the PLC clock (publish time,
 aligned to the Unix epoch); its window is the `window_s` of data before that instant,
-resampled to `step_s` exactly as `logs export` does (logexport.Resampler).
+resampled to `step_s` exactly as `logs export` does (furnace_model.logresample.Resampler).
 
 Drift. Each parameter has a reference: its value and 95% interval in the first model fitted,
 or at its last drift event. A window's value moves away from the reference when (1) it lies
@@ -58,11 +58,11 @@ import pandas as pd
 from furnace_model import ZONES
 from furnace_model.experiment import Experiment
 from furnace_model.fit import FitResult, fit
+from furnace_model.logread import iso_time
+from furnace_model.logresample import Resampler
+from furnace_model.logschema import AMBIENT, PARAM_NAMES, THERMOCOUPLES
 
 from .daqconfig import RefitConfig
-from .logexport import Resampler
-from .logschema import AMBIENT, PARAM_NAMES, THERMOCOUPLES
-from .mcaplog import iso_time
 
 FITTING_SEED = 0
 WINDOW_INTERVAL_FACTOR = 2.0

@@ -24,9 +24,10 @@ from collections import deque
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 
+from furnace_model.logread import iso_time
+from furnace_model.logschema import MODEL_EVENTS, MODEL_PARAMETERS
+
 from .daqconfig import RefitConfig
-from .logschema import MODEL_EVENTS, MODEL_PARAMETERS
-from .mcaplog import iso_time
 from .refit import FitJob, RefitChain, Window, WindowCutter, run_fit
 
 KILL_FACTOR = 3.0

@@ -21,9 +21,8 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from furnace_model.errors import DataError
-
-from .daqconfig import DaqConfig, RefitConfig
-from .logschema import (
+from furnace_model.logread import read_messages
+from furnace_model.logschema import (
     AMBIENT,
     BURNERS,
     MESSAGE_ENCODING,
@@ -32,7 +31,9 @@ from .logschema import (
     THERMOCOUPLES,
     topic,
 )
-from .mcaplog import encode, read_messages
+
+from .daqconfig import DaqConfig, RefitConfig
+from .mcaplog import encode
 from .refitworker import RefitRunner
 
 FURNACE_TOPICS = (THERMOCOUPLES, BURNERS, AMBIENT)

@@ -3,12 +3,15 @@
 Everything that breaks the contract is refused with the file, the column and the row (CSV:
 the line number as an editor shows it) and nothing is guessed: an empty thermocouple cell is
 a missing reading, not a zero, and a burner count must be a whole number within the zone.
+MCAP logs become the same table through `logexperiment` (the resampling of `logs export`)
+and are checked here like any file.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -113,9 +116,42 @@ def _kind(path: Path) -> str:
     raise DataError(str(path), f"unsupported file type '{suffix or '(none)'}': use .csv or .parquet")
 
 
-def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C) -> Experiment:
-    """Read and check one file of the tabular contract."""
+def load_experiments(paths: Iterable[str | Path], t_air_default: float = DEFAULT_T_AIR_C, *,
+                     start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
+                     period_s: float | None = None) -> list[Experiment]:
+    """The records the data arguments of `fit`, `validate` and `diagnose` make, in their
+    order: each CSV or Parquet file is one; MCAP logs are resampled as `logs export` does and
+    make one per directory (`logexperiment`). `start`/`end` keep [start, end) of the PLC
+    clock; `period_s` is the logs' resampling period (default that of `logs export`)."""
+    from .logexperiment import group_logs, is_log, load_log
+    from .logresample import DEFAULT_PERIOD_S
+
+    paths = [Path(p) for p in paths]
+    logs = [i for i, p in enumerate(paths) if is_log(p)]
+    groups = {logs[first]: (label, files)
+              for first, label, files in group_logs(paths[i] for i in logs)}
+    out = []
+    for i, path in enumerate(paths):
+        if i in groups:
+            label, files = groups[i]
+            out.append(load_log(label, files, t_air_default, start, end,
+                                DEFAULT_PERIOD_S if period_s is None else period_s))
+        elif i not in logs:
+            out.append(load_experiment(path, t_air_default, start=start, end=end))
+    return out
+
+
+def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
+                    start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
+                    period_s: float | None = None) -> Experiment:
+    """Read and check one file of the tabular contract, or one log file or log directory
+    (`load_experiments` says how)."""
+    from .logexperiment import is_log
+
     path = Path(path)
+    if is_log(path):
+        return load_experiments([path], t_air_default, start=start, end=end,
+                                period_s=period_s)[0]
     kind = _kind(path)
     file = str(path)
     if not path.exists():
@@ -135,14 +171,18 @@ def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C) ->
         raise DataError(file, f"not a readable {kind} file: {_first_line(exc)}") from None
     return experiment_from_frame(frame, file, t_air_default,
                                  row_offset=2 if kind == "csv" else 1,
-                                 row_label="line" if kind == "csv" else "row")
+                                 row_label="line" if kind == "csv" else "row",
+                                 start=start, end=end)
 
 
 def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
                           t_air_default: float = DEFAULT_T_AIR_C, row_offset: int = 1,
-                          row_label: str = "row") -> Experiment:
+                          row_label: str = "row", start: pd.Timestamp | None = None,
+                          end: pd.Timestamp | None = None) -> Experiment:
     """Check a table against the contract and convert it. `row_offset` maps the frame's
-    positional index to the number the user sees (2 for a CSV line under its header)."""
+    positional index to the number the user sees (2 for a CSV line under its header).
+    `start`/`end` keep the rows timed in [start, end), as if the file held only those: the
+    whole table is checked first, so an error names the row of the file."""
     cols = [str(c).strip() for c in frame.columns]
     frame = frame.set_axis(cols, axis=1)
 
@@ -208,12 +248,34 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
     if "t_air" in cols:
         t_air = _temperatures(_numbers(frame["t_air"], "t_air", err, allow_empty=True),
                               "t_air", err)
-        # Ambient changes slowly: an empty cell holds the last reading (the default before any).
-        t_air = pd.Series(t_air).ffill().fillna(t_air_default).to_numpy()
     else:
-        t_air = np.full(len(frame), float(t_air_default))
+        t_air = np.full(len(frame), np.nan)
 
+    if start is not None or end is not None:
+        if time_col != "timestamp":
+            raise err("has times in minutes ('t_min'), not on the PLC clock: --from/--to need "
+                      "a 'timestamp' column")
+        keep = np.ones(len(frame), dtype=bool)
+        if start is not None:
+            keep &= np.asarray(stamps >= start)
+        if end is not None:
+            keep &= np.asarray(stamps < end)
+        if not keep.any():
+            raise err(f"no rows in the window {window_words(start, end)}")
+        stamps, tc, burners, t_air = stamps[keep], tc[keep], burners[keep], t_air[keep]
+        start_time = stamps[0]
+        t_min = (stamps - start_time).total_seconds().to_numpy() / 60.0
+
+    # Ambient changes slowly: an empty cell holds the last reading (the default before any).
+    t_air = pd.Series(t_air).ffill().fillna(t_air_default).to_numpy()
     return Experiment(Path(file).stem, t_min, tc, burners, t_air, start_time, file)
+
+
+def window_words(start: pd.Timestamp | None, end: pd.Timestamp | None) -> str:
+    """A time window as the options that chose it."""
+    parts = [f"--from {start.isoformat()}" if start is not None else "",
+             f"--to {end.isoformat()}" if end is not None else ""]
+    return " ".join(p for p in parts if p) or "(the whole record)"
 
 
 def _numbers(col: pd.Series, name: str, err, allow_empty: bool) -> np.ndarray:

@@ -10,10 +10,10 @@ import numpy as np
 import pandas as pd
 from daq_processes import SCENARIO
 
-from furnace_daq.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
 from furnace_daq.mcaplog import LogWriter
 from furnace_model import SENSORS, ZONES
 from furnace_model.experiment import write_table
+from furnace_model.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
 from furnace_model.plant import Plant
 from furnace_model.scenario import load_scenario
 

@@ -20,8 +20,8 @@ import yaml
 from daq_processes import ROOT, furnace_daq, stop
 from faultproxy import ThreadedFaultProxy
 
-from furnace_daq.logschema import THERMOCOUPLES
-from furnace_daq.mcaplog import read_messages
+from furnace_model.logread import read_messages
+from furnace_model.logschema import THERMOCOUPLES
 
 PERIOD_S = 0.05
 FLUSH_S = 0.5

@@ -17,10 +17,11 @@ import yaml
 
 from furnace_daq.daemon import Daemon
 from furnace_daq.daqconfig import DaqConfig, parse_config
-from furnace_daq.mcaplog import LogWriter, read_messages
+from furnace_daq.mcaplog import LogWriter
 from furnace_daq.simplc import SimPLC
 from furnace_daq.sources import ModbusSource
 from furnace_model.config import Node
+from furnace_model.logread import read_messages
 from furnace_model.plant import Plant
 from furnace_model.scenario import load_scenario
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from furnace_daq.daqconfig import RefitConfig
-from furnace_daq.logschema import MODEL_EVENTS, MODEL_PARAMETERS
 from furnace_daq.plantlog import run_messages
 from furnace_daq.refitworker import RefitRunner
+from furnace_model.logschema import MODEL_EVENTS, MODEL_PARAMETERS
 from furnace_model.plant import Plant, PlantRun
 from furnace_model.scenario import Scenario, load_scenario
 

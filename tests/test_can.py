@@ -9,8 +9,8 @@ import uuid
 import can
 from daq_processes import SCENARIO, config, messages, sim, start_daemon
 
-from furnace_daq.logschema import BURNERS, DAQ_EVENTS
 from furnace_daq.simplc import SimPLC, flame_frame
+from furnace_model.logschema import BURNERS, DAQ_EVENTS
 from furnace_model.scenario import load_scenario
 
 

@@ -48,6 +48,8 @@ model().parse_args(["diagnose", "a.csv", "--holdout", "b.csv", "--effects", "sen
 model().parse_args(["selfcheck", "--effects", "none", "zone_burners+sensor_lag", "door_open",
                     "--candidates", "dead_time", "--json", "s.json"])
 model().parse_args(["validate", "a.csv", "--params", "f.json", "--json", "v.json"])
+model().parse_args(["fit", "logs", "--from", "2026-03-02T06:00:00Z", "--to",
+                    "2026-03-03T06:00:00+01:00", "--period", "30"])
 model().parse_args(["simulate", "--scenario", "s.yaml", "--out", "a.csv"])
 daq().parse_args(["logs", "export", "a.mcap", "--out", "a.csv"])
 daq().parse_args(["logs", "recover", "a.mcap", "--out", "b.mcap"])

@@ -13,9 +13,9 @@ import numpy as np
 import yaml
 from daq_processes import ROOT, SCENARIO, start_simplc, stop
 
-from furnace_daq.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
-from furnace_daq.mcaplog import read_messages
 from furnace_model import SENSORS, ZONES
+from furnace_model.logread import read_messages
+from furnace_model.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
 from furnace_model.plant import Plant
 from furnace_model.scenario import load_scenario
 

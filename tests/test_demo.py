@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from furnace_daq.logschema import MODEL_PARAMETERS, PARAM_NAMES
-from furnace_daq.mcaplog import read_messages
 from furnace_model import ZONES
+from furnace_model.logread import read_messages
+from furnace_model.logschema import MODEL_PARAMETERS, PARAM_NAMES
 from furnace_model.parameters import PAPER_TABLE_V
 
 ROOT = Path(__file__).resolve().parents[1]

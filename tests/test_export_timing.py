@@ -13,12 +13,12 @@ from refit_helpers import scenario, simulate
 
 from furnace_daq.cli import main
 from furnace_daq.daqconfig import RefitConfig
-from furnace_daq.logexport import Resampler
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.plantlog import run_messages, write_run
 from furnace_daq.refit import cut_window
 from furnace_model.experiment import load_experiment
 from furnace_model.fit import fit
+from furnace_model.logresample import Resampler
 
 SHIFT = pd.Timedelta(seconds=20)
 

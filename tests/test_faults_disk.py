@@ -35,11 +35,12 @@ from daq_processes import (
 from furnace_daq import mcaplog
 from furnace_daq.daemon import Daemon
 from furnace_daq.daqconfig import parse_config
-from furnace_daq.logschema import DAQ_EVENTS, DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
-from furnace_daq.mcaplog import LogWriter, read_messages
+from furnace_daq.mcaplog import LogWriter
 from furnace_daq.sdnotify import Notifier
 from furnace_daq.simplc import SimPLC
 from furnace_model.config import Node
+from furnace_model.logread import read_messages
+from furnace_model.logschema import DAQ_EVENTS, DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
 from furnace_model.scenario import load_scenario
 
 WARM, BROKEN, AFTER = 0.6, 1.2, 1.0

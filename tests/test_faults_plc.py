@@ -13,10 +13,10 @@ import yaml
 from daq_processes import ROOT, config, free_port, messages, plant_readings, sim, start_daemon
 
 from furnace_daq.daqconfig import parse_config
-from furnace_daq.logschema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
-from furnace_daq.mcaplog import read_messages
 from furnace_model import SENSORS
 from furnace_model.config import Node
+from furnace_model.logread import read_messages
+from furnace_model.logschema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
 
 
 def test_down_at_start_then_dropped_then_back(tmp_path):

@@ -22,11 +22,12 @@ from pymodbus.client import AsyncModbusTcpClient
 from furnace_daq.daemon import Daemon
 from furnace_daq.daqconfig import load_config
 from furnace_daq.logplayer import LogPlayer
-from furnace_daq.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
-from furnace_daq.mcaplog import LogWriter, read_messages
+from furnace_daq.mcaplog import LogWriter
 from furnace_daq.registers import decode
 from furnace_daq.simplc import CAN_ID, SimPLC
 from furnace_model import SENSORS, ZONES
+from furnace_model.logread import read_messages
+from furnace_model.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
 
 SPEED, PERIOD = 600.0, 0.05
 EPOCH_NS = 1_772_431_200 * 10**9  # 2026-03-02T06:00:00Z

@@ -15,10 +15,11 @@ import pytest
 from mcap.reader import make_reader
 
 from furnace_daq import mcaplog
-from furnace_daq.logrecover import has_footer
-from furnace_daq.logschema import TOPICS
-from furnace_daq.mcaplog import LogWriter, finished_files, read_messages
+from furnace_daq.mcaplog import LogWriter, finished_files
 from furnace_model import SENSORS
+from furnace_model.logread import read_messages
+from furnace_model.logsalvage import has_footer
+from furnace_model.logschema import TOPICS
 
 T0 = 1_772_431_200 * 10**9  # 2026-03-02T06:00:00Z
 S = 10**9

@@ -14,7 +14,6 @@ import pytest
 from refit_helpers import scenario, simulate, through_pipeline
 
 from furnace_daq.daqconfig import RefitConfig, parse_config
-from furnace_daq.logschema import MODEL_PARAMETERS, PARAM_NAMES
 from furnace_daq.plantlog import run_messages
 from furnace_daq.refit import RefitChain, WindowCutter
 from furnace_daq.refitworker import RefitRunner
@@ -22,6 +21,7 @@ from furnace_daq.statefile import write_json_atomic
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
 from furnace_model.fit import fit
+from furnace_model.logschema import MODEL_PARAMETERS, PARAM_NAMES
 
 HOUR = 3600.0
 

@@ -8,9 +8,9 @@ from dataclasses import replace
 from refit_helpers import scenario, simulate, through_pipeline
 
 from furnace_daq.daqconfig import RefitConfig
-from furnace_daq.logschema import PARAM_NAMES
 from furnace_daq.plantlog import run_messages
 from furnace_daq.refit import RefitChain, WindowCutter
+from furnace_model.logschema import PARAM_NAMES
 from furnace_model.structure import ModelStructure
 
 HOUR = 3600.0

@@ -27,11 +27,11 @@ from daq_processes import (
 )
 
 from furnace_daq.daqconfig import parse_config
-from furnace_daq.logschema import MODEL_PARAMETERS, PARAM_NAMES, THERMOCOUPLES
-from furnace_daq.mcaplog import read_messages
 from furnace_daq.replay import replay
 from furnace_daq.simplc import SimPLC
 from furnace_model.config import Node
+from furnace_model.logread import read_messages
+from furnace_model.logschema import MODEL_PARAMETERS, PARAM_NAMES, THERMOCOUPLES
 from furnace_model.scenario import load_scenario
 
 SCENARIO = ROOT / "config" / "scenarios" / "week_steps.yaml"

@@ -31,8 +31,6 @@ from faultproxy import READ_FUNCTION_CODES, FaultProxy
 from pymodbus.client import AsyncModbusTcpClient
 
 from furnace_daq.daqconfig import parse_config
-from furnace_daq.logschema import MODEL_PARAMETERS, THERMOCOUPLES
-from furnace_daq.mcaplog import read_messages
 from furnace_daq.registers import decode
 from furnace_daq.simplc import SimPLC
 from furnace_daq.writeback import (
@@ -44,6 +42,8 @@ from furnace_daq.writeback import (
 )
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
+from furnace_model.logread import read_messages
+from furnace_model.logschema import MODEL_PARAMETERS, THERMOCOUPLES
 from furnace_model.scenario import load_scenario
 
 # -- (a) the daemon only reads ----------------------------------------------------------------

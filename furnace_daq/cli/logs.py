@@ -8,10 +8,9 @@ from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from furnace_model.cli.arguments import output_file
+from furnace_model.cli.arguments import LOG_PERIOD_S, output_file
 from furnace_model.errors import DataError
-
-from ..logschema import DAQ_STATUS, THERMOCOUPLES
+from furnace_model.logschema import DAQ_STATUS, THERMOCOUPLES
 
 if TYPE_CHECKING:
     import numpy as np
@@ -31,10 +30,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     exp = lsub.add_parser("export", help="resample logs into the CSV/Parquet table of fit",
                           description="Thermocouples averaged over readings of quality ok per "
                                       "period, burner counts as in force, t_air averaged. "
-                                      "Several files are merged in time order.")
-    exp.add_argument("files", nargs="+", type=Path, metavar="FILE")
+                                      "Several files are merged in time order; a directory "
+                                      "stands for its log files, as for furnace-model fit.")
+    exp.add_argument("files", nargs="+", type=Path, metavar="FILE|DIR")
     exp.add_argument("--out", required=True, type=output_file, help="output .csv or .parquet")
-    exp.add_argument("--period", type=float, default=60.0,
+    exp.add_argument("--period", type=float, default=LOG_PERIOD_S,
                      help="resampling period in seconds (default 60)")
     exp.add_argument("--start", help="first time exported, ISO 8601 with Z or an offset")
     exp.add_argument("--end", help="end of the export (exclusive), ISO 8601 with Z or an offset")
@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_info(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ..mcaplog import decode, iso_time, open_log
+    from furnace_model.logread import decode, iso_time, open_log
 
     counts: Counter[str] = Counter()
     tc_times: list[int] = []
@@ -100,7 +100,7 @@ def run_info(args: argparse.Namespace) -> int:
 def _print_gaps(t: np.ndarray) -> None:
     import numpy as np
 
-    from ..mcaplog import iso_time
+    from furnace_model.logread import iso_time
 
     if t.size < 3:
         print(f"{THERMOCOUPLES} gaps: too few messages to tell")
@@ -126,14 +126,15 @@ def _duration(s: float) -> str:
 
 def run_export(args: argparse.Namespace) -> int:
     from furnace_model.experiment import write_table
-
-    from ..logexport import export_frame, parse_time
+    from furnace_model.logexperiment import log_files
+    from furnace_model.logresample import parse_time, resample_logs
 
     if args.out.suffix.lower() not in (".csv", ".parquet", ".pq"):
         raise DataError(str(args.out), "unsupported output type: use .csv or .parquet")
     start = parse_time(args.start, "--start") if args.start else None
     end = parse_time(args.end, "--end") if args.end else None
-    frame = export_frame(args.files, args.period, start, end)
+    files = [f for p in args.files for f in (log_files(p) if p.is_dir() else [p])]
+    frame = resample_logs(files, args.period, start, end)
     write_table(frame, args.out)
     tc = frame.filter(like="tc_")
     empty = int(tc.isna().all(axis=1).sum())
@@ -144,8 +145,9 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_recover(args: argparse.Namespace) -> int:
+    from furnace_model.logread import iso_time
+
     from ..logrecover import recover
-    from ..mcaplog import iso_time
 
     r = recover(args.file, args.out)
     note = "the input was complete already" if r.was_complete else r.cut

@@ -5,6 +5,8 @@ cannot be written is refused when the arguments are read, not after the work it 
 from __future__ import annotations
 
 import argparse
+import math
+from datetime import datetime
 from pathlib import Path
 
 DISTRIBUTION = "furnace-daq"
@@ -119,3 +121,64 @@ def preload_effects(argv: list[str]) -> None:
     for path in files:
         load_file(path)
     sync_plugins()
+
+
+LOG_PERIOD_S = 60.0
+"""Default resampling period of logs in seconds (`logresample.DEFAULT_PERIOD_S`, which the
+parsers cannot import without pandas)."""
+
+DATA_HELP = "CSV or Parquet files, MCAP logs (.mcap, .mcap.part) or log directories"
+"""What a data argument may name (docs/logs.md: one record per file or log directory)."""
+
+
+def plc_time(text: str) -> datetime:
+    """argparse type of --from/--to: ISO 8601 with Z or an offset; a time without one is
+    refused, not guessed (the PLC clock is UTC in the logs)."""
+    try:
+        when = datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an ISO 8601 time: '{text}'") from None
+    if when.tzinfo is None:
+        raise argparse.ArgumentTypeError(f"'{text}' has no UTC offset or Z (time zone unknown)")
+    return when
+
+
+def positive_seconds(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: '{text}'") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return v
+
+
+def add_data_window(parser: argparse.ArgumentParser) -> None:
+    """--from/--to (a window of the PLC clock, on logs and timestamped tables alike) and
+    --period (how logs are resampled), for every command that reads heat-up data."""
+    g = parser.add_argument_group(
+        "time window and logs",
+        "MCAP logs are resampled as `furnace-daq logs export` does; a log directory, or log "
+        "files in one directory, make one record (docs/logs.md)")
+    g.add_argument("--from", dest="window_from", type=plc_time, metavar="TIME",
+                   help="read from this time on, ISO 8601 with Z or an offset, on the PLC "
+                        "clock (a log's publish time, a table's timestamp)")
+    g.add_argument("--to", dest="window_to", type=plc_time, metavar="TIME",
+                   help="read up to this time (exclusive), as --from")
+    g.add_argument("--period", type=positive_seconds, metavar="S",
+                   help=f"resampling period of MCAP logs in seconds (default {LOG_PERIOD_S:g}, as "
+                        "`logs export`)")
+
+
+def data_window(args: argparse.Namespace) -> dict:
+    """The keyword arguments of `experiment.load_experiments` that add_data_window's options
+    give; --from must come before --to."""
+    import pandas as pd
+
+    from ..errors import FurnaceError
+
+    start, end = (None if v is None else pd.Timestamp(v).tz_convert("UTC")
+                  for v in (args.window_from, args.window_to))
+    if start is not None and end is not None and start >= end:
+        raise FurnaceError(f"--from {start.isoformat()} is not before --to {end.isoformat()}")
+    return {"start": start, "end": end, "period_s": args.period}

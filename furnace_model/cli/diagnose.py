@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from .. import ZONES
 from ..errors import FurnaceError
-from .arguments import add_effects_from, output_file
+from .arguments import DATA_HELP, add_data_window, add_effects_from, data_window, output_file
 from .names import EFFECTS, effect_names, is_effect
 
 if TYPE_CHECKING:
@@ -23,9 +23,9 @@ if TYPE_CHECKING:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("diagnose", help="explain the model's error: where, which effect, how far",
                        description=__doc__)
-    p.add_argument("data", nargs="+", type=Path, help="CSV or Parquet files to fit")
+    p.add_argument("data", nargs="+", type=Path, help=f"{DATA_HELP} to fit")
     p.add_argument("--holdout", action="append", type=Path, metavar="DATA",
-                   help="a file to score on, never fitted; repeat for more (default: the last "
+                   help="a file or log to score on, never fitted; repeat for more (default: the last "
                         "file given, or the last 30%% of a lone file)")
     p.add_argument("--json", type=output_file, metavar="OUT", help="write the diagnosis as JSON")
     p.add_argument("--report", type=output_file, metavar="OUT.html",
@@ -34,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"candidates to try (default all: {','.join(EFFECTS)} and those of "
                         "plug-ins)")
     add_effects_from(p)
+    add_data_window(p)
     p.add_argument("--seed", type=int, default=0, help="random seed of the searches (default 0)")
     p.set_defaults(run=run)
 
@@ -51,10 +52,11 @@ def effect_list(text: str, what: str = "effect") -> tuple[str, ...]:
 
 def run(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose
-    from ..experiment import load_experiment
+    from ..experiment import load_experiments
 
-    data = [load_experiment(p) for p in args.data]
-    hold = [load_experiment(p) for p in args.holdout] if args.holdout else None
+    window = data_window(args)
+    data = load_experiments(args.data, **window)
+    hold = load_experiments(args.holdout, **window) if args.holdout else None
     result = diagnose(data, hold, effects=args.effects, seed=args.seed)
     print(summary(result))
     if args.json:

@@ -15,7 +15,15 @@ from typing import TYPE_CHECKING
 from .. import ZONES
 from ..errors import FurnaceError
 from ..parameters import BASELINE
-from .arguments import add_effects_from, output_dir, output_file, positive_int
+from .arguments import (
+    DATA_HELP,
+    add_data_window,
+    add_effects_from,
+    data_window,
+    output_dir,
+    output_file,
+    positive_int,
+)
 from .diagnose import effect_list
 from .names import METHODS
 
@@ -26,7 +34,7 @@ if TYPE_CHECKING:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fit", help="identify the model's parameters from heat-up data",
                        description=__doc__)
-    p.add_argument("data", nargs="+", type=Path, help="CSV or Parquet files (fitted jointly)")
+    p.add_argument("data", nargs="+", type=Path, help=f"{DATA_HELP} (fitted jointly)")
     p.add_argument("--method", choices=METHODS, default="fast",
                    help="fast: evolutionary search + least-squares polish (default); "
                         "ga: the paper's genetic algorithm alone")
@@ -45,6 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="fit the model extended with these effects, in their first law "
                         "(default: the paper's model alone)")
     add_effects_from(p)
+    add_data_window(p)
     p.add_argument("--json", type=output_file, metavar="OUT", help="write the result as JSON")
     p.add_argument("--plot", type=output_dir, metavar="DIR",
                    help="write measured-vs-model PNGs here (created if missing)")
@@ -137,13 +146,13 @@ def run(args: argparse.Namespace) -> int:
 
     from ..effects import EFFECTS
     from ..effects.plugins import guarded
-    from ..experiment import load_experiment
+    from ..experiment import load_experiments
     from ..fit import fit
     from ..structure import ModelStructure
 
     structure = ModelStructure([EFFECTS[n](**EFFECTS[n].candidate_options)
                                 for n in args.effects or ()])
-    experiments = [load_experiment(p) for p in args.data]
+    experiments = load_experiments(args.data, **data_window(args))
     names = [e.name for e in experiments]
     if len(set(names)) != len(names):
         raise FurnaceError(f"two data files share the name {names}: plots and tables need "

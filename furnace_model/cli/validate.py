@@ -14,7 +14,15 @@ from typing import TYPE_CHECKING
 
 from .. import ZONES
 from ..errors import FurnaceError
-from .arguments import add_effects_from, output_dir, output_file, positive_int
+from .arguments import (
+    DATA_HELP,
+    add_data_window,
+    add_effects_from,
+    data_window,
+    output_dir,
+    output_file,
+    positive_int,
+)
 
 if TYPE_CHECKING:
     from ..structure import ModelStructure
@@ -23,7 +31,7 @@ if TYPE_CHECKING:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="score fitted parameters on other data (Table VI)",
                        description=__doc__)
-    p.add_argument("data", nargs="+", type=Path, help="CSV or Parquet files to score on")
+    p.add_argument("data", nargs="+", type=Path, help=f"{DATA_HELP} to score on")
     p.add_argument("--params", required=True, type=Path, metavar="FIT.json",
                    help="JSON written by `furnace-model fit --json`")
     p.add_argument("--zone-offsets", action="store_true",
@@ -35,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "compare(data, model, K)")
     p.add_argument("--json", type=output_file, metavar="OUT", help="write the scores as JSON")
     add_effects_from(p)
+    add_data_window(p)
     p.add_argument("--plot", type=output_dir, metavar="DIR",
                    help="write measured-vs-model PNGs here (created if missing)")
     p.set_defaults(run=run)
@@ -81,11 +90,11 @@ def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..experiment import load_experiment
+    from ..experiment import load_experiments
     from ..fit import Model, score
 
     params, structure = load_params(args.params)
-    experiments = [load_experiment(p) for p in args.data]
+    experiments = load_experiments(args.data, **data_window(args))
     off, k = args.zone_offsets, args.horizon
     per_exp = {e.name: score(params, [e], structure, off) for e in experiments}
     pooled = (score(params, experiments, structure, off) if len(experiments) > 1

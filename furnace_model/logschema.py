@@ -1,5 +1,6 @@
 """The MCAP topics and their JSON schemas (CONTRACTS.md section 2), defined once for the
-writer, the reader, `logs info` and `logs export`.
+daemon's writer and every reader: `logs info`, `logs export`, the refit, and the model's
+commands reading logs. Here, in the package both sides may import (docs/logs.md).
 
 The schemas are written for Foxglove as much as for validation: Foxglove turns a
 `jsonschema` channel into plottable fields only when every object lists its `properties` and
@@ -17,7 +18,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 
-from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
+from . import BURNERS_PER_ZONE, SENSORS, ZONES
 
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"

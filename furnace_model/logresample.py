@@ -1,5 +1,10 @@
 """MCAP logs -> the tabular contract (CONTRACTS.md section 1), resampled to a fixed period.
 
+One resampling for every reader, so that the same log gives the same rows whichever way it
+is read: `furnace-daq logs export` writes them to a file, the daemon's online refit and
+replay cut windows out of them, and `furnace-model fit|validate|diagnose` read a log into
+an Experiment through them (the model's package holds it: docs/logs.md).
+
 Time base: the publish time, i.e. the PLC clock when the PLC has one (a simulator running
 faster than real time logs hours of process per host minute), else the host clock.
 
@@ -32,12 +37,11 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
-from furnace_model.errors import DataError
-from furnace_model.experiment import BURNER_COLUMNS, TC_COLUMNS
-
+from . import BURNERS_PER_ZONE, SENSORS, ZONES
+from .errors import DataError
+from .experiment import BURNER_COLUMNS, TC_COLUMNS
+from .logread import iso_time, read_messages
 from .logschema import AMBIENT, BURNERS, THERMOCOUPLES
-from .mcaplog import iso_time, read_messages
 
 _ALL_OK = dict.fromkeys(SENSORS, "ok")
 
@@ -217,10 +221,16 @@ class Resampler:
                 del states[:cut]
 
 
-def export_frame(paths: Iterable[str | Path], period_s: float = 60.0,
-                 start: pd.Timestamp | None = None, end: pd.Timestamp | None = None
-                 ) -> pd.DataFrame:
-    """The resampled table of one or more log files (a rotated series is merged in time)."""
+DEFAULT_PERIOD_S = 60.0
+"""The resampling period of `logs export` and of the model's commands reading logs."""
+
+
+def resample_logs(paths: Iterable[str | Path], period_s: float = DEFAULT_PERIOD_S,
+                  start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
+                  name: str | None = None) -> pd.DataFrame:
+    """The resampled table of one or more log files (a rotated series is merged in time),
+    with the rows whose bins start in [start, end) on the PLC clock. `name` is what an error
+    names (default: the files)."""
     paths = [Path(p) for p in paths]
     if not period_s > 0 or not math.isfinite(period_s):
         raise DataError("--period", f"must be a positive number of seconds, got {period_s}")
@@ -228,7 +238,7 @@ def export_frame(paths: Iterable[str | Path], period_s: float = 60.0,
     lo = None if start is None else start.value
     hi = None if end is None else end.value
     binner = Resampler(period_ns, lo if lo is not None else 0)
-    where = ", ".join(map(str, paths))
+    where = name if name is not None else ", ".join(map(str, paths))
     for topic, msg, _log_ns, pub_ns in read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT)):
         if topic == BURNERS or ((lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)):
             try:

@@ -248,3 +248,12 @@ def test_an_installed_package_registers_its_effect_and_a_broken_one_is_skipped(t
     assert r.returncode == 0, r.stderr
     assert "warning: effect plug-in not loaded: entry point leak (leakplug:Leak)" in r.stderr
     assert "bounds 1..1e-06" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_selfcheck_refuses_by_name_an_effect_it_cannot_draw(tmp_path):
+    path = tmp_path / "nodraw.py"
+    path.write_text(GOOD)
+    r = model("selfcheck", "--effects", "leak", "--draws", "1", "--effects-from", str(path),
+              timeout=60)
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    assert "effect leak has no `draw`" in r.stderr

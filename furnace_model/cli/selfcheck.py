@@ -62,7 +62,13 @@ def run(args: argparse.Namespace) -> int:
         raise FurnaceError("--first-draw must be 0 or more")
     if args.draws < 1:
         raise FurnaceError("--draws must be at least 1")
-    labels = list(args.effects or ("none", *effect_names())) + (list(EXTRA) if args.all else [])
+    drawable = _drawable()
+    if args.effects:
+        for name in {n for label in args.effects for n in label.split("+")} - drawable:
+            raise FurnaceError(f"effect {name} has no `draw`: the selfcheck cannot make a "
+                               "furnace with it at random (give its class a draw classmethod)")
+    labels = list(args.effects or ("none", *(n for n in effect_names() if n in drawable))) + \
+        (list(EXTRA) if args.all else [])
     outcomes: list[Outcome] = []
 
     def progress(o):
@@ -107,6 +113,15 @@ def _report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool
         except OSError as exc:
             raise FurnaceError(f"{args.json}: cannot write: {exc}") from None
     return rows
+
+
+def _drawable() -> set[str]:
+    """Effects the selfcheck can draw, with the built-in perturbations and 'none'; a plug-in
+    without a `draw` is left out of the default rows and refused by name."""
+    from ..effects import EFFECTS, Effect
+
+    return {"none", *OUT_OF_LIBRARY,
+            *(n for n, cls in EFFECTS.items() if cls.draw.__func__ is not Effect.draw.__func__)}
 
 
 def _label(text: str) -> str:

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import SENSORS
 from ..errors import FurnaceError
 from ..parameters import BASELINE, PAPER_TABLE_V, Param
 from . import BUILT_IN, EFFECTS
@@ -224,15 +225,12 @@ def _check_physics(effect: Effect, file: str | None) -> str | None:
                     np.array([30.0, 30.0]))
     t = np.arange(0.0, 121.0, 1.0)
     try:
-        y = structure.simulate(values, inputs, t, np.full(3, 30.0))
-        offsets = structure.sensor_offsets(values, t)
+        y = structure.simulate(values, inputs, t, np.full(3, 30.0)).sensors
     except Exception as exc:  # noqa: BLE001
         return (f"its physics fails on a short heat-up at its default values"
                 f"{_line(exc, file)}: "
                 f"{type(exc).__name__}: {exc}")
-    y = np.asarray(getattr(y, "zones", y))
-    if y.shape[-2:] != (t.size, 3) or not np.all(np.isfinite(y)) or \
-            not np.all(np.isfinite(offsets)):
+    if y.shape[-2:] != (t.size, len(SENSORS)) or not np.all(np.isfinite(y)):
         return ("its physics gives no finite temperatures on a short heat-up at its default "
                 "values")
     return None

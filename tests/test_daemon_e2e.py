@@ -5,6 +5,7 @@ recomputed at the PLC clock second the reading carries."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -64,9 +65,14 @@ def test_sim_plc_to_mcap(tmp_path):
         by_topic.setdefault(topic, []).append((m, log_ns, pub_ns))
     assert {THERMOCOUPLES, BURNERS, AMBIENT, DAQ_STATUS} <= set(by_topic)
 
+    # Every tick of the run is either polled and logged, or skipped because the host or the
+    # poll was late, and then counted on the final line: on a busy host the split between
+    # the two varies, their sum does not.
     tc = by_topic[THERMOCOUPLES]
     expected = DURATION / PERIOD
-    assert abs(len(tc) - expected) <= 0.02 * expected, (len(tc), err)
+    skipped = int(re.search(r"(\d+) skipped ticks", err).group(1))
+    assert abs(len(tc) + skipped - expected) <= 0.02 * expected, (len(tc), skipped, err)
+    assert len(tc) >= 0.5 * expected, (len(tc), err)
     assert len(by_topic[BURNERS]) == len(by_topic[AMBIENT]) == len(tc)
 
     # values: the plant at each reading's PLC second, rounded like the INT16 0.1 degC register

@@ -188,6 +188,7 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
                                    baseline_on=lambda heads: _determined(heads, 0))).from_baseline
 
 
+@pytest.mark.slow  # a cold GA search of a nonlinear candidate: the selfcheck's radiation rows cover it
 def test_nonlinear_candidate_searched_from_scratch_leaves_the_bent_baseline_valley():
     # Selfcheck seed 0, radiation draw 4: strong radiation bends the baseline (a at its
     # bound), and the radiation fit warm-started from there stops 10 degC off the floor (a

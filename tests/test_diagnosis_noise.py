@@ -23,7 +23,8 @@ def test_no_effect_no_gap(noise):
     assert not wrong, wrong
 
 
-@pytest.mark.parametrize("noise", ["noisier-holdout", "low-pass"])
+@pytest.mark.parametrize("noise", [pytest.param("noisier-holdout", marks=pytest.mark.slow),
+                                   "low-pass"])
 def test_a_real_effect_is_still_named(noise):
     outcomes = check(["zone_burners"], 1, seed=0, noise=noise, candidates=QUICK)
     o = outcomes[0]

@@ -196,12 +196,12 @@ def test_replay_fits_with_the_configured_method(live, tmp_path):
     """The same log replayed with `method: ga`: every window searched by the GA from scratch,
     whatever the live daemon did."""
     cfg = daemon_config(1, tmp_path / "state",  # the port plays no part in a replay
-                        {**REFIT, "method": "ga", "population": 12, "generations": 100})
+                        {**REFIT, "method": "ga", "population": 12, "generations": 30})
     got = replay(live["logs"], cfg, tmp_path / "ga.mcap")
     fitted = [m for m in got if m["status"] != "insufficient_excitation"]
     assert len(fitted) >= 3 and {m["status"] for m in fitted} == {"ok"}, fitted
     assert all(m["search"] == {"method": "ga", "warm_start": False, "population": 12,
-                               "generations": 100} for m in fitted)
+                               "generations": 30} for m in fitted)
     assert [m["window_end"] for m in got] == [m["window_end"] for m in live_params(live)]
 
 

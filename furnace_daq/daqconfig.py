@@ -202,9 +202,10 @@ class DaqConfig:
 
     @property
     def devices(self) -> tuple[PlcConfig, ...]:
-        """Every Modbus device: the `devices:` list, or the `plc:` section as the only one
-        (so `replace(config, plc=...)` still moves the single device)."""
-        return self.device_list or (self.plc,)
+        """Every Modbus device: the `devices:` list, or the `plc:` section as the only one.
+        `plc` is always the first, so `replace(config, plc=...)` (`--plc HOST:PORT`) moves
+        the first device."""
+        return (self.plc, *self.device_list[1:])
 
     @property
     def several_devices(self) -> bool:
@@ -505,6 +506,10 @@ def parse_config(root: Node) -> DaqConfig:
         refit=_refit(root.child("refit")) if root.has("refit") else None,
         write_back=parse_write_back(root.child("write_back", None)),
         device_list=device_list)
+    if config.write_back is not None and plc.transport != "tcp":
+        raise root.child("write_back").error(
+            f"writes to the first device, {plc.name}, over Modbus TCP; its transport is "
+            f"{plc.transport}")
     _check_overlaps(root, config)
     return config
 

@@ -21,7 +21,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 from furnace_model import BURNERS_PER_ZONE, ZONES
 
 from .daqconfig import CanConfig, DaqConfig, PlcConfig
-from .registers import COMM_ERROR, OK, STALE, Image, ReadRequest, plan_reads
+from .registers import COMM_ERROR, OK, STALE, BitRange, Image, Point, ReadRequest, plan_reads
 
 CONNECT_FAILURES = frozenset({"connection refused", "connect timeout", "host unreachable",
                               "network unreachable", "name not resolved", "cannot connect"})
@@ -128,13 +128,16 @@ class ModbusSource(Source):
     name = "modbus"
 
     def __init__(self, config: DaqConfig, host: str | None = None, port: int | None = None,
-                 device: PlcConfig | None = None):
+                 device: PlcConfig | None = None, items: list[Point | BitRange] | None = None):
         self.config = config
         self.device = device if device is not None else config.devices[0]
         self.host = host or self.device.host
         self.port = port or self.device.port
-        self.items = config.device_items(self.device) if config.several_devices \
-            else config.modbus_items()
+        if items is None:
+            items = config.device_items(self.device) if config.several_devices \
+                else config.modbus_items()
+        self.items = items
+        """What is read: the config's points on this device (or the caller's own)."""
         self._names = {it.name for it in self.items}
         w = self.device.workarounds
         self.requests = plan_reads(self.items, self.device.max_gap_registers,

@@ -390,13 +390,13 @@ class Daemon:
                 reason, kind = failure
                 c.comm_errors += 1
                 link.consecutive_errors += 1
-                self._count_failure(link.key + kind)
+                self._count_failure(self._named(link, kind))
                 self.journal.say(WARNING, f"PLC {link.label}: poll failed ({kind}): {reason}",
                                  f"{link.key}poll:{kind}")
                 failed.append((link, reason, kind))
                 missing.append(self._named(link, reason))
             else:  # away: counted as the kind of the outage
-                self._count_failure(link.key + link.down_kind)
+                self._count_failure(self._named(link, link.down_kind))
                 missing.append(self._named(link, f"not connected ({link.down_kind})"))
         merged: Sample | None = None
         if good:

@@ -13,6 +13,7 @@ import os
 import shutil
 import socket
 import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -418,3 +419,12 @@ def test_check_dials_every_device_and_names_the_one_that_is_down():
     bad = {p.key for p in report.failed}
     assert bad == {"burners.modbus.soak", "burners.modbus.heat", "burners.modbus.preheat"}, text
     assert not report.ok
+
+
+def test_sim_plc_cli_refuses_a_serial_port_without_rtu_and_rtu_without_one():
+    for extra in (["--transport", "rtu"], ["--serial-port", "/dev/null"]):
+        r = subprocess.run([sys.executable, "-m", "furnace_daq.cli", "sim-plc", "--scenario",
+                            str(SCENARIO), *extra], cwd=ROOT, capture_output=True, text=True,
+                           timeout=60)
+        assert r.returncode != 0 and "--serial-port goes with --transport rtu" in r.stderr, \
+            r.stderr

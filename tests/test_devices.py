@@ -428,3 +428,40 @@ def test_sim_plc_cli_refuses_a_serial_port_without_rtu_and_rtu_without_one():
                            timeout=60)
         assert r.returncode != 0 and "--serial-port goes with --transport rtu" in r.stderr, \
             r.stderr
+
+
+def test_close_connection_after_gather_hangs_up_after_each_poll_and_stays_connected():
+    """The daemon sees a device that answers; the device sees one short connection per
+    poll, opened after the pause it asked for."""
+    points, regs, want = served_points()
+    opened: list[bool] = []
+
+    async def main():
+        server = ModbusTcpServer(server_device(regs), address=("127.0.0.1", 0),
+                                 trace_connect=opened.append)
+        await server.serve_forever(background=True)
+        try:
+            port = server.transport.sockets[0].getsockname()[1]
+            cfg = device_config({"host": "127.0.0.1", "port": port, "workarounds": {
+                "close_connection_after_gather": True, "pause_after_connect_s": 0.01}})
+            source = ModbusSource(cfg, items=points)
+            await source.connect()
+            reads = []
+            for _ in range(3):
+                image, _refused = await asyncio.wait_for(source.read_image(), 10)
+                reads.append({p.name: p.raw(image.words(p)) for p in points
+                              if isinstance(p, Point)})
+                assert source.connected and source._client is None  # line closed, session on
+            await source.close()
+            assert not source.connected
+            for _ in range(100):  # the server hears of the last hang-up a moment later
+                if opened.count(False) >= 3:
+                    break
+                await asyncio.sleep(0.01)
+            return reads
+        finally:
+            await server.shutdown()
+
+    reads = asyncio.run(asyncio.wait_for(main(), 30))
+    assert all(r == {k: v for k, v in want.items() if k != "soak"} for r in reads)
+    assert opened.count(True) == 3 and opened.count(False) >= 3, opened

@@ -49,6 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if (args.transport == "rtu") != (args.serial_port is not None):
+        raise FurnaceError("--serial-port goes with --transport rtu, and only with it")
     import asyncio
 
     from furnace_model.scenario import load_scenario
@@ -57,8 +59,6 @@ def run(args: argparse.Namespace) -> int:
 
     if args.speed <= 0 or args.scan_s <= 0:
         raise FurnaceError("--speed and --scan-s must be positive")
-    if (args.transport == "rtu") != (args.serial_port is not None):
-        raise FurnaceError("--serial-port goes with --transport rtu, and only with it")
     if not 0 <= args.port <= 65535:
         raise FurnaceError(f"--port must be 0-65535, got {args.port}")
     source: ValueSource

@@ -61,7 +61,8 @@ def failure_kind(exc: BaseException) -> str:
     if isinstance(exc, OSError):
         named = {errno.EHOSTUNREACH: "host unreachable", errno.ENETUNREACH: "network unreachable",
                  errno.ECONNRESET: "connection reset", errno.EPIPE: "connection lost",
-                 errno.ETIMEDOUT: "connect timeout"}
+                 errno.ETIMEDOUT: "connect timeout", errno.ENOENT: "no such device",
+                 errno.EACCES: "permission denied", errno.EBUSY: "device busy"}
         return named.get(exc.errno or 0, (exc.strerror or type(exc).__name__).lower())
     if isinstance(exc, ModbusException):
         return "Modbus error"
@@ -188,7 +189,10 @@ class ModbusSource(Source):
 
     async def _dial(self) -> None:
         timeout = self.device.timeout_s
-        client = self._new_client()
+        try:
+            client = self._new_client()
+        except RuntimeError as exc:  # pymodbus without pyserial: a serial line cannot open
+            raise SourceError(f"cannot open {self.where}: {exc}", "serial unavailable") from None
         failed = _note_connect_failure(client)
         t0 = time.monotonic()
         try:

@@ -39,7 +39,7 @@ from furnace_daq.registers import (
     encode,
 )
 from furnace_daq.simplc import SimPLC
-from furnace_daq.sources import ModbusSource
+from furnace_daq.sources import ModbusSource, SourceError
 from furnace_model import SENSORS
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
@@ -465,3 +465,17 @@ def test_close_connection_after_gather_hangs_up_after_each_poll_and_stays_connec
     reads = asyncio.run(asyncio.wait_for(main(), 30))
     assert all(r == {k: v for k, v in want.items() if k != "soak"} for r in reads)
     assert opened.count(True) == 3 and opened.count(False) >= 3, opened
+
+
+def test_a_missing_serial_port_is_a_short_stable_failure_kind(tmp_path):
+    cfg = device_config({"transport": "rtu", "serial": {"port": str(tmp_path / "ttyNONE")}})
+
+    async def main():
+        source = ModbusSource(cfg)
+        with pytest.raises(SourceError) as err:
+            await asyncio.wait_for(source.connect(), 10)
+        await source.close()
+        return err.value
+
+    err = asyncio.run(main())
+    assert err.kind == "no such device" and "ttyNONE" in str(err), (err.kind, str(err))

@@ -13,12 +13,15 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $@
 
-# Debian tools that tests drive as independent peers (mbpoll: a Modbus client we did not write).
+# Debian tools that tests drive as independent peers (mbpoll: a Modbus client we did not write;
+# socat: a pair of pseudo-terminals, the serial line between an RTU server and the daemon).
 system-deps:
-	@command -v mbpoll >/dev/null 2>&1 || { \
-	  echo "installing mbpoll (Debian package)"; \
-	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq mbpoll >/dev/null; }
+	@for tool in mbpoll socat; do \
+	  command -v $$tool >/dev/null 2>&1 || { \
+	    echo "installing $$tool (Debian package)"; \
+	    SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	    $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$tool >/dev/null; }; \
+	done
 
 demo: $(STAMP)
 	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 from furnace_model import BURNERS_PER_ZONE, ZONES
 
-from .daqconfig import DaqConfig
-from .registers import BIT_TABLES, COMM_ERROR, OK, BitRange, Image, Point, ReadRequest
+from .daqconfig import DaqConfig, PlcConfig
+from .registers import BIT_TABLES, COMM_ERROR, OK, BitRange, Image, Point, ReadRequest, span
 from .sources import CanSource, ModbusSource, SourceError, exception_text
 
 NOT_READ = "not read"
@@ -58,8 +58,12 @@ class CheckReport:
 
 
 def _where(item: Point | BitRange) -> str:
-    last = item.address + item.count - 1
-    return f"{item.table} {item.address}" + (f"-{last}" if last > item.address else "")
+    _table, first, end = span(item)
+    last = end - 1
+    text = f"{item.table} {first}" + (f"-{last}" if last > first else "")
+    if isinstance(item, BitRange) and item.packed:
+        text += f" bits {item.bit}-{item.bit + item.count - 1}"
+    return text
 
 
 def _block_of(item: Point | BitRange, refused: dict[ReadRequest, int | None]) -> int | None:
@@ -87,9 +91,18 @@ def _row(item: Point | BitRange, key: str, image: Image,
         row.value = f"{sum(states)} of {len(states)} on"
         row.quality = OK
         return row
+    if isinstance(item, BitRange):  # packed in registers
+        states = item.states(words)
+        row.raw = " ".join(f"0x{w:04x}" for w in words)
+        row.value = f"{sum(states)} of {len(states)} on"
+        row.quality = OK
+        return row
     assert isinstance(item, Point)
     row.raw = " ".join(str(w) for w in words)
     value, row.quality = item.value(words)
+    if isinstance(value, str):
+        row.value = repr(value)
+        return row
     if value is not None:
         row.value = f"{value:g}"
         return row
@@ -106,19 +119,28 @@ def _row(item: Point | BitRange, key: str, image: Image,
     return row
 
 
-async def check_modbus(config: DaqConfig, report: CheckReport) -> None:
-    """Dial the PLC, read every request of the daemon's plan once, one row per point."""
-    source = ModbusSource(config)
+async def check_modbus(config: DaqConfig, report: CheckReport,
+                       plc: PlcConfig | None = None) -> None:
+    """Dial one Modbus device (the only one by default), read every request of the
+    daemon's plan for it once, one row per point."""
+    plc = plc if plc is not None else config.devices[0]
+    source = ModbusSource(config, device=plc)
     keys = config.key_paths()
-    device = f"Modbus TCP {source.where} (unit {config.plc.device_id})"
+    device = f"{source.transport_text} (unit {plc.device_id})"
+    if config.several_devices:
+        device = f"{plc.name}: {device}"
     image, refused = Image(), {}
     error = ""
+    # the requests one after the other, with the pauses the device asked for
+    w = plc.workarounds
+    budget = plc.timeout_s * max(1, len(source.requests)) \
+        + w.pause_between_requests_s * len(source.requests) + w.pause_after_connect_s
     try:
         await source.connect()
         try:
-            image, refused = await asyncio.wait_for(source.read_image(), config.plc.timeout_s)
+            image, refused = await asyncio.wait_for(source.read_image(), budget)
         except TimeoutError:
-            error = f"no answer within {config.plc.timeout_s:g} s"
+            error = f"no answer within {budget:g} s"
         except SourceError as exc:
             error = str(exc)
         report.devices.append((device, error or
@@ -180,7 +202,13 @@ async def check(config: DaqConfig) -> CheckReport:
     t0 = time.monotonic()
     report = CheckReport()
     if config.modbus_items():
-        await check_modbus(config, report)
+        # every device dialled at once: one that is down costs its timeout, not the others'
+        subs = [CheckReport() for _ in config.devices]
+        await asyncio.gather(*(check_modbus(config, sub, plc)
+                               for plc, sub in zip(config.devices, subs, strict=True)))
+        for sub in subs:
+            report.devices += sub.devices
+            report.points += sub.points
     if config.burner_source in ("can", "both") and config.can is not None:
         await check_can(config, report)
     report.elapsed_s = time.monotonic() - t0

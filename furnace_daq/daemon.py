@@ -60,7 +60,7 @@ from furnace_model.logschema import (
     THERMOCOUPLES,
 )
 
-from .daqconfig import DaqConfig
+from .daqconfig import DaqConfig, PlcConfig
 from .journal import ERR, INFO, NOTICE, WARNING, Journal
 from .logclock import LogClock
 from .refitworker import RefitRunner
@@ -145,6 +145,51 @@ def summary(counters: Counters) -> tuple[int, str]:
     return priority, text
 
 
+class Link:
+    """One Modbus device as the daemon keeps it: its source, and the state of its
+    connection and redials. Each device has its own, so one that is down is redialled on
+    its own schedule and never marks the others' points."""
+
+    def __init__(self, device: PlcConfig, source: Source, named: bool):
+        self.device, self.source = device, source
+        self.name = device.name
+        where = f"{getattr(source, 'host', '?')}:{getattr(source, 'port', '?')}"
+        if device.transport == "rtu":
+            where = device.where
+        self.label = f"{device.name} ({where})" if named else where
+        """How the journal names the device: host:port alone when it is the only one."""
+        self.key = f"{device.name}:" if named else ""
+        """Prefix of its journal kinds, so each device is rate-limited on its own."""
+        self.state = "disconnected"
+        self.detail = "starting"
+        self.connected = asyncio.Event()
+        self.need_dial = asyncio.Event()
+        self.need_dial.set()
+        self.consecutive_errors = 0
+        self.dials_since_ok = 0  # dials since the last good poll: the backoff's step
+        self.down_kind = "no connection yet"  # why the device is away, for the failure count
+        self.outage_since = time.monotonic()  # the fast redial phase counts from here
+        self.hangups = 0  # connections lost before one good poll: the backoff's step
+        self.slow_steps = 0  # backoff waits after the fast redial phase
+        self.connects = 0
+        self.heartbeat: tuple[float | str, float] | None = None  # (value, when it changed)
+        self.was_stale = self.last_stale = False
+
+    @property
+    def read_budget_s(self) -> float:
+        """The longest one poll of this device may take: its timeout, plus the pauses its
+        workarounds ask for."""
+        d = self.device
+        w = d.workarounds
+        n = len(getattr(self.source, "requests", ())) or 1
+        budget = d.timeout_s + w.pause_between_requests_s * (n - 1)
+        if w.close_connection_after_gather:
+            budget += d.timeout_s + w.pause_after_connect_s
+        if w.one_request_per_field:
+            budget += d.timeout_s * (n - 1)
+        return budget
+
+
 class Daemon:
     def __init__(self, config: DaqConfig, log: Log, *, plc: Source | None = None,
                  flame: Source | None = None, notifier: Notifier | None = None,
@@ -154,38 +199,31 @@ class Daemon:
         self.config = config
         self.journal = journal if journal is not None else Journal(config.stderr_interval_s)
         self.log = log
-        self.plc = plc if plc is not None else ModbusSource(config)
+        if plc is not None:  # a source given by the caller: the only device
+            self.links = [Link(config.devices[0], plc, config.several_devices)]
+        else:
+            self.links = [Link(d, ModbusSource(config, device=d), config.several_devices)
+                          for d in config.devices]
+        self.plc = self.links[0].source
         self.flame = flame
         if flame is None and config.burner_source in ("can", "both") and config.can is not None:
             self.flame = CanSource(config.can)
         self.notifier = notifier or Notifier({})
         self.wall_ns = LogClock(wall_ns)
         self.counters = Counters()
-        self.state = "disconnected"
         self.detail = "starting"
         self._stop = asyncio.Event()
         self._wake = asyncio.Event()  # stop, or a new connection to poll at once
         self._poll_now = False
-        self._connected = asyncio.Event()
-        self._need_dial = asyncio.Event()
-        self._need_dial.set()
         self._missed_unreported = 0
         self._last_missed_event = float("-inf")
-        self._consecutive_errors = 0
-        self._dials_since_ok = 0  # dials since the last good poll: the backoff's step
-        self._down_kind = "no connection yet"  # why the PLC is away, for the failure count
-        self._outage_since = time.monotonic()  # the fast redial phase counts from here
-        self._where = f"{getattr(self.plc, 'host', '?')}:{getattr(self.plc, 'port', '?')}"
+        self._where = ", ".join(link.label for link in self.links)
         self._qualities: dict[str, str] = {}  # last quality of each point, told on change
-        self._was_stale = self._last_stale = False
         self._told_bad: set[str] = set()  # kinds whose bad news reached the journal
-        self._hangups = 0  # connections lost before one good poll: the backoff's step
-        self._slow_steps = 0  # backoff waits after the fast redial phase
         self._epoch_ns: int | None = None
         if config.clock is not None and config.clock.epoch is not None:
             self._epoch_ns = config.clock.epoch.value
         self._last_plc_s: float | None = None
-        self._heartbeat: tuple[float, float] | None = None  # (value, monotonic time it changed)
         self._disagree: tuple[frozenset[str], int] = (frozenset(), 0)
         self._reported_disagreement: frozenset[str] = frozenset()
         self._last_status_mono = float("-inf")
@@ -207,7 +245,9 @@ class Daemon:
 
     async def run(self, duration_s: float | None = None) -> Counters:
         """Poll until stop() (SIGTERM) or `duration_s`; always ends with a finished log."""
-        t_start = self._outage_since = time.monotonic()
+        t_start = time.monotonic()
+        for link in self.links:
+            link.outage_since = t_start
         where = self._where
         self.notifier.ready(f"polling {where} every {self.config.poll_period_s:g} s")
         self._status("disconnected", f"starting; dialling PLC at {where}")
@@ -215,14 +255,17 @@ class Daemon:
             self._resume_chain()
             self.refit.start()
             self._state_writer = ThreadPoolExecutor(1, thread_name_prefix="state-writer")
-        tasks = [asyncio.create_task(self._connector(self.plc), name="plc connector")]
+        tasks = [asyncio.create_task(self._connector(link), name=f"{link.name} connector")
+                 for link in self.links]
         if self.flame is not None:
             tasks.append(asyncio.create_task(self._open_flame(), name="can connector"))
         try:
             # The first tick waits (at most one timeout) for the first dial, so a reachable
             # PLC's first sample is not lost to the connection set-up.
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._connected.wait(), self.config.plc.timeout_s)
+            first = [asyncio.create_task(link.connected.wait()) for link in self.links]
+            await asyncio.wait(first, timeout=max(link.device.timeout_s for link in self.links))
+            for task in first:
+                task.cancel()
             t0 = time.monotonic()
             await self._loop(t0, None if duration_s is None else duration_s - (t0 - t_start))
         finally:
@@ -232,7 +275,8 @@ class Daemon:
             for task in tasks:
                 with contextlib.suppress(asyncio.CancelledError):
                     await task
-            await self.plc.close()
+            for link in self.links:
+                await link.source.close()
             if self.flame is not None:
                 await self.flame.close()
             await self._finish_refits()
@@ -296,25 +340,7 @@ class Daemon:
         if step is not None:
             self._write(DAQ_EVENTS, {"kind": "clock_step", "detail": self.wall_ns.describe(step),
                                      "step_s": step / 1e9}, log_ns, log_ns)
-        plc_sample: Sample | None = None
-        if self._connected.is_set() and not self.plc.connected:
-            self._lost("connection closed by the PLC", "connection lost")
-        if self._connected.is_set():
-            try:
-                plc_sample = await asyncio.wait_for(self.plc.read(), self.config.plc.timeout_s)
-            except (SourceError, TimeoutError, OSError) as exc:
-                await self._poll_failed(log_ns, str(exc) or "timeout", failure_kind(exc))
-            except Exception as exc:  # a malformed reply must not end acquisition
-                await self._poll_failed(log_ns, f"{type(exc).__name__}: {exc}",
-                                        failure_kind(exc))
-            else:
-                self._consecutive_errors = self._dials_since_ok = 0
-                self._hangups = self._slow_steps = 0
-                c.ok_polls += 1
-                self._log_plc(plc_sample, log_ns)
-                self._tell_sample(plc_sample)
-        else:
-            self._count_failure(self._down_kind)
+        plc_sample = await self._poll_devices(log_ns)
         flame_sample = None
         if self.flame is not None and self.flame.connected:
             with contextlib.suppress(SourceError):
@@ -328,7 +354,7 @@ class Daemon:
             self._pump_refits()
         now = time.monotonic()
         if now - self._last_status_mono >= self.config.status_interval_s:
-            self._status(self.state, self.detail)
+            self._status(None, self.detail)
         self.log.maybe_flush(now)
         if self.log.error != self._log_error_told:  # a full disk is news at once, journal too
             self._log_error_told = self.log.error
@@ -336,7 +362,7 @@ class Daemon:
                 self.journal.say(ERR, f"log: {self.log.error}")
             else:
                 self.journal.say(NOTICE, "log: writing again")
-            self._status(self.state, self.detail)
+            self._status(None, self.detail)
         self.journal.pump()
         self.notifier.watchdog(now)
 
@@ -344,34 +370,115 @@ class Daemon:
         counts = self.counters.failures if counts is None else counts
         counts[kind] = counts.get(kind, 0) + 1
 
-    async def _poll_failed(self, log_ns: int, reason: str, kind: str) -> None:
-        self.counters.comm_errors += 1
-        self._consecutive_errors += 1
-        self._count_failure(kind)
-        self.journal.say(WARNING, f"PLC {self._where}: poll failed ({kind}): {reason}",
-                         f"poll:{kind}")
-        msg: dict = {s: None for s in SENSORS}
-        msg["quality"] = {s: COMM_ERROR for s in SENSORS}
-        msg["error"] = reason
-        self._write(THERMOCOUPLES, msg, log_ns, log_ns)
-        if self._consecutive_errors >= self.config.plc.max_consecutive_errors:
-            await self.plc.close()
-            self._lost(f"{self._consecutive_errors} failed polls in a row, last: {reason}", kind)
+    async def _poll_devices(self, log_ns: int) -> Sample | None:
+        """Every device read at once, each within its own budget: one that hangs costs the
+        tick its timeout but never the others' values. Returns the devices' samples merged
+        (None when no device delivered); a device that failed or is away leaves its points
+        comm_error, with the reason in the thermocouple message's `error`."""
+        c = self.counters
+        results = await asyncio.gather(*(self._read(link) for link in self.links))
+        good: list[tuple[Link, Sample]] = []
+        failed: list[tuple[Link, str, str]] = []
+        missing: list[str] = []
+        for link, (sample, failure) in zip(self.links, results, strict=True):
+            if sample is not None:
+                link.consecutive_errors = link.dials_since_ok = 0
+                link.hangups = link.slow_steps = 0
+                link.last_stale = self._stale(link, sample)
+                good.append((link, sample))
+            elif failure is not None:
+                reason, kind = failure
+                c.comm_errors += 1
+                link.consecutive_errors += 1
+                self._count_failure(self._named(link, kind))
+                self.journal.say(WARNING, f"PLC {link.label}: poll failed ({kind}): {reason}",
+                                 f"{link.key}poll:{kind}")
+                failed.append((link, reason, kind))
+                missing.append(self._named(link, reason))
+            else:  # away: counted as the kind of the outage
+                self._count_failure(self._named(link, link.down_kind))
+                missing.append(self._named(link, f"not connected ({link.down_kind})"))
+        merged: Sample | None = None
+        if good:
+            if len(good) == len(self.links):
+                c.ok_polls += 1
+            merged = self._merge(good, missing)
+            self._log_plc(merged, log_ns)
+            for link, sample in good:
+                self._tell_sample(link, sample)
+        elif failed:
+            msg: dict = {s: None for s in SENSORS}
+            msg["quality"] = {s: COMM_ERROR for s in SENSORS}
+            msg["error"] = "; ".join(missing)
+            self._write(THERMOCOUPLES, msg, log_ns, log_ns)
+        for link, reason, kind in failed:
+            if link.consecutive_errors >= link.device.max_consecutive_errors:
+                await link.source.close()
+                self._lost(link, f"{link.consecutive_errors} failed polls in a row, last: "
+                                 f"{reason}", kind)
+        return merged
 
-    def _lost(self, why: str, kind: str) -> None:
-        self._connected.clear()
-        self._need_dial.set()
-        self._consecutive_errors = 0
+    def _named(self, link: Link, text: str) -> str:
+        return f"{link.name}: {text}" if self.config.several_devices else text
+
+    async def _read(self, link: Link) -> tuple[Sample | None, tuple[str, str] | None]:
+        """One device's poll: (sample, None), (None, (reason, kind)) when it failed, or
+        (None, None) when the device is away."""
+        if link.connected.is_set() and not link.source.connected:
+            self._lost(link, "connection closed by the PLC", "connection lost")
+        if not link.connected.is_set():
+            return None, None
+        try:
+            return await asyncio.wait_for(link.source.read(), link.read_budget_s), None
+        except (SourceError, TimeoutError, OSError) as exc:
+            return None, (str(exc) or "timeout", failure_kind(exc))
+        except Exception as exc:  # a malformed reply must not end acquisition
+            return None, (f"{type(exc).__name__}: {exc}", failure_kind(exc))
+
+    def _merge(self, good: list[tuple[Link, Sample]], missing: list[str]) -> Sample:
+        """One sample from the devices that delivered, as if one PLC held every point:
+        each device's staleness marks its own points only."""
+        out = Sample()
+        burners: dict[str, list[bool]] = {}
+        burner_quality = OK
+        for link, s in good:
+            stale = link.last_stale
+            out.values.update(s.values)
+            out.quality.update({k: STALE if stale and q == OK else q
+                                for k, q in s.quality.items()})
+            if s.plc_seconds is not None:
+                out.plc_seconds = s.plc_seconds
+            if s.burners is not None:
+                burners.update(s.burners)
+                if stale and s.burner_quality == OK:
+                    burner_quality = STALE
+            if s.burner_quality != OK:
+                burner_quality = s.burner_quality
+            out.errors += [self._named(link, e) for e in s.errors]
+            out.refused.update(s.refused)
+        out.errors += missing
+        if self.config.burner_source in ("modbus", "both"):
+            if all(z in burners for z in ZONES):
+                out.burners = burners
+            else:
+                burner_quality = COMM_ERROR
+        out.burner_quality = burner_quality
+        return out
+
+    def _lost(self, link: Link, why: str, kind: str) -> None:
+        link.connected.clear()
+        link.need_dial.set()
+        link.consecutive_errors = 0
         self.counters.disconnects += 1
-        self._down_kind = kind
-        if self._dials_since_ok:  # lost before one good poll: the PLC accepts and hangs up
-            self._hangups += 1
+        link.down_kind = kind
+        if link.dials_since_ok:  # lost before one good poll: the PLC accepts and hangs up
+            link.hangups += 1
         else:  # the last poll was good: an outage starts here
-            self._outage_since = time.monotonic()
-        self._status("disconnected", why)
-        self._bad_news(ERR, f"PLC {self._where}: connection lost: {why}", "lost")
+            link.outage_since = time.monotonic()
+        self._status("disconnected", why, link)
+        self._bad_news(ERR, f"PLC {link.label}: connection lost: {why}", f"{link.key}lost")
 
-    def _tell_sample(self, sample: Sample) -> None:
+    def _tell_sample(self, link: Link, sample: Sample) -> None:
         """The journal hears of a block the PLC refuses and of each point whose quality
         changes, not of every poll that repeats them."""
         keys = self.config.key_paths()
@@ -379,12 +486,14 @@ class Daemon:
             block = f"{req.table} {req.address}+{req.count}"
             self._count_failure(f"{block} refused with exception code "
                                 f"{'?' if code is None else code}", self.counters.incomplete)
-            names = [keys.get(item.name, item.name) for item in self.plc_items()
+            items = getattr(link.source, "items", ())
+            names = [keys.get(item.name, item.name) for item in items
                      if item.table == req.table and req.address <= item.address < req.end]
-            self.journal.say(ERR, f"PLC {self._where}: {block} refused with "
+            self.journal.say(ERR, f"PLC {link.label}: {block} refused with "
                                   f"{exception_text(code)}: {', '.join(names) or 'no point'} "
-                                  f"not read (check the register map)", f"refused:{block}")
-        stale = self._was_stale
+                                  f"not read (check the register map)",
+                             f"{link.key}refused:{block}")
+        stale = link.was_stale
         for name, quality in sample.quality.items():
             before = self._qualities.get(name, OK)
             self._qualities[name] = quality
@@ -395,15 +504,16 @@ class Daemon:
                 self._good_news(NOTICE, f"{key}: ok again", f"quality:{name}")
             else:
                 self._bad_news(WARNING, f"{key}: {quality}", f"quality:{name}")
-        now_stale = self._last_stale
+        now_stale = link.last_stale
         if now_stale != stale:
-            self._was_stale = now_stale
+            link.was_stale = now_stale
             if now_stale:
-                self._bad_news(WARNING, f"PLC {self._where}: values stale, heartbeat "
+                self._bad_news(WARNING, f"PLC {link.label}: values stale, heartbeat "
                                         f"unchanged for {self.config.stale_after_s:g} s "
-                                        "(PLC program stopped?)", "stale")
+                                        "(PLC program stopped?)", f"{link.key}stale")
             else:
-                self._good_news(NOTICE, f"PLC {self._where}: values moving again", "stale")
+                self._good_news(NOTICE, f"PLC {link.label}: values moving again",
+                                f"{link.key}stale")
 
     def _bad_news(self, priority: int, text: str, kind: str) -> None:
         if self.journal.say(priority, text, kind):
@@ -422,7 +532,7 @@ class Daemon:
             self.journal.say(priority, text, f"{kind}:recovered")
 
     def plc_items(self) -> list:
-        return list(getattr(self.plc, "items", ()))
+        return [it for link in self.links for it in getattr(link.source, "items", ())]
 
     # -- logging a PLC sample -------------------------------------------------------------------
     def _publish_ns(self, sample: Sample, log_ns: int) -> int:
@@ -441,18 +551,19 @@ class Daemon:
             self._epoch_ns = log_ns - int(round(s * 1e9))
         return self._epoch_ns + int(round(s * 1e9))
 
-    def _stale(self, sample: Sample) -> bool:
+    def _stale(self, link: Link, sample: Sample) -> bool:
+        """Whether the device's heartbeat has stood still for `stale_after_s`."""
         if sample.heartbeat is None:
             return False
         now = time.monotonic()
-        if self._heartbeat is None or sample.heartbeat != self._heartbeat[0]:
-            self._heartbeat = (sample.heartbeat, now)
+        if link.heartbeat is None or sample.heartbeat != link.heartbeat[0]:
+            link.heartbeat = (sample.heartbeat, now)
             return False
-        return now - self._heartbeat[1] > self.config.stale_after_s
+        return now - link.heartbeat[1] > self.config.stale_after_s
 
     def _log_plc(self, sample: Sample, log_ns: int) -> None:
         pub = self._publish_ns(sample, log_ns)
-        stale = self._last_stale = self._stale(sample)
+        stale = False  # each device's staleness is in its qualities already (_merge)
         quality = {k: (STALE if stale and q == OK else q) for k, q in sample.quality.items()}
         tc: dict = {s: sample.values.get(s) for s in SENSORS}
         tc["quality"] = {s: quality.get(s, COMM_ERROR) for s in SENSORS}
@@ -505,52 +616,58 @@ class Daemon:
                                  "plc": plc.burners, "flame": flame.burners}, log_ns, log_ns)
 
     # -- connections ------------------------------------------------------------------------------
-    async def _connector(self, source: Source) -> None:
+    async def _connector(self, link: Link) -> None:
         """Dial while disconnected. A dial the PLC did not accept (refused, unreachable, no
         answer) is retried every `retry_s` for the first `fast_for_s` of the outage: it costs
         the PLC no session, and a restarted PLC is found within that interval. After that,
         and whenever a connection is lost before one good poll (a PLC that accepts and hangs
         up at once, its connection limit reached), the waits grow exponentially up to
-        `max_s`, so such a PLC is not redialled at every tick."""
-        backoff = self.config.plc.reconnect
+        `max_s`, so such a PLC is not redialled at every tick. Each device has its own."""
+        source = link.source
+        backoff = link.device.reconnect
         while not self._stop.is_set():
-            if not self._need_dial.is_set():
-                await self._need_dial.wait()
-                if self._hangups:
-                    await self._sleep(backoff.delay(self._hangups - 1))
+            if not link.need_dial.is_set():
+                await link.need_dial.wait()
+                if link.hangups:
+                    await self._sleep(backoff.delay(link.hangups - 1))
                 continue
-            attempt = self._dials_since_ok
-            self._dials_since_ok += 1
+            attempt = link.dials_since_ok
+            link.dials_since_ok += 1
             self.counters.connect_attempts += 1
             started = time.monotonic()
             try:
                 await source.connect()
             except SourceError as exc:
                 now = time.monotonic()
-                self._down_kind = exc.kind
-                if exc.kind in CONNECT_FAILURES and now - self._outage_since < backoff.fast_for_s:
+                link.down_kind = exc.kind
+                if exc.kind in CONNECT_FAILURES and now - link.outage_since < backoff.fast_for_s:
                     wait = max(0.0, backoff.fast_s - (now - started))  # start to start
                     how = f"every {backoff.fast_s:g} s"
                 else:
-                    wait = backoff.delay(self._slow_steps)
-                    self._slow_steps += 1
+                    wait = backoff.delay(link.slow_steps)
+                    link.slow_steps += 1
                     how = f"in {wait:g} s (backing off up to {backoff.max_s:g} s)"
-                self.detail = f"{exc}; retry {attempt + 1} in {wait:.3g} s"
-                self.journal.say(ERR, f"PLC: {exc}; retrying {how}", f"dial:{exc.kind}")
+                link.detail = self.detail = self._named(
+                    link, f"{exc}; retry {attempt + 1} in {wait:.3g} s")
+                self.journal.say(ERR, f"PLC {link.label}: {exc}; retrying {how}"
+                                 if link.key else f"PLC: {exc}; retrying {how}",
+                                 f"{link.key}dial:{exc.kind}")
                 await self._sleep(wait)
                 continue
             self.counters.connects += 1
-            self._consecutive_errors = 0
-            self._heartbeat = None
-            self._need_dial.clear()
-            self._connected.set()
+            link.connects += 1
+            link.consecutive_errors = 0
+            link.heartbeat = None
+            link.need_dial.clear()
+            link.connected.set()
             self._poll_now = True  # poll at once, not at the next tick of the grid
             self._wake.set()
-            self._status("connected", f"connected after {attempt + 1} attempt(s)")
-            again = "" if self.counters.connects == 1 else \
-                f", {time.monotonic() - self._outage_since:.1f} s after it went away"
-            self._good_news(NOTICE, f"PLC {self._where}: connected after {attempt + 1} "
-                                    f"attempt(s){again}", "lost", first=self.counters.connects == 1)
+            self._status("connected", f"connected after {attempt + 1} attempt(s)", link)
+            again = "" if link.connects == 1 else \
+                f", {time.monotonic() - link.outage_since:.1f} s after it went away"
+            self._good_news(NOTICE, f"PLC {link.label}: connected after {attempt + 1} "
+                                    f"attempt(s){again}", f"{link.key}lost",
+                            first=link.connects == 1)
 
     async def _open_flame(self) -> None:
         assert self.flame is not None
@@ -571,12 +688,31 @@ class Daemon:
             await asyncio.wait_for(self._stop.wait(), seconds)
 
     # -- status -----------------------------------------------------------------------------------
-    def _status(self, state: str, detail: str) -> None:
-        self.state, self.detail = state, detail
+    @property
+    def state(self) -> str:
+        """connected when every device is; a device away makes the daemon disconnected
+        (its points are missing), whichever device it is."""
+        return "connected" if all(link.state == "connected" for link in self.links) \
+            else "disconnected"
+
+    def _status(self, state: str | None, detail: str, link: Link | None = None) -> None:
+        """A /daq/status message. With `link`, that device's state changed to `state`
+        (named in `device`); without, `state` applies to every device (start, stop), None
+        to none (a periodic or log-error message). `devices` holds each device's state."""
+        if link is not None and state is not None:
+            link.state, link.detail = state, detail
+            detail = self._named(link, detail)
+        elif state is not None:
+            for each in self.links:
+                each.state = state
+        self.detail = detail
         self._last_status_mono = time.monotonic()
         now = self.wall_ns()
-        msg = {"state": state, "detail": detail, **asdict(self.counters),
-               "period_s": self.config.poll_period_s}
+        msg = {"state": self.state, "detail": detail, **asdict(self.counters),
+               "period_s": self.config.poll_period_s,
+               "devices": {each.name: each.state for each in self.links}}
+        if link is not None:
+            msg["device"] = link.name
         if self.log.error:
             msg["log_error"] = self.log.error
         self._write(DAQ_STATUS, msg, now, now)

@@ -15,7 +15,19 @@ from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
 from furnace_model.config import Node, load_yaml
 from furnace_model.errors import ConfigError
 
-from .registers import BIT_TABLES, DATA_TYPES, ORDERS, TABLES, BitRange, Point, overlaps
+from .registers import (
+    BIT_TABLES,
+    ORDERS,
+    POINT_TYPES,
+    REGISTER_TABLES,
+    STRING,
+    TABLES,
+    TELEGRAF_ORDERS,
+    BitRange,
+    Point,
+    overlaps,
+    register_count,
+)
 from .writeback import WriteBackConfig, parse_write_back
 
 BURNER_SOURCES = ("modbus", "can", "both")
@@ -49,8 +61,41 @@ class Backoff:
         return min(self.retry_s, self.max_s)
 
 
+TRANSPORTS = ("tcp", "rtu-over-tcp", "rtu")
+"""Modbus TCP; RTU frames over a TCP socket (a serial-to-Ethernet converter in transparent
+mode); RTU on a serial line."""
+PARITIES = ("N", "E", "O")
+
+
+@dataclass(frozen=True)
+class SerialConfig:
+    """A serial line, as pyserial opens it."""
+
+    port: str = "/dev/ttyUSB0"
+    baudrate: int = 19200
+    parity: str = "N"
+    stopbits: int = 1
+    bytesize: int = 8
+
+
+@dataclass(frozen=True)
+class Workarounds:
+    """Telegraf's Modbus `workarounds`, for devices that need them: a gateway that drops
+    the first request after a connect, a slow RTU slave behind a converter, a device that
+    allows only one connection and keeps it busy, one that refuses reads of more than a
+    few registers or over unmapped holes."""
+
+    pause_after_connect_s: float = 0.0
+    pause_between_requests_s: float = 0.0
+    close_connection_after_gather: bool = False
+    one_request_per_field: bool = False
+    max_registers_per_request: int = 125
+
+
 @dataclass(frozen=True)
 class PlcConfig:
+    """One Modbus device (the only one when the config has no `devices:` list)."""
+
     host: str = "127.0.0.1"
     port: int = 502
     device_id: int = 1
@@ -59,6 +104,17 @@ class PlcConfig:
     max_gap_bits: int = 64
     max_consecutive_errors: int = 3
     reconnect: Backoff = field(default_factory=Backoff)
+    name: str = "plc"
+    transport: str = "tcp"
+    serial: SerialConfig | None = None
+    workarounds: Workarounds = field(default_factory=Workarounds)
+
+    @property
+    def where(self) -> str:
+        """host:port, or the serial port: what an engineer finds the device by."""
+        if self.transport == "rtu" and self.serial is not None:
+            return self.serial.port
+        return f"{self.host}:{self.port}"
 
 
 @dataclass(frozen=True)
@@ -141,6 +197,24 @@ class DaqConfig:
     refit: RefitConfig | None = None
     write_back: WriteBackConfig | None = None
     """None when online identification is off (no `refit:` section or `enabled: false`)."""
+    device_list: tuple[PlcConfig, ...] = ()
+    """The `devices:` list; empty for a config with one `plc:` section."""
+
+    @property
+    def devices(self) -> tuple[PlcConfig, ...]:
+        """Every Modbus device: the `devices:` list, or the `plc:` section as the only one.
+        `plc` is always the first, so `replace(config, plc=...)` (`--plc HOST:PORT`) moves
+        the first device."""
+        return (self.plc, *self.device_list[1:])
+
+    @property
+    def several_devices(self) -> bool:
+        return bool(self.device_list)
+
+    def device_items(self, device: PlcConfig) -> list[Point | BitRange]:
+        """The Modbus items read from `device`."""
+        first = self.devices[0].name
+        return [it for it in self.modbus_items() if (it.device or first) == device.name]
 
     def modbus_items(self) -> list[Point | BitRange]:
         """Everything read over Modbus, in the order of the config file."""
@@ -160,12 +234,32 @@ class DaqConfig:
         return where
 
 
-def _point(node: Node, name: str, extra: tuple[str, ...] = ()) -> Point:
+def _orders(node: Node) -> tuple[str, str]:
+    """(word_order, byte_order) from `word_order: big|little` and `byte_order: big|little`,
+    or from one `byte_order` as Telegraf names it (ABCD, DCBA, BADC, CDAB, ...)."""
+    byte = node.get_string("byte_order", "big", choices=(*ORDERS, *TELEGRAF_ORDERS))
+    if byte in TELEGRAF_ORDERS:
+        if node.has("word_order"):
+            raise node.child("word_order").error(
+                f"byte_order {byte} already gives the word order; remove word_order")
+        return TELEGRAF_ORDERS[byte]
+    return node.get_string("word_order", "big", choices=ORDERS), byte
+
+
+def _point(node: Node, name: str, extra: tuple[str, ...] = (), numeric: bool = True,
+           devices: tuple[str, ...] = ()) -> Point:
     node.mapping({"table", "address", "type", "word_order", "byte_order", "scale", "offset",
-                  "sentinels", "range", *extra})
+                  "sentinels", "range", "length", "device", *extra})
     table = node.get_string("table", "input", choices=[t for t in TABLES if t not in BIT_TABLES])
-    dtype = node.get_string("type", "int16", choices=tuple(DATA_TYPES))
-    count = DATA_TYPES[dtype][0]
+    dtype = node.get_string("type", "int16", choices=POINT_TYPES)
+    length = 0
+    if dtype == STRING:
+        if numeric:
+            raise node.child("type").error(f"{name} is a number; string is for the heartbeat")
+        length = node.get_integer("length", lo=1, hi=125)
+    elif node.has("length"):
+        raise node.child("length").error("applies to type: string only")
+    count = register_count(dtype, length)
     address = node.get_integer("address", lo=0, hi=65536 - count)
     sentinels = tuple(n.number() for n in node.child("sentinels", []).elements())
     lo = hi = None
@@ -177,18 +271,37 @@ def _point(node: Node, name: str, extra: tuple[str, ...] = ()) -> Point:
     scale = node.get_number("scale", 1.0)
     if scale == 0:
         raise node.child("scale").error("must not be 0")
+    word_order, byte_order = _orders(node)
     return Point(name=name, table=table, address=address, dtype=dtype,
-                 word_order=node.get_string("word_order", "big", choices=ORDERS),
-                 byte_order=node.get_string("byte_order", "big", choices=ORDERS),
+                 word_order=word_order, byte_order=byte_order,
                  scale=scale, offset=node.get_number("offset", 0.0),
-                 sentinels=sentinels, lo=lo, hi=hi)
+                 sentinels=sentinels, lo=lo, hi=hi, length=length,
+                 device=_device_of(node, devices))
 
 
-def _bits(node: Node, zone: str, n: int) -> BitRange:
-    node.mapping({"table", "address", "invert"})
-    return BitRange(zone, node.get_string("table", "discrete", choices=BIT_TABLES),
-                    node.get_integer("address", lo=0, hi=65536 - n), n,
-                    node.get_bool("invert", False))
+def _device_of(node: Node, devices: tuple[str, ...]) -> str:
+    """The `device:` a point names; required with several devices, the only one otherwise."""
+    if not devices:
+        if node.has("device"):
+            raise node.child("device").error("there is no devices: list to name one of")
+        return ""
+    if len(devices) == 1 and not node.has("device"):
+        return devices[0]
+    return node.get_string("device", choices=devices)
+
+
+def _bits(node: Node, zone: str, n: int, devices: tuple[str, ...] = ()) -> BitRange:
+    node.mapping({"table", "address", "invert", "bit", "device"})
+    table = node.get_string("table", "discrete", choices=TABLES)
+    bit = 0
+    if table in REGISTER_TABLES:
+        bit = node.get_integer("bit", 0, lo=0, hi=15)
+    elif node.has("bit"):
+        raise node.child("bit").error("applies to bits packed in a register (table: holding "
+                                      "or input) only")
+    width = (bit + n + 15) // 16 if table in REGISTER_TABLES else n
+    return BitRange(zone, table, node.get_integer("address", lo=0, hi=65536 - width), n,
+                    node.get_bool("invert", False), bit, _device_of(node, devices))
 
 
 def _can(node: Node) -> CanConfig:
@@ -275,16 +388,16 @@ def load_config(path: str | Path) -> DaqConfig:
     return parse_config(load_yaml(path))
 
 
-def parse_config(root: Node) -> DaqConfig:
-    root.mapping({"plc", "poll_period_s", "thermocouples", "ambient", "ambient_default_c",
-                  "clock", "heartbeat", "stale_after_s", "burners", "status_interval_s",
-                  "stderr_interval_s", "log", "refit", "write_back"})
+PLC_KEYS = {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
+            "max_consecutive_errors", "reconnect"}
+DEVICE_KEYS = PLC_KEYS | {"name", "transport", "serial", "workarounds"}
 
-    plc_node = root.child("plc", {}).mapping(
-        {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
-         "max_consecutive_errors", "reconnect"})
-    rc = plc_node.child("reconnect", {}).mapping({"initial_s", "max_s", "factor", "retry_s",
-                                                  "fast_for_s"})
+
+def _device(node: Node, name: str = "plc") -> PlcConfig:
+    """A `plc:` section, or one entry of `devices:` (which adds name, transport, serial
+    line and workarounds)."""
+    rc = node.child("reconnect", {}).mapping({"initial_s", "max_s", "factor", "retry_s",
+                                              "fast_for_s"})
     backoff = Backoff(rc.get_number("initial_s", 0.5, lo=0.01, hi=3600.0),
                       rc.get_number("max_s", 5.0, lo=0.01, hi=86400.0),
                       rc.get_number("factor", 2.0, lo=1.0, hi=10.0),
@@ -292,26 +405,82 @@ def parse_config(root: Node) -> DaqConfig:
                       rc.get_number("fast_for_s", 120.0, lo=0.0, hi=86400.0))
     if backoff.max_s < backoff.initial_s:
         raise rc.child("max_s").error(f"must be at least initial_s ({backoff.initial_s:g})")
-    plc = PlcConfig(
-        host=plc_node.get_string("host", "127.0.0.1"),
-        port=plc_node.get_integer("port", 502, lo=1, hi=65535),
-        device_id=plc_node.get_integer("device_id", 1, lo=0, hi=255),
-        timeout_s=plc_node.get_number("timeout_s", 1.0, lo=0.01, hi=60.0),
-        max_gap_registers=plc_node.get_integer("max_gap_registers", 8, lo=0, hi=124),
-        max_gap_bits=plc_node.get_integer("max_gap_bits", 64, lo=0, hi=1999),
-        max_consecutive_errors=plc_node.get_integer("max_consecutive_errors", 3, lo=1, hi=1000),
-        reconnect=backoff)
+    transport = node.get_string("transport", "tcp", choices=TRANSPORTS)
+    serial = None
+    if transport == "rtu":
+        for key in ("host", "port"):
+            if node.has(key):
+                raise node.child(key).error("a serial device has no host or port: its line "
+                                            "is under serial: (port, baudrate, parity, stopbits)")
+        sn = node.child("serial").mapping({"port", "baudrate", "parity", "stopbits", "bytesize"})
+        serial = SerialConfig(port=sn.get_string("port"),
+                              baudrate=sn.get_integer("baudrate", 19200, lo=50, hi=4_000_000),
+                              parity=sn.get_string("parity", "N", choices=PARITIES),
+                              stopbits=sn.get_integer("stopbits", 1, lo=1, hi=2),
+                              bytesize=sn.get_integer("bytesize", 8, lo=7, hi=8))
+    elif node.has("serial"):
+        raise node.child("serial").error(f"applies to transport: rtu only (transport is "
+                                         f"{transport})")
+    wn = node.child("workarounds", {}).mapping(
+        {"pause_after_connect_s", "pause_between_requests_s", "close_connection_after_gather",
+         "one_request_per_field", "max_registers_per_request"})
+    workarounds = Workarounds(
+        pause_after_connect_s=wn.get_number("pause_after_connect_s", 0.0, lo=0.0, hi=60.0),
+        pause_between_requests_s=wn.get_number("pause_between_requests_s", 0.0, lo=0.0, hi=60.0),
+        close_connection_after_gather=wn.get_bool("close_connection_after_gather", False),
+        one_request_per_field=wn.get_bool("one_request_per_field", False),
+        max_registers_per_request=wn.get_integer("max_registers_per_request", 125, lo=1,
+                                                 hi=125))
+    return PlcConfig(
+        host=node.get_string("host", "127.0.0.1"),
+        port=node.get_integer("port", 502, lo=1, hi=65535),
+        device_id=node.get_integer("device_id", 1, lo=0, hi=255),
+        timeout_s=node.get_number("timeout_s", 1.0, lo=0.01, hi=60.0),
+        max_gap_registers=node.get_integer("max_gap_registers", 8, lo=0, hi=124),
+        max_gap_bits=node.get_integer("max_gap_bits", 64, lo=0, hi=1999),
+        max_consecutive_errors=node.get_integer("max_consecutive_errors", 3, lo=1, hi=1000),
+        reconnect=backoff, name=name, transport=transport, serial=serial,
+        workarounds=workarounds)
+
+
+def _devices(root: Node) -> tuple[PlcConfig, ...]:
+    if not root.has("devices"):
+        return ()
+    if root.has("plc"):
+        raise root.child("plc").error("give either plc: (one device) or devices: (a list), "
+                                      "not both")
+    out: list[PlcConfig] = []
+    for dn in root.child("devices").elements(1, 64):
+        dn.mapping(DEVICE_KEYS)
+        name = dn.get_string("name")
+        if not name or any(c.isspace() for c in name):
+            raise dn.child("name").error("expected a name without spaces")
+        if any(d.name == name for d in out):
+            raise dn.child("name").error(f"device {name} is listed twice")
+        out.append(_device(dn, name))
+    return tuple(out)
+
+
+def parse_config(root: Node) -> DaqConfig:
+    root.mapping({"plc", "devices", "poll_period_s", "thermocouples", "ambient",
+                  "ambient_default_c", "clock", "heartbeat", "stale_after_s", "burners",
+                  "status_interval_s", "stderr_interval_s", "log", "refit", "write_back"})
+    device_list = _devices(root)
+    plc = device_list[0] if device_list else _device(root.child("plc", {}).mapping(PLC_KEYS))
+    names = tuple(d.name for d in device_list)
 
     tc_node = root.child("thermocouples").mapping(SENSORS)
-    thermocouples = tuple(_point(tc_node.child(s), s) for s in SENSORS)
-    ambient = _point(root.child("ambient"), "t_air") if root.has("ambient") else None
+    thermocouples = tuple(_point(tc_node.child(s), s, devices=names) for s in SENSORS)
+    ambient = _point(root.child("ambient"), "t_air", devices=names) if root.has("ambient") \
+        else None
     clock = None
     if root.has("clock"):
         cn = root.child("clock")
-        point = _point(cn, "clock", extra=("epoch",))
+        point = _point(cn, "clock", extra=("epoch",), devices=names)
         epoch = cn.child("epoch").timestamp() if cn.has("epoch") else None
         clock = ClockConfig(point, epoch)
-    heartbeat = _point(root.child("heartbeat"), "heartbeat") if root.has("heartbeat") else None
+    heartbeat = _point(root.child("heartbeat"), "heartbeat", numeric=False, devices=names) \
+        if root.has("heartbeat") else None
 
     bn = root.child("burners").mapping({"source", "modbus", "can", "disagreement_polls"})
     source = bn.get_string("source", "modbus", choices=BURNER_SOURCES)
@@ -319,7 +488,8 @@ def parse_config(root: Node) -> DaqConfig:
     # A block the chosen source does not use is still checked: a typo there would bite later.
     if source in ("modbus", "both") or bn.has("modbus"):
         mb = bn.child("modbus").mapping(ZONES)
-        bits = tuple(_bits(mb.child(z), z, BURNERS_PER_ZONE[i]) for i, z in enumerate(ZONES))
+        bits = tuple(_bits(mb.child(z), z, BURNERS_PER_ZONE[i], names)
+                     for i, z in enumerate(ZONES))
     can = _can(bn.child("can")) if source in ("can", "both") or bn.has("can") else None
 
     poll = root.get_number("poll_period_s", 1.0, lo=0.01, hi=3600.0)
@@ -334,7 +504,12 @@ def parse_config(root: Node) -> DaqConfig:
         stderr_interval_s=root.get_number("stderr_interval_s", 60.0, lo=0.0, hi=86400.0),
         log=_log(root.child("log", {})), file=root.file,
         refit=_refit(root.child("refit")) if root.has("refit") else None,
-        write_back=parse_write_back(root.child("write_back", None)))
+        write_back=parse_write_back(root.child("write_back", None)),
+        device_list=device_list)
+    if config.write_back is not None and plc.transport != "tcp":
+        raise root.child("write_back").error(
+            f"writes to the first device, {plc.name}, over Modbus TCP; its transport is "
+            f"{plc.transport}")
     _check_overlaps(root, config)
     return config
 

@@ -19,7 +19,8 @@ from typing import Protocol
 
 import can
 import numpy as np
-from pymodbus.server import ModbusTcpServer
+from pymodbus import FramerType
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import SimData, SimDevice
 from pymodbus.simulator.simdata import DataType
 
@@ -128,7 +129,9 @@ class SimPLC:
     def __init__(self, source: ValueSource | Scenario, *, speed: float = 3600.0,
                  host: str = "127.0.0.1", port: int = 5020, manual: bool = False, seed: int = 0,
                  scan_s: float = 0.1, can_channel: str | None = None,
-                 can_interface: str = "virtual", holding_registers: int = 1):
+                 can_interface: str = "virtual", holding_registers: int = 1,
+                 transport: str = "tcp", serial_port: str | None = None,
+                 baudrate: int = 19200):
         if speed <= 0 or scan_s <= 0:
             raise ValueError("speed and scan_s must be positive")
         if isinstance(source, Scenario):
@@ -137,6 +140,13 @@ class SimPLC:
         self.manual = bool(getattr(source, "manual", False))
         self.speed, self.host, self.port, self.scan_s = speed, host, port, scan_s
         self.holding_registers = holding_registers
+        if transport not in ("tcp", "rtu-over-tcp", "rtu") or \
+                (transport == "rtu") != (serial_port is not None):
+            raise ValueError("transport is tcp, rtu-over-tcp, or rtu with a serial_port")
+        self.transport, self.serial_port, self.baudrate = transport, serial_port, baudrate
+        """How the PLC is reached: Modbus TCP, RTU frames over TCP (a serial-to-Ethernet
+        converter), or RTU on a serial line (`serial_port`, e.g. one end of a socat pty
+        pair)."""
         """Holding registers 0.. the PLC offers for writing (model write-back drills)."""
         self.values = source.values_at(0)
         self.open_sensors: set[str] = set()
@@ -150,7 +160,7 @@ class SimPLC:
         self.scans = 0
         self._can_args = (can_channel, can_interface)
         self._bus: can.BusABC | None = None
-        self._server: ModbusTcpServer | None = None
+        self._server: ModbusTcpServer | ModbusSerialServer | None = None
         self._task: asyncio.Task | None = None
         self._t0 = 0.0
 
@@ -168,9 +178,15 @@ class SimPLC:
                      datatype=DataType.REGISTERS)],                           # holding
             [SimData(0, values=[0] * N_INPUT_REGISTERS, datatype=DataType.REGISTERS)],
         ))
-        self._server = ModbusTcpServer(device, address=(self.host, self.port))
-        await self._server.serve_forever(background=True)
-        self.port = self._server.transport.sockets[0].getsockname()[1]
+        if self.transport == "rtu":
+            self._server = ModbusSerialServer(device, port=self.serial_port,
+                                              baudrate=self.baudrate)
+            await self._server.serve_forever(background=True)
+        else:
+            framer = FramerType.RTU if self.transport == "rtu-over-tcp" else FramerType.SOCKET
+            self._server = ModbusTcpServer(device, framer=framer, address=(self.host, self.port))
+            await self._server.serve_forever(background=True)
+            self.port = self._server.transport.sockets[0].getsockname()[1]
         channel, interface = self._can_args
         if channel is not None:
             self._bus = can.Bus(interface=interface, channel=channel)

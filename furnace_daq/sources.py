@@ -14,13 +14,14 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
 import can
-from pymodbus.client import AsyncModbusTcpClient
+from pymodbus import FramerType
+from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from furnace_model import BURNERS_PER_ZONE, ZONES
 
-from .daqconfig import CanConfig, DaqConfig
-from .registers import COMM_ERROR, OK, STALE, Image, ReadRequest, plan_reads
+from .daqconfig import CanConfig, DaqConfig, PlcConfig
+from .registers import COMM_ERROR, OK, STALE, BitRange, Image, Point, ReadRequest, plan_reads
 
 CONNECT_FAILURES = frozenset({"connection refused", "connect timeout", "host unreachable",
                               "network unreachable", "name not resolved", "cannot connect"})
@@ -60,7 +61,8 @@ def failure_kind(exc: BaseException) -> str:
     if isinstance(exc, OSError):
         named = {errno.EHOSTUNREACH: "host unreachable", errno.ENETUNREACH: "network unreachable",
                  errno.ECONNRESET: "connection reset", errno.EPIPE: "connection lost",
-                 errno.ETIMEDOUT: "connect timeout"}
+                 errno.ETIMEDOUT: "connect timeout", errno.ENOENT: "no such device",
+                 errno.EACCES: "permission denied", errno.EBUSY: "device busy"}
         return named.get(exc.errno or 0, (exc.strerror or type(exc).__name__).lower())
     if isinstance(exc, ModbusException):
         return "Modbus error"
@@ -84,7 +86,7 @@ class Sample:
     values: dict[str, float | None] = field(default_factory=dict)
     quality: dict[str, str] = field(default_factory=dict)
     plc_seconds: float | None = None
-    heartbeat: float | None = None
+    heartbeat: float | str | None = None
     burners: dict[str, list[bool]] | None = None
     burner_quality: str = OK
     errors: list[str] = field(default_factory=list)
@@ -116,35 +118,81 @@ class Source(ABC):
 
 
 class ModbusSource(Source):
-    """The furnace PLC over Modbus TCP, read in as few requests as the map allows.
+    """One Modbus device (TCP, RTU over TCP or RTU on a serial line), read in as few
+    requests as its map and workarounds allow.
 
     pymodbus' own reconnect is switched off (reconnect_delay=0): the daemon owns the
-    connection state, so every drop and redial is visible in the log."""
+    connection state, so every drop and redial is visible in the log. With the workaround
+    `close_connection_after_gather` the source stays "connected" between polls while the
+    line is closed, and each read dials again: the daemon sees a device that answers."""
 
     name = "modbus"
 
-    def __init__(self, config: DaqConfig, host: str | None = None, port: int | None = None):
+    def __init__(self, config: DaqConfig, host: str | None = None, port: int | None = None,
+                 device: PlcConfig | None = None, items: list[Point | BitRange] | None = None):
         self.config = config
-        self.host = host or config.plc.host
-        self.port = port or config.plc.port
-        self.items = config.modbus_items()
-        self.requests = plan_reads(self.items, config.plc.max_gap_registers,
-                                   config.plc.max_gap_bits)
-        self._client: AsyncModbusTcpClient | None = None
+        self.device = device if device is not None else config.devices[0]
+        self.host = host or self.device.host
+        self.port = port or self.device.port
+        if items is None:
+            items = config.device_items(self.device) if config.several_devices \
+                else config.modbus_items()
+        self.items = items
+        """What is read: the config's points on this device (or the caller's own)."""
+        self._names = {it.name for it in self.items}
+        w = self.device.workarounds
+        self.requests = plan_reads(self.items, self.device.max_gap_registers,
+                                   self.device.max_gap_bits, w.max_registers_per_request,
+                                   w.one_request_per_field)
+        self._client: AsyncModbusTcpClient | AsyncModbusSerialClient | None = None
+        self._session = False  # connected as the daemon sees it (close-after-gather)
 
     @property
     def connected(self) -> bool:
+        if self.device.workarounds.close_connection_after_gather:
+            return self._session
         return self._client is not None and self._client.connected
 
     @property
     def where(self) -> str:
+        if self.device.transport == "rtu":
+            return self.device.where
         return f"{self.host}:{self.port}"
+
+    @property
+    def transport_text(self) -> str:
+        """How the device is reached, as `furnace-daq check` lists it."""
+        d = self.device
+        if d.transport == "rtu" and d.serial is not None:
+            s = d.serial
+            return f"Modbus RTU {s.port} {s.baudrate} {s.bytesize}{s.parity}{s.stopbits}"
+        return ("Modbus RTU over TCP " if d.transport == "rtu-over-tcp" else "Modbus TCP ") \
+            + self.where
+
+    def _new_client(self) -> AsyncModbusTcpClient | AsyncModbusSerialClient:
+        d = self.device
+        if d.transport == "rtu":
+            s = d.serial
+            assert s is not None
+            return AsyncModbusSerialClient(s.port, framer=FramerType.RTU, baudrate=s.baudrate,
+                                           bytesize=s.bytesize, parity=s.parity,
+                                           stopbits=s.stopbits, timeout=d.timeout_s,
+                                           retries=0, reconnect_delay=0)
+        framer = FramerType.RTU if d.transport == "rtu-over-tcp" else FramerType.SOCKET
+        return AsyncModbusTcpClient(self.host, port=self.port, framer=framer,
+                                    timeout=d.timeout_s, retries=0, reconnect_delay=0)
 
     async def connect(self) -> None:
         await self.close()
-        timeout = self.config.plc.timeout_s
-        client = AsyncModbusTcpClient(self.host, port=self.port, timeout=timeout,
-                                      retries=0, reconnect_delay=0)
+        await self._dial()
+        self._session = True
+
+    async def _dial(self) -> None:
+        timeout = self.device.timeout_s
+        try:
+            client = self._new_client()
+        except RuntimeError as exc:  # pymodbus without pyserial: a serial line cannot open
+            raise SourceError(f"cannot open {self.where}: {exc}", "serial unavailable") from None
         failed = _note_connect_failure(client)
         t0 = time.monotonic()
         try:
@@ -166,8 +214,15 @@ class ModbusSource(Source):
                 kind, why = "cannot connect", "refused or unreachable"
             raise SourceError(f"cannot connect to {self.where}: {why}", kind)
         self._client = client
+        pause = self.device.workarounds.pause_after_connect_s
+        if pause > 0:  # a gateway that drops the first request sent too soon
+            await asyncio.sleep(pause)
 
     async def close(self) -> None:
+        self._session = False
+        self._drop()
+
+    def _drop(self) -> None:
         if self._client is not None:
             self._client.close()
             self._client = None
@@ -176,15 +231,28 @@ class ModbusSource(Source):
         """Every planned request once: the words and bits read, and the blocks the PLC
         refused (with the exception code it gave). Raises SourceError when the link fails
         or every block is refused."""
+        w = self.device.workarounds
+        if w.close_connection_after_gather and self._session and self._client is None:
+            await self._dial()
+        try:
+            return await self._read_requests()
+        finally:
+            if w.close_connection_after_gather:
+                self._drop()
+
+    async def _read_requests(self) -> tuple[Image, dict[ReadRequest, int | None]]:
         client = self._client
         if client is None or not client.connected:
             raise SourceError("not connected", "connection lost")
         image = Image()
         methods = {"input": client.read_input_registers, "holding": client.read_holding_registers,
                    "discrete": client.read_discrete_inputs, "coil": client.read_coils}
-        device_id = self.config.plc.device_id
+        device_id = self.device.device_id
+        pause = self.device.workarounds.pause_between_requests_s
         refused: dict[ReadRequest, int | None] = {}
-        for req in self.requests:
+        for k, req in enumerate(self.requests):
+            if k and pause > 0:
+                await asyncio.sleep(pause)
             try:
                 rr = await methods[req.table](req.address, count=req.count, device_id=device_id)
             except ModbusException as exc:
@@ -215,29 +283,36 @@ class ModbusSource(Source):
     def decode(self, image: Image) -> Sample:
         """Engineering values and qualities from one scan's words and bits."""
         cfg = self.config
+        mine = self._names
         sample = Sample()
         for point in (*cfg.thermocouples, *([cfg.ambient] if cfg.ambient else [])):
+            if point.name not in mine:
+                continue  # another device's
             words = image.words(point)
             value, quality = (None, COMM_ERROR) if words is None else point.value(words)
             sample.values[point.name] = value
             sample.quality[point.name] = quality
-        if cfg.clock is not None:
+        if cfg.clock is not None and "clock" in mine:
             words = image.words(cfg.clock.point)
             if words is not None:
                 sample.plc_seconds = float(cfg.clock.point.raw(words)) * cfg.clock.point.scale \
                     + cfg.clock.point.offset
-        if cfg.heartbeat is not None:
+        if cfg.heartbeat is not None and "heartbeat" in mine:
             words = image.words(cfg.heartbeat)
             if words is not None:
-                sample.heartbeat = float(cfg.heartbeat.raw(words))
-        if cfg.burner_source in ("modbus", "both"):
+                raw = cfg.heartbeat.raw(words)
+                sample.heartbeat = raw if isinstance(raw, str) else float(raw)
+        if cfg.burner_source in ("modbus", "both") and any(b.name in mine
+                                                             for b in cfg.burner_bits):
             burners = {}
             for bits in cfg.burner_bits:
+                if bits.name not in mine:
+                    continue  # several devices: the daemon merges the zones
                 got = image.words(bits)
                 if got is None:
                     sample.burner_quality = COMM_ERROR
                     break
-                burners[bits.name] = bits.states([bool(b) for b in got])
+                burners[bits.name] = bits.states(got)
             else:
                 sample.burners = burners
         return sample
@@ -247,7 +322,8 @@ def _refused_text(req: ReadRequest, code: int | None) -> str:
     return f"{req.table} {req.address}+{req.count}: Modbus exception code {'?' if code is None else code}"
 
 
-def _note_connect_failure(client: AsyncModbusTcpClient) -> list[OSError]:
+def _note_connect_failure(client: AsyncModbusTcpClient | AsyncModbusSerialClient
+                          ) -> list[OSError]:
     """The OSError behind a failed connect (refused, unreachable), which pymodbus catches
     and reduces to False. Wraps the client's connection factory; if a pymodbus version
     lays its transport out differently the list stays empty and the reason is generic."""

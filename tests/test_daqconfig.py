@@ -46,7 +46,7 @@ def test_example_is_the_default_map_in_two_requests():
     (lambda d: d["plc"].update(hots="x"), "plc.hots", "unknown key"),
     (lambda d: d["thermocouples"]["heat_2"].update(scale="ten"), "thermocouples.heat_2.scale",
      "expected a number"),
-    (lambda d: d["thermocouples"]["heat_2"].update(type="int64"), "thermocouples.heat_2.type",
+    (lambda d: d["thermocouples"]["heat_2"].update(type="int128"), "thermocouples.heat_2.type",
      "must be one of"),
     (lambda d: d["thermocouples"]["preheat_1"].update(address=3), "thermocouples.preheat_1",
      "overlaps thermocouples.heat_2"),

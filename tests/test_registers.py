@@ -17,6 +17,7 @@ from furnace_daq.registers import (
     OK,
     OUT_OF_RANGE,
     SENSOR_OPEN,
+    TELEGRAF_ORDERS,
     BitRange,
     Image,
     Point,
@@ -25,6 +26,7 @@ from furnace_daq.registers import (
     encode,
     overlaps,
     plan_reads,
+    unpack_bits,
 )
 
 RANGES = {"int16": (-2**15, 2**15 - 1), "uint16": (0, 2**16 - 1),
@@ -142,3 +144,116 @@ def test_overlaps_and_image():
     img.put(ReadRequest("input", 7, 2), [1, 2])
     assert img.words(a) == [1, 2] and img.words(Point("c", "input", 9)) is None
     assert COMM_ERROR == "comm_error"
+
+
+# -- the wider types, Telegraf's byte-order names, strings and bits packed in registers -----
+
+FORMATS64 = {**FORMATS, "int64": "q", "uint64": "Q", "float64": "d", "float16": "e"}
+RANGES64 = {**RANGES, "int64": (-2**63, 2**63 - 1), "uint64": (0, 2**64 - 1)}
+FLOAT_WIDTH = {"float16": 16, "float32": 32, "float64": 64}
+
+
+def plc_words_any(value, dtype: str, word_order: str, byte_order: str) -> list[int]:
+    le = struct.pack("<" + FORMATS64[dtype], value)
+    regs = []
+    for k in range(len(le) // 2):
+        lo, hi = le[2 * k], le[2 * k + 1]
+        regs.append(hi << 8 | lo if byte_order == "big" else lo << 8 | hi)
+    return regs[::-1] if word_order == "big" else regs
+
+
+@st.composite
+def any_typed_values(draw):
+    dtype = draw(st.sampled_from(list(FORMATS64)))
+    if dtype in FLOAT_WIDTH:
+        return dtype, draw(st.floats(width=FLOAT_WIDTH[dtype], allow_nan=False))
+    return dtype, draw(st.integers(*RANGES64[dtype]))
+
+
+telegraf = st.sampled_from(sorted(TELEGRAF_ORDERS))
+
+
+@given(any_typed_values(), telegraf)
+def test_every_type_round_trips_in_every_telegraf_order(tv, name):
+    dtype, value = tv
+    word_order, byte_order = TELEGRAF_ORDERS[name]
+    words = plc_words_any(value, dtype, word_order, byte_order)
+    assert decode(words, dtype, word_order, byte_order) == value
+    assert encode(value, dtype, word_order, byte_order) == words
+
+
+def test_telegraf_names_against_the_byte_letters():
+    # 0x0102030405060708 as uint64, and 0x01020304 as uint32, in each named layout
+    cases64 = {"ABCDEFGH": [0x0102, 0x0304, 0x0506, 0x0708],
+               "HGFEDCBA": [0x0807, 0x0605, 0x0403, 0x0201],
+               "BADCFEHG": [0x0201, 0x0403, 0x0605, 0x0807],
+               "GHEFCDAB": [0x0708, 0x0506, 0x0304, 0x0102]}
+    for name, words in cases64.items():
+        assert decode(words, "uint64", *TELEGRAF_ORDERS[name]) == 0x0102030405060708, name
+    cases32 = {"ABCD": [0x0102, 0x0304], "DCBA": [0x0403, 0x0201],
+               "BADC": [0x0201, 0x0403], "CDAB": [0x0304, 0x0102]}
+    for name, words in cases32.items():
+        assert decode(words, "uint32", *TELEGRAF_ORDERS[name]) == 0x01020304, name
+    assert decode([0x0201], "uint16", *TELEGRAF_ORDERS["BA"]) == 0x0102
+    assert decode([0x3C00], "float16") == 1.0
+    assert decode([0x3FF0, 0, 0, 0], "float64") == 1.0
+
+
+text = st.text(st.characters(min_codepoint=0x21, max_codepoint=0xFF), max_size=12)
+
+
+@given(text, st.integers(6, 10), telegraf)
+def test_strings_round_trip_without_their_padding(s, n, name):
+    word_order, byte_order = TELEGRAF_ORDERS[name]
+    words = encode(s, "string", word_order, byte_order, length=n)
+    assert len(words) == n and all(0 <= w <= 0xFFFF for w in words)
+    assert decode(words, "string", word_order, byte_order) == s
+    padded = encode(s + " " * (n % 2 + 1), "string", word_order, byte_order, length=n + 1)
+    assert decode(padded, "string", word_order, byte_order) == s
+    p = Point("tag", dtype="string", length=n, word_order=word_order, byte_order=byte_order)
+    assert p.count == n and p.value(words) == (s, OK)
+
+
+def test_string_layout_and_overflow():
+    assert decode([0x4142, 0x4300], "string") == "ABC"
+    assert decode([0x4241, 0x0043], "string", "big", "little") == "ABC"
+    with pytest.raises(ValueError, match="do not fit"):
+        encode("ABCDE", "string", length=2)
+
+
+@given(st.lists(st.booleans(), min_size=1, max_size=40), st.integers(0, 15), st.booleans())
+def test_packed_bits_round_trip(states, bit, invert):
+    n = len(states)
+    item = BitRange("soak", "holding", 3, n, invert=invert, bit=bit)
+    words = [0] * item.width
+    for k, on in enumerate(states):
+        if on != invert:
+            words[(bit + k) // 16] |= 1 << ((bit + k) % 16)
+    assert item.states(words) == states
+    assert unpack_bits(words, bit, n) == [s != invert for s in states]
+    img = Image()
+    img.put(ReadRequest("holding", 3, item.width), words)
+    assert img.words(item) == words
+
+
+def test_packed_bit_ranges_share_a_register_without_overlapping():
+    soak = BitRange("soak", "input", 20, 10, bit=0)
+    heat = BitRange("heat", "input", 20, 8, bit=10)  # bits 10-15 of 20, 0-1 of 21
+    pre = BitRange("preheat", "input", 21, 8, bit=2)
+    assert heat.width == 2 and overlaps([soak, heat, pre]) is None
+    assert overlaps([soak, BitRange("x", "input", 20, 1, bit=9)]) == (0, 1)
+    assert overlaps([soak, Point("t", "input", 20)]) == (0, 1)
+    plan = plan_reads([soak, heat, pre])
+    assert plan == [ReadRequest("input", 20, 2)]
+    # the same addresses on two devices are two PLCs, not a slip
+    assert overlaps([Point("a", "input", 0, device="x"), Point("b", "input", 0, device="y")]) \
+        is None
+
+
+def test_plan_one_request_per_item_and_a_smaller_limit():
+    pts = [Point("a", "input", 0), Point("b", "input", 1, "float64"), Point("c", "input", 5)]
+    assert plan_reads(pts, one_per_item=True) == [
+        ReadRequest("input", 0, 1), ReadRequest("input", 1, 4), ReadRequest("input", 5, 1)]
+    assert plan_reads(pts, max_registers=5) == [ReadRequest("input", 0, 5),
+                                                ReadRequest("input", 5, 1)]
+    assert plan_reads(pts, max_registers=200) == [ReadRequest("input", 0, 6)]

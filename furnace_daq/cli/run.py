@@ -125,7 +125,7 @@ async def _main(config, log: LogWriter, duration: float | None, journal: Journal
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, daemon.stop)
-    journal.say(INFO, f"polling {daemon.plc.host}:{daemon.plc.port} every "
+    journal.say(INFO, f"polling {', '.join(link.label for link in daemon.links)} every "
                       f"{config.poll_period_s:g} s, logging to {config.log.dir}")
     counters = await daemon.run(duration)
     if write_back is not None:

@@ -38,11 +38,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--can-channel", help="also send flame states as CAN frames on this channel")
     p.add_argument("--can-interface", default="virtual",
                    help="python-can interface for --can-channel (default virtual)")
+    p.add_argument("--transport", choices=("tcp", "rtu-over-tcp", "rtu"), default="tcp",
+                   help="Modbus TCP (default), RTU frames over TCP, or RTU on --serial-port")
+    p.add_argument("--serial-port", help="serial device for --transport rtu (e.g. one end of "
+                                         "a socat pty pair)")
+    p.add_argument("--baudrate", type=int, default=19200,
+                   help="serial line speed for --transport rtu (default 19200)")
     p.add_argument("--duration", type=float, help="stop after this many wall seconds")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if (args.transport == "rtu") != (args.serial_port is not None):
+        raise FurnaceError("--serial-port goes with --transport rtu, and only with it")
     import asyncio
 
     from furnace_model.scenario import load_scenario
@@ -75,11 +83,13 @@ async def _serve(source, what: str, args: argparse.Namespace) -> int:
 
     plc = SimPLC(source, speed=args.speed, host=args.host, port=args.port, manual=args.manual,
                  seed=args.seed, scan_s=args.scan_s, can_channel=args.can_channel,
-                 can_interface=args.can_interface)
+                 can_interface=args.can_interface, transport=args.transport,
+                 serial_port=args.serial_port, baudrate=args.baudrate)
+    where = args.serial_port if args.transport == "rtu" else f"{args.host}:{args.port}"
     try:
         await plc.start()
     except (OSError, RuntimeError) as exc:
-        raise FurnaceError(f"cannot listen on {args.host}:{args.port}: {exc}") from None
+        raise FurnaceError(f"cannot listen on {where}: {exc}") from None
     except Exception as exc:  # python-can raises various types for a bad interface/channel
         await plc.stop()
         raise FurnaceError(f"cannot start: {exc}") from None
@@ -87,7 +97,8 @@ async def _serve(source, what: str, args: argparse.Namespace) -> int:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
-    print(f"listening on {args.host}:{plc.port}", flush=True)
+    print(f"listening on {args.serial_port}" if args.transport == "rtu"
+          else f"listening on {args.host}:{plc.port}", flush=True)
     print(f"{what}; {args.speed:g}x", file=sys.stderr, flush=True)
 
     async def tell_end() -> None:

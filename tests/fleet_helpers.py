@@ -25,8 +25,9 @@ FURNACES = {
     "control": ("week_steps", {}, 3),
 }
 REFIT = {"period_s": 21600, "window_s": 21600, "step_s": 300, "budget_s": 30}
-CAMPAIGNS = [{"name": "d1", "from": "2026-03-02T00:00:00Z", "to": "2026-03-03T00:00:00Z"},
-             {"name": "d2", "from": "2026-03-03T00:00:00Z", "to": "2026-03-04T00:00:00Z"}]
+CAMPAIGNS = [{"name": "d1", "from": "2026-03-02T12:00:00Z", "to": "2026-03-03T00:00:00Z"},
+             {"name": "d2", "from": "2026-03-03T00:00:00Z", "to": "2026-03-03T12:00:00Z"}]
+"""Half a day each; the fuel switch lies in d2."""
 DIAGNOSE = {"effects": ["zone_losses", "fuel_change"], "period_s": 300}
 
 
@@ -46,8 +47,9 @@ def scenario_for(name: str, folder: Path):
     return load_scenario(path), seed
 
 
-def write_fleet(root: Path, names=tuple(FURNACES)) -> Path:
-    """Logs under root/<name>/ and root/fleet.yaml; returns the fleet file."""
+def write_fleet(root: Path, names=tuple(FURNACES), broken: bool = False) -> Path:
+    """Logs under root/<name>/ and root/fleet.yaml; returns the fleet file. `broken` adds a
+    furnace whose one log file is not an MCAP file."""
     furnaces = []
     for name in names:
         s, seed = scenario_for(name, root)
@@ -56,6 +58,10 @@ def write_fleet(root: Path, names=tuple(FURNACES)) -> Path:
         write_run(run, log, s.start_time)
         log.close()
         furnaces.append({"name": name, "logs": [name], "campaigns": CAMPAIGNS})
+    if broken:
+        (root / "broken").mkdir()
+        (root / "broken" / "furnace-20260302T000000Z.mcap").write_bytes(b"not a log\n" * 100)
+        furnaces.append({"name": "broken", "logs": ["broken"], "campaigns": CAMPAIGNS})
     path = root / "fleet.yaml"
     path.write_text(yaml.safe_dump({"furnaces": furnaces, "refit": REFIT,
                                     "diagnose": DIAGNOSE}, sort_keys=False))

@@ -146,26 +146,26 @@ def _finish(args: argparse.Namespace, result, outputs: list[str]) -> int:
 
 def run_refit(args: argparse.Namespace) -> int:
     from ..fleet.jobs import run_refit as job
-    from ..fleet.report import write_report
+    from ..fleet.report import REPORT
 
     fleet, effects = _prepare(args)
     with _client(args) as client:
         result = job(client, fleet, args.out, segment_days=args.segment_days,
                      effects_from=effects, quiet=args.quiet)
-    report = write_report(args.out)
+    report = args.out / REPORT
     return _finish(args, result, [str(args.out / "refit.parquet"),
                                   str(args.out / "drift_events.parquet"), str(report)])
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
     from ..fleet.jobs import run_diagnose as job
-    from ..fleet.report import write_report
+    from ..fleet.report import REPORT
 
     fleet, effects = _prepare(args)
     with _client(args) as client:
         result = job(client, fleet, args.out, pairs=args.pair, rolling=args.rolling,
                      effects_from=effects, quiet=args.quiet)
-    report = write_report(args.out)
+    report = args.out / REPORT
     return _finish(args, result, [str(args.out / "verdicts.parquet"), str(report)])
 
 

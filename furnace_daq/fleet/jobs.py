@@ -18,6 +18,7 @@ import pandas as pd
 
 from .description import Fleet, Furnace
 from .progress import Progress
+from .report import write_report
 from .store import Store, task_key
 from .tasks import (
     Draw,
@@ -182,7 +183,7 @@ def plan_refit(fleet: Fleet, scans: dict[str, dict], segment_days: float | None,
 def run_refit(client, fleet: Fleet, out_dir: Path, *, segment_days: float | None = None,
               effects_from: tuple[str, ...] = (), quiet: bool = False) -> JobResult:
     """Refit every furnace; writes refit.parquet, drift_events.parquet, refit_failures.parquet
-    under `out_dir`."""
+    and the fleet report under `out_dir`."""
     result = JobResult()
     scans = scan(client, fleet, "refit", result)
     specs = plan_refit(fleet, scans, segment_days, effects_from)
@@ -194,6 +195,7 @@ def run_refit(client, fleet: Fleet, out_dir: Path, *, segment_days: float | None
     write_table(refit_frame(rows), out_dir / "refit.parquet")
     write_table(events_frame(events), out_dir / "drift_events.parquet")
     write_table(result.failures_frame(), out_dir / "refit_failures.parquet")
+    write_report(out_dir)
     return result
 
 
@@ -305,7 +307,7 @@ def run_diagnose(client, fleet: Fleet, out_dir: Path, *,
                  pairs: list[tuple[str, str]] | None = None, rolling: str | None = None,
                  effects_from: tuple[str, ...] = (), quiet: bool = False) -> JobResult:
     """Diagnose every furnace's campaign pairs; writes verdicts.parquet and
-    diagnose_failures.parquet, and each diagnosis's JSON under diagnoses/."""
+    diagnose_failures.parquet, each diagnosis's JSON under diagnoses/, and the report."""
     result = JobResult()
     scans = scan(client, fleet, "diagnose", result)
     specs, result.notes = plan_diagnose(fleet, scans, pairs, rolling, effects_from)
@@ -327,6 +329,7 @@ def run_diagnose(client, fleet: Fleet, out_dir: Path, *,
         name = f"{spec.furnace}__{spec.label.replace(':', '__')}.json"
         (folder / name).write_text(json.dumps(v["diagnosis"], indent=1, default=_nan_none)
                                    + "\n")
+    write_report(out_dir)
     return result
 
 

@@ -290,3 +290,19 @@ def test_the_cli_refuses_a_bad_fleet_file_before_starting_a_cluster(tmp_path, ca
     assert daq_main(["fleet", "refit", str(bad), "--out", str(tmp_path / "o")]) == 2
     assert "furnaces[0].logs: required key is missing" in capsys.readouterr().err
 
+
+
+def test_rolling_pairs_each_calendar_period_with_the_next():
+    from furnace_daq.fleet.description import Furnace
+    from furnace_daq.fleet.jobs import campaign_pairs
+
+    f = Furnace("x", "paper", (Path("x"),))
+    scan = {"files": [{"start_ns": int(pd.Timestamp("2026-01-30T05:00Z").value),
+                       "end_ns": int(pd.Timestamp("2026-03-02T01:00Z").value)}]}
+    pairs, _ = campaign_pairs(f, scan, None, "month")
+    assert [(a[0], b[0]) for a, b in pairs] == [("2026-01", "2026-02"), ("2026-02", "2026-03")]
+    assert pairs[0][1][1] == int(pd.Timestamp("2026-02-01T00:00Z").value) == pairs[0][0][2]
+    days, _ = campaign_pairs(f, scan, None, "day")
+    assert len(days) == 31 and days[0][0][0] == "2026-01-30"
+    weeks, _ = campaign_pairs(f, scan, None, "week")
+    assert weeks[0][0][0] == "2026-W05" and pd.Timestamp(weeks[0][1][1], tz="UTC").weekday() == 0

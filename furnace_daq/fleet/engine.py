@@ -58,9 +58,14 @@ def open_client(scheduler: str | None = None, workers: int | None = None,
             client.close()
         return
     n = workers or default_workers()
+    # Without the dashboard the scheduler still serves a few HTTP routes (health, metrics):
+    # on a port of the kernel's choosing, so that two jobs side by side do not contend for
+    # 8787, and on loopback like everything else.
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                            host="127.0.0.1",
                            dashboard_address="127.0.0.1:8787" if dashboard else None,
+                           scheduler_kwargs=None if dashboard else {
+                               "dashboard": False, "dashboard_address": "127.0.0.1:0"},
                            silence_logs=logging.WARNING)
     try:
         client = Client(cluster)

@@ -237,7 +237,7 @@ def campaign_pairs(f: Furnace, scan_: dict, pairs: list[tuple[str, str]] | None,
                                   pd.Timestamp(end, tz="UTC").tz_localize(None),
                                   freq=ROLLING[rolling])
         spans = [(_period_name(p, rolling), int(p.start_time.value),
-                  int((p.end_time + pd.Timedelta(1, "ns")).value)) for p in periods]
+                  int((p + 1).start_time.value)) for p in periods]
         return list(zip(spans[:-1], spans[1:], strict=True)), notes
     camps = {c.name: (c.name, c.start_ns, c.end_ns) for c in f.campaigns}
     if pairs:

@@ -306,3 +306,25 @@ def test_rolling_pairs_each_calendar_period_with_the_next():
     assert len(days) == 31 and days[0][0][0] == "2026-01-30"
     weeks, _ = campaign_pairs(f, scan, None, "week")
     assert weeks[0][0][0] == "2026-W05" and pd.Timestamp(weeks[0][1][1], tz="UTC").weekday() == 0
+
+
+@pytest.mark.slow
+def test_an_uncut_refit_is_the_replay_timeline(local, fleet_file):
+    """furnace-daq replay of the switched furnace's logs with the fleet's refit settings
+    gives the rows of the fleet's refit table, window for window."""
+    from furnace_daq.daqconfig import parse_config
+    from furnace_daq.fleet.tasks import list_files
+    from furnace_daq.replay import replay
+
+    gateway = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    gateway["refit"] = yaml.safe_load(fleet_file.read_text())["refit"]
+    config = parse_config(parse_yaml(yaml.safe_dump(gateway), "gateway.yaml"))
+    out = fleet_file.parent / "switch.model.mcap"
+    msgs = replay(list_files([fleet_file.parent / "switch"]), config, out)
+    t = table(local["out"], "refit")
+    t = t[t["furnace"] == "switch"].reset_index(drop=True)
+    assert len(msgs) == len(t)
+    for m, row in zip(msgs, t.itertuples(), strict=True):
+        assert pd.Timestamp(m["window_end"]) == row.window_end and m["status"] == row.status
+        for p in PARAM_NAMES:
+            assert getattr(row, p) == pytest.approx(m[p], rel=1e-9)

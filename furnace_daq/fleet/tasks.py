@@ -15,6 +15,7 @@ any task and the client only gathers rows.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,6 +121,7 @@ def refit_segment(seg: Segment) -> dict:
     from ..refit import RefitChain, WindowCutter
 
     prepare_worker(seg.effects_from)
+    cpu0 = time.process_time()
     cfg = seg.refit
     cutter = WindowCutter(cfg, seg.t_air_default)
     chain = RefitChain(cfg, seg.t_air_default)
@@ -148,7 +150,7 @@ def refit_segment(seg: Segment) -> dict:
                 break
         if not going:
             break
-    return {"rows": rows, "events": events}
+    return {"rows": rows, "events": events, "cpu_s": time.process_time() - cpu0}
 
 
 def parameter_row(furnace: str, segment: int, msg: dict) -> dict:
@@ -211,6 +213,7 @@ def diagnose_pair(pair: Pair) -> dict:
     from furnace_model.experiment import load_experiments
 
     prepare_worker(pair.effects_from)
+    cpu0 = time.process_time()
 
     def load(files, span):
         _, lo, hi = span
@@ -229,6 +232,7 @@ def diagnose_pair(pair: Pair) -> dict:
     for z in ZONES:
         row[f"rmse_holdout_{z}_c"] = _num(d.baseline.rmse_holdout_c[z])
         row[f"noise_floor_{z}_c"] = _num(d.noise_floor_c[z])
+    row["cpu_s"] = time.process_time() - cpu0
     return {"rows": [row], "diagnosis": d.to_json()}
 
 

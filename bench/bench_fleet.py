@@ -88,9 +88,8 @@ def cut_effect(cut: pd.DataFrame, uncut: pd.DataFrame, period_s: float) -> list[
     starts = starts[starts["segment"] > 0]
     lines = ["| windows after the cut | windows | max abs diff a (%) | max abs diff f (%) | "
              "median abs diff f (%) |", "|---|---|---|---|---|"]
-    m = m.merge(starts.rename(columns={"window_end": "first_end"})[["furnace", "segment",
-                                                                   "first_end"]],
-                left_on=["furnace", "segment"], right_on=["furnace", "segment"], how="left")
+    m = m.merge(starts.rename(columns={"window_end": "first_end", "segment": "segment_cut"}),
+                on=["furnace", "segment_cut"], how="left")
     m = m[m["fitted"] & m["fitted_cut"] & m["first_end"].notna()]
     m["k"] = ((m["window_end"] - m["first_end"]).dt.total_seconds() / period_s).round() + 1
     for lo, hi in ((1, 1), (2, 2), (3, 6), (7, 12), (13, 24)):
@@ -104,8 +103,39 @@ def cut_effect(cut: pd.DataFrame, uncut: pd.DataFrame, period_s: float) -> list[
     return lines
 
 
+def shipped_cost(root: Path, days: float = 2.0) -> str:
+    """CPU per fitted window at the shipped refit settings (24-h windows every 15 min), one
+    furnace (week_steps.yaml cut to `days`), the segment task run in this process."""
+    from furnace_daq.daqconfig import RefitConfig
+    from furnace_daq.fleet.tasks import Segment, list_files, refit_segment
+
+    doc = yaml.safe_load((ROOT / "config" / "scenarios" / "week_steps.yaml").read_text())
+    doc["duration_min"] = days * 1440 - 1
+    doc["burners"]["steps"] = [s for s in doc["burners"]["steps"]
+                               if s["at_min"] <= doc["duration_min"]]
+    (root / "shipped.yaml").write_text(yaml.safe_dump(doc))
+    s = load_scenario(root / "shipped.yaml")
+    logs = root / "shipped"
+    if not logs.exists():
+        run = Plant.from_scenario(s, seed=5).run_scenario(s)
+        with LogWriter(logs, rotate_s=86400.0, flush_interval_s=3600.0) as log:
+            write_run(run, log, s.start_time)
+    files = tuple(map(str, list_files([logs])))
+    t0 = time.perf_counter()
+    r = refit_segment(Segment("shipped", 0, files, RefitConfig(), 30.0, None, None))
+    fitted = [x for x in r["rows"] if x["fitted"]]
+    return (f"shipped settings, {days:g} days: {len(r['rows'])} windows, {len(fitted)} fitted, "
+            f"{r['cpu_s']:.1f} s CPU ({time.perf_counter() - t0:.1f} s wall): "
+            f"{r['cpu_s'] / len(fitted):.3f} s CPU per fitted window")
+
+
 def cpu(result) -> float:
-    return sum(v.get("cpu_s", 0.0) for _, v in result.results)
+    """Process time the job's tasks spent: a refit segment's result carries it, a diagnosis
+    carries it in its row."""
+    return sum(v.get("cpu_s", 0.0) + sum(r.get("cpu_s", 0.0) for r in v["rows"]
+                                         if "cpu_s" in r and "status" in r and "furnace" in r
+                                         and "fit_campaign" in r)
+               for _, v in result.results)
 
 
 def main() -> None:
@@ -172,6 +202,8 @@ def main() -> None:
     for k, e in ev.items():
         print(f"drift events {k}: " + ("; ".join(f"{x.furnace} {x.parameter} {x.window_end}"
                                                  for x in e.itertuples()) or "none"))
+    if not args.quick:
+        print("\n" + shipped_cost(root))
     print("\nThe cut's effect, windows counted from the first one after each cut "
           "(fitted in both runs):\n")
     print("\n".join(cut_effect(tables["refit cut 1 d"], uncut, REFIT["period_s"])))

@@ -69,8 +69,7 @@ class JobResult:
 def _reason(exc: BaseException) -> str:
     name = type(exc).__name__
     if name == "KilledWorker":
-        return f"the worker running it died {exc.args[0] if exc.args else ''} times over; " \
-               f"Dask gave up: {exc}"
+        return f"every worker that ran it died (Dask gives up after its allowed failures): {exc}"
     text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
     return f"{name}: {text}" if name not in ("DataError", "ConfigError", "PluginError") \
         else text

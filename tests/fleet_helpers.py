@@ -49,7 +49,7 @@ def scenario_for(name: str, folder: Path):
 
 def write_fleet(root: Path, names=tuple(FURNACES), broken: bool = False) -> Path:
     """Logs under root/<name>/ and root/fleet.yaml; returns the fleet file. `broken` adds a
-    furnace whose one log file is not an MCAP file."""
+    furnace whose one log file is not an MCAP file, and such a file among the control's."""
     furnaces = []
     for name in names:
         s, seed = scenario_for(name, root)
@@ -61,6 +61,7 @@ def write_fleet(root: Path, names=tuple(FURNACES), broken: bool = False) -> Path
     if broken:
         (root / "broken").mkdir()
         (root / "broken" / "furnace-20260302T000000Z.mcap").write_bytes(b"not a log\n" * 100)
+        (root / "control" / "furnace-20260303T120000Z.mcap").write_bytes(b"\x89MCAP0\r\n")
         furnaces.append({"name": "broken", "logs": ["broken"], "campaigns": CAMPAIGNS})
     path = root / "fleet.yaml"
     path.write_text(yaml.safe_dump({"furnaces": furnaces, "refit": REFIT,

@@ -49,8 +49,11 @@ def local(fleet_file, tmp_path_factory):
         refit = run_refit(client, fleet, out, quiet=True)
         diagnose = run_diagnose(client, fleet, out, quiet=True)
         again = run_refit(client, fleet, out, quiet=True)
+        wall = sorted((fleet_file.parent / "wall").glob("*.mcap"))[-1]
+        os.utime(wall, ns=(wall.stat().st_atime_ns, wall.stat().st_mtime_ns + 10**9))
+        touched = run_refit(client, fleet, out, quiet=True)
         yield {"out": out, "refit": refit, "diagnose": diagnose, "again": again,
-               "client": client, "fleet": fleet}
+               "touched": touched, "client": client, "fleet": fleet}
 
 
 def table(out: Path, name: str) -> pd.DataFrame:
@@ -92,10 +95,14 @@ def test_verdicts_per_furnace(local):
 
 
 def test_a_bad_file_is_reported_with_its_furnace_and_the_rest_completes(local):
+    """A furnace with no readable log fails; a bad file among good ones is left out and
+    reported, and its furnace goes on (the control's refit and verdict are complete)."""
     for job in ("refit", "diagnose"):
-        f = table(local["out"], f"{job}_failures")
-        assert list(f["furnace"]) == ["broken"], f
-        assert "furnace-20260302T000000Z.mcap" in f["reason"].iloc[0]
+        f = table(local["out"], f"{job}_failures").set_index("furnace")
+        assert sorted(f.index) == ["broken", "control"], f
+        assert "furnace-20260302T000000Z.mcap" in f.loc["broken", "reason"]
+        assert "furnace-20260303T120000Z.mcap" in f.loc["control", "reason"]
+        assert (f["task"] == "scan").all()
     report = (local["out"] / "fleet_report.html").read_text()
     assert "broken" in report and "furnace-20260302T000000Z.mcap" in report
     assert report.count("data:image/png;base64,") == 3  # a figure per furnace with windows
@@ -105,7 +112,10 @@ def test_a_rerun_computes_nothing_already_stored(local):
     first, again = local["refit"], local["again"]
     assert (first.computed, first.cached) == (3, 0)
     assert (again.computed, again.cached) == (0, 3)
-    assert len(again.failures) == 1  # the bad file is tried again, and fails again
+    assert len(again.failures) == 2  # the bad files are tried again, and fail again
+    touched = local["touched"]  # one of the wall furnace's files changed: it alone reruns
+    assert (touched.computed, touched.cached) == (1, 2)
+    assert [s.furnace for s, _ in touched.results if s.furnace == "wall"] == ["wall"]
 
 
 def test_plug_in_effects_load_in_the_workers(local):

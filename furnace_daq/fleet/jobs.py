@@ -125,6 +125,10 @@ def scan(client, fleet: Fleet, job: str, result: JobResult) -> dict[str, dict]:
     run_tasks(client, specs, None, progress, got)
     progress.close()
     result.failures += got.failures
+    for spec, value in got.results:
+        for reason in value.get("bad", []):
+            result.failures.append(Failure(spec.furnace, job, "scan", reason))
+            progress.failure(spec.furnace, "scan", reason + " (file left out)")
     return {spec.furnace: value for spec, value in got.results}
 
 

@@ -61,14 +61,21 @@ def file_identity(path: Path) -> list:
 
 
 def scan_furnace(furnace: str, logs: Sequence[str]) -> dict:
-    """Per log file: path, identity, PLC-clock span. A file that is no readable log raises
-    DataError naming it, and the furnace's jobs are reported failed with that reason."""
+    """Per log file: path, identity, PLC-clock span. A file that is no readable log is left
+    out and listed in `bad` with the reason (the job reports each as a failure of the
+    furnace, and goes on with the rest: one corrupt file must not hide a year); a furnace
+    with no readable file at all raises DataError naming its files' problems."""
     from furnace_model.logread import open_log
 
     files = []
+    bad: list[str] = []
     for path in list_files(logs):
-        log = open_log(path)
-        lo, hi = log.span()
+        try:
+            log = open_log(path)
+            lo, hi = log.span()
+        except DataError as exc:
+            bad.append(str(exc))
+            continue
         offset = 0
         for _name, _data, log_ns, pub_ns in log.records({THERMOCOUPLES}):
             offset = pub_ns - log_ns
@@ -79,9 +86,11 @@ def scan_furnace(furnace: str, logs: Sequence[str]) -> dict:
         files.append({"path": str(path), "identity": file_identity(path),
                       "start_ns": lo + offset, "end_ns": hi + offset})
     if not files:
+        if bad:
+            raise DataError(", ".join(map(str, logs)), "no readable log: " + "; ".join(bad))
         raise DataError(", ".join(map(str, logs)), "no furnace data in the logs")
     files.sort(key=lambda f: (f["start_ns"], f["path"]))
-    return {"furnace": furnace, "files": files}
+    return {"furnace": furnace, "files": files, "bad": bad}
 
 
 def files_between(files: list[dict], lo_ns: int | None, hi_ns: int | None) -> list[str]:

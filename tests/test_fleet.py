@@ -338,3 +338,34 @@ def test_an_uncut_refit_is_the_replay_timeline(local, fleet_file):
         assert pd.Timestamp(m["window_end"]) == row.window_end and m["status"] == row.status
         for p in PARAM_NAMES:
             assert getattr(row, p) == pytest.approx(m[p], rel=1e-9)
+
+
+def test_progress_rewrites_one_line_on_a_terminal_and_prints_tenths_otherwise():
+    import io
+
+    from furnace_daq.fleet.progress import Progress
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    tty = Tty()
+    p = Progress("refit", 3, stream=tty)
+    p.finished()
+    p.failure("line2", "segment 1", "boom")
+    p.finished(ok=False)
+    p.close()
+    assert "\rrefit: 1/3 tasks done" in tty.getvalue()
+    assert "\nrefit: FAILED line2 segment 1: boom\n" in tty.getvalue()
+    assert tty.getvalue().endswith("refit: 2/3 tasks done, 1 failed\x1b[K\n")
+    log = io.StringIO()
+    p = Progress("refit", 20, stream=log)
+    for _ in range(20):
+        p.finished()
+    lines = log.getvalue().splitlines()
+    assert len(lines) == 11 and lines[-1] == "refit: 20/20 tasks done"
+    quiet = io.StringIO()
+    p = Progress("refit", 2, stream=quiet, quiet=True)
+    p.finished()
+    p.failure("x", "scan", "bad")
+    assert quiet.getvalue() == "refit: FAILED x scan: bad\n"

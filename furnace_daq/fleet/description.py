@@ -66,9 +66,6 @@ class Furnace:
     where: str = ""
     """Key path of this entry in the fleet file (`furnaces[1]`), for messages."""
 
-    def campaign(self, name: str) -> Campaign | None:
-        return next((c for c in self.campaigns if c.name == name), None)
-
 
 @dataclass(frozen=True)
 class DiagnoseSettings:

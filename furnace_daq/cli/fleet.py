@@ -1,0 +1,205 @@
+"""`furnace-daq fleet`: batch jobs over a fleet of furnaces and their log histories, on
+dask.distributed (a LocalCluster on this machine's cores, or --scheduler tcp://HOST:PORT).
+
+  refit      every furnace's logs through the daemon's online refit (as `replay`), furnaces
+             and history segments in parallel -> refit.parquet, drift_events.parquet
+  diagnose   campaign against campaign per furnace -> verdicts.parquet, fleet_report.html
+  selfcheck  the selfcheck's draws as tasks -> the table of `furnace-model selfcheck`
+
+Results are stored under --out by furnace and a hash of input files and settings: a rerun
+computes only what changed. A task that fails is reported with its furnace and reason, the
+rest completes, and the exit code is 1 (docs/fleet.md)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from furnace_model.cli.arguments import CommandParser, output_dir, positive_int
+from furnace_model.errors import FurnaceError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("fleet", help="batch jobs over a fleet of furnaces on Dask",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    jobs = p.add_subparsers(dest="job", required=True, metavar="JOB",
+                            parser_class=CommandParser)
+
+    r = jobs.add_parser("refit", help="the online refit over every furnace's logs",
+                        description="Every furnace's logs through the online refit chain of "
+                                    "`furnace-daq replay`, furnaces in parallel.")
+    _fleet_file(r)
+    r.add_argument("--segment-days", type=_positive_days, metavar="D",
+                   help="cut each history into segments of D days, each started cold, so one "
+                        "furnace's year runs in parallel too (default: uncut, the replay "
+                        "timeline; docs/fleet.md says what a cut changes)")
+    _common(r)
+    r.set_defaults(run=run_refit)
+
+    d = jobs.add_parser("diagnose", help="campaign against campaign, per furnace",
+                        description="Per furnace, one campaign fitted and another held out "
+                                    "(`furnace-model diagnose`); default: each campaign of the "
+                                    "fleet file against the next.")
+    _fleet_file(d)
+    how = d.add_mutually_exclusive_group()
+    how.add_argument("--pair", action="append", type=_pair, metavar="FIT:HOLDOUT",
+                     help="campaign names, fitted:held out (repeatable)")
+    how.add_argument("--rolling", choices=("day", "week", "month"),
+                     help="each calendar day/week/month (UTC) of the logs against the next, "
+                          "instead of the campaigns")
+    _common(d)
+    d.set_defaults(run=run_diagnose)
+
+    from furnace_model.cli.selfcheck import register as register_selfcheck
+
+    holder = argparse.ArgumentParser(add_help=False).add_subparsers()
+    register_selfcheck(holder)  # the selfcheck's own options, read exactly as it reads them
+    own = holder.choices["selfcheck"]
+    s = jobs.add_parser("selfcheck", help="the selfcheck's draws as tasks",
+                        description="`furnace-model selfcheck` with every draw a task.",
+                        parents=[own], conflict_handler="resolve")
+    s.add_argument("--out", type=output_dir, required=True, metavar="DIR",
+                   help="directory for stored results (created)")
+    _engine(s)
+    s.set_defaults(run=run_selfcheck)
+
+
+def _fleet_file(p: argparse.ArgumentParser) -> None:
+    p.add_argument("fleet", type=Path, metavar="FLEET.yaml", help="the fleet description")
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", type=output_dir, required=True, metavar="DIR",
+                   help="directory for the tables, the report and stored results (created)")
+    p.add_argument("--effects-from", action="append", type=Path, default=[], metavar="PATH.py",
+                   help="load effects written as Python classes in this file, here and in "
+                        "every worker (repeatable)")
+    _engine(p)
+
+
+def _engine(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("engine")
+    g.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="a running Dask scheduler (default: a LocalCluster on this machine)")
+    g.add_argument("--workers", type=positive_int, metavar="N",
+                   help="LocalCluster worker processes (default: one per core)")
+    g.add_argument("--dashboard", action="store_true",
+                   help="serve the LocalCluster's dashboard on 127.0.0.1:8787")
+    g.add_argument("--quiet", action="store_true",
+                   help="print only failures (for cron)")
+
+
+def _positive_days(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: '{text}'") from None
+    if not v > 0 or v != v:
+        raise argparse.ArgumentTypeError(f"must be a positive number of days, got {text}")
+    return v
+
+
+def _pair(text: str) -> tuple[str, str]:
+    parts = text.split(":")
+    if len(parts) != 2 or not all(parts):
+        raise argparse.ArgumentTypeError(f"expected FIT:HOLDOUT campaign names, got '{text}'")
+    return parts[0], parts[1]
+
+
+def _effects(paths: list[Path]) -> tuple[str, ...]:
+    """Load the plug-ins here (their names check the fleet file) and pass them to the
+    workers as absolute paths."""
+    from furnace_model.cli.names import sync_plugins
+    from furnace_model.effects.plugins import load_file
+
+    for path in paths:
+        load_file(path)
+    sync_plugins(installed=True)
+    return tuple(str(p.resolve()) for p in paths)
+
+
+def _prepare(args: argparse.Namespace):
+    from ..fleet.description import load_fleet
+
+    effects = _effects(args.effects_from)
+    fleet = load_fleet(args.fleet)
+    args.out.mkdir(parents=True, exist_ok=True)
+    return fleet, effects
+
+
+def _client(args: argparse.Namespace):
+    from ..fleet.engine import open_client
+
+    return open_client(args.scheduler, args.workers, args.dashboard)
+
+
+def _finish(args: argparse.Namespace, result, outputs: list[str]) -> int:
+    for note in result.notes:
+        if not args.quiet:
+            print(f"note: {note}", file=sys.stderr)
+    if not args.quiet:
+        print(f"{result.computed} task(s) run, {result.cached} from earlier runs, "
+              f"{len(result.failures)} failed -> {', '.join(outputs)}", file=sys.stderr)
+    return 1 if result.failures else 0
+
+
+def run_refit(args: argparse.Namespace) -> int:
+    from ..fleet.jobs import run_refit as job
+    from ..fleet.report import REPORT
+
+    fleet, effects = _prepare(args)
+    with _client(args) as client:
+        result = job(client, fleet, args.out, segment_days=args.segment_days,
+                     effects_from=effects, quiet=args.quiet)
+    report = args.out / REPORT
+    return _finish(args, result, [str(args.out / "refit.parquet"),
+                                  str(args.out / "drift_events.parquet"), str(report)])
+
+
+def run_diagnose(args: argparse.Namespace) -> int:
+    from ..fleet.jobs import run_diagnose as job
+    from ..fleet.report import REPORT
+
+    fleet, effects = _prepare(args)
+    with _client(args) as client:
+        result = job(client, fleet, args.out, pairs=args.pair, rolling=args.rolling,
+                     effects_from=effects, quiet=args.quiet)
+    report = args.out / REPORT
+    return _finish(args, result, [str(args.out / "verdicts.parquet"), str(report)])
+
+
+def run_selfcheck(args: argparse.Namespace) -> int:
+    """As `furnace-model selfcheck` (labels, table, --json, acceptance), draws as tasks."""
+    from furnace_model.cli import selfcheck as sc
+
+    from ..fleet.jobs import run_selfcheck as job
+
+    effects = _effects(args.effects_from or [])
+    if args.first_draw < 0:
+        raise FurnaceError("--first-draw must be 0 or more")
+    if args.draws < 1:
+        raise FurnaceError("--draws must be at least 1")
+    drawable = sc._drawable()
+    from furnace_model.cli.names import effect_names
+
+    if args.effects:
+        for name in {n for label in args.effects for n in label.split("+")} - drawable:
+            raise FurnaceError(f"effect {name} has no `draw`: the selfcheck cannot make a "
+                               "furnace with it at random (give its class a draw classmethod)")
+    labels = list(args.effects or ("none", *(n for n in effect_names() if n in drawable))) + \
+        (list(sc.EXTRA) if args.all else [])
+    args.out.mkdir(parents=True, exist_ok=True)
+    with _client(args) as client:
+        outcomes, result = job(client, labels, args.draws, args.out, seed=args.seed,
+                               first=args.first_draw, form=args.form,
+                               candidates=args.candidates, noise=args.noise,
+                               effects_from=effects, quiet=args.quiet)
+    rows = sc._report(args, outcomes, complete=not result.failures)
+    code = _finish(args, result, [str(args.json)] if args.json else ["stdout"])
+    failed = [r.label for r in rows if not r.passed]
+    if failed:
+        print(f"selfcheck: acceptance missed for {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return code
+

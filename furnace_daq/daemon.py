@@ -58,6 +58,7 @@ from furnace_model.logschema import (
     MODEL_EVENTS,
     MODEL_PARAMETERS,
     THERMOCOUPLES,
+    plc_time,
 )
 
 from .daqconfig import DaqConfig
@@ -350,9 +351,8 @@ class Daemon:
         self._count_failure(kind)
         self.journal.say(WARNING, f"PLC {self._where}: poll failed ({kind}): {reason}",
                          f"poll:{kind}")
-        msg: dict = {s: None for s in SENSORS}
-        msg["quality"] = {s: COMM_ERROR for s in SENSORS}
-        msg["error"] = reason
+        # no reading: the sensors' fields are absent (the schema has no null), quality says why
+        msg: dict = {"quality": {s: COMM_ERROR for s in SENSORS}, "error": reason}
         self._write(THERMOCOUPLES, msg, log_ns, log_ns)
         if self._consecutive_errors >= self.config.plc.max_consecutive_errors:
             await self.plc.close()
@@ -454,21 +454,27 @@ class Daemon:
         pub = self._publish_ns(sample, log_ns)
         stale = self._last_stale = self._stale(sample)
         quality = {k: (STALE if stale and q == OK else q) for k, q in sample.quality.items()}
-        tc: dict = {s: sample.values.get(s) for s in SENSORS}
+        # a reading that is not there is left out: the schema declares numbers, never null
+        tc: dict = {s: v for s in SENSORS if (v := sample.values.get(s)) is not None}
         tc["quality"] = {s: quality.get(s, COMM_ERROR) for s in SENSORS}
+        stamp: dict = {}
         if sample.plc_seconds is not None:
             tc["plc_seconds"] = sample.plc_seconds
+            stamp["plc_time"] = plc_time(pub)  # the PLC's clock in Foxglove's {sec, nsec}
+        tc.update(stamp)
         if sample.errors:  # blocks the PLC refused: why some points are comm_error
             tc["error"] = "; ".join(sample.errors)
         self._write(THERMOCOUPLES, tc, log_ns, pub)
         if self.config.ambient is not None:
             amb = {"t_air": sample.values.get("t_air"), "quality": quality.get("t_air", COMM_ERROR)}
+            if amb["t_air"] is None:
+                del amb["t_air"]
         else:
             amb = {"t_air": self.config.ambient_default_c, "quality": OK, "from_config": True}
-        self._write(AMBIENT, amb, log_ns, pub)
+        self._write(AMBIENT, {**amb, **stamp}, log_ns, pub)
         if sample.burners is not None:
             sample.burner_quality = STALE if stale else sample.burner_quality
-            self._write(BURNERS, self._burner_message(sample, "modbus"), log_ns, pub)
+            self._write(BURNERS, {**self._burner_message(sample, "modbus"), **stamp}, log_ns, pub)
 
     @staticmethod
     def _burner_message(sample: Sample, source: str) -> dict:
@@ -631,6 +637,8 @@ class Daemon:
                              "detail": f"latest model not saved: {error}"}, now)
 
     def _model_message(self, topic: str, message: dict, pub_ns: int) -> None:
+        if self._last_plc_s is not None:  # the data clock is the PLC's: say so in its field
+            message["plc_time"] = plc_time(pub_ns)
         self.log.write(topic, message, self.wall_ns(), pub_ns)
         if topic == MODEL_EVENTS:
             self._tell_event(message)

@@ -58,6 +58,7 @@ from furnace_model.logschema import (
     MODEL_EVENTS,
     MODEL_PARAMETERS,
     THERMOCOUPLES,
+    plc_time,
 )
 
 from .daqconfig import DaqConfig, PlcConfig
@@ -407,9 +408,8 @@ class Daemon:
             for link, sample in good:
                 self._tell_sample(link, sample)
         elif failed:
-            msg: dict = {s: None for s in SENSORS}
-            msg["quality"] = {s: COMM_ERROR for s in SENSORS}
-            msg["error"] = "; ".join(missing)
+            # no reading: the sensors' fields are absent (the schema has no null), quality says why
+            msg: dict = {"quality": {s: COMM_ERROR for s in SENSORS}, "error": "; ".join(missing)}
             self._write(THERMOCOUPLES, msg, log_ns, log_ns)
         for link, reason, kind in failed:
             if link.consecutive_errors >= link.device.max_consecutive_errors:
@@ -563,23 +563,27 @@ class Daemon:
 
     def _log_plc(self, sample: Sample, log_ns: int) -> None:
         pub = self._publish_ns(sample, log_ns)
-        stale = False  # each device's staleness is in its qualities already (_merge)
-        quality = {k: (STALE if stale and q == OK else q) for k, q in sample.quality.items()}
-        tc: dict = {s: sample.values.get(s) for s in SENSORS}
+        quality = sample.quality  # each device's staleness is in its qualities already (_merge)
+        # a reading that is not there is left out: the schema declares numbers, never null
+        tc: dict = {s: v for s in SENSORS if (v := sample.values.get(s)) is not None}
         tc["quality"] = {s: quality.get(s, COMM_ERROR) for s in SENSORS}
+        stamp: dict = {}
         if sample.plc_seconds is not None:
             tc["plc_seconds"] = sample.plc_seconds
+            stamp["plc_time"] = plc_time(pub)  # the PLC's clock in Foxglove's {sec, nsec}
+        tc.update(stamp)
         if sample.errors:  # blocks the PLC refused: why some points are comm_error
             tc["error"] = "; ".join(sample.errors)
         self._write(THERMOCOUPLES, tc, log_ns, pub)
         if self.config.ambient is not None:
             amb = {"t_air": sample.values.get("t_air"), "quality": quality.get("t_air", COMM_ERROR)}
+            if amb["t_air"] is None:
+                del amb["t_air"]
         else:
             amb = {"t_air": self.config.ambient_default_c, "quality": OK, "from_config": True}
-        self._write(AMBIENT, amb, log_ns, pub)
+        self._write(AMBIENT, {**amb, **stamp}, log_ns, pub)
         if sample.burners is not None:
-            sample.burner_quality = STALE if stale else sample.burner_quality
-            self._write(BURNERS, self._burner_message(sample, "modbus"), log_ns, pub)
+            self._write(BURNERS, {**self._burner_message(sample, "modbus"), **stamp}, log_ns, pub)
 
     @staticmethod
     def _burner_message(sample: Sample, source: str) -> dict:
@@ -767,6 +771,8 @@ class Daemon:
                              "detail": f"latest model not saved: {error}"}, now)
 
     def _model_message(self, topic: str, message: dict, pub_ns: int) -> None:
+        if self._last_plc_s is not None:  # the data clock is the PLC's: say so in its field
+            message["plc_time"] = plc_time(pub_ns)
         self.log.write(topic, message, self.wall_ns(), pub_ns)
         if topic == MODEL_EVENTS:
             self._tell_event(message)

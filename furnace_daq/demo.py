@@ -34,8 +34,9 @@ from furnace_model.logschema import BURNERS, PARAM_NAMES, THERMOCOUPLES
 from furnace_model.scenario import Scenario, load_scenario
 from furnace_model.structure import ModelStructure
 
-from .daemon import Daemon
+from .daemon import EVENT_PRIORITY, Daemon
 from .daqconfig import RefitConfig, load_config
+from .logmeta import build_metadata
 from .mcaplog import LogWriter
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -186,7 +187,8 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
         log=replace(config.log, dir=log_dir), refit=refit)
     log_dir.mkdir(parents=True, exist_ok=True)
     log = _Tap(LogWriter(log_dir, prefix=config.log.prefix, flush_interval_s=1.0,
-                         file_mode=config.log.file_mode))
+                         file_mode=config.log.file_mode, metadata=build_metadata(config),
+                         event_priority=EVENT_PRIORITY))
     refits: list[dict] = []
 
     def on_model(msg: dict) -> None:

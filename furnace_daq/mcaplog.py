@@ -17,6 +17,13 @@ and retries with a new file every `retry_s`. `error` holds the failure while it 
 writing works again, a `/daq/events` message of kind `log_gap` records the outage. A message
 may then appear twice, once in the abandoned file and once in the new one; none is lost while
 the buffer holds it.
+
+What every file carries. Right after its header, the metadata record of `logmeta` (software
+version, furnace, settings, host), repeated in each rotated file so that any one file says
+how it was made. CRCs on chunks and on the data section, explicitly (mcap's writer leaves the
+data section's off by default): a reader can tell a damaged file from a good one. Every
+/daq/status change of state or detail and every /daq/events and /model/events message is
+mirrored as a `foxglove.Log` line on /log, its level from the journal priority of its kind.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ import os
 import re
 import time
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -36,8 +44,19 @@ from typing import Any, BinaryIO, NamedTuple
 from mcap.writer import CompressionType, Writer
 
 from furnace_model.logread import PART_SUFFIX, iso_time
-from furnace_model.logschema import DAQ_EVENTS, MESSAGE_ENCODING, SCHEMA_ENCODING, topic
+from furnace_model.logschema import (
+    DAQ_EVENTS,
+    DAQ_STATUS,
+    LOG,
+    LOG_LEVELS,
+    MESSAGE_ENCODING,
+    MODEL_EVENTS,
+    SCHEMA_ENCODING,
+    log_line,
+    topic,
+)
 
+from .logmeta import METADATA_NAME
 from .logrecover import fsync_dir
 
 LIBRARY = "furnace-daq"
@@ -71,7 +90,9 @@ class LogWriter:
     def __init__(self, log_dir: str | Path, prefix: str = "furnace", flush_interval_s: float = 5.0,
                  rotate_s: float = 3600.0, rotate_bytes: int = 256 * 2**20,
                  retention_files: int = 0, file_mode: int = 0o640,
-                 max_buffered: int = 20000, retry_s: float = 5.0):
+                 max_buffered: int = 20000, retry_s: float = 5.0,
+                 metadata: Mapping[str, str] | None = None,
+                 event_priority: Mapping[str, int] | None = None):
         if not re.fullmatch(r"[A-Za-z0-9_.-]+", prefix):
             raise ValueError(f"log file prefix {prefix!r}: use letters, digits, '_', '.', '-'")
         self.log_dir = Path(log_dir)
@@ -83,6 +104,11 @@ class LogWriter:
         self.file_mode = file_mode
         self.max_buffered = int(max_buffered)
         self.retry_s = float(retry_s)
+        self.metadata: dict[str, str] | None = None if metadata is None else dict(metadata)
+        """The `furnace-daq` metadata record of every file opened from now on."""
+        self.event_priority = dict(event_priority or {})
+        """Journal (sd-daemon) priority of each event kind: the level of its /log line."""
+        self._last_status: tuple[object, object] | None = None
         # Chunks small against the size limit, so a file overshoots it by little.
         self._chunk_size = min(2**20, max(4096, (self.rotate_bytes or 2**22) // 8))
         self.error: str | None = None
@@ -108,7 +134,28 @@ class LogWriter:
         log_time_ns = int(log_time_ns)
         pub = log_time_ns if publish_time_ns is None else int(publish_time_ns)
         self._queue(_Rec(topic, encode(message), log_time_ns, pub))
+        line = self._log_line(topic, message, log_time_ns)
+        if line is not None:
+            self._queue(_Rec(LOG, encode(line), log_time_ns, log_time_ns))
         self._drain(self._now if self._now is not None else time.monotonic())
+
+    def _log_line(self, name: str, message: dict, log_time_ns: int) -> dict | None:
+        """The /log line of a status change or an event, or None for other messages (and
+        for a periodic status that repeats the last one)."""
+        if name == DAQ_STATUS:
+            key = (message.get("state"), message.get("detail"))
+            if key == self._last_status:
+                return None
+            self._last_status = key
+            level = LOG_LEVELS["info" if key[0] == "connected" else "warning"]
+            text = f"{key[0]}: {key[1]}"
+        elif name in (DAQ_EVENTS, MODEL_EVENTS):
+            kind = str(message.get("kind", "event"))
+            level = _level(self.event_priority.get(kind, 5))
+            text = f"{kind}: {message.get('detail', '')}"
+        else:
+            return None
+        return log_line(log_time_ns, level, text, LIBRARY, name)
 
     def maybe_flush(self, now_monotonic: float) -> None:
         """Close the chunk and fsync when the flush interval has passed; retry a failed log.
@@ -193,8 +240,11 @@ class LogWriter:
             part, final, fd = self._create(stamp)
             fh = os.fdopen(fd, "wb")
             os.fchmod(fh.fileno(), self.file_mode)  # the umask must not change the mode
-            writer = Writer(fh, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)
+            writer = Writer(fh, chunk_size=self._chunk_size, compression=CompressionType.ZSTD,
+                            enable_crcs=True, enable_data_crcs=True)
             writer.start(profile="", library=LIBRARY)
+            if self.metadata is not None:
+                writer.add_metadata(METADATA_NAME, self.metadata)
             fh.flush()
             fsync_dir(self.log_dir)
         except OSError as exc:
@@ -302,6 +352,16 @@ class LogWriter:
                 self.error = f"{old}: cannot delete for retention: {exc.strerror or exc}"
 
 
+def _level(priority: int) -> int:
+    """foxglove.LogLevel of an sd-daemon priority: err and worse error, warning warning,
+    notice and info info, debug debug."""
+    if priority <= 3:
+        return LOG_LEVELS["error"]
+    if priority == 4:
+        return LOG_LEVELS["warning"]
+    return LOG_LEVELS["info"] if priority <= 6 else LOG_LEVELS["debug"]
+
+
 def finished_files(log_dir: str | Path, prefix: str) -> list[Path]:
     """The finished log files of one writer, oldest first (by the start time in the name)."""
     pattern = re.compile(rf"{re.escape(prefix)}-(\d{{8}}T\d{{6}}Z)(?:-(\d+))?(?:\.recovered)?\.mcap")
@@ -314,8 +374,9 @@ def finished_files(log_dir: str | Path, prefix: str) -> list[Path]:
 
 
 def encode(message: dict) -> bytes:
-    """JSON bytes of one message. Non-finite floats become null: a NaN reading is 'missing',
-    and bare NaN is not JSON (Foxglove and most parsers refuse it)."""
+    """JSON bytes of one message. A non-finite float is 'missing': a field holding one is
+    left out, an array item becomes null (bare NaN is not JSON, and Foxglove and most
+    parsers refuse it)."""
     try:
         text = json.dumps(message, separators=(",", ":"), allow_nan=False, default=_plain)
     except ValueError:
@@ -333,8 +394,9 @@ def _plain(obj: Any) -> Any:
 def _finite(obj: Any) -> Any:
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, dict):  # a field that is not a number is left out (schemas hold no null)
+        return {k: _finite(v) for k, v in obj.items()
+                if not (isinstance(v, float) and not math.isfinite(v))}
     if isinstance(obj, list):
         return [_finite(v) for v in obj]
     return obj

@@ -60,7 +60,7 @@ from furnace_model.experiment import Experiment
 from furnace_model.fit import FitResult, fit
 from furnace_model.logread import iso_time
 from furnace_model.logresample import Resampler
-from furnace_model.logschema import AMBIENT, PARAM_NAMES, THERMOCOUPLES
+from furnace_model.logschema import AMBIENT, PARAM_NAMES, THERMOCOUPLES, absent
 
 from .daqconfig import RefitConfig
 
@@ -303,8 +303,8 @@ class RefitChain:
         nulls before the first), with the reason."""
         msg = self._base(window, status, detail)
         m = self.model
-        for p in PARAM_NAMES:
-            msg[p] = None if m is None else m[p]
+        if m is not None:  # before the first model a..f are absent (the schema has no null)
+            msg.update({p: m[p] for p in PARAM_NAMES})
         msg["ci95"] = {} if m is None else m["ci95"]
         msg["rmse_c"] = {} if m is None else m["rmse_c"]
         if m is not None:
@@ -319,15 +319,15 @@ class RefitChain:
         if outcome.get("status") != "ok" or not _finite(outcome):
             detail = outcome.get("detail") or "the fit returned non-finite values"
             msg = self.kept(window, "failed", detail)
-            msg["elapsed_s"] = outcome.get("elapsed_s")
-            msg["search"] = outcome.get("search")
+            msg.update(absent({"elapsed_s": outcome.get("elapsed_s"),
+                               "search": outcome.get("search")}))
             return msg, []
         msg = self._base(window, "ok", outcome["detail"])
         msg.update({p: outcome["params"][p] for p in PARAM_NAMES})
-        msg.update({k: outcome[k] for k in ("ci95", "rmse_c", "combinations",
-                                            "determined_combinations", "undetermined",
-                                            "zone_offsets_c", "sigma_c", "elapsed_s",
-                                            "search")})
+        msg.update(absent({k: outcome[k] for k in ("ci95", "rmse_c", "combinations",
+                                                   "determined_combinations", "undetermined",
+                                                   "zone_offsets_c", "sigma_c", "elapsed_s",
+                                                   "search")}))
         msg["model_window_start"] = msg["window_start"]
         msg["model_window_end"] = msg["window_end"]
         recent = outcome.get("recent")

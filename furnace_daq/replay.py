@@ -7,6 +7,11 @@ the optimiser's tolerance). The /model topics go to one MCAP file; there log_tim
 window's end as well (a replay has no meaningful host time, and this keeps its output
 reproducible).
 
+Settings. The refit settings are those of `config` when one is given (`--config`), else
+those recorded in the logs' metadata record (the daemon writes its `refit:` settings into
+every file), else the defaults: a log alone replays as it was fitted live. The output file
+carries a metadata record too, with the settings it was fitted with.
+
 Reading and fitting overlap: the worker fits window k while this process reads and bins the
 data of window k + 1, which is what makes a week of 1 Hz data replay in under a minute on
 two cores. Replay never drops a window: when the worker falls behind, reading waits.
@@ -14,6 +19,7 @@ two cores. Replay never drops a window: when the worker falls behind, reading wa
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -33,6 +39,15 @@ from furnace_model.logschema import (
 )
 
 from .daqconfig import DaqConfig, RefitConfig
+from .logmeta import (
+    METADATA_NAME,
+    build_metadata,
+    plain,
+    read_metadata,
+    recorded_ambient_default,
+    recorded_refit,
+    refit_config,
+)
 from .mcaplog import encode
 from .refitworker import RefitRunner
 
@@ -44,12 +59,15 @@ PUMP_EVERY = 256
 class ModelLog:
     """One MCAP file of /model/* messages (replay output); finished on close."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, metadata: dict[str, str] | None = None):
         self.path = path
         path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = path.open("wb")
-        self._writer = Writer(self._fh, compression=CompressionType.ZSTD)
+        self._writer = Writer(self._fh, compression=CompressionType.ZSTD, enable_crcs=True,
+                              enable_data_crcs=True)
         self._writer.start(profile="", library="furnace-daq replay")
+        if metadata is not None:
+            self._writer.add_metadata(METADATA_NAME, metadata)
         self._channels: dict[str, int] = {}
 
     def write(self, name: str, message: dict, log_ns: int, pub_ns: int) -> None:
@@ -79,14 +97,14 @@ def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str 
     """Run the logs through the refit pipeline; returns the /model/parameters messages in
     order. `speed` paces the data at that many data seconds per wall second (None: as fast
     as possible). `echo(topic, message)` sees every /model message as it is produced.
-    The refit settings are `config.refit` (defaults when None)."""
+    The refit settings are `config.refit` when `config` is given, else those recorded in
+    the logs (see `settings`)."""
     paths = [Path(p) for p in paths]
     if not paths:
         raise DataError("replay", "no log files given")
     if speed is not None and not speed > 0:
         raise DataError("--speed", f"must be positive, got {speed:g}")
-    refit = (config.refit if config is not None else None) or RefitConfig()
-    t_air = config.ambient_default_c if config is not None else 30.0
+    refit, t_air, _ = settings(paths, config)
     out = Path(out_path) if out_path is not None else default_out(paths)
     if out.resolve() in {p.resolve() for p in paths}:
         raise DataError(str(out), "the output would overwrite one of the logs being replayed")
@@ -106,8 +124,11 @@ def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str 
     first = next(messages, None)  # reads and checks every file before anything is written
     if first is None:
         raise DataError(", ".join(map(str, paths)), "no furnace data in the logs")
+    metadata = build_metadata(config)
+    metadata["refit"] = json.dumps(plain(refit))
+    metadata["replayed_from"] = json.dumps([p.name for p in paths])
     try:
-        log = ModelLog(out)
+        log = ModelLog(out, metadata)
     except OSError as exc:
         raise DataError(str(out), f"cannot write: {exc.strerror or exc}") from None
     runner.start()
@@ -121,6 +142,21 @@ def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str 
         runner.close()
         log.close()
     return params
+
+
+def settings(paths: list[Path], config: DaqConfig | None
+             ) -> tuple[RefitConfig, float, str]:
+    """(refit settings, default t_air, where they came from): `config`'s, else the ones
+    recorded in the logs, else the defaults."""
+    if config is not None:
+        return config.refit or RefitConfig(), config.ambient_default_c, "config"
+    metadata = read_metadata(sorted(paths))
+    recorded = recorded_refit(metadata)
+    t_air = recorded_ambient_default(metadata)
+    t_air = 30.0 if t_air is None else t_air
+    if recorded is not None:
+        return refit_config(recorded), t_air, "log"
+    return RefitConfig(), t_air, "defaults"
 
 
 def _feed(runner: RefitRunner, first, messages, refit: RefitConfig,

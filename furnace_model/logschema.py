@@ -5,12 +5,19 @@ commands reading logs. Here, in the package both sides may import (docs/logs.md)
 The schemas are written for Foxglove as much as for validation: Foxglove turns a
 `jsonschema` channel into plottable fields only when every object lists its `properties` and
 every field has exactly one of boolean/string/number/integer/object/array (no `$ref`, no
-`["number", "null"]` unions, no `"null"`). A reading that can be missing is therefore declared
-`"number"` and says in its description that it is `null` when unusable; Foxglove then leaves a
-gap in the plot, which is what an engineer should see.
+`["number", "null"]` unions, no `"null"`: its schema parser refuses the whole channel on one
+of them). A value that can be missing is therefore declared with its one type and left out of
+the message when missing (`absent()` drops it); Foxglove leaves a gap in the plot, which is
+what an engineer should see, and a strict JSON Schema validator accepts the message.
 
-Fields beyond the contract's minimum are welcome (JSON Schema allows additional properties by
-default); the contract grows by adding fields, never by renaming.
+Every field a message carries is declared here, so a message validates against its channel's
+schema with `"additionalProperties": false` added to every object that lists its properties
+(tests/logcheck.py). Maps whose keys are open (failures by kind, combinations by name) say so
+with `additionalProperties`. The contract grows by adding fields, never by renaming.
+
+Time in Foxglove's shape, {sec, nsec}: `plc_time` on the furnace topics is the PLC's clock
+(the message's publish time) when the register map has one; the /log topic is
+`foxglove.Log`, one line per status change and event, so Foxglove's log panel shows them.
 """
 
 from __future__ import annotations
@@ -38,10 +45,77 @@ DAQ_STATUS = "/daq/status"
 DAQ_EVENTS = "/daq/events"
 MODEL_PARAMETERS = "/model/parameters"
 MODEL_EVENTS = "/model/events"
+LOG = "/log"
+
+JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+"""The draft every top-level schema declares (`$schema`); validators pick it from there."""
+
+LOG_LEVELS: dict[str, int] = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4,
+                              "fatal": 5}
+"""foxglove.LogLevel: the `level` of a /log message."""
+
+
+def plc_time(ns: int) -> dict[str, int]:
+    """A time in Foxglove's shape ({sec, nsec}, nsec in 0..999999999) from ns since the epoch;
+    floor division keeps nsec positive for times before 1970 as Foxglove expects."""
+    sec, nsec = divmod(int(ns), 1_000_000_000)
+    return {"sec": sec, "nsec": nsec}
+
+
+def time_ns(stamp: dict) -> int:
+    """ns since the epoch from a {sec, nsec} field: the inverse of `plc_time`."""
+    return int(stamp["sec"]) * 1_000_000_000 + int(stamp["nsec"])
+
+
+def absent(message: dict) -> dict:
+    """`message` without its None values, in nested objects too (never inside arrays): a
+    missing value is left out, which every schema here accepts and Foxglove plots as a gap."""
+    return {k: absent(v) if isinstance(v, dict) else v
+            for k, v in message.items() if v is not None}
+
+
+def log_line(ns: int, level: int, message: str, name: str, file: str = "",
+             line: int = 0) -> dict:
+    """A /log message (foxglove.Log): `level` one of LOG_LEVELS' values."""
+    return {"timestamp": plc_time(ns), "level": int(level), "message": message, "name": name,
+            "file": file, "line": int(line)}
 
 
 def _number(description: str) -> dict:
     return {"type": "number", "description": description}
+
+
+def _integer(description: str, minimum: int | None = 0) -> dict:
+    s: dict = {"type": "integer", "description": description}
+    if minimum is not None:
+        s["minimum"] = minimum
+    return s
+
+
+def _numbers(description: str, n: int | None = None) -> dict:
+    s: dict = {"type": "array", "items": {"type": "number"}, "description": description}
+    if n is not None:
+        s["minItems"] = s["maxItems"] = n
+    return s
+
+
+def _strings(description: str) -> dict:
+    return {"type": "array", "items": {"type": "string"}, "description": description}
+
+
+def _time(description: str) -> dict:
+    """Foxglove's time: {sec, nsec}, as its own schemas (foxglove.Log's timestamp) write it."""
+    return {"type": "object", "title": "time", "description": description,
+            "properties": {"sec": {"type": "integer", "minimum": 0},
+                           "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}},
+            "required": ["sec", "nsec"]}
+
+
+def _open_map(values: dict, description: str) -> dict:
+    """An object whose keys are not known in advance (counts by kind, ...): every value has
+    the schema `values`. Foxglove shows it as an object without fields."""
+    return {"type": "object", "properties": {}, "additionalProperties": values,
+            "description": description}
 
 
 def _string(description: str, choices: tuple[str, ...] | None = None) -> dict:
@@ -74,19 +148,29 @@ class Topic:
     schema: dict = field(hash=False, compare=False)
 
     def schema_bytes(self) -> bytes:
-        return json.dumps(self.schema, sort_keys=True, separators=(",", ":")).encode()
+        return json.dumps({"$schema": JSON_SCHEMA_DIALECT, **self.schema}, sort_keys=True,
+                          separators=(",", ":")).encode()
+
+
+_PLC_TIME = _time("the PLC's clock at the reading (the message's publish time); absent when "
+                  "the register map has no PLC clock or the poll failed")
 
 
 _THERMOCOUPLES = _object(
     {
-        **{s: _number(f"thermocouple {s} in °C; null when the reading is not usable")
+        **{s: _number(f"thermocouple {s} in °C; absent when the reading is not usable "
+                      "(logs written before the schema declared every field carry null)")
            for s in SENSORS},
         "quality": _object({s: _string(f"quality of {s}", QUALITIES) for s in SENSORS},
                            "quality per thermocouple; only 'ok' readings are averaged",
                            SENSORS),
+        "plc_seconds": _number("the PLC clock register, s since the PLC's own start"),
+        "plc_time": _PLC_TIME,
+        "error": _string("why some or all readings are comm_error: the failed poll, or the "
+                         "blocks the PLC refused"),
     },
     "the six zone thermocouples of one poll",
-    (*SENSORS, "quality"),
+    ("quality",),
 )
 
 _BURNERS = _object(
@@ -98,28 +182,61 @@ _BURNERS = _object(
                           "description": f"burners firing in the {z} zone"}
            for z, n in zip(ZONES, BURNERS_PER_ZONE, strict=True)},
         "source": _string("where the states were read", BURNER_SOURCES),
+        "quality": _string("quality of the states: stale when the PLC's heartbeat stopped",
+                           QUALITIES),
+        "plc_time": _PLC_TIME,
     },
     "burner flame-on states",
     (*ZONES, *(f"count_{z}" for z in ZONES), "source"),
 )
 
 _AMBIENT = _object(
-    {"t_air": _number("ambient air temperature in °C; null when the reading is not usable"),
-     "quality": _string("quality of t_air (absent means ok)", QUALITIES)},
+    {"t_air": _number("ambient air temperature in °C; absent when the reading is not usable"),
+     "quality": _string("quality of t_air (absent means ok)", QUALITIES),
+     "from_config": {"type": "boolean", "description": "t_air is the config's "
+                     "ambient_default_c: the register map has no ambient point"},
+     "plc_time": _PLC_TIME},
     "ambient temperature",
-    ("t_air",),
 )
 
 _DAQ_STATUS = _object(
     {"state": _string("connection to the PLC", DAQ_STATES),
-     "detail": _string("why the state changed, in words")},
+     "detail": _string("why the state changed, in words"),
+     "polls": _integer("poll ticks since start"),
+     "ok_polls": _integer("polls that returned data"),
+     "comm_errors": _integer("polls that failed"),
+     "skipped_ticks": _integer("ticks skipped because a poll or the host was late"),
+     "connects": _integer("connections made"),
+     "disconnects": _integer("connections lost"),
+     "connect_attempts": _integer("dials"),
+     "can_frames": _integer("CAN frames read from the flame scanners"),
+     "disagreements": _integer("times PLC and flame scanners began to disagree"),
+     "failures": _open_map(_integer("polls"), "polls that gave no data, by kind of failure"),
+     "incomplete": _open_map(_integer("polls"), "polls logged with a block the PLC refused, "
+                             "by block and exception"),
+     "period_s": _number("poll period in s"),
+     "log_error": _string("why the log cannot be written right now"),
+     "device": _string("the device whose connection changed (several devices)"),
+     "devices": _open_map(_string("connection state", DAQ_STATES),
+                          "each device's connection state, by device name")},
     "one message on every change of connection state, plus any counters of the poller",
     ("state", "detail"),
 )
 
 _DAQ_EVENTS = _object(
     {"kind": _string("what happened, e.g. burner_disagreement, missed_tick, log_gap"),
-     "detail": _string("the event in words")},
+     "detail": _string("the event in words"),
+     "skipped": _integer("missed_tick: ticks skipped since the last such event"),
+     "step_s": _number("clock_step: the host clock's step in s"),
+     "error": _string("log_gap: why the log could not be written"),
+     "dropped": _integer("log_gap: messages dropped from the full buffer"),
+     "burners": _strings("burner_disagreement: the burners that disagree, e.g. heat[3]"),
+     "plc": _object({z: {"type": "array", "items": {"type": "boolean"},
+                         "description": f"PLC states of the {z} burners"} for z in ZONES},
+                    "burner_disagreement: the PLC's states"),
+     "flame": _object({z: {"type": "array", "items": {"type": "boolean"},
+                           "description": f"flame scanner states of the {z} burners"}
+                       for z in ZONES}, "burner_disagreement: the flame scanners' states")},
     "acquisition events: PLC and flame signals disagree, a poll tick was missed, the log "
     "could not be written for a while",
     ("kind", "detail"),
@@ -128,17 +245,20 @@ _DAQ_EVENTS = _object(
 _CI95 = _object({p: {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2,
                      "description": f"95% interval of {p}: [lo, hi]"} for p in PARAM_NAMES},
                 "95% confidence intervals")
+def _combination(name: str) -> dict:
+    return _object({"value": _number(f"value of {name}"),
+                    "ci95": _numbers(f"95% interval of {name}")}, name)
+
+
 _COMBINATIONS = _object(
-    {name: _object({"value": _number(f"value of {name}"),
-                    "ci95": {"type": "array", "items": {"type": "number"},
-                             "description": f"95% interval of {name}"}}, f"{name}")
-     for name in (*PARAM_NAMES, "b/c", "d/e")},
+    {name: _combination(name) for name in (*PARAM_NAMES, "b/c", "d/e")},
     "what the window's data determine, {name: {value, ci95}}; other names may appear")
+_COMBINATIONS["additionalProperties"] = _combination("another combination")
 
 _MODEL_PARAMETERS = _object(
     {
-        **{p: _number(f"parameter {p} of the paper's eq. 11 in force after this window; null "
-                      "before the first model") for p in PARAM_NAMES},
+        **{p: _number(f"parameter {p} of the paper's eq. 11 in force after this window; "
+                      "absent before the first model (null in older logs)") for p in PARAM_NAMES},
         "ci95": _CI95,
         "window_start": _string("start of the data window of the fit, ISO 8601 UTC (PLC clock)"),
         "window_end": _string("end of the data window of the fit, ISO 8601 UTC (PLC clock)"),
@@ -161,6 +281,13 @@ _MODEL_PARAMETERS = _object(
         "combinations": _COMBINATIONS,
         "zone_offsets_c": _object({z: _number(f"fitted thermocouple offset of the {z} zone")
                                    for z in ZONES}, "fitted thermocouple bias per zone"),
+        "recent_f": _object({
+            "f": _number("f on the recent span alone, a..e of the window held"),
+            "se": _number("standard error of that f"),
+            "n_samples": _integer("rows of the recent span with a zone temperature"),
+        }, "what the newest data say about the heat per burner (drift detection)"),
+        "plc_time": _time("the window's end on the PLC's clock, when the register map has "
+                          "one"),
         "search": _object({
             "method": _string("refit.method: polish (from the previous model) or ga (the "
                               "paper's GA from scratch)", ("polish", "ga")),
@@ -171,7 +298,7 @@ _MODEL_PARAMETERS = _object(
         }, "how this window was fitted"),
     },
     "an online refit of the three-zone model over one window of the data clock",
-    (*PARAM_NAMES, "ci95", "window_start", "window_end", "rmse_c", "status"),
+    ("ci95", "window_start", "window_end", "rmse_c", "status"),
 )
 
 _MODEL_EVENTS = _object(
@@ -188,10 +315,31 @@ _MODEL_EVENTS = _object(
      "windows": {"type": "integer", "description": "drift: windows in a row that moved"},
      "window_start": _string("the window that raised the event"),
      "window_end": _string("the window that raised the event"),
-     "parameters": _params_object("the parameters involved and their new values")},
+     "parameters": _params_object("the parameters involved and their new values"),
+     "old_window_end": _string("drift: the window the reference value was fitted on"),
+     "basis": _string("drift: recent when judged on the recent span's f, else absent"),
+     "recent_start": _string("drift on the recent span: where that span starts"),
+     "plc_time": _time("the window's end on the PLC's clock, when the register map has one")},
     "model events such as parameter drift",
     ("kind", "detail"),
 )
+
+_LOG = {
+    "title": "foxglove.Log",
+    "description": "the status changes and events of the other topics as log lines, for "
+                   "Foxglove's log panel (its foxglove.Log schema)",
+    "type": "object",
+    "properties": {
+        "timestamp": _time("when it happened (host UTC, the message's log time)"),
+        "level": {"title": "foxglove.LogLevel", "description": "log level",
+                  "oneOf": [{"title": k.upper(), "const": v} for k, v in LOG_LEVELS.items()]},
+        "message": _string("the line"),
+        "name": _string("what logged it: furnace-daq"),
+        "file": _string("the topic that carries the line's structured message"),
+        "line": _integer("unused (0): the lines come from messages, not from source lines"),
+    },
+    "required": ["timestamp", "level", "message", "name", "file", "line"],
+}
 
 TOPICS: dict[str, Topic] = {t.name: t for t in (
     Topic(THERMOCOUPLES, "furnace.Thermocouples", _THERMOCOUPLES),
@@ -201,6 +349,7 @@ TOPICS: dict[str, Topic] = {t.name: t for t in (
     Topic(DAQ_EVENTS, "daq.Event", _DAQ_EVENTS),
     Topic(MODEL_PARAMETERS, "model.Parameters", _MODEL_PARAMETERS),
     Topic(MODEL_EVENTS, "model.Event", _MODEL_EVENTS),
+    Topic(LOG, "foxglove.Log", _LOG),
 )}
 """Every topic of the contract, in the order the writer registers them."""
 

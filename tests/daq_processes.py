@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from furnace_daq.daemon import Daemon
+from furnace_daq.daemon import EVENT_PRIORITY, Daemon
 from furnace_daq.daqconfig import DaqConfig, parse_config
+from furnace_daq.logmeta import build_metadata
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.simplc import SimPLC
 from furnace_daq.sources import ModbusSource
@@ -89,7 +90,9 @@ def config(port: int, **changes) -> DaqConfig:
 
 
 def start_daemon(cfg: DaqConfig, log_dir: Path, duration: float, **kw) -> tuple[Daemon, asyncio.Task]:
-    daemon = Daemon(cfg, LogWriter(log_dir, flush_interval_s=0.5), plc=ModbusSource(cfg), **kw)
+    log = LogWriter(log_dir, flush_interval_s=0.5, metadata=build_metadata(cfg),
+                    event_priority=EVENT_PRIORITY)
+    daemon = Daemon(cfg, log, plc=ModbusSource(cfg), **kw)
     return daemon, asyncio.create_task(daemon.run(duration))
 
 

@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from furnace_daq.cli import main
+from furnace_daq.logmeta import build_metadata
 from furnace_daq.mcaplog import LogWriter
 from furnace_model import SENSORS
 from furnace_model.experiment import load_experiment
@@ -136,7 +137,8 @@ def test_export_time_window(series: list[Path], tmp_path: Path, capsys) -> None:
 
 
 def test_info_gives_the_first_look(tmp_path: Path, capsys) -> None:
-    w = LogWriter(tmp_path, rotate_s=3600.0)
+    w = LogWriter(tmp_path, rotate_s=3600.0,
+                  metadata=build_metadata(None, software_version="9.9.9", host="gw-1"))
     w.write("/daq/status", {"state": "connected", "detail": "PLC answered"}, T0)
     for i in range(100):
         if not 40 <= i < 50:
@@ -162,6 +164,7 @@ def test_info_gives_the_first_look(tmp_path: Path, capsys) -> None:
     assert "2026-03-02T06:00:39.000Z .. 2026-03-02T06:00:50.000Z  (11 s)" in out
     assert "/daq/status changes: 3" in out
     assert "2026-03-02T06:00:40.000Z  disconnected  timeout" in out
+    assert "written by: furnace-daq 9.9.9 on gw-1; furnace paper-3zone; refit off" in out
 
 
 def _bad_inputs(tmp_path: Path) -> dict[str, Path]:

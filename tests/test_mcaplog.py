@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from logcheck import foxglove_problems
 from mcap.reader import make_reader
 
 from furnace_daq import mcaplog
@@ -31,7 +32,7 @@ def tc_msg(i: int) -> dict:
 
 
 EXAMPLES = {
-    "/furnace/thermocouples": {**tc_msg(1), "soak_2": None,
+    "/furnace/thermocouples": {**{k: v for k, v in tc_msg(1).items() if k != "soak_2"},
                                "quality": {**dict.fromkeys(SENSORS, "ok"), "soak_2": "sensor_open"}},
     "/furnace/burners": {"soak": [True] * 4 + [False] * 6, "heat": [False] * 8,
                          "preheat": [True] * 8, "count_soak": 4, "count_heat": 0,
@@ -45,6 +46,8 @@ EXAMPLES = {
                           "window_end": "2026-03-02T06:00:00Z",
                           "rmse_c": {"soak": 1.5, "heat": 1.4, "preheat": 1.2}, "status": "ok"},
     "/model/events": {"kind": "drift", "detail": "b moved 12%", "parameters": {"b": 0.336}},
+    "/log": {"timestamp": {"sec": 1_772_431_200, "nsec": 5}, "level": 3, "message": "m",
+             "name": "furnace-daq", "file": "/daq/events", "line": 0},
 }
 
 
@@ -63,47 +66,31 @@ def test_every_topic_round_trips_through_the_mcap_reader(tmp_path: Path) -> None
     with path.open("rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        assert summary is not None and summary.statistics.message_count == len(EXAMPLES) + 1
+        # + the /log lines mirroring the status, the event and the model event
+        assert summary is not None and summary.statistics.message_count == len(EXAMPLES) + 4
         for schema, channel, message in reader.iter_messages(log_time_order=True):
+            if channel.topic == "/log" and json.loads(message.data)["message"] != "m":
+                continue
             assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
-            assert json.loads(schema.data) == TOPICS[channel.topic].schema
+            assert json.loads(schema.data) == json.loads(TOPICS[channel.topic].schema_bytes())
             got.append((channel.topic, json.loads(message.data), message.log_time,
                         message.publish_time))
         assert len(summary.chunk_indexes) >= 1
         assert all(c.compression == "zstd" for c in summary.chunk_indexes)
     expected = [(t, m, T0 + i * S, T0 + i * S + 7) for i, (t, m) in enumerate(EXAMPLES.items())]
-    expected.append(("/furnace/ambient", {"t_air": None, "extra": 2.5}, T0 + 9 * S, T0 + 9 * S))
+    expected.append(("/furnace/ambient", {"extra": 2.5}, T0 + 9 * S, T0 + 9 * S))
     assert got == expected
-    assert list(read_messages([path])) == expected
-
-
-def _foxglove_problems(schema: dict, where: str) -> list[str]:
-    """Foxglove's jsonschema parser: every object lists properties, every field has one type
-    of boolean/string/number/integer/object/array, array items typed, no $ref."""
-    out = []
-    if "$ref" in json.dumps(schema):
-        out.append(f"{where}: $ref")
-    if schema.get("type") != "object" or not isinstance(schema.get("properties"), dict):
-        return out + [f"{where}: not an object with properties"]
-    for name, field in schema["properties"].items():
-        t = field.get("type")
-        if t == "object":
-            out += _foxglove_problems(field, f"{where}.{name}")
-        elif t == "array":
-            if field.get("items", {}).get("type") not in ("boolean", "string", "number", "integer"):
-                out.append(f"{where}.{name}: array items")
-        elif t not in ("boolean", "string", "number", "integer"):
-            out.append(f"{where}.{name}: type {t!r}")
-    return out
+    assert [m for m in read_messages([path]) if m[0] != "/log" or m[1]["message"] == "m"] \
+        == expected
 
 
 def test_schemas_are_plottable_by_foxglove() -> None:
     for name, t in TOPICS.items():
-        assert _foxglove_problems(t.schema, name) == []
+        assert foxglove_problems(t.schema, name) == []
         for key in t.schema.get("required", []):
             assert key in EXAMPLES[name], f"{name}: example lacks required {key}"
-    assert _foxglove_problems({"type": "object", "properties": {"x": {"type": ["number", "null"]}}},
-                              "neg") != []
+    assert foxglove_problems({"type": "object", "properties": {"x": {"type": ["number", "null"]}}},
+                             "neg") != []
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o077, 0o000])

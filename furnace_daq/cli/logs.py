@@ -94,7 +94,29 @@ def run_info(args: argparse.Namespace) -> int:
         print(f"  {iso_time(t)}  {state:<12}  {detail}")
     if len(status) > MAX_LISTED:
         print(f"  ... {len(status) - MAX_LISTED} more")
+    _print_metadata(args.files)
     return 0
+
+
+def _print_metadata(files: list[Path]) -> None:
+    """Which software, host and furnace wrote the logs: their metadata record (docs/logs.md)."""
+    import json
+
+    from ..logmeta import read_metadata, recorded_refit
+
+    meta = read_metadata(files)
+    if meta is None:
+        print("written by: not recorded (no furnace-daq metadata record)")
+        return
+    try:
+        furnace = json.loads(meta.get("furnace", "{}")).get("name", "?")
+    except (ValueError, AttributeError):
+        furnace = "?"
+    refit = recorded_refit(meta)
+    print(f"written by: furnace-daq {meta.get('software_version', '?')} on "
+          f"{meta.get('host', '?')}; furnace {furnace}; refit "
+          + ("off" if refit is None else f"every {refit.get('period_s', '?')} s over "
+             f"{refit.get('window_s', '?')} s, method {refit.get('method', '?')}"))
 
 
 def _print_gaps(t: np.ndarray) -> None:

@@ -28,8 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="replay X data seconds per wall second")
     pace.add_argument("--fast", action="store_true", help="as fast as possible (the default)")
     p.add_argument("--config", type=Path,
-                   help="daemon YAML whose refit: section to use (default: the built-in "
-                        "refit defaults)")
+                   help="daemon YAML whose refit: section to use (default: the settings "
+                        "recorded in the log's metadata, else the built-in refit defaults)")
     p.set_defaults(run=run)
 
 
@@ -61,6 +61,12 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     msgs = replay(args.files, config, out, speed=args.speed, echo=echo)
+    if config is None:
+        from ..replay import settings
+
+        source = settings(list(args.files), None)[2]
+        print("refit settings: " + ("as recorded in the log" if source == "log" else
+                                    "the defaults (the log records none)"), file=sys.stderr)
     ok = sum(m["status"] == "ok" for m in msgs)
     print(f"{len(msgs)} refits ({ok} ok) in {time.perf_counter() - t0:.1f} s -> {out}",
           file=sys.stderr)

@@ -69,10 +69,14 @@ def run(args: argparse.Namespace) -> int:
         lc.dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # not fatal: the writer retries and /daq/status says why
         journal.say(ERR, f"log: {lc.dir}: {exc.strerror or exc}")
+    from ..daemon import EVENT_PRIORITY
+    from ..logmeta import build_metadata
+
     try:
         log = LogWriter(lc.dir, prefix=lc.prefix, flush_interval_s=lc.flush_interval_s,
                         rotate_s=lc.rotate_s, rotate_bytes=lc.rotate_bytes,
-                        retention_files=lc.retention_files, file_mode=lc.file_mode)
+                        retention_files=lc.retention_files, file_mode=lc.file_mode,
+                        metadata=build_metadata(config), event_priority=EVENT_PRIORITY)
         lock, recovered = _recover_at_start(lc.dir, lc.prefix)
     except (OSError, ValueError) as exc:
         raise FurnaceError(f"log directory {lc.dir}: {exc}") from None

@@ -1,0 +1,120 @@
+"""The metadata record every log file carries (CONTRACTS.md section 2): which software wrote
+it, for which furnace, with which settings, on which host; so that a log alone says how it
+was made, and a replay can fit it as the daemon did without the daemon's config file.
+
+One MCAP metadata record named `furnace-daq` per file (each rotated file repeats it), its
+values strings as MCAP requires: plain text, or JSON for the structured ones (docs/logs.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import socket
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
+
+METADATA_NAME = "furnace-daq"
+SECRET_WORDS = ("password", "secret", "token")
+"""A config key containing one of these is left out of the recorded config."""
+
+
+def paper_furnace() -> dict:
+    """The paper's furnace as a plain mapping: what a log's readings belong to."""
+    return {"name": "paper-3zone",
+            "zones": [{"name": z, "burners": n,
+                       "thermocouples": [s for s in SENSORS if s.startswith(z + "_")]}
+                      for z, n in zip(ZONES, BURNERS_PER_ZONE, strict=True)]}
+
+
+def plain(value: Any) -> Any:
+    """A dataclass config as JSON-ready mappings and lists, keys that name a secret dropped:
+    a log is handed around more freely than the config file."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        value = {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+    if isinstance(value, Mapping):
+        return {str(k): plain(v) for k, v in value.items()
+                if not any(w in str(k).lower() for w in SECRET_WORDS)}
+    if isinstance(value, list | tuple | set | frozenset):
+        return [plain(v) for v in value]
+    if value is None or isinstance(value, bool | int | float | str):
+        return value
+    if isinstance(value, Path):
+        return str(value)
+    if hasattr(value, "isoformat"):  # pandas/datetime timestamps
+        return value.isoformat()
+    return str(value)
+
+
+def build_metadata(config: Any = None, *, furnace: Mapping | None = None,
+                   software_version: str | None = None,
+                   host: str | None = None) -> dict[str, str]:
+    """The record's key-value pairs for a daemon run with `config` (a DaqConfig, or None for
+    a writer without one)."""
+    if software_version is None:
+        from furnace_model.cli.arguments import version
+
+        software_version = version()
+    refit = getattr(config, "refit", None)
+    return {
+        "software_version": software_version,
+        "furnace": json.dumps(plain(furnace if furnace is not None else paper_furnace())),
+        "config": json.dumps(plain(config)),
+        "config_file": str(getattr(config, "file", "") or ""),
+        "host": host if host is not None else socket.gethostname(),
+        "refit": json.dumps(plain(refit)),
+    }
+
+
+def read_metadata(paths: Iterable[str | Path]) -> dict[str, str] | None:
+    """The first `furnace-daq` metadata record found in `paths`, or None when none has one
+    (logs written before the record existed). The writer puts the record right after the
+    header, so only the front of each file is read, finished or cut alike."""
+    from mcap.records import Header, Metadata
+    from mcap.stream_reader import StreamReader
+
+    for path in paths:
+        try:
+            with open(path, "rb") as fh:
+                for record in StreamReader(fh, emit_chunks=True).records:
+                    if isinstance(record, Metadata) and record.name == METADATA_NAME:
+                        return dict(record.metadata)
+                    if not isinstance(record, Header | Metadata):
+                        break
+        except Exception:  # noqa: BLE001 - a cut or damaged file: try the next one
+            continue
+    return None
+
+
+def recorded_refit(metadata: Mapping[str, str] | None) -> dict | None:
+    """The refit settings a log was written with, as recorded (None when not recorded or
+    when the daemon ran without refits)."""
+    if not metadata or "refit" not in metadata:
+        return None
+    value = json.loads(metadata["refit"])
+    return value if isinstance(value, dict) else None
+
+
+def refit_config(recorded: Mapping[str, Any]) -> Any:
+    """A RefitConfig from recorded settings: the fields it knows, the rest left at their
+    defaults (a log from a newer version may record more)."""
+    from .daqconfig import RefitConfig
+
+    known = {f.name: f for f in dataclasses.fields(RefitConfig)}
+    values = {k: v for k, v in recorded.items() if k in known}
+    if "state_dir" in values:
+        values["state_dir"] = Path(values["state_dir"])
+    return RefitConfig(**values)
+
+
+def recorded_ambient_default(metadata: Mapping[str, str] | None) -> float | None:
+    """The recorded config's ambient_default_c (the t_air the refits used without an ambient
+    point), or None."""
+    if not metadata or "config" not in metadata:
+        return None
+    value = json.loads(metadata["config"])
+    t_air = value.get("ambient_default_c") if isinstance(value, dict) else None
+    return float(t_air) if isinstance(t_air, int | float) else None

@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 import yaml
 from daq_processes import ROOT, SCENARIO, messages
+from logcheck import check_files
 from pymodbus import FramerType
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import SimData, SimDevice
@@ -382,6 +383,9 @@ def test_a_device_killed_mid_run_leaves_the_other_ok_and_is_named(tmp_path):
                for line in lines), lines
     assert not any("thermo" in line and line.startswith(("<3>", "<4>")) for line in lines), lines
     assert counters.failures and all(k.startswith("burners:") for k in counters.failures)
+    # every message of the outage, its device fields included, is declared by its schema
+    _, problems = check_files(sorted(tmp_path.glob("*.mcap")))
+    assert not problems, problems
 
 
 def test_write_back_needs_the_first_device_on_modbus_tcp():

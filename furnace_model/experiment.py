@@ -18,12 +18,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import BURNERS_PER_ZONE, SENSORS, ZONES
 from .errors import DataError
+from .furnace import PAPER, Furnace
 from .structure import Inputs
 
-TC_COLUMNS = tuple(f"tc_{s}" for s in SENSORS)
-BURNER_COLUMNS = tuple(f"burners_{z}" for z in ZONES)
+TC_COLUMNS = PAPER.tc_columns
+BURNER_COLUMNS = PAPER.burner_columns
+"""The paper's furnace's columns; another furnace's are its `tc_columns`, `burner_columns`."""
 TIME_COLUMNS = ("timestamp", "t_min")
 DEFAULT_T_AIR_C = 30.0
 TEMPERATURE_RANGE_C = (-273.15, 3000.0)
@@ -32,28 +33,25 @@ MAX_SPAN_MIN = 10 * 366 * 24 * 60.0
 
 @dataclass
 class Experiment:
-    """One heat-up record: readings and inputs per sample, time in minutes from the start."""
+    """One heat-up record of a furnace: readings and inputs per sample, time in minutes from
+    the start. Thermocouples and zones in the furnace's order (the paper's: six, three)."""
 
     name: str
     t_min: np.ndarray  # (N,) strictly increasing
-    tc: np.ndarray  # (N, 6) NaN = missing reading
-    burners: np.ndarray  # (N, 3) burners on per zone
+    tc: np.ndarray  # (N, thermocouples) NaN = missing reading
+    burners: np.ndarray  # (N, zones) burners on per zone
     t_air: np.ndarray  # (N,)
     start_time: pd.Timestamp | None = None
     source: str = ""
+    furnace: Furnace = PAPER
 
     def __len__(self) -> int:
         return self.t_min.size
 
     @property
     def zone_temp(self) -> np.ndarray:
-        """Zone temperature (N, 3): mean of the zone's good thermocouples, NaN when none."""
-        pairs = self.tc.reshape(-1, 3, 2)
-        good = np.isfinite(pairs)
-        total = np.where(good, pairs, 0.0).sum(axis=2)
-        count = good.sum(axis=2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+        """Zone temperature (N, zones): mean of the zone's good thermocouples, NaN when none."""
+        return self.furnace.zone_means(self.tc)
 
     def inputs(self) -> Inputs:
         return Inputs.from_samples(self.t_min, self.burners, self.t_air)
@@ -70,7 +68,7 @@ class Experiment:
         """The samples with lo <= t_min < hi, times kept as they are."""
         m = (self.t_min >= lo) & (self.t_min < hi)
         return Experiment(self.name, self.t_min[m], self.tc[m], self.burners[m], self.t_air[m],
-                          self.start_time, self.source)
+                          self.start_time, self.source, self.furnace)
 
     def to_frame(self) -> pd.DataFrame:
         cols: dict[str, object] = {}
@@ -79,9 +77,9 @@ class Experiment:
             cols["timestamp"] = ts.strftime("%Y-%m-%dT%H:%M:%S.%f").str[:-3] + "Z"
         else:
             cols["t_min"] = self.t_min
-        for i, c in enumerate(TC_COLUMNS):
+        for i, c in enumerate(self.furnace.tc_columns):
             cols[c] = self.tc[:, i]
-        for i, c in enumerate(BURNER_COLUMNS):
+        for i, c in enumerate(self.furnace.burner_columns):
             cols[c] = self.burners[:, i].astype(int)
         cols["t_air"] = self.t_air
         return pd.DataFrame(cols)
@@ -118,11 +116,12 @@ def _kind(path: Path) -> str:
 
 def load_experiments(paths: Iterable[str | Path], t_air_default: float = DEFAULT_T_AIR_C, *,
                      start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
-                     period_s: float | None = None) -> list[Experiment]:
+                     period_s: float | None = None, furnace: Furnace = PAPER) -> list[Experiment]:
     """The records the data arguments of `fit`, `validate` and `diagnose` make, in their
     order: each CSV or Parquet file is one; MCAP logs are resampled as `logs export` does and
     make one per directory (`logexperiment`). `start`/`end` keep [start, end) of the PLC
-    clock; `period_s` is the logs' resampling period (default that of `logs export`)."""
+    clock; `period_s` is the logs' resampling period (default that of `logs export`).
+    `furnace`: the description the tables' columns must match (logs: the paper's only)."""
     from .logexperiment import group_logs, is_log, load_log
     from .logresample import DEFAULT_PERIOD_S
 
@@ -131,27 +130,31 @@ def load_experiments(paths: Iterable[str | Path], t_air_default: float = DEFAULT
     groups = {logs[first]: (label, files)
               for first, label, files in group_logs(paths[i] for i in logs)}
     out = []
+    if logs and furnace != PAPER:
+        raise DataError(str(paths[logs[0]]), f"MCAP logs hold the paper's furnace only; "
+                        f"furnace '{furnace.name}' is read from CSV or Parquet")
     for i, path in enumerate(paths):
         if i in groups:
             label, files = groups[i]
             out.append(load_log(label, files, t_air_default, start, end,
                                 DEFAULT_PERIOD_S if period_s is None else period_s))
         elif i not in logs:
-            out.append(load_experiment(path, t_air_default, start=start, end=end))
+            out.append(load_experiment(path, t_air_default, start=start, end=end,
+                                       furnace=furnace))
     return out
 
 
 def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
                     start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
-                    period_s: float | None = None) -> Experiment:
+                    period_s: float | None = None, furnace: Furnace = PAPER) -> Experiment:
     """Read and check one file of the tabular contract, or one log file or log directory
-    (`load_experiments` says how)."""
+    (`load_experiments` says how), against the furnace's columns."""
     from .logexperiment import is_log
 
     path = Path(path)
     if is_log(path):
         return load_experiments([path], t_air_default, start=start, end=end,
-                                period_s=period_s)[0]
+                                period_s=period_s, furnace=furnace)[0]
     kind = _kind(path)
     file = str(path)
     if not path.exists():
@@ -172,17 +175,20 @@ def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
     return experiment_from_frame(frame, file, t_air_default,
                                  row_offset=2 if kind == "csv" else 1,
                                  row_label="line" if kind == "csv" else "row",
-                                 start=start, end=end)
+                                 start=start, end=end, furnace=furnace)
 
 
 def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
                           t_air_default: float = DEFAULT_T_AIR_C, row_offset: int = 1,
                           row_label: str = "row", start: pd.Timestamp | None = None,
-                          end: pd.Timestamp | None = None) -> Experiment:
-    """Check a table against the contract and convert it. `row_offset` maps the frame's
-    positional index to the number the user sees (2 for a CSV line under its header).
-    `start`/`end` keep the rows timed in [start, end), as if the file held only those: the
-    whole table is checked first, so an error names the row of the file."""
+                          end: pd.Timestamp | None = None,
+                          furnace: Furnace = PAPER) -> Experiment:
+    """Check a table against the contract of a furnace and convert it. `row_offset` maps the
+    frame's positional index to the number the user sees (2 for a CSV line under its
+    header). `start`/`end` keep the rows timed in [start, end), as if the file held only
+    those: the whole table is checked first, so an error names the row of the file. A
+    `tc_` or `burners_` column the furnace does not have is refused (a file of another
+    furnace); other extra columns are left alone."""
     cols = [str(c).strip() for c in frame.columns]
     frame = frame.set_axis(cols, axis=1)
 
@@ -197,12 +203,20 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
     if len(time_cols) != 1:
         raise err("needs exactly one time column, 'timestamp' (ISO 8601) or 't_min' (minutes)"
                   + ("; found both" if len(time_cols) == 2 else "; found neither"))
-    missing = [c for c in BURNER_COLUMNS if c not in cols]
+    tc_columns, burner_columns = furnace.tc_columns, furnace.burner_columns
+    unknown = [c for c in cols if c.startswith(("tc_", "burners_"))
+               and c not in tc_columns and c not in burner_columns]
+    if unknown:
+        raise err(f"unknown column(s) {', '.join(unknown)}: furnace '{furnace.name}' has "
+                  f"{', '.join(tc_columns + burner_columns)}", unknown[0])
+    missing = [c for c in burner_columns if c not in cols]
     if missing:
-        raise err(f"missing required column(s): {', '.join(missing)}")
-    for z in ZONES:
-        if not any(f"tc_{z}_{i}" in cols for i in (1, 2)):
-            raise err(f"zone '{z}' has no thermocouple column (need tc_{z}_1 or tc_{z}_2)")
+        raise err(f"missing required column(s): {', '.join(missing)}"
+                  + ("" if furnace == PAPER else f" (furnace '{furnace.name}')"))
+    for z, n in zip(furnace.zones, furnace.thermocouples, strict=True):
+        if not any(f"tc_{z}_{i}" in cols for i in range(1, n + 1)):
+            need = " or ".join(f"tc_{z}_{i}" for i in range(1, n + 1))
+            raise err(f"zone '{z}' has no thermocouple column (need {need})")
     if len(frame) == 0:
         raise err("no data rows")
 
@@ -225,13 +239,13 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         raise err(f"time spans {t_min[-1] - t_min[0]:.3g} minutes, more than ten years: "
                   "not one heat-up", time_col, len(frame) - 1)
 
-    tc = np.full((len(frame), len(TC_COLUMNS)), np.nan)
-    for j, c in enumerate(TC_COLUMNS):
+    tc = np.full((len(frame), len(tc_columns)), np.nan)
+    for j, c in enumerate(tc_columns):
         if c in cols:
             tc[:, j] = _temperatures(_numbers(frame[c], c, err, allow_empty=True), c, err)
 
-    burners = np.empty((len(frame), 3), dtype=int)
-    for j, c in enumerate(BURNER_COLUMNS):
+    burners = np.empty((len(frame), furnace.n_zones), dtype=int)
+    for j, c in enumerate(burner_columns):
         v = _numbers(frame[c], c, err, allow_empty=False)
         frac = np.nonzero(v != np.round(v))[0]
         if frac.size:
@@ -239,10 +253,10 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         neg = np.nonzero(v < 0)[0]
         if neg.size:
             raise err(f"burner count cannot be negative, got {v[neg[0]]:g}", c, int(neg[0]))
-        over = np.nonzero(v > BURNERS_PER_ZONE[j])[0]
+        over = np.nonzero(v > furnace.burners[j])[0]
         if over.size:
-            raise err(f"the {ZONES[j]} zone has {BURNERS_PER_ZONE[j]} burners, got {v[over[0]]:g}",
-                      c, int(over[0]))
+            raise err(f"the {furnace.zones[j]} zone has {furnace.burners[j]} burners, got "
+                      f"{v[over[0]]:g}", c, int(over[0]))
         burners[:, j] = v.astype(int)
 
     if "t_air" in cols:
@@ -268,7 +282,7 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
 
     # Ambient changes slowly: an empty cell holds the last reading (the default before any).
     t_air = pd.Series(t_air).ffill().fillna(t_air_default).to_numpy()
-    return Experiment(Path(file).stem, t_min, tc, burners, t_air, start_time, file)
+    return Experiment(Path(file).stem, t_min, tc, burners, t_air, start_time, file, furnace)
 
 
 def window_words(start: pd.Timestamp | None, end: pd.Timestamp | None) -> str:

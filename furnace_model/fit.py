@@ -24,16 +24,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import ZONES
 from .criteria import Criteria, criteria
 from .errors import FurnaceError
 from .experiment import Experiment
 from .ga import genetic_search
 from .profile import profile_interval
-from .response import Response, weights
+from .response import Response
 from .scores import zone_metrics
 from .structure import Inputs, ModelStructure
-from .uncertainty import WIDE, Z95, Uncertainty, from_jacobian
+from .uncertainty import WIDE, Z95, Uncertainty, from_jacobian, gram
 
 METHODS = ("fast", "ga")
 GA_DEFAULTS = {"fast": (32, 30), "ga": (20, 2000)}
@@ -67,34 +66,42 @@ class _Record:
     """One experiment made ready for repeated simulation: inputs built once."""
 
     t: np.ndarray
-    y: np.ndarray  # (N, 3) measured zone temperatures
-    mask: np.ndarray  # (N, 3) readings present
+    y: np.ndarray  # (N, zones) measured zone temperatures
+    mask: np.ndarray  # (N, zones) readings present
     inputs: Inputs
-    x0_guess: np.ndarray  # (3,)
-    tc_weight: np.ndarray | None  # (N, 6): how each thermocouple enters its zone's mean
+    x0_guess: np.ndarray  # (zones,)
+    tc_weight: np.ndarray | None  # (N, thermocouples): how each enters its zone's mean
     complete: bool = False  # no reading missing: the mask can be skipped
     zone_of: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # per residual
 
     @classmethod
-    def of(cls, exp: Experiment, with_sensor_offsets: bool) -> _Record:
+    def of(cls, exp: Experiment, with_sensor_offsets: bool,
+           structure: ModelStructure | None = None) -> _Record:
         if len(exp) < 2:
             raise FurnaceError(f"{exp.source or exp.name}: needs at least two samples to fit")
+        furnace = exp.furnace
+        if structure is not None and structure.furnace != furnace:
+            raise FurnaceError(f"{exp.source or exp.name}: a record of furnace "
+                               f"'{furnace.name}', the model is of furnace "
+                               f"'{structure.furnace.name}'")
+        nz = furnace.n_zones
         y = exp.zone_temp
         mask = np.isfinite(y)
-        guess = np.empty(3)
-        for w, zone in enumerate(ZONES):
+        guess = np.empty(nz)
+        for w, zone in enumerate(furnace.zones):
             if not mask[:, w].any():
                 raise FurnaceError(f"{exp.source or exp.name}: zone '{zone}' has no readings")
             guess[w] = y[np.argmax(mask[:, w]), w]
-        weight = weights(np.isfinite(exp.tc)) if with_sensor_offsets else None
-        zone_of = np.broadcast_to(np.arange(3), mask.shape)[mask]
+        weight = furnace.weights(np.isfinite(exp.tc)) if with_sensor_offsets else None
+        zone_of = np.broadcast_to(np.arange(nz), mask.shape)[mask]
         return cls(exp.t_min, np.where(mask, y, 0.0), mask, exp.inputs(), guess, weight,
                    bool(mask.all()), zone_of)
 
 
 class _Problem:
     """The least-squares problem: unknown vector = free parameters (log scale where the
-    parameter is positive) followed by three initial zone temperatures per experiment."""
+    parameter is positive) followed by the initial zone temperatures of each experiment
+    (and its zone offsets when fitted), one per zone."""
 
     def __init__(self, experiments: list[Experiment], structure: ModelStructure,
                  fixed: dict[str, float], bounds: dict[str, tuple[float, float]],
@@ -113,12 +120,16 @@ class _Problem:
             raise FurnaceError("parameter bounds must have lo < hi (and lo > 0 for rates)")
         self.lo_val, self.hi_val = lo, hi
         self.lo, self.hi = self.to_z(lo), self.to_z(hi)
-        self.records = [_Record.of(e, structure.has_sensor_offsets) for e in experiments]
-        # Known thermocouple offsets per record (3,), added to the model: a span of a record
+        self.nz = nz = structure.n_zones
+        self.records = [_Record.of(e, structure.has_sensor_offsets, structure)
+                        for e in experiments]
+        # Known thermocouple offsets per record (zones,), added to the model: a span of a record
         # whose offsets were estimated on more data than it holds.
         self.held = None if held_offsets is None else [np.asarray(o, float) for o in held_offsets]
         self.k = len(self.free)
-        self.block = 6 if zone_offsets else 3  # per experiment: x0, then offsets if fitted
+        self.offsets_fitted = zone_offsets
+        self.blocked = not structure.furnace.paper_structure  # Jacobians with many columns
+        self.block = 2 * nz if zone_offsets else nz  # per experiment: x0, then offsets
         self.n = self.k + self.block * len(self.records)
         self.n_obs = int(sum(r.mask.sum() for r in self.records))
 
@@ -141,7 +152,7 @@ class _Problem:
         the unit whose noise has one variance and one colour."""
         out, at = [], 0
         for r in self.records:
-            for w in range(3):
+            for w in range(self.nz):
                 out.append(at + np.nonzero(r.zone_of == w)[0])
             at += r.zone_of.size
         return out
@@ -163,7 +174,7 @@ class _Problem:
 
     def predict(self, j: int, values: dict[str, np.ndarray], x0: np.ndarray,
                 first_order: np.ndarray | None = None) -> np.ndarray:
-        """Model zone temperatures (P, N, 3) for experiment j; the sets marked in
+        """Model zone temperatures (P, N, zones) for experiment j; the sets marked in
         `first_order` (P,) to first order in the nonlinear terms (`jac`)."""
         r = self.records[j]
         with np.errstate(all="ignore"):
@@ -189,7 +200,7 @@ class _Problem:
                 raise
             good = np.nonzero(~bad)[0]
             x0 = np.broadcast_to(x0, (bad.size, x0.shape[-1]))
-            out = np.full((bad.size, r.t.size, 3), np.nan)
+            out = np.full((bad.size, r.t.size, self.nz), np.nan)
             if good.size:
                 out[good] = self.structure.simulate({k: v[good] for k, v in theta.items()},
                                                     r.inputs, r.t, x0[good]).zones
@@ -199,7 +210,7 @@ class _Problem:
                         first_order: np.ndarray) -> Response:
         x0 = np.broadcast_to(x0, (first_order.size, x0.shape[-1]))
         fo, full = np.nonzero(first_order)[0], np.nonzero(~first_order)[0]
-        out = np.empty((first_order.size, r.t.size, 3))
+        out = np.empty((first_order.size, r.t.size, self.nz))
         out[full] = self._simulate({k: v[full] for k, v in values.items()}, r, x0[full]).zones
         try:
             out[fo] = self.structure.simulate_first_order({k: v[fo] for k, v in values.items()},
@@ -220,7 +231,7 @@ class _Problem:
         slices of about _CELLS values, so a long 1-second window stays within memory)."""
         total = np.zeros(zp.shape[0])
         for j, r in enumerate(self.records):
-            step = max(1, _CELLS // (3 * r.t.size))
+            step = max(1, _CELLS // (self.nz * r.t.size))
             for p0 in range(0, zp.shape[0], step):
                 sl = slice(p0, p0 + step)
                 res = self.residuals(j, self.values(zp[sl]), r.x0_guess[None])
@@ -229,11 +240,11 @@ class _Problem:
 
     def x0_of(self, z: np.ndarray, j: int) -> np.ndarray:
         i = self.k + self.block * j
-        return z[i:i + 3]
+        return z[i:i + self.nz]
 
     def offsets_of(self, z: np.ndarray, j: int) -> np.ndarray:
-        i = self.k + self.block * j + 3
-        return z[i:i + 3] if self.block == 6 else np.zeros(3)
+        i = self.k + self.block * j + self.nz
+        return z[i:i + self.nz] if self.offsets_fitted else np.zeros(self.nz)
 
     def at_bound(self, z: np.ndarray) -> dict[str, str]:
         """Free parameters that ended on an edge of their search box: {name: side}. The
@@ -248,7 +259,8 @@ class _Problem:
         return out
 
     def start(self, zp: np.ndarray) -> np.ndarray:
-        per = [np.concatenate([r.x0_guess, np.zeros(self.block - 3)]) for r in self.records]
+        per = [np.concatenate([r.x0_guess, np.zeros(self.block - self.nz)])
+               for r in self.records]
         return np.concatenate([zp, *per])
 
     def fun(self, z: np.ndarray) -> np.ndarray:
@@ -257,11 +269,12 @@ class _Problem:
     def fun_many(self, Z: np.ndarray) -> np.ndarray:
         """Residuals (P, m) of unknown vectors (P, n), each experiment in one batched call."""
         vals = self.values(Z[:, :self.k])
-        out = []
+        out, nz = [], self.nz
         for j, r in enumerate(self.records):
             i = self.k + self.block * j
-            res = self.residuals(j, vals, Z[:, i:i + 3])
-            out.append(res + Z[:, i + 3:i + 6][:, r.zone_of] if self.block == 6 else res)
+            res = self.residuals(j, vals, Z[:, i:i + nz])
+            out.append(res + Z[:, i + nz:i + 2 * nz][:, r.zone_of] if self.offsets_fitted
+                       else res)
         return np.concatenate(out, axis=1)
 
     def jac(self, z: np.ndarray) -> np.ndarray:
@@ -283,27 +296,28 @@ class _Problem:
             off = self.structure.nonlinear_off(vals)
             if off[0] and not off.all():
                 first = ~off
+        nz = self.nz
         for j in range(len(self.records)):
-            P = k + 4
+            P = k + 1 + nz
             x0 = np.repeat(self.x0_of(z, j)[None], P, axis=0)
-            x0[1 + k + np.arange(3), np.arange(3)] += h[k:]
+            x0[1 + k + np.arange(nz), np.arange(nz)] += h[k:]
             res = self.residuals(j, vals, x0, first)
-            d = (res[1:] - res[0]) / h[:, None]  # (k+3, m_j)
+            d = (res[1:] - res[0]) / h[:, None]  # (k+zones, m_j)
             block = np.zeros((res.shape[1], self.n))
             block[:, :k] = d[:k].T
             i = k + self.block * j
-            block[:, i:i + 3] = d[k:].T
-            if self.block == 6:  # a zone's offset moves its own residuals one for one
-                block[np.arange(res.shape[1]), i + 3 + self.records[j].zone_of] = 1.0
+            block[:, i:i + nz] = d[k:].T
+            if self.offsets_fitted:  # a zone's offset moves its own residuals one for one
+                block[np.arange(res.shape[1]), i + nz + self.records[j].zone_of] = 1.0
             blocks.append(block)
         return np.concatenate(blocks)
 
     def _perturbed(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The Jacobian's parameter sets (k + 4, k): z, then each free parameter stepped,
-        then z again for the three initial temperatures; and the steps (k + 3,)."""
-        k = self.k
-        h = np.concatenate([_FD_STEP * np.maximum(1.0, np.abs(z[:k])), np.full(3, 1e-3)])
-        zp = np.repeat(z[None, :k], k + 4, axis=0)
+        """The Jacobian's parameter sets (k + 1 + zones, k): z, then each free parameter
+        stepped, then z again for each initial zone temperature; and the steps (k + zones,)."""
+        k, nz = self.k, self.nz
+        h = np.concatenate([_FD_STEP * np.maximum(1.0, np.abs(z[:k])), np.full(nz, 1e-3)])
+        zp = np.repeat(z[None, :k], k + 1 + nz, axis=0)
         zp[1 + np.arange(k), np.arange(k)] += h[:k]
         return zp, h
 
@@ -335,7 +349,10 @@ class _Problem:
             if deadline is not None and time.perf_counter() > deadline:
                 reason = "time_budget"
                 break
-            H, g = J.T @ J, J.T @ r
+            if self.blocked:  # many columns: see `gram`
+                H, g = gram(J, True), np.einsum("mi,m->i", J, r)
+            else:
+                H, g = J.T @ J, J.T @ r
             d = np.maximum(np.diag(H), 1e-12 * max(np.diag(H).max(), 1e-300))
             # The step is clipped to the box: where the diagnosis's bent baselines end, and so
             # where its candidates start, depends on it (docs/identification.md).
@@ -404,10 +421,11 @@ class _Predicts:
         return Model(self.structure, dict(self.params), self.zone_offsets)
 
     def offsets(self, j: int) -> np.ndarray:
-        """Record j's zone offsets (3,), zeros where none were estimated or held."""
+        """Record j's zone offsets (zones,), zeros where none were estimated or held."""
+        zones = self.structure.furnace.zones
         if self.zone_offsets_c is None:
-            return np.zeros(3)
-        return np.array([self.zone_offsets_c[j][z] for z in ZONES], dtype=float)
+            return np.zeros(len(zones))
+        return np.array([self.zone_offsets_c[j][z] for z in zones], dtype=float)
 
     def _record(self, j: int) -> Experiment:
         if not 0 <= j < len(self.data):
@@ -496,8 +514,9 @@ class FitResult(_Predicts):
     def to_json(self, data: list[str]) -> dict:
         """CONTRACTS.md section 5, plus the diagnostics of this fit."""
         return {
-            "model": "paper-3zone" + ("" if not self.structure.effects
-                                      else "+" + self.structure.label),
+            "model": self.structure.furnace.model_label + ("" if not self.structure.effects
+                                                           else "+" + self.structure.label),
+            "furnace": self.structure.furnace.name,
             "effects": [{"name": e.name, "options": _plain(e.options)}
                         for e in self.structure.effects],
             "params": dict(self.params),
@@ -596,6 +615,14 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     generations = int(generations if generations is not None else gen_default)
     deadline = None if time_budget_s is None else t_start + float(time_budget_s)
     start, spread = None, None
+    if not init and method == "fast" and not structure.effects \
+            and not structure.furnace.paper_structure:
+        # a network of many zones: the search starts where the equations' least squares put
+        # it, and a warm-started polish takes it from there
+        from .network import equation_error
+
+        init = {n: v for n, v in equation_error(structure.furnace, experiments).items()
+                if n not in (fixed or {})}
     if init:
         start_vals = {**structure.defaults(), **init}
         start = prob.to_z(np.array([start_vals[n] for n in prob.names]))
@@ -629,7 +656,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     z = best_run.z
     res = prob.fun(z)
     J = prob.jac(z)
-    unc = from_jacobian(J, res, prob.names, prob.log, z[:prob.k], prob.series())
+    unc = from_jacobian(J, res, prob.names, prob.log, z[:prob.k], prob.series(), prob.blocked)
     params = _param_dict(prob, z)
     ci = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val), strict=True))
     ci_white = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val, white=True), strict=True))
@@ -671,7 +698,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         runs=run_dicts, method=method,
         status="insufficient_excitation" if static else "ok", genetic_mean=mean,
         sigma_c=unc.sigma, combinations=combo_values,
-        zone_offsets_c=([dict(zip(ZONES, map(float, prob.offsets_of(z, j)), strict=True))
+        zone_offsets_c=([dict(zip(structure.furnace.zones, map(float, prob.offsets_of(z, j)),
+                                  strict=True))
                          for j in range(len(experiments))] if zone_offsets else None),
         uncertainty=unc, ci95_white={n: ci_white[n] for n in structure.names},
         profiled=list(profiled),
@@ -790,7 +818,7 @@ def _measured_and_model(prob: _Problem, z: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def _per_zone(prob: _Problem, z: np.ndarray) -> dict[str, dict[str, float]]:
-    return zone_metrics(*_measured_and_model(prob, z))
+    return zone_metrics(*_measured_and_model(prob, z), prob.structure.furnace.zones)
 
 
 def _residual_matrix(prob: _Problem, z: np.ndarray) -> np.ndarray:
@@ -909,8 +937,9 @@ class Model:
         fixed = {n: v for n, v in self.params.items() if n not in free}
         estimate = self.zone_offsets and offsets is None
         groups = [list(range(len(data)))] if free else [[j] for j in range(len(data))]
-        x0s: list[np.ndarray] = [np.zeros(3)] * len(data)
-        offs: list[np.ndarray] = [np.zeros(3)] * len(data)
+        nz = self.structure.n_zones
+        x0s: list[np.ndarray] = [np.zeros(nz)] * len(data)
+        offs: list[np.ndarray] = [np.zeros(nz)] * len(data)
         params = dict(self.params)
         sse, n_obs, reasons, iterations = 0.0, 0, [], 0
         cov = np.zeros((len(free), len(free)))
@@ -921,7 +950,7 @@ class Model:
             if x0 is not None:
                 for i, j in enumerate(group):
                     at = prob.k + prob.block * i
-                    start[at:at + 3] = np.asarray(x0[j], dtype=float)[:3]
+                    start[at:at + nz] = np.asarray(x0[j], dtype=float)[:nz]
             p = prob.polish(start, None)
             for i, j in enumerate(group):
                 x0s[j] = prob.x0_of(p.z, i).copy()
@@ -938,7 +967,8 @@ class Model:
                for i, n in enumerate(free)}
         by_zone = None
         if estimate or offsets is not None:
-            by_zone = [dict(zip(ZONES, map(float, o), strict=True)) for o in offs]
+            by_zone = [dict(zip(self.structure.furnace.zones, map(float, o), strict=True))
+                       for o in offs]
         return Refinement(
             structure=self.structure, params=params, free=free, data=data, x0=x0s,
             zone_offsets_c=by_zone, zone_offsets=self.zone_offsets, std=std, cov=cov,
@@ -955,7 +985,7 @@ def _free_cov(prob: _Problem, polished: _Polished, sigma: float | None) -> np.nd
     k = prob.k
     if sigma is None:
         sigma = float(np.sqrt(polished.r @ polished.r / max(J.shape[0] - J.shape[1], 1)))
-    normal = J.T @ J
+    normal = gram(J, prob.blocked)
     if not np.all(np.isfinite(normal)) or np.linalg.cond(normal) > 1e12:
         return np.full((k, k), np.nan)
     cov = sigma ** 2 * np.linalg.inv(normal)[:k, :k]
@@ -988,4 +1018,5 @@ class Refinement(_Predicts):
     def per_zone(self) -> dict[str, dict[str, float]]:
         """MAE, RMSE and fit % per zone over the records (the paper's Table VI)."""
         return zone_metrics(np.concatenate([e.zone_temp for e in self.data]),
-                            np.concatenate([self.predict(j) for j in range(len(self.data))]))
+                            np.concatenate([self.predict(j) for j in range(len(self.data))]),
+                            self.structure.furnace.zones)

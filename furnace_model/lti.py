@@ -111,6 +111,8 @@ def response(A: np.ndarray, B: np.ndarray, x_start: np.ndarray, t_start: float, 
         Y = _segments(lam, out, z, w, s, dw, t_start, t)
     else:
         Y = out @ _superposed(lam, z, w, s, dw, t_start, t)
+    if np.iscomplexobj(Y):  # conjugate modes sum to a real response
+        Y = Y.real
     Y = np.swapaxes(Y, 1, 2)
     # A (nearly) defective A -- a lag whose time constant coincides with a furnace mode --
     # has no trustworthy eigenbasis; those parameter sets take the slow, sure path.
@@ -203,12 +205,14 @@ def _modal_sum(lam: np.ndarray, tau: np.ndarray, G: np.ndarray, H: np.ndarray) -
     else:
         L, M, head, tail = 1, N, tau, np.zeros(1)
     P, n = lam.shape
-    coarse = np.ones((P, 1, M, n + 1))
+    dtype = np.result_type(lam, G, H, float)  # complex modes (a network with a cycle)
+    coarse = np.ones((P, 1, M, n + 1), dtype)
     coarse[:, 0, :, :n] = np.exp(lam[:, None, :] * head[:, None])
-    F = np.empty((P, G.shape[1], n + 1, L))
+    F = np.empty((P, G.shape[1], n + 1, L), dtype)
     F[:, :, :n, :] = G[..., None] * np.exp(lam[:, :, None] * tail)[:, None]
     F[:, :, n, :] = H[:, :, None]
-    return (coarse @ F).reshape(P, G.shape[1], M * L)[:, :, :N]
+    out = (coarse @ F).reshape(P, G.shape[1], M * L)[:, :, :N]
+    return out.real if np.iscomplexobj(out) else out
 
 
 def _superposed(lam, z, w, s, dw, t_start, t):

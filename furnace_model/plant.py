@@ -16,11 +16,12 @@ from scipy.signal import lfilter
 
 from . import SENSORS
 from .experiment import Experiment
+from .furnace import PAPER, Furnace
 from .scenario import Scenario, SensorSpec
 from .structure import Inputs, ModelStructure
 
 SENSOR_ZONE = np.array([i // 2 for i in range(len(SENSORS))])
-"""Zone index of each thermocouple, in SENSORS order."""
+"""Zone index of each thermocouple of the paper's furnace, in SENSORS order."""
 
 
 @dataclass
@@ -28,15 +29,16 @@ class PlantRun:
     """One simulated run: the truth, what the sensors read, and the inputs, per sample."""
 
     t_min: np.ndarray  # (N,)
-    zone_true: np.ndarray  # (N, 3) gas temperature of each zone
-    tc: np.ndarray  # (N, 6) thermocouple readings
-    burners: np.ndarray  # (N, 3) burners on per zone
+    zone_true: np.ndarray  # (N, zones) gas temperature of each zone
+    tc: np.ndarray  # (N, thermocouples) thermocouple readings
+    burners: np.ndarray  # (N, zones) burners on per zone
     t_air: np.ndarray  # (N,)
     start_time: pd.Timestamp | None = None
+    furnace: Furnace = PAPER
 
     def to_experiment(self, name: str = "simulated") -> Experiment:
         return Experiment(name, self.t_min, self.tc, self.burners.astype(int), self.t_air,
-                          self.start_time, name)
+                          self.start_time, name, self.furnace)
 
     def to_frame(self) -> pd.DataFrame:
         """The run as the tabular contract (CONTRACTS.md section 1)."""
@@ -52,10 +54,16 @@ class Plant:
         self.values = dict(values)
         self.sensors = sensors or SensorSpec()
         self.rng = np.random.default_rng(seed)
+        self.furnace = structure.furnace
+        self.n_sensors = len(self.furnace.sensors)
         if self.sensors.bias_c is not None:
             self.bias = np.asarray(self.sensors.bias_c, dtype=float)
+            if self.bias.size != self.n_sensors:
+                raise ValueError(f"bias_c has {self.bias.size} values for the "
+                                 f"{self.n_sensors} thermocouples of furnace "
+                                 f"'{self.furnace.name}'")
         else:
-            self.bias = self.rng.normal(0.0, self.sensors.bias_sd_c, len(SENSORS))
+            self.bias = self.rng.normal(0.0, self.sensors.bias_sd_c, self.n_sensors)
         self._noise: np.ndarray | None = None  # the coloured noise's last value per sensor
         self._noise_t = 0.0
 
@@ -64,21 +72,22 @@ class Plant:
         return cls(scenario.structure(), scenario.values(), scenario.sensors, seed)
 
     def read(self, sensed: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Thermocouple readings (N, 6) for sensed zone temperatures (N, 3) at times t."""
+        """Thermocouple readings (N, thermocouples) for sensed zone temperatures (N, zones)
+        at times t."""
         offsets = self.structure.sensor_offsets(self.values, t)[0]
-        return sensed[:, SENSOR_ZONE] + self.bias + offsets + self._draw_noise(np.atleast_1d(t))
+        return sensed[:, self.furnace.sensor_zone] + self.bias + offsets + self._draw_noise(np.atleast_1d(t))
 
     def _draw_noise(self, t: np.ndarray) -> np.ndarray:
-        """Noise (N, 6) at times t, continuing the autoregression from the last call, so that
+        """Noise (N, thermocouples) at times t, continuing the autoregression from the last call, so that
         a stepped plant (one scan at a time) reads the same process as a whole run."""
-        spec, shape = self.sensors, (t.size, len(SENSORS))
+        spec, shape = self.sensors, (t.size, self.n_sensors)
         u = self.rng.normal(0.0, 1.0, shape)
         if spec.noise_ar_per_min <= 0.0:
             noise = spec.noise_sd_c * u
         else:
             sd = spec.noise_sd_c
             if self._noise is None:
-                prev, t_prev = sd * self.rng.normal(0.0, 1.0, len(SENSORS)), float(t[0])
+                prev, t_prev = sd * self.rng.normal(0.0, 1.0, self.n_sensors), float(t[0])
             else:
                 prev, t_prev = self._noise, self._noise_t
             phi = spec.noise_ar_per_min ** np.maximum(np.diff(t, prepend=t_prev), 0.0)
@@ -101,8 +110,9 @@ class Plant:
         t = np.asarray(t, dtype=float)
         run = self.structure.simulate(self.values, inputs, t, x0_zone, states=True)
         j = np.searchsorted(inputs.t, t, side="right") - 1
-        return PlantRun(t, run.states[0, :, :3], self.read(run.zones[0], t), inputs.burners[j],
-                        inputs.t_air[j], start_time)
+        nz = self.structure.n_zones
+        return PlantRun(t, run.states[0, :, :nz], self.read(run.zones[0], t), inputs.burners[j],
+                        inputs.t_air[j], start_time, self.furnace)
 
     def run_scenario(self, scenario: Scenario) -> PlantRun:
         return self.run(scenario.inputs(), scenario.sample_times(), scenario.initial_c,
@@ -163,9 +173,9 @@ class PlantStepper:
         self.t = float(t_new)
 
     def zone_true(self) -> np.ndarray:
-        return self.x[:3].copy()
+        return self.x[:self.plant.structure.n_zones].copy()
 
     def readings(self) -> np.ndarray:
-        """One scan of the six thermocouples (noise drawn anew)."""
+        """One scan of the thermocouples (noise drawn anew)."""
         sensed = (self._C @ self.x)[None]
         return self.plant.read(sensed, np.array([self.t]))[0]

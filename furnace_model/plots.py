@@ -13,7 +13,6 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from . import ZONES
 from .experiment import Experiment
 
 ZONE_TITLES = {"soak": "zone 1 (soaking)", "heat": "zone 2 (heating)",
@@ -44,10 +43,10 @@ def plot_zone(t_min: np.ndarray, measured: np.ndarray, model: np.ndarray, title:
 
 
 def plot_fit(exp: Experiment, model: np.ndarray, out_dir: Path, label: str = "") -> list[Path]:
-    """Three PNGs, <experiment>_<zone>.png, for model zone temperatures (N, 3)."""
+    """One PNG per zone, <experiment>_<zone>.png, for model zone temperatures (N, zones)."""
     measured = exp.zone_temp
     paths = []
-    for w, zone in enumerate(ZONES):
+    for w, zone in enumerate(exp.furnace.zones):
         ok = np.isfinite(measured[:, w])
         rmse = float(np.sqrt(np.mean((measured[ok, w] - model[ok, w]) ** 2))) if ok.any() else np.nan
         title = f"{exp.name}: {ZONE_TITLES[zone]}{', ' + label if label else ''}  (RMSE {rmse:.2f} °C)"

@@ -33,8 +33,8 @@ def predict_ahead(params: dict[str, float], exp: Experiment, horizon: int,
                   structure: ModelStructure | None = None, x0: np.ndarray | None = None,
                   offsets: np.ndarray | None = None) -> np.ndarray:
     """What the thermocouples would read (N, 3), each sample predicted `horizon` samples
-    ahead from the readings before it. x0 (3,) starts the simulation (estimated from exp if
-    None); `offsets` (3,) are the zone offsets of exp's thermocouples (none if None)."""
+    ahead from the readings before it. x0 (zones,) starts the simulation (estimated from exp if
+    None); `offsets` (zones,) are the zone offsets of exp's thermocouples (none if None)."""
     if int(horizon) != horizon or horizon < 1:
         raise FurnaceError(f"the prediction horizon must be a whole number of samples of at "
                            f"least 1, got {horizon}")
@@ -43,7 +43,7 @@ def predict_ahead(params: dict[str, float], exp: Experiment, horizon: int,
     structure, values = model.structure, model.params
     if x0 is None:
         x0 = model.refine([exp]).x0[0]
-    off = np.zeros(3) if offsets is None else np.asarray(offsets, dtype=float)
+    off = np.zeros(structure.n_zones) if offsets is None else np.asarray(offsets, dtype=float)
     run = model.response(exp, x0)
     simulated = run.readings(np.isfinite(exp.tc))[0] + off
     if k >= len(exp):
@@ -92,7 +92,8 @@ def score_ahead(params: dict[str, float], experiments: list[Experiment], horizon
     for exp in experiments:
         start = model.refine([exp])
         y = predict_ahead(params, exp, horizon, model.structure, start.x0[0], start.offsets(0))
-        per_exp[exp.name] = zone_metrics(exp.zone_temp, y)
+        per_exp[exp.name] = zone_metrics(exp.zone_temp, y, model.structure.furnace.zones)
         measured.append(exp.zone_temp)
         predicted.append(y)
-    return per_exp, zone_metrics(np.concatenate(measured), np.concatenate(predicted))
+    return per_exp, zone_metrics(np.concatenate(measured), np.concatenate(predicted),
+                                 model.structure.furnace.zones)

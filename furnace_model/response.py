@@ -17,27 +17,28 @@ import numpy as np
 import pandas as pd
 
 from . import SENSORS, ZONES
+from .furnace import PAPER
 
 if TYPE_CHECKING:
     from .structure import ModelStructure
 
 SENSOR_ZONE = np.array([ZONES.index(s.rsplit("_", 1)[0]) for s in SENSORS])
-"""The zone (index into ZONES) each thermocouple of SENSORS sits in."""
+"""The zone (index into ZONES) each thermocouple of SENSORS sits in (the paper's furnace)."""
 
 
 def weights(good: np.ndarray) -> np.ndarray:
-    """How each thermocouple enters its zone's reading (N, 6), from which read (N, 6): the
-    mean of the good ones, none where a zone has none."""
-    g = np.asarray(good, dtype=float).reshape(-1, 3, 2)
-    return (g / np.maximum(g.sum(axis=2, keepdims=True), 1)).reshape(-1, 6)
+    """How each thermocouple of the paper's furnace enters its zone's reading (N, 6), from
+    which read (N, 6): the mean of the good ones, none where a zone has none."""
+    return PAPER.weights(good)
 
 
 class Response:
     """A simulated run of one structure for P parameter sets at N sample times.
 
-    `zones` (P, N, 3) are the sensed zone temperatures (C x: a lagged sensor's state where
-    the structure has one); `sensors` (P, N, 6) add the structure's per-thermocouple errors
-    (a drifting thermocouple) to its zone's value, in SENSORS order; `readings` are the zone
+    `zones` (P, N, zones) are the sensed zone temperatures (C x: a lagged sensor's state
+    where the structure has one); `sensors` (P, N, thermocouples) add the structure's
+    per-thermocouple errors (a drifting thermocouple) to its zone's value, in the furnace's
+    thermocouple order (SENSORS for the paper's); `readings` are the zone
     temperatures as the mean of a record's good thermocouples reads them, which is what a
     fit compares with the data. No bias or noise: those belong to a plant's thermocouples.
     """
@@ -80,7 +81,7 @@ class Response:
 
     def zone(self, name: str) -> np.ndarray:
         """One zone's sensed temperature (P, N)."""
-        return self.zones[:, :, ZONES.index(name)]
+        return self.zones[:, :, self.structure.furnace.zones.index(name)]
 
     @property
     def sensor_offsets(self) -> np.ndarray:
@@ -91,12 +92,12 @@ class Response:
 
     @property
     def sensors(self) -> np.ndarray:
-        """What each thermocouple of the model reads (P, N, 6), in SENSORS order."""
-        return self.zones[:, :, SENSOR_ZONE] + self.sensor_offsets
+        """What each thermocouple of the model reads (P, N, thermocouples), in order."""
+        return self.zones[:, :, self.structure.furnace.sensor_zone] + self.sensor_offsets
 
     def sensor(self, name: str) -> np.ndarray:
         """One thermocouple's reading (P, N), by its SENSORS name (`heat_2`)."""
-        return self.sensors[:, :, SENSORS.index(name)]
+        return self.sensors[:, :, self.structure.furnace.sensors.index(name)]
 
     def readings(self, good: np.ndarray | None = None, *,
                  weight: np.ndarray | None = None) -> np.ndarray:
@@ -109,9 +110,10 @@ class Response:
         Without sensor effects this is `zones` itself."""
         if not self.structure.has_sensor_offsets:
             return self.zones
+        furnace = self.structure.furnace
         if weight is None:
-            weight = weights(np.ones((self.t.size, len(SENSORS)), dtype=bool)
-                             if good is None else good)
+            weight = furnace.weights(np.ones((self.t.size, len(furnace.sensors)), dtype=bool)
+                                     if good is None else good)
         # not kept: a fit's criterion reads each response once, and a kept (P, N, 6) array
         # costs it the memory it would reuse
         off = (self._sensor_offsets if self._sensor_offsets is not None
@@ -132,6 +134,7 @@ class Response:
         """One parameter set's run as a table: t_min, the zones, then the thermocouples
         (`tc_<sensor>`), as the tabular data contract names them."""
         frame = {"t_min": self.t}
-        frame.update({z: self.zones[p, :, w] for w, z in enumerate(ZONES)})
-        frame.update({f"tc_{s}": self.sensors[p, :, i] for i, s in enumerate(SENSORS)})
+        furnace = self.structure.furnace
+        frame.update({z: self.zones[p, :, w] for w, z in enumerate(furnace.zones)})
+        frame.update({f"tc_{s}": self.sensors[p, :, i] for i, s in enumerate(furnace.sensors)})
         return pd.DataFrame(frame)

@@ -1,7 +1,10 @@
 """Scenarios: a plant (parameters, effects, sensors) and a burner schedule, read from YAML.
 
 config/scenarios/paper_exp1.yaml is the reference: the paper's first experiment with its
-Table V parameters. Every key is checked; an error names the file and the key path.
+Table V parameters. Every key is checked; an error names the file and the key path. A
+scenario is of the paper's furnace unless its `furnace` key names a description
+(config/furnaces/), by a path relative to the scenario file or by a name in
+config/furnaces/ (`six-zone`).
 """
 
 from __future__ import annotations
@@ -12,16 +15,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import BURNERS_PER_ZONE, SENSORS, ZONES
 from .config import Node, load_yaml
 from .effects import EFFECTS, Effect, Option
-from .parameters import BASELINE
+from .errors import ConfigError
+from .furnace import FURNACES_DIR, PAPER, Furnace, load_furnace
+from .network import parameters
 from .structure import Inputs, ModelStructure
 
 
 @dataclass(frozen=True)
 class SensorSpec:
-    """Two thermocouples per zone: each reads the zone plus its own bias plus noise.
+    """The furnace's thermocouples: each reads its zone plus its own bias plus noise.
 
     The noise is white unless `noise_ar_per_min` is set: a real thermocouple is low-pass
     (sheath, transmitter filter, gas turbulence), so its noise is a first-order
@@ -31,7 +35,8 @@ class SensorSpec:
     noise_sd_c: float = 1.5
     bias_sd_c: float = 0.5
     bias_c: tuple[float, ...] | None = None
-    """Fixed biases in SENSORS order; when absent they are drawn (sd bias_sd_c) from the seed."""
+    """Fixed biases in thermocouple order (SENSORS for the paper's furnace); when absent they
+    are drawn (sd bias_sd_c) from the seed."""
     noise_ar_per_min: float = 0.0
     """Correlation of the noise one minute apart (0: white); its sd stays noise_sd_c."""
     white_sd_c: float = 0.0
@@ -53,9 +58,10 @@ class Scenario:
     description: str = ""
     start_time: pd.Timestamp | None = None
     file: str = ""
+    furnace: Furnace = PAPER
 
     def structure(self) -> ModelStructure:
-        return ModelStructure(self.effects)
+        return ModelStructure(self.effects, self.furnace)
 
     def values(self) -> dict[str, float]:
         return {**self.params, **self.effect_values}
@@ -65,7 +71,7 @@ class Scenario:
                       np.full(self.steps_t.size, self.t_air_c))
 
     def burners_at(self, t_min: float) -> np.ndarray:
-        """Counts per zone (3,) the schedule asks for at time t_min."""
+        """Counts per zone (zones,) the schedule asks for at time t_min."""
         j = max(int(np.searchsorted(self.steps_t, t_min, side="right")) - 1, 0)
         return self.steps_burners[j].copy()
 
@@ -74,22 +80,46 @@ class Scenario:
         return np.arange(n + 1) * self.sample_min
 
 
-def split_total(total: int, fill_order: tuple[str, ...]) -> np.ndarray:
+def split_total(total: int, fill_order: tuple[str, ...],
+                furnace: Furnace = PAPER) -> np.ndarray:
     """Burners on per zone when `total` are open, filling zones in order (the paper: soaking
     first, then heating, then preheating)."""
-    counts = np.zeros(3, dtype=int)
+    counts = np.zeros(furnace.n_zones, dtype=int)
     left = total
     for zone in fill_order:
-        i = ZONES.index(zone)
-        counts[i] = min(left, BURNERS_PER_ZONE[i])
+        i = furnace.zones.index(zone)
+        counts[i] = min(left, furnace.burners[i])
         left -= counts[i]
     return counts
 
 
-def load_scenario(path: str | Path) -> Scenario:
+def scenario_furnace(node: Node, scenario_file: str | Path) -> Furnace:
+    """The furnace a scenario's `furnace` key names: a YAML path relative to the scenario,
+    or the name of a description in config/furnaces/."""
+    text = node.string()
+    here = Path(scenario_file).parent / text
+    for candidate in (here, FURNACES_DIR / text, FURNACES_DIR / f"{text}.yaml"):
+        if candidate.is_file():
+            return load_furnace(candidate)
+    raise node.error(f"no furnace description '{text}' (a path relative to the scenario, or "
+                     f"a name in {FURNACES_DIR})")
+
+
+def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
+    """A scenario, checked. `furnace`: the description the caller works with (--furnace);
+    a scenario of another furnace is an error on its `furnace` key."""
     root = load_yaml(path).mapping({
         "name", "description", "duration_min", "sample_min", "start_time", "t_air_c",
-        "initial_c", "model", "burners", "sensors", "effects"})
+        "initial_c", "model", "burners", "sensors", "effects", "furnace"})
+    own = scenario_furnace(root.child("furnace"), path) if root.has("furnace") else PAPER
+    if furnace is not None and furnace != own:
+        where = ("is of furnace" if root.has("furnace")
+                 else "names no furnace, so it is of the paper's furnace")
+        raise ConfigError(str(path), "furnace", f"the scenario {where} '{own.name}', not the "
+                          f"furnace '{furnace.name}' asked for")
+    furnace = own
+    zones, nz = furnace.zones, furnace.n_zones
+    sensor_names = furnace.sensors
     name = root.get_string("name", Path(path).stem)
     duration = root.get_number("duration_min", lo=1.0, hi=1e7)
     sample = root.get_number("sample_min", 1.0, lo=1e-3, hi=duration)
@@ -99,32 +129,33 @@ def load_scenario(path: str | Path) -> Scenario:
 
     init = root.child("initial_c", t_air)
     if isinstance(init.value, list):
-        initial = np.array([n.number(lo=-60.0, hi=2000.0) for n in init.elements(3, 3)])
+        initial = np.array([n.number(lo=-60.0, hi=2000.0) for n in init.elements(nz, nz)])
     else:
-        initial = np.full(3, init.number(lo=-60.0, hi=2000.0))
+        initial = np.full(nz, init.number(lo=-60.0, hi=2000.0))
 
-    model = root.child("model", {}).mapping({p.name for p in BASELINE})
-    params = {p.name: model.get_number(p.name, p.default, lo=p.lo, hi=p.hi) for p in BASELINE}
+    network = parameters(furnace)
+    model = root.child("model", {}).mapping({p.name for p in network})
+    params = {p.name: model.get_number(p.name, p.default, lo=p.lo, hi=p.hi) for p in network}
 
     burners = root.child("burners").mapping({"fill_order", "steps"})
-    order_node = burners.child("fill_order", list(ZONES))
-    fill = tuple(n.string(ZONES) for n in order_node.elements(3, 3))
-    if sorted(fill) != sorted(ZONES):
-        raise order_node.error(f"must name each of {', '.join(ZONES)} once")
+    order_node = burners.child("fill_order", list(zones))
+    fill = tuple(n.string(zones) for n in order_node.elements(nz, nz))
+    if sorted(fill) != sorted(zones):
+        raise order_node.error(f"must name each of {', '.join(zones)} once")
     times, counts = [], []
     for step in burners.child("steps").elements(min_len=1):
-        step.mapping({"at_min", "total", *ZONES})
+        step.mapping({"at_min", "total", *zones})
         at = step.get_number("at_min", lo=0.0, hi=duration)
         if times and at <= times[-1]:
             raise step.child("at_min").error(f"steps must be in time order; {at:g} follows {times[-1]:g}")
         if step.has("total"):
-            if any(step.has(z) for z in ZONES):
+            if any(step.has(z) for z in zones):
                 raise step.error("give either 'total' or per-zone counts, not both")
-            total = step.get_integer("total", lo=0, hi=sum(BURNERS_PER_ZONE))
-            counts.append(split_total(total, fill))
+            total = step.get_integer("total", lo=0, hi=sum(furnace.burners))
+            counts.append(split_total(total, fill, furnace))
         else:
-            counts.append(np.array([step.get_integer(z, 0, lo=0, hi=BURNERS_PER_ZONE[i])
-                                    for i, z in enumerate(ZONES)]))
+            counts.append(np.array([step.get_integer(z, 0, lo=0, hi=furnace.burners[i])
+                                    for i, z in enumerate(zones)]))
         times.append(at)
     if times[0] != 0.0:
         raise burners.child("steps").error("the first step must be at_min: 0")
@@ -134,7 +165,8 @@ def load_scenario(path: str | Path) -> Scenario:
     bias = None
     if sensors_node.has("bias_c"):
         bias = tuple(n.number(lo=-50.0, hi=50.0)
-                     for n in sensors_node.child("bias_c").elements(len(SENSORS), len(SENSORS)))
+                     for n in sensors_node.child("bias_c").elements(len(sensor_names),
+                                                                     len(sensor_names)))
     sensors = SensorSpec(
         noise_sd_c=sensors_node.get_number("noise_sd_c", 1.5, lo=0.0, hi=100.0),
         bias_sd_c=sensors_node.get_number("bias_sd_c", 0.5, lo=0.0, hi=50.0),
@@ -144,7 +176,11 @@ def load_scenario(path: str | Path) -> Scenario:
     )
 
     effects, values = [], {}
-    for key, node in root.child("effects", {}).items():
+    effects_node = root.child("effects", {})
+    if furnace != PAPER and effects_node.mapping().value:
+        raise effects_node.error(f"effects extend the paper's three-zone furnace only; "
+                                 f"furnace '{furnace.name}' takes none")
+    for key, node in effects_node.items():
         if key not in EFFECTS:
             raise node.error(f"unknown effect (expected one of: {', '.join(EFFECTS)}; an "
                              "effect of your own is loaded with --effects-from)")
@@ -160,6 +196,7 @@ def load_scenario(path: str | Path) -> Scenario:
         params=params, steps_t=np.array(times), steps_burners=np.array(counts),
         effects=effects, effect_values=values, sensors=sensors,
         description=root.get_string("description", ""), start_time=start_time, file=str(path),
+        furnace=furnace,
     )
 
 

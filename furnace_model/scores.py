@@ -13,10 +13,11 @@ import numpy as np
 from . import ZONES
 
 
-def zone_metrics(measured: np.ndarray, model: np.ndarray) -> dict[str, dict[str, float]]:
-    """{zone: {mae_c, rmse_c, fit_pct, n}} over the finite entries of measured (N, 3)."""
+def zone_metrics(measured: np.ndarray, model: np.ndarray,
+                 zones: tuple[str, ...] = ZONES) -> dict[str, dict[str, float]]:
+    """{zone: {mae_c, rmse_c, fit_pct, n}} over the finite entries of measured (N, zones)."""
     out: dict[str, dict[str, float]] = {}
-    for w, zone in enumerate(ZONES):
+    for w, zone in enumerate(zones):
         y, m = measured[:, w], model[:, w]
         ok = np.isfinite(y) & np.isfinite(m)
         if not ok.any():
@@ -31,6 +32,7 @@ def zone_metrics(measured: np.ndarray, model: np.ndarray) -> dict[str, dict[str,
     return out
 
 
-def pooled_metrics(measured: list[np.ndarray], model: list[np.ndarray]) -> dict[str, dict[str, float]]:
+def pooled_metrics(measured: list[np.ndarray], model: list[np.ndarray],
+                   zones: tuple[str, ...] = ZONES) -> dict[str, dict[str, float]]:
     """zone_metrics over several experiments taken together."""
-    return zone_metrics(np.concatenate(measured), np.concatenate(model))
+    return zone_metrics(np.concatenate(measured), np.concatenate(model), zones)

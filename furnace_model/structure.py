@@ -1,6 +1,8 @@
 """The paper's model (eq. 11) with optional effect terms: baseline, plant and candidates.
 
-`ModelStructure()` is exactly eq. 11. `ModelStructure([ZoneBurners(), SensorLag()])` is the
+`ModelStructure()` is exactly eq. 11; `ModelStructure(furnace=load_furnace(...))` is the
+thermal network of another furnace description (furnace_model.network), of which eq. 11 is
+the three-zone case. `ModelStructure([ZoneBurners(), SensorLag()])` is the
 same model extended, used by the plant simulator with chosen parameter values and by the
 diagnosis with fitted ones. All simulation is batched over parameter sets: parameter values
 are arrays of length P and results carry a leading P axis.
@@ -15,9 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .effects import N_INPUTS, U_AIR, U_BURNERS, Effect, Theta
+from .effects import Effect, Theta
+from .furnace import PAPER, Furnace
 from .lti import Drive, Modes, response
-from .parameters import BASELINE, Param
+from .network import fill, parameters
+from .parameters import Param
 from .response import Response
 
 
@@ -25,9 +29,10 @@ from .response import Response
 class Inputs:
     """Piecewise-constant inputs: burner counts per zone and ambient temperature.
 
-    Level j holds from t[j] until t[j+1] (and after the last). `burners` is (J, 3), `t_air`
-    (J,). This is the paper's input with more detail: the baseline adds the three counts
-    into q1, an extended model may use them apart.
+    Level j holds from t[j] until t[j+1] (and after the last). `burners` is (J, zones),
+    `t_air` (J,). This is the paper's input with more detail: the baseline adds the three
+    counts into q1, an extended model (or a furnace whose burners heat their own zone) uses
+    them apart. The input channels are the burner counts zone by zone, then ambient.
     """
 
     t: np.ndarray
@@ -35,9 +40,10 @@ class Inputs:
     t_air: np.ndarray
 
     def levels(self) -> np.ndarray:
-        u = np.empty((1, self.t.size, N_INPUTS))
-        u[0, :, U_BURNERS] = self.burners
-        u[0, :, U_AIR] = self.t_air
+        nz = self.burners.shape[1]
+        u = np.empty((1, self.t.size, nz + 1))
+        u[0, :, :nz] = self.burners
+        u[0, :, nz] = self.t_air
         return u
 
     @classmethod
@@ -69,26 +75,38 @@ class Inputs:
 class System:
     A: np.ndarray  # (P, n, n)
     B: np.ndarray  # (P, n, m)
-    C: np.ndarray  # (P, 3, n): sensed zone temperatures
+    C: np.ndarray  # (P, zones, n): sensed zone temperatures
 
 
 class ModelStructure:
-    """Baseline plus effects: which states, which parameters, and how to simulate them."""
+    """Baseline plus effects: which states, which parameters, and how to simulate them.
 
-    def __init__(self, effects: Sequence[Effect] = ()):
+    The baseline is the furnace's thermal network (the paper's eq. 11 by default). The
+    effects are written for the paper's three zones and six thermocouples, so they extend
+    that furnace only."""
+
+    def __init__(self, effects: Sequence[Effect] = (), furnace: Furnace = PAPER):
         names = [e.name for e in effects]
         if len(set(names)) != len(names):
             raise ValueError(f"an effect appears twice in {names}")
+        if effects and furnace != PAPER:
+            raise ValueError(f"effects ({', '.join(names)}) extend the paper's three-zone "
+                             f"furnace only; furnace '{furnace.name}' takes none")
+        self.furnace = furnace
+        self.n_zones = furnace.n_zones
         self.effects: tuple[Effect, ...] = tuple(effects)
-        self.params: tuple[Param, ...] = BASELINE + tuple(p for e in self.effects for p in e.params)
+        self.params: tuple[Param, ...] = (parameters(furnace)
+                                          + tuple(p for e in self.effects for p in e.params))
         pnames = [p.name for p in self.params]
         if len(set(pnames)) != len(pnames):
             raise ValueError(f"parameter names collide in {pnames}")
-        self.n_states = 3 + sum(len(e.state_zones) for e in self.effects)
+        self.n_states = self.n_zones + sum(len(e.state_zones) for e in self.effects)
         self.linear = all(e.linear for e in self.effects)
 
     def __repr__(self) -> str:
-        return f"ModelStructure({[e.name for e in self.effects]})"
+        if self.furnace == PAPER:
+            return f"ModelStructure({[e.name for e in self.effects]})"
+        return f"ModelStructure({[e.name for e in self.effects]}, furnace={self.furnace.name!r})"
 
     @property
     def names(self) -> list[str]:
@@ -111,18 +129,13 @@ class ModelStructure:
         return {n: np.broadcast_to(a, (P,)) for n, a in zip(self.names, arrays, strict=True)}
 
     def system(self, theta: Theta) -> System:
-        a, b, c, d, e, f = (theta[k] for k in "abcdef")
-        P, n = a.shape[0], self.n_states
+        P, n, nz = next(iter(theta.values())).shape[0], self.n_states, self.n_zones
         A = np.zeros((P, n, n))
-        A[:, 0, 0], A[:, 0, 1] = -a, a
-        A[:, 1, 0], A[:, 1, 1], A[:, 1, 2] = b, -(b + c), c
-        A[:, 2, 1], A[:, 2, 2] = d, -(d + e)
-        B = np.zeros((P, n, N_INPUTS))
-        B[:, 0, U_BURNERS] = f[:, None]  # q1 = all burners on, into zone 1 (the paper's input)
-        B[:, 2, U_AIR] = e
-        C = np.zeros((P, 3, n))
-        C[:, :, :3] = np.eye(3)
-        first = 3
+        B = np.zeros((P, n, nz + 1))
+        fill(self.furnace, A, B, theta)  # eq. 11 for the paper's furnace
+        C = np.zeros((P, nz, n))
+        C[:, :, :nz] = np.eye(nz)
+        first = nz
         for eff in self.effects:
             eff.extend(A, B, C, theta, first)
             first += len(eff.state_zones)
@@ -138,7 +151,7 @@ class ModelStructure:
         return drive
 
     def full_state(self, x_zone: np.ndarray) -> np.ndarray:
-        """Extend zone temperatures (P|1, 3) to all states: each extra state starts at rest
+        """Extend zone temperatures (P|1, zones) to all states: each extra state starts at rest
         with its zone (a lagged sensor reads the zone, a wall is at the gas temperature)."""
         x_zone = np.atleast_2d(np.asarray(x_zone, dtype=float))
         extra = [z for e in self.effects for z in e.state_zones]
@@ -153,7 +166,7 @@ class ModelStructure:
                  x0: np.ndarray, t0: float | None = None, states: bool = False) -> Response:
         """The run at times t from zone temperatures x0 at t0, for P parameter sets.
 
-        x0 is (P|1, 3) zone temperatures, or (P|1, n) full states. t0 defaults to the first
+        x0 is (P|1, zones) zone temperatures, or (P|1, n) full states. t0 defaults to the first
         input time. The zone outputs are simulated; with states=True the states are too (one
         simulation gives both), else a response computes them on first use.
         """
@@ -161,7 +174,7 @@ class ModelStructure:
         sys = self.system(theta)
         drive = self.drive(theta, inputs)
         x0 = np.atleast_2d(np.asarray(x0, dtype=float))
-        if x0.shape[-1] == 3 and self.n_states != 3:
+        if x0.shape[-1] == self.n_zones and self.n_states != self.n_zones:
             x0 = self.full_state(x0)
         t0 = float(inputs.t[0]) if t0 is None else float(t0)
         t = np.asarray(t, dtype=float)
@@ -207,7 +220,7 @@ class ModelStructure:
         drive = self.drive(theta, inputs)
         P, n = sys.A.shape[0], self.n_states
         x0 = np.atleast_2d(np.asarray(x0, dtype=float))
-        if x0.shape[-1] == 3 and n != 3:
+        if x0.shape[-1] == self.n_zones and n != self.n_zones:
             x0 = self.full_state(x0)
         x0 = np.broadcast_to(x0, (P, n))
         t0 = float(inputs.t[0]) if t0 is None else float(t0)
@@ -270,10 +283,11 @@ class ModelStructure:
         return np.einsum("pqn,pNn->pNq", sys.C, x)
 
     def sensor_offsets(self, values: Mapping[str, float | np.ndarray], t: np.ndarray) -> np.ndarray:
-        """Per-thermocouple additive errors (P, N, 6) from sensor effects; zeros without."""
+        """Per-thermocouple additive errors (P, N, thermocouples) from sensor effects; zeros
+        without."""
         theta = self.theta(values)
         P = next(iter(theta.values())).shape[0]
-        out = np.zeros((P, np.size(t), 6))
+        out = np.zeros((P, np.size(t), len(self.furnace.sensors)))
         for eff in self.effects:
             off = eff.sensor_offsets(theta, np.asarray(t, dtype=float))
             if off is not None:

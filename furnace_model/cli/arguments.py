@@ -100,6 +100,21 @@ def output_dir(text: str) -> Path:
     return path
 
 
+def add_furnace(parser: argparse.ArgumentParser) -> None:
+    """--furnace: the furnace description the command works on (config/furnaces/)."""
+    parser.add_argument("--furnace", type=Path, metavar="FURNACE.yaml",
+                        help="furnace description (zones, links, burners, thermocouples; "
+                             "config/furnaces/); default the paper's three-zone furnace")
+
+
+def furnace_of(args: argparse.Namespace):
+    """The furnace --furnace names, checked; the paper's when none is named."""
+    from ..furnace import PAPER, load_furnace
+
+    path = getattr(args, "furnace", None)
+    return PAPER if path is None else load_furnace(path)
+
+
 def add_effects_from(parser: argparse.ArgumentParser) -> None:
     """--effects-from, read before the rest of the command line (`preload_effects`), so that
     the effects it defines are names like ours in every other argument."""

@@ -12,14 +12,15 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .. import ZONES
 from ..errors import FurnaceError
 from ..parameters import BASELINE
 from .arguments import (
     DATA_HELP,
     add_data_window,
     add_effects_from,
+    add_furnace,
     data_window,
+    furnace_of,
     output_dir,
     output_file,
     positive_int,
@@ -52,6 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--effects", type=effect_list, metavar="a,b",
                    help="fit the model extended with these effects, in their first law "
                         "(default: the paper's model alone)")
+    add_furnace(p)
     add_effects_from(p)
     add_data_window(p)
     p.add_argument("--json", type=output_file, metavar="OUT", help="write the result as JSON")
@@ -63,7 +65,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 class _ParamValues(argparse.Action):
     """--fix NAME=V and --bounds NAME=LO:HI, repeatable and comma-separated, gathered into one
     dict per option and checked as they are read: a typo costs no fit. The parameters are
-    those `fit` identifies, `ModelStructure()`'s, which are `parameters.BASELINE`."""
+    those `fit` identifies, `ModelStructure()`'s, which are `parameters.BASELINE`; a
+    network's (`k_`, `loss_`, `gain_`; --furnace) are checked against their kind's box here
+    and against the furnace when it is read."""
 
     def __call__(self, parser, namespace, text, option_string=None):
         ranged = self.dest == "bounds"
@@ -90,6 +94,10 @@ def _param_value(item: str, ranged: bool) -> tuple[str, float | tuple[float, flo
     name = name.strip()
     if not eq or not name:
         raise ValueError(f"expected {'NAME=LO:HI' if ranged else 'NAME=VALUE'}")
+    if name not in params and name.startswith(("k_", "loss_", "gain_")):
+        from ..network import EXCHANGE, GAIN, LOSS  # another furnace's: see _ParamValues
+
+        params[name] = next(k for k in (EXCHANGE, LOSS, GAIN) if name.startswith(f"{k.name}_"))
     if name not in params:
         raise ValueError(f"unknown parameter {name}; the model has {', '.join(params)}")
     texts = value.split(":") if ranged else [value]
@@ -150,9 +158,13 @@ def run(args: argparse.Namespace) -> int:
     from ..fit import fit
     from ..structure import ModelStructure
 
-    structure = ModelStructure([EFFECTS[n](**EFFECTS[n].candidate_options)
-                                for n in args.effects or ()])
-    experiments = load_experiments(args.data, **data_window(args))
+    furnace = furnace_of(args)
+    try:
+        structure = ModelStructure([EFFECTS[n](**EFFECTS[n].candidate_options)
+                                    for n in args.effects or ()], furnace)
+    except ValueError as exc:
+        raise FurnaceError(str(exc)) from None
+    experiments = load_experiments(args.data, **data_window(args), furnace=furnace)
     names = [e.name for e in experiments]
     if len(set(names)) != len(names):
         raise FurnaceError(f"two data files share the name {names}: plots and tables need "
@@ -200,22 +212,24 @@ def render(result: FitResult, experiments) -> str:
     the best fit with sd, intervals and covariance, the information criteria, why the search
     stopped, and per-zone errors."""
     names = result.structure.names
+    zones = result.structure.furnace.zones
+    errs_head = " | ".join(f"e_{w}" for w in range(1, len(zones) + 1))
     n = sum(len(e) for e in experiments)
     out = [f"{len(experiments)} experiment(s), {n} samples, {result.n_obs} zone readings; "
            f"method {result.method}, {len(result.runs)} run(s), {result.elapsed_s:.2f} s", ""]
     out.append("Runs (the paper's Tables I-II; e_w = mean absolute error per zone, °C)")
     out.append("| run | seed | population | generations | iterations | stopped | "
-               + " | ".join(names) + " | e_1 | e_2 | e_3 | SSE |")
-    out.append("|---" * (10 + len(names)) + "|")
+               + " | ".join(names) + f" | {errs_head} | SSE |")
+    out.append("|---" * (7 + len(zones) + len(names)) + "|")
     for i, r in enumerate(result.runs, 1):
-        errs = [f"{r['per_zone'][z]['mae_c']:.3f}" for z in ZONES]
+        errs = [f"{r['per_zone'][z]['mae_c']:.3f}" for z in zones]
         out.append(f"| {i} | {r['seed']} | {r['population']} | {r['generations']} | "
                    f"{r.get('iterations', '')} | {r.get('stop_reason', '')} | "
                    + " | ".join(_g(r["params"][k]) for k in names) + " | "
                    + " | ".join(errs) + f" | {r['sse']:.6g} |")
     if len(result.runs) > 1:
         out.append("| mean | | | | | | " + " | ".join(_g(result.genetic_mean[k]) for k in names)
-                   + " | | | | |")
+                   + " |" + " |" * len(zones) + " |")
     tau = result.uncertainty.correlation_time if result.uncertainty is not None else 1.0
     out += ["", "Best fit: value, standard deviation and 95% interval (rates: the interval on "
             "the log scale, the sd in the parameter's units by the delta method, "
@@ -242,7 +256,7 @@ def render(result: FitResult, experiments) -> str:
                 for k, row in zip(names, result.cov, strict=True)]
     out += ["", _criteria_line(result), _stop_line(result)]
     out += ["", "Per zone", "| zone | MAE (°C) | RMSE (°C) | fit % |", "|---|---|---|---|"]
-    for z in ZONES:
+    for z in zones:
         m = result.per_zone[z]
         out.append(f"| {z} | {m['mae_c']:.3f} | {m['rmse_c']:.3f} | {m['fit_pct']:.2f} |")
     out.append("")
@@ -268,7 +282,8 @@ def _criteria_line(result: FitResult) -> str:
     if ic is None:
         return "Information criteria: not computed"
     k = len(result.structure.names) - len(result.fixed)
-    states = 3 * len(result.x0) if ic.n_params > k else 0
+    nz = result.structure.n_zones
+    states = nz * len(result.x0) if ic.n_params > k else 0
     parts = [f"{k} parameters"] + ([f"{states} initial states"] if states else []) + (
         [f"{ic.n_params - k - states} zone offsets"] if ic.n_params > k + states else [])
 
@@ -276,9 +291,9 @@ def _criteria_line(result: FitResult) -> str:
         return format(x, fmt) if math.isfinite(x) else "n/a"
 
     return (f"Information criteria: AIC {v(ic.aic, '.1f')}, AICc {v(ic.aicc, '.1f')}, "
-            f"BIC {v(ic.bic, '.1f')}, nAIC {v(ic.naic, '.4f')}, FPE {v(ic.fpe, '.4g')} (°C)^6; "
-            f"np = {ic.n_params} estimated "
-            f"({' + '.join(parts)}), N = {ic.n_samples:.6g} samples of 3 zones "
+            f"BIC {v(ic.bic, '.1f')}, nAIC {v(ic.naic, '.4f')}, FPE {v(ic.fpe, '.4g')} "
+            f"(°C)^{2 * nz}; np = {ic.n_params} estimated "
+            f"({' + '.join(parts)}), N = {ic.n_samples:.6g} samples of {nz} zones "
             "(System Identification Toolbox's definitions, docs/identification.md)")
 
 

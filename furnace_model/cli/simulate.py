@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError
-from .arguments import add_effects_from, output_file
+from .arguments import add_effects_from, add_furnace, furnace_of, output_file
 
 MAX_ROWS = 10_000_000
 """About 1 GB of CSV: beyond it a scenario's sampling is a typo, not a data set."""
@@ -20,6 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", required=True, type=Path, help="scenario YAML")
     p.add_argument("--out", required=True, type=output_file, help="output .csv or .parquet")
     p.add_argument("--seed", type=int, default=0, help="noise and sensor-bias seed (default 0)")
+    add_furnace(p)
     add_effects_from(p)
     p.set_defaults(run=run)
 
@@ -30,7 +31,8 @@ def run(args: argparse.Namespace) -> int:
     from ..plant import Plant
     from ..scenario import load_scenario
 
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario,
+                             None if args.furnace is None else furnace_of(args))
     if scenario.duration_min / scenario.sample_min > MAX_ROWS:
         raise ConfigError(str(args.scenario), "sample_min",
                           f"{scenario.duration_min:g} min sampled every {scenario.sample_min:g} "

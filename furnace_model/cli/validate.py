@@ -12,13 +12,14 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .. import ZONES
 from ..errors import FurnaceError
 from .arguments import (
     DATA_HELP,
     add_data_window,
     add_effects_from,
+    add_furnace,
     data_window,
+    furnace_of,
     output_dir,
     output_file,
     positive_int,
@@ -42,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "readings K samples earlier), as System Identification Toolbox's "
                         "compare(data, model, K)")
     p.add_argument("--json", type=output_file, metavar="OUT", help="write the scores as JSON")
+    add_furnace(p)
     add_effects_from(p)
     add_data_window(p)
     p.add_argument("--plot", type=output_dir, metavar="DIR",
@@ -49,11 +51,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
-    """Parameters and structure from a fit's JSON, checked: a wrong file is one clear line."""
+def load_params(path: Path, furnace=None) -> tuple[dict[str, float], ModelStructure]:
+    """Parameters and structure from a fit's JSON, checked: a wrong file is one clear line.
+    `furnace`: the description the parameters are of (the paper's if None); a fit of
+    another furnace, by its JSON's `furnace`, is refused."""
     from ..effects import EFFECTS
+    from ..furnace import PAPER
     from ..structure import ModelStructure
 
+    furnace = furnace or PAPER
     try:
         doc = json.loads(path.read_text())
     except FileNotFoundError:
@@ -74,7 +80,14 @@ def load_params(path: Path) -> tuple[dict[str, float], ModelStructure]:
             effects.append(EFFECTS[name](**opts))
         except (TypeError, ValueError) as exc:
             raise FurnaceError(f"{path}: effects[{i}]: {exc}") from None
-    structure = ModelStructure(effects)
+    fitted_on = doc.get("furnace", PAPER.name)
+    if fitted_on != furnace.name:
+        raise FurnaceError(f"{path}: furnace: the fit is of furnace '{fitted_on}', not of "
+                           f"furnace '{furnace.name}' (--furnace)")
+    try:
+        structure = ModelStructure(effects, furnace)
+    except ValueError as exc:
+        raise FurnaceError(f"{path}: {exc}") from None
     params = {}
     for p in structure.params:
         v = doc["params"].get(p.name)
@@ -93,8 +106,9 @@ def run(args: argparse.Namespace) -> int:
     from ..experiment import load_experiments
     from ..fit import Model, score
 
-    params, structure = load_params(args.params)
-    experiments = load_experiments(args.data, **data_window(args))
+    furnace = furnace_of(args)
+    params, structure = load_params(args.params, furnace)
+    experiments = load_experiments(args.data, **data_window(args), furnace=furnace)
     off, k = args.zone_offsets, args.horizon
     per_exp = {e.name: score(params, [e], structure, off) for e in experiments}
     pooled = (score(params, experiments, structure, off) if len(experiments) > 1
@@ -115,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         lines += ["| experiment | zone | MAE (°C) | RMSE (°C) | fit % |", "|---|---|---|---|---|"]
     for name, pz in rows:
-        for z in ZONES:
+        for z in furnace.zones:
             m = pz[z]
             row = f"| {name} | {z} | {m['mae_c']:.3f} | {m['rmse_c']:.3f} | {m['fit_pct']:.2f} |"
             if k:

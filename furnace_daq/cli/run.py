@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from ..daqconfig import load_config
-    from ..journal import ERR, WARNING, Journal
+    from ..journal import ERR, INFO, WARNING, Journal
     from ..mcaplog import LogWriter
 
     config = load_config(args.config)
@@ -80,6 +80,19 @@ def run(args: argparse.Namespace) -> int:
         lock, recovered = _recover_at_start(lc.dir, lc.prefix)
     except (OSError, ValueError) as exc:
         raise FurnaceError(f"log directory {lc.dir}: {exc}") from None
+    live = None
+    if config.live_view is not None:  # after the log lock: a second daemon stops there first
+        from ..liveview import LiveView
+
+        try:
+            live = LiveView(config.live_view, where=config.file)
+        except FurnaceError:
+            if lock is not None:
+                os.close(lock)
+            log.close()
+            raise
+        log.listeners.append(live.send)
+        journal.say(INFO, f"live view: Foxglove WebSocket on {live.url}")
     for note in recovered:  # files of a daemon that died: in the journal and in the log
         journal.say(WARNING, f"log recovery: {note}")
         now = time.time_ns()
@@ -87,6 +100,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         return asyncio.run(_main(config, log, args.duration, journal))
     finally:
+        if live is not None:
+            live.close()
+            if live.error:
+                journal.say(WARNING, live.error)
         if lock is not None:
             os.close(lock)
 

@@ -17,6 +17,7 @@ import pytest
 import yaml
 from daq_processes import ROOT, free_port, furnace_daq, start_simplc, stop
 from mcap.reader import make_reader
+from test_security import listening_sockets
 
 from furnace_daq.daqconfig import parse_config
 from furnace_daq.liveview import LiveView, LiveViewConfig
@@ -173,6 +174,8 @@ def test_foxglove_client_sees_every_topic_as_logged_and_cannot_write(tmp_path, n
                                 cwd=NODE_DIR, capture_output=True, text=True, timeout=30)
         assert client.returncode == 0, client.stdout + client.stderr
         seen = json.loads(client.stdout)
+        # The one listening socket: the live view's, on loopback.
+        assert listening_sockets(daemon.pid) == [("tcp", f"127.0.0.1:{port}")]
     finally:
         assert stop(daemon) == 0  # SIGTERM: the log is finished
         stop(sim)

@@ -80,23 +80,24 @@ def run(args: argparse.Namespace) -> int:
         lock, recovered = _recover_at_start(lc.dir, lc.prefix)
     except (OSError, ValueError) as exc:
         raise FurnaceError(f"log directory {lc.dir}: {exc}") from None
+    for note in recovered:  # files of a daemon that died: in the journal and in the log
+        journal.say(WARNING, f"log recovery: {note}")
+        now = time.time_ns()
+        log.write(DAQ_EVENTS, {"kind": "log_recovered", "detail": note}, now, now)
     live = None
-    if config.live_view is not None:  # after the log lock: a second daemon stops there first
+    if config.live_view is not None:  # after the log lock and recovery:
+        # a second daemon stops at the lock, and a port taken leaves the recovery on record
         from ..liveview import LiveView
 
         try:
             live = LiveView(config.live_view, where=config.file)
         except FurnaceError:
+            log.close()
             if lock is not None:
                 os.close(lock)
-            log.close()
             raise
         log.listeners.append(live.send)
         journal.say(INFO, f"live view: Foxglove WebSocket on {live.url}")
-    for note in recovered:  # files of a daemon that died: in the journal and in the log
-        journal.say(WARNING, f"log recovery: {note}")
-        now = time.time_ns()
-        log.write(DAQ_EVENTS, {"kind": "log_recovered", "detail": note}, now, now)
     try:
         return asyncio.run(_main(config, log, args.duration, journal))
     finally:

@@ -15,6 +15,7 @@ from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
 from furnace_model.config import Node, load_yaml
 from furnace_model.errors import ConfigError
 
+from .liveview import LiveViewConfig
 from .registers import (
     BIT_TABLES,
     ORDERS,
@@ -199,6 +200,8 @@ class DaqConfig:
     """None when online identification is off (no `refit:` section or `enabled: false`)."""
     device_list: tuple[PlcConfig, ...] = ()
     """The `devices:` list; empty for a config with one `plc:` section."""
+    live_view: LiveViewConfig | None = None
+    """The Foxglove WebSocket server (furnace_daq.liveview); None unless `enabled: true`."""
 
     @property
     def devices(self) -> tuple[PlcConfig, ...]:
@@ -383,6 +386,17 @@ def _refit(node: Node) -> RefitConfig | None:
         state_dir=Path(node.get_string("state_dir", default_dir)))
 
 
+def _live_view(node: Node) -> LiveViewConfig | None:
+    node.mapping({"enabled", "host", "port"})
+    host = node.get_string("host", LiveViewConfig.host)
+    if not host or any(c.isspace() for c in host):
+        raise node.child("host").error("expected an address to listen on, like 127.0.0.1")
+    port = node.get_integer("port", LiveViewConfig.port, lo=1, hi=65535)
+    if not node.get_bool("enabled", False):
+        return None
+    return LiveViewConfig(host=host, port=port)
+
+
 def load_config(path: str | Path) -> DaqConfig:
     """Read and check a daemon config; every error names the file and key path."""
     return parse_config(load_yaml(path))
@@ -464,7 +478,8 @@ def _devices(root: Node) -> tuple[PlcConfig, ...]:
 def parse_config(root: Node) -> DaqConfig:
     root.mapping({"plc", "devices", "poll_period_s", "thermocouples", "ambient",
                   "ambient_default_c", "clock", "heartbeat", "stale_after_s", "burners",
-                  "status_interval_s", "stderr_interval_s", "log", "refit", "write_back"})
+                  "status_interval_s", "stderr_interval_s", "log", "refit", "write_back",
+                  "live_view"})
     device_list = _devices(root)
     plc = device_list[0] if device_list else _device(root.child("plc", {}).mapping(PLC_KEYS))
     names = tuple(d.name for d in device_list)
@@ -505,7 +520,7 @@ def parse_config(root: Node) -> DaqConfig:
         log=_log(root.child("log", {})), file=root.file,
         refit=_refit(root.child("refit")) if root.has("refit") else None,
         write_back=parse_write_back(root.child("write_back", None)),
-        device_list=device_list)
+        device_list=device_list, live_view=_live_view(root.child("live_view", {})))
     if config.write_back is not None and plc.transport != "tcp":
         raise root.child("write_back").error(
             f"writes to the first device, {plc.name}, over Modbus TCP; its transport is "

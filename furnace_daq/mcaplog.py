@@ -35,7 +35,7 @@ import os
 import re
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -108,6 +108,10 @@ class LogWriter:
         """The `furnace-daq` metadata record of every file opened from now on."""
         self.event_priority = dict(event_priority or {})
         """Journal (sd-daemon) priority of each event kind: the level of its /log line."""
+        self.listeners: list[Callable[[str, bytes, int], None]] = []
+        """Called with (topic, encoded message, log time in ns) for every message queued,
+        /log lines included (the live view, furnace_daq.liveview). A listener's failure is
+        its own: it never stops the log."""
         self._last_status: tuple[object, object] | None = None
         # Chunks small against the size limit, so a file overshoots it by little.
         self._chunk_size = min(2**20, max(4096, (self.rotate_bytes or 2**22) // 8))
@@ -189,6 +193,9 @@ class LogWriter:
     # -- internals -------------------------------------------------------------------------
 
     def _queue(self, rec: _Rec) -> None:
+        for listener in self.listeners:
+            with contextlib.suppress(Exception):
+                listener(rec.topic, rec.data, rec.log_time)
         self._pending.append(rec)
         while len(self._pending) > self.max_buffered:
             self._pending.popleft()

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from furnace_daq.liveview import LiveViewConfig
+
 ROOT = Path(__file__).resolve().parents[1]
 UNIT = ROOT / "systemd" / "furnace-daq.service"
 INSTALLED = "/opt/furnace-daq/.venv/bin/furnace-daq"
@@ -49,11 +51,13 @@ def test_unit_declares_notify_watchdog_restart_and_directories():
     assert d["RestartPreventExitStatus"] == ["2"]  # config errors exit 2 (ConfigError)
 
 
-def test_unit_keeps_state_and_logs_and_never_listens():
+def test_unit_keeps_state_and_logs_and_listens_only_for_the_live_view():
     d = directives(UNIT.read_text())
     assert d["StateDirectory"] == ["furnace-daq"]  # model.json of the refits and write-back
     assert d["LogsDirectory"] == ["furnace-daq"] and d["UMask"] == ["0027"]
     assert d["DynamicUser"] == ["yes"] and d["SocketBindDeny"] == ["any"]
+    # The one port the daemon may bind: the live view's default (furnace_daq.liveview).
+    assert d["SocketBindAllow"] == [f"tcp:{LiveViewConfig.port}"]
     assert "time-sync.target" in d["After"][0].split()
 
 

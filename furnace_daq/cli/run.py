@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from ..daqconfig import load_config
-    from ..journal import ERR, WARNING, Journal
+    from ..journal import ERR, INFO, WARNING, Journal
     from ..mcaplog import LogWriter
 
     config = load_config(args.config)
@@ -84,9 +84,27 @@ def run(args: argparse.Namespace) -> int:
         journal.say(WARNING, f"log recovery: {note}")
         now = time.time_ns()
         log.write(DAQ_EVENTS, {"kind": "log_recovered", "detail": note}, now, now)
+    live = None
+    if config.live_view is not None:  # after the log lock and recovery:
+        # a second daemon stops at the lock, and a port taken leaves the recovery on record
+        from ..liveview import LiveView
+
+        try:
+            live = LiveView(config.live_view, where=config.file)
+        except FurnaceError:
+            log.close()
+            if lock is not None:
+                os.close(lock)
+            raise
+        log.listeners.append(live.send)
+        journal.say(INFO, f"live view: Foxglove WebSocket on {live.url}")
     try:
         return asyncio.run(_main(config, log, args.duration, journal))
     finally:
+        if live is not None:
+            live.close()
+            if live.error:
+                journal.say(WARNING, live.error)
         if lock is not None:
             os.close(lock)
 

@@ -1,0 +1,95 @@
+"""The live view: a Foxglove WebSocket server inside the daemon (config `live_view:`), so an
+engineer watches the furnace in Foxglove while it is logged, without waiting for a file.
+
+It shows exactly what the log holds: the `LogWriter` hands it every message it queues (see
+`LogWriter.listeners`), already encoded, with the log time as the message time and the
+same topic and JSON schema as the MCAP channel. The server is read-only: it advertises no
+capability (no client publishing, services, parameters), so a client cannot write anything
+to the daemon or, through it, to the PLC.
+
+Failures. A port that cannot be bound stops the daemon at start with an error naming
+`live_view.port`. Once running, nothing the live view does may stop logging: `send` never
+raises; its first failure is kept in `error` and the view goes quiet.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from furnace_model.errors import FurnaceError
+from furnace_model.logschema import MESSAGE_ENCODING, SCHEMA_ENCODING, TOPICS, topic
+
+
+@dataclass(frozen=True)
+class LiveViewConfig:
+    """Where the server listens. Loopback unless configured: a plant network reaches it
+    through an SSH tunnel or a reverse proxy, never by accident."""
+
+    host: str = "127.0.0.1"
+    port: int = 8765
+
+
+class LiveView:
+    """A running server and its channels, one per log topic."""
+
+    def __init__(self, config: LiveViewConfig, name: str = "furnace-daq", where: str = ""):
+        import foxglove
+
+        self._foxglove = foxglove
+        # A context of its own: the server sees only these channels, and nothing else in the
+        # process (another sink, the global context) sees them.
+        self._context = foxglove.Context()
+        self._channels: dict[str, foxglove.Channel] = {}
+        self.error: str | None = None
+        """The failure that silenced the view (None while it works)."""
+        try:
+            self._server = foxglove.start_server(
+                name=name, host=config.host, port=config.port, capabilities=[],
+                services=None, context=self._context)
+        except (RuntimeError, OSError, ValueError, TypeError, OverflowError) as exc:
+            key = f"{where}: live_view.port" if where else "live_view.port"
+            raise FurnaceError(f"{key}: cannot serve the live view on "
+                               f"{config.host}:{config.port}: {_reason(exc)}") from None
+        self.host = config.host
+        self.port = int(self._server.port)
+        for name_ in TOPICS:  # every topic of the contract, even one not yet written
+            self._channel(name_)
+
+    @property
+    def url(self) -> str:
+        """What to type into Foxglove's Open connection → Foxglove WebSocket."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.port}"
+
+    def send(self, name: str, data: bytes, log_time_ns: int) -> None:
+        """Forward one encoded log message. Never raises (see the module docstring)."""
+        if self.error is not None:
+            return
+        try:
+            self._channel(name).log(data, log_time=int(log_time_ns))
+        except Exception as exc:  # the log must go on whatever the server does
+            self.error = f"live view stopped: {_reason(exc)}"
+
+    def close(self) -> None:
+        """Stop the server (clients see the connection close)."""
+        try:
+            self._server.stop()
+        except Exception as exc:  # stopping must not hide the daemon's own exit status
+            self.error = self.error or f"live view stop: {_reason(exc)}"
+
+    def _channel(self, name: str):
+        channel = self._channels.get(name)
+        if channel is None:
+            t = topic(name)
+            schema = self._foxglove.Schema(name=t.schema_name, encoding=SCHEMA_ENCODING,
+                                           data=t.schema_bytes())
+            channel = self._foxglove.Channel(name, schema=schema,
+                                             message_encoding=MESSAGE_ENCODING,
+                                             context=self._context)
+            self._channels[name] = channel
+        return channel
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return text.removeprefix("FoxgloveError: ")

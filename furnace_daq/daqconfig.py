@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -202,6 +203,9 @@ class DaqConfig:
     """The `devices:` list; empty for a config with one `plc:` section."""
     live_view: LiveViewConfig | None = None
     """The Foxglove WebSocket server (furnace_daq.liveview); None unless `enabled: true`."""
+    document: Any = field(default=None, repr=False, compare=False)
+    """The YAML mapping this config was read from: recorded in each log, so that the log
+    alone rebuilds it (`sim-plc --from-log` serves its register map)."""
 
     @property
     def devices(self) -> tuple[PlcConfig, ...]:
@@ -520,7 +524,8 @@ def parse_config(root: Node) -> DaqConfig:
         log=_log(root.child("log", {})), file=root.file,
         refit=_refit(root.child("refit")) if root.has("refit") else None,
         write_back=parse_write_back(root.child("write_back", None)),
-        device_list=device_list, live_view=_live_view(root.child("live_view", {})))
+        device_list=device_list, live_view=_live_view(root.child("live_view", {})),
+        document=root.value)
     if config.write_back is not None and plc.transport != "tcp":
         raise root.child("write_back").error(
             f"writes to the first device, {plc.name}, over Modbus TCP; its transport is "

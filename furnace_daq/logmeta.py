@@ -59,10 +59,14 @@ def build_metadata(config: Any = None, *, furnace: Mapping | None = None,
 
         software_version = version()
     refit = getattr(config, "refit", None)
+    settings = plain(config)
+    if isinstance(settings, dict):
+        settings.pop("document", None)  # recorded on its own, as written
     return {
         "software_version": software_version,
         "furnace": json.dumps(plain(furnace if furnace is not None else paper_furnace())),
-        "config": json.dumps(plain(config)),
+        "config": json.dumps(settings),
+        "config_source": json.dumps(plain(getattr(config, "document", None))),
         "config_file": str(getattr(config, "file", "") or ""),
         "host": host if host is not None else socket.gethostname(),
         "refit": json.dumps(plain(refit)),
@@ -118,3 +122,18 @@ def recorded_ambient_default(metadata: Mapping[str, str] | None) -> float | None
     value = json.loads(metadata["config"])
     t_air = value.get("ambient_default_c") if isinstance(value, dict) else None
     return float(t_air) if isinstance(t_air, int | float) else None
+
+
+def recorded_config(metadata: Mapping[str, str] | None, where: str) -> Any:
+    """The daemon config a log was written with, rebuilt from the YAML recorded in it (None
+    when the log records none); `where` names the log in errors."""
+    if not metadata or "config_source" not in metadata:
+        return None
+    document = json.loads(metadata["config_source"])
+    if not isinstance(document, dict):
+        return None
+    from furnace_model.config import Node
+
+    from .daqconfig import parse_config
+
+    return parse_config(Node(document, f"{where} (recorded config)"))

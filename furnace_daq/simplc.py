@@ -24,26 +24,33 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import SimData, SimDevice
 from pymodbus.simulator.simdata import DataType
 
-from furnace_model import BURNERS_PER_ZONE, SENSORS
+from furnace_model import BURNERS_PER_ZONE
 from furnace_model.plant import Plant
 from furnace_model.scenario import Scenario
 
-from .registers import FUNCTION_CODE, encode
+from .registers import FUNCTION_CODE
+from .servedmap import ServedMap
 
 N_BURNERS = sum(BURNERS_PER_ZONE)
-N_INPUT_REGISTERS = 10
-SENSOR_OPEN_RAW = 32767
 CAN_ID = 0x180
 """Flame states on CAN: one 4-byte frame, bit n (byte n // 8, LSB first) = burner n."""
 ZONE_SLICES = tuple(slice(sum(BURNERS_PER_ZONE[:i]), sum(BURNERS_PER_ZONE[:i + 1]))
                     for i in range(len(BURNERS_PER_ZONE)))
 
 
-def tenths(value: float) -> int:
-    """INT16 in 0.1 degC; 32767 is reserved for an open thermocouple, so it saturates below."""
-    if not np.isfinite(value):
-        return SENSOR_OPEN_RAW
-    return int(min(max(round(value * 10.0), -32768), SENSOR_OPEN_RAW - 1))
+def _padded(states: list[bool], n: int) -> list[bool]:
+    return states[:n] + [False] * (n - len(states))
+
+
+def _runs(cells: dict[int, int | bool]) -> list[tuple[int, list]]:
+    """Consecutive addresses as (start, values): one write per run."""
+    runs: list[tuple[int, list]] = []
+    for a in sorted(cells):
+        if runs and runs[-1][0] + len(runs[-1][1]) == a:
+            runs[-1][1].append(cells[a])
+        else:
+            runs.append((a, [cells[a]]))
+    return runs
 
 
 def states_from_counts(counts: np.ndarray) -> list[bool]:
@@ -131,7 +138,7 @@ class SimPLC:
                  scan_s: float = 0.1, can_channel: str | None = None,
                  can_interface: str = "virtual", holding_registers: int = 1,
                  transport: str = "tcp", serial_port: str | None = None,
-                 baudrate: int = 19200):
+                 baudrate: int = 19200, served: ServedMap | None = None):
         if speed <= 0 or scan_s <= 0:
             raise ValueError("speed and scan_s must be positive")
         if isinstance(source, Scenario):
@@ -140,6 +147,8 @@ class SimPLC:
         self.manual = bool(getattr(source, "manual", False))
         self.speed, self.host, self.port, self.scan_s = speed, host, port, scan_s
         self.holding_registers = holding_registers
+        self.served = served or ServedMap.default()
+        """The register map the values are served through."""
         if transport not in ("tcp", "rtu-over-tcp", "rtu") or \
                 (transport == "rtu") != (serial_port is not None):
             raise ValueError("transport is tcp, rtu-over-tcp, or rtu with a serial_port")
@@ -170,13 +179,14 @@ class SimPLC:
 
     # -- life cycle ---------------------------------------------------------------------------
     async def start(self) -> None:
+        size = self.served.sizes()
+        size["holding"] = max(size["holding"], self.holding_registers)
         states = list(self.values.burners)
         device = SimDevice(0, simdata=(
-            [SimData(0, values=states, datatype=DataType.BITS)],              # coils
-            [SimData(0, values=states, datatype=DataType.BITS)],              # discrete inputs
-            [SimData(0, values=[0] * self.holding_registers,
-                     datatype=DataType.REGISTERS)],                           # holding
-            [SimData(0, values=[0] * N_INPUT_REGISTERS, datatype=DataType.REGISTERS)],
+            [SimData(0, values=_padded(states, size["coil"]), datatype=DataType.BITS)],
+            [SimData(0, values=_padded(states, size["discrete"]), datatype=DataType.BITS)],
+            [SimData(0, values=[0] * size["holding"], datatype=DataType.REGISTERS)],
+            [SimData(0, values=[0] * size["input"], datatype=DataType.REGISTERS)],
         ))
         if self.transport == "rtu":
             self._server = ModbusSerialServer(device, port=self.serial_port,
@@ -235,16 +245,16 @@ class SimPLC:
         self.values = self.source.values_at(sim_s)
         self.plc_seconds = sim_s
         self.heartbeat = (self.heartbeat + 1) & 0xFFFF
-        regs = [tenths(np.nan if s in self.open_sensors else v) & 0xFFFF
-                for s, v in zip(SENSORS, self.values.thermocouples, strict=True)]
-        regs.append(tenths(self.values.t_air) & 0xFFFF)
-        regs += encode(sim_s & 0xFFFFFFFF, "uint32", "big")
-        regs.append(self.heartbeat)
         states = list(self.values.burners)
-        await self._server.async_setValues(0, FUNCTION_CODE["input"], 0, regs)
-        await self._server.async_setValues(0, FUNCTION_CODE["discrete"], 0, states)
-        if not self.manual:
-            await self._server.async_setValues(0, FUNCTION_CODE["coil"], 0, states)
+        image = self.served.image(self.values.thermocouples, self.values.t_air, sim_s,
+                                  self.heartbeat, states, self.open_sensors)
+        if self.manual:
+            image["coil"] = {}  # the operator's commands stay on the coils
+        elif not image["coil"]:
+            image["coil"] = dict(enumerate(states))  # coils follow the flames
+        for table, cells in image.items():
+            for start, values in _runs(cells):
+                await self._server.async_setValues(0, FUNCTION_CODE[table], start, values)
         if self._bus is not None:
             with contextlib.suppress(can.CanError):  # a full bus must not stop the PLC scan
                 self._bus.send(can.Message(arbitration_id=CAN_ID, data=flame_frame(states),

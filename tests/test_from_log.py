@@ -131,10 +131,11 @@ def test_a_daemon_polling_a_served_log_logs_the_recorded_values(tmp_path):
 
 
 def write_log(log_dir: Path, seconds: range, *, can_burners: bool = False,
-              rotate_s: float = 3600.0) -> None:
+              rotate_s: float = 3600.0, metadata: dict | None = None) -> None:
     """A recording written directly: temperatures rise 1 degC per PLC second per sensor
     index, heat_1 open from second 300 to 600, a failed poll at 450, burners change at 400."""
-    with LogWriter(log_dir, flush_interval_s=60.0, rotate_s=rotate_s) as log:
+    with LogWriter(log_dir, flush_interval_s=60.0, rotate_s=rotate_s,
+                   metadata=metadata) as log:
         for s in seconds:
             pub = EPOCH_NS + s * 10**9
             host = pub + 123_456_789 + 5 * 10**9  # the gateway clock, a little off
@@ -272,3 +273,51 @@ def test_served_log_sends_the_recorded_flames_on_can(tmp_path):
     assert states[0] == player.values_at(0).burners and states[-1] == last
     assert last == player.values_at(870).burners and sum(last[:10]) == 7 and all(last[10:18])
     assert len({tuple(s) for s in states}) == 2, "the recorded change at second 400"
+
+
+def unusual_map(tmp_path: Path) -> Path:
+    """A PLC program unlike the simulator's default: float thermocouples in word-swapped
+    holding registers, a float16 ambient, the clock in little-endian word order, burner
+    states packed into two status words."""
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["thermocouples"] = {s: {"table": "holding", "address": 100 + 2 * i, "type": "float32",
+                                "byte_order": "CDAB", "range": [-50, 1600]}
+                            for i, s in enumerate(SENSORS)}
+    doc["ambient"] = {"table": "input", "address": 20, "type": "float16"}
+    doc["clock"] = {"table": "input", "address": 30, "type": "uint32", "word_order": "little"}
+    doc["heartbeat"] = {"table": "input", "address": 33, "type": "uint16"}
+    doc["burners"]["modbus"] = {"soak": {"table": "holding", "address": 40, "bit": 0},
+                                "heat": {"table": "holding", "address": 40, "bit": 10},
+                                "preheat": {"table": "holding", "address": 41, "bit": 2}}
+    doc["refit"]["enabled"] = False
+    path = tmp_path / "unusual.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def test_a_log_is_served_on_the_register_map_it_was_recorded_with(tmp_path):
+    """`sim-plc --from-log` rebuilds the recording's map from the log's metadata, so the
+    recording's own config reads the recorded values back: every point ok, each value the
+    one recorded at PLC second 0 (the served clock barely moves at this speed)."""
+    from furnace_daq.check import check
+    from furnace_daq.logmeta import build_metadata
+
+    cfg_path = unusual_map(tmp_path)
+    config = load_config(cfg_path)
+    write_log(tmp_path / "logs", range(0, 120, 30), metadata=build_metadata(config))
+    player, port = start_player(sorted((tmp_path / "logs").glob("*.mcap")), "--speed", "0.001")
+    try:
+        report = asyncio.run(asyncio.wait_for(
+            check(replace(config, plc=replace(config.plc, port=port))), 30))
+    finally:
+        player.terminate()
+        _, said = player.communicate(timeout=10)
+    assert "register map: recorded in" in said, said
+    rows = {p.key: p for p in report.points}
+    assert not report.failed, [(p.key, p.raw, p.error) for p in report.failed]
+    for i, s in enumerate(SENSORS):
+        assert float(rows[f"thermocouples.{s}"].value) == pytest.approx(20.0 + i, abs=1e-4)
+    assert float(rows["ambient"].value) == pytest.approx(25.0, abs=0.02)  # float16
+    assert [rows[f"burners.modbus.{z}"].value for z in ZONES] == \
+        ["2 of 10 on", "0 of 8 on", "0 of 8 on"]
+    assert rows["burners.modbus.soak"].raw == "0x0003"  # bits 40.0 and 40.1, as packed

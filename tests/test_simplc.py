@@ -13,7 +13,8 @@ from daq_processes import SCENARIO
 from pymodbus.client import AsyncModbusTcpClient
 
 from furnace_daq.registers import decode
-from furnace_daq.simplc import CAN_ID, SimPLC, states_from_counts, tenths
+from furnace_daq.servedmap import ServedMap
+from furnace_daq.simplc import CAN_ID, SimPLC, states_from_counts
 from furnace_model.plant import Plant
 from furnace_model.scenario import load_scenario
 
@@ -90,6 +91,16 @@ def test_manual_mode_follows_coils_and_broadcasts_flames_on_can():
     assert [bool(last >> i & 1) for i in range(26)] == wanted
 
 
-def test_tenths_saturates_below_the_open_sentinel():
-    assert tenths(12.34) == 123 and tenths(-3.26) == -33
-    assert tenths(1e9) == 32766 and tenths(float("nan")) == 32767
+def tenths(value: float) -> int:
+    """CONTRACTS.md section 3's encoding, written out apart from the served map: INT16 in
+    0.1 degC, 32767 only for an open circuit (a real reading saturates below it)."""
+    if not np.isfinite(value):
+        return 32767
+    return int(min(max(round(value * 10.0), -32768), 32766))
+
+
+def test_the_default_map_saturates_below_the_open_sentinel():
+    tc = [12.34, -3.26, 1e9, float("nan"), -1e9, 0.05]
+    image = ServedMap.default().image(tc, 20.0, 7, 1, [False] * 26)
+    assert [decode([image["input"][i]], "int16") for i in range(6)] == [tenths(v) for v in tc]
+    assert [tenths(v) for v in tc] == [123, -33, 32766, 32767, -32768, 0]

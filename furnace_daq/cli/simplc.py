@@ -1,6 +1,7 @@
-"""`furnace-daq sim-plc`: a Modbus TCP PLC on the default map of CONTRACTS.md section 3,
-serving either a scenario's simulated plant (`--scenario`) or recorded logs (`--from-log`),
-optionally broadcasting flame states on a CAN bus."""
+"""`furnace-daq sim-plc`: a Modbus PLC serving either a scenario's simulated plant
+(`--scenario`) or recorded logs (`--from-log`), optionally broadcasting flame states on a CAN
+bus. The register map is the default of CONTRACTS.md section 3, a daemon config's
+(`--config`), or with `--from-log` the one the log was recorded with."""
 
 from __future__ import annotations
 
@@ -34,6 +35,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="sensor noise seed (default 0; --scenario only)")
     p.add_argument("--loop", action="store_true",
                    help="start the log again at its end instead of stopping (--from-log only)")
+    p.add_argument("--config", type=Path,
+                   help="serve the register map of this daemon config (default: with "
+                        "--from-log the map the log was recorded with, else CONTRACTS.md's)")
+    p.add_argument("--device", help="which device of the config's map to serve (default: "
+                                    "its first)")
     p.add_argument("--scan-s", type=float, default=0.1, help="PLC scan period, s (default 0.1)")
     p.add_argument("--can-channel", help="also send flame states as CAN frames on this channel")
     p.add_argument("--can-interface", default="virtual",
@@ -73,10 +79,40 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
         source = scenario
         what = f"{scenario.name}: {'manual' if args.manual else 'schedule'} burners"
-    return asyncio.run(_serve(source, what, args))
+    served, map_from = _served_map(args)
+    print(f"register map: {map_from}", file=sys.stderr, flush=True)
+    return asyncio.run(_serve(source, what, args, served))
 
 
-async def _serve(source, what: str, args: argparse.Namespace) -> int:
+def _served_map(args: argparse.Namespace):
+    """The map to serve and where it comes from, in words."""
+    from ..daqconfig import load_config
+    from ..logmeta import read_metadata, recorded_config
+    from ..servedmap import ServedMap
+
+    config, where = None, "the default of CONTRACTS.md section 3"
+    if args.config is not None:
+        config, where = load_config(args.config), str(args.config)
+    elif args.from_log:
+        files = sorted(f for p in args.from_log
+                       for f in ([p] if not p.is_dir() else p.glob("*.mcap*")))
+        config = recorded_config(read_metadata(files), str(files[0]) if files else "log")
+        if config is not None:
+            where = f"recorded in {files[0]}"
+        elif args.device is not None:
+            raise FurnaceError("--device: the log records no register map to choose from")
+    elif args.device is not None:
+        raise FurnaceError("--device goes with --config or --from-log")
+    if config is None:
+        return None, where
+    names = [d.name for d in config.devices]
+    if args.device is not None and args.device not in names:
+        raise FurnaceError(f"--device {args.device}: the map has {', '.join(names)}")
+    device = args.device or names[0]
+    return ServedMap.of_config(config, device), f"{where}, device {device}"
+
+
+async def _serve(source, what: str, args: argparse.Namespace, served) -> int:
     import asyncio
 
     from ..simplc import SimPLC
@@ -84,7 +120,7 @@ async def _serve(source, what: str, args: argparse.Namespace) -> int:
     plc = SimPLC(source, speed=args.speed, host=args.host, port=args.port, manual=args.manual,
                  seed=args.seed, scan_s=args.scan_s, can_channel=args.can_channel,
                  can_interface=args.can_interface, transport=args.transport,
-                 serial_port=args.serial_port, baudrate=args.baudrate)
+                 serial_port=args.serial_port, baudrate=args.baudrate, served=served)
     where = args.serial_port if args.transport == "rtu" else f"{args.host}:{args.port}"
     try:
         await plc.start()

@@ -13,7 +13,9 @@ import time
 from pathlib import Path
 
 import pytest
+from logcheck import check_files
 
+from furnace_daq.logmeta import read_metadata
 from furnace_model import ZONES
 from furnace_model.logread import read_messages
 from furnace_model.logschema import MODEL_PARAMETERS, PARAM_NAMES
@@ -49,6 +51,12 @@ def check_run(done: subprocess.CompletedProcess, out: Path, min_ok: int) -> list
     assert "Traceback" not in done.stderr
     logs = sorted((out / "logs").glob("*.mcap"))
     assert logs and not list((out / "logs").glob("*.part"))
+    # every message of every topic against its channel's schema, as a strict reader takes it
+    counts, problems = check_files(logs)
+    assert not problems, problems
+    assert {"/furnace/thermocouples", "/furnace/burners", "/daq/status", "/log",
+            MODEL_PARAMETERS} <= set(counts), counts
+    assert read_metadata(logs) is not None, "the metadata record says how the log was made"
     models = [m for _, m, _, _ in read_messages(logs, [MODEL_PARAMETERS])]
     ok = [m for m in models if m["status"] == "ok"]
     assert len(ok) >= min_ok, [(m["window_end"], m["status"], m.get("detail")) for m in models]

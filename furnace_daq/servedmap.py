@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
 
@@ -23,6 +24,9 @@ from .registers import (
     Point,
     encode,
 )
+
+if TYPE_CHECKING:
+    from .daqconfig import DaqConfig
 
 INTEGER_RANGE = {"int16": (-2**15, 2**15 - 1), "uint16": (0, 2**16 - 1),
                  "int32": (-2**31, 2**31 - 1), "uint32": (0, 2**32 - 1),
@@ -52,7 +56,7 @@ class ServedMap:
                          for z, a, n in zip(ZONES, starts, BURNERS_PER_ZONE, strict=True)))
 
     @classmethod
-    def of_config(cls, config, device: str | None = None) -> ServedMap:
+    def of_config(cls, config: DaqConfig, device: str | None = None) -> ServedMap:
         """The map a daemon config reads from `device` (default: its first device)."""
         name = device or config.devices[0].name
         first = config.devices[0].name
@@ -60,7 +64,7 @@ class ServedMap:
         by_name = {p.name: p for p in config.thermocouples if p.name in mine}
         clock = None if config.clock is None else config.clock.point
 
-        def own(p):
+        def own(p: Point | None) -> Point | None:
             return p if p is not None and p.name in mine else None
 
         return cls(tuple(by_name[s] for s in SENSORS if s in by_name), own(config.ambient),

@@ -124,6 +124,8 @@ def _words(p: Point, value: float, wrap: bool = False) -> list[int]:
     if p.dtype == STRING:
         return encode(f"{value:g}", STRING, p.word_order, p.byte_order, p.length)
     raw = (value - p.offset) * (1.0 / p.scale) if math.isfinite(value) else math.nan
+    if math.isfinite(value) and not math.isfinite(raw):
+        raise OverflowError(f"{p.name} = {value:g} is beyond any {p.dtype} register")
     if not math.isfinite(raw):
         raw = p.sentinels[0] if p.sentinels else math.nan
     if p.dtype in INTEGER_RANGE:

@@ -312,7 +312,7 @@ def test_a_log_is_served_on_the_register_map_it_was_recorded_with(tmp_path):
     finally:
         player.terminate()
         _, said = player.communicate(timeout=10)
-    assert "register map: recorded in" in said, said
+    assert "; register map: recorded in" in said, said
     rows = {p.key: p for p in report.points}
     assert not report.failed, [(p.key, p.raw, p.error) for p in report.failed]
     for i, s in enumerate(SENSORS):

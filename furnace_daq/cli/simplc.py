@@ -80,8 +80,7 @@ def run(args: argparse.Namespace) -> int:
         source = scenario
         what = f"{scenario.name}: {'manual' if args.manual else 'schedule'} burners"
     served, map_from = _served_map(args)
-    print(f"register map: {map_from}", file=sys.stderr, flush=True)
-    return asyncio.run(_serve(source, what, args, served))
+    return asyncio.run(_serve(source, f"{what}; register map: {map_from}", args, served))
 
 
 def _served_map(args: argparse.Namespace):

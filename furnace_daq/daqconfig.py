@@ -355,7 +355,7 @@ def _log(node: Node) -> LogConfig:
         file_mode=file_mode)
 
 
-def _refit(node: Node) -> RefitConfig | None:
+def parse_refit(node: Node) -> RefitConfig | None:
     node.mapping({"enabled", "period_s", "window_s", "step_s", "budget_s", "method",
                   "population", "generations", "max_gap_fraction", "min_burner_steps",
                   "drift_windows", "drift_min_change", "queue_max", "state_dir"})
@@ -522,7 +522,7 @@ def parse_config(root: Node) -> DaqConfig:
         status_interval_s=root.get_number("status_interval_s", 10.0, lo=0.1, hi=86400.0),
         stderr_interval_s=root.get_number("stderr_interval_s", 60.0, lo=0.0, hi=86400.0),
         log=_log(root.child("log", {})), file=root.file,
-        refit=_refit(root.child("refit")) if root.has("refit") else None,
+        refit=parse_refit(root.child("refit")) if root.has("refit") else None,
         write_back=parse_write_back(root.child("write_back", None)),
         device_list=device_list, live_view=_live_view(root.child("live_view", {})),
         document=root.value)

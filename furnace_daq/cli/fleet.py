@@ -17,7 +17,6 @@ import sys
 from pathlib import Path
 
 from furnace_model.cli.arguments import CommandParser, output_dir, positive_int
-from furnace_model.errors import FurnaceError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -176,26 +175,14 @@ def run_selfcheck(args: argparse.Namespace) -> int:
     from ..fleet.jobs import run_selfcheck as job
 
     effects = _effects(args.effects_from or [])
-    if args.first_draw < 0:
-        raise FurnaceError("--first-draw must be 0 or more")
-    if args.draws < 1:
-        raise FurnaceError("--draws must be at least 1")
-    drawable = sc._drawable()
-    from furnace_model.cli.names import effect_names
-
-    if args.effects:
-        for name in {n for label in args.effects for n in label.split("+")} - drawable:
-            raise FurnaceError(f"effect {name} has no `draw`: the selfcheck cannot make a "
-                               "furnace with it at random (give its class a draw classmethod)")
-    labels = list(args.effects or ("none", *(n for n in effect_names() if n in drawable))) + \
-        (list(sc.EXTRA) if args.all else [])
+    labels = sc.labels_of(args)
     args.out.mkdir(parents=True, exist_ok=True)
     with _client(args) as client:
         outcomes, result = job(client, labels, args.draws, args.out, seed=args.seed,
                                first=args.first_draw, form=args.form,
                                candidates=args.candidates, noise=args.noise,
                                effects_from=effects, quiet=args.quiet)
-    rows = sc._report(args, outcomes, complete=not result.failures)
+    rows = sc.report(args, outcomes, complete=not result.failures)
     code = _finish(args, result, [str(args.json)] if args.json else ["stdout"])
     failed = [r.label for r in rows if not r.passed]
     if failed:

@@ -31,7 +31,7 @@ import pandas as pd
 
 from furnace_model.config import Node, load_yaml
 
-from ..daqconfig import RefitConfig, _refit
+from ..daqconfig import RefitConfig, parse_refit
 
 FURNACES = ("paper",)
 """Furnace descriptions a fleet entry may name. Only the paper's three-zone furnace exists
@@ -102,7 +102,7 @@ def parse_fleet(root: Node, base: Path = Path(".")) -> Fleet:
             raise node.child("name").error(f"'{f.name}' is already the name of {seen[f.name]}")
         seen[f.name] = node.path
         furnaces.append(f)
-    refit = _refit(root.child("refit")) if root.has("refit") else RefitConfig()
+    refit = parse_refit(root.child("refit")) if root.has("refit") else RefitConfig()
     if refit is None:
         raise root.child("refit").child("enabled").error(
             "a fleet refit needs refit settings: remove enabled: false")

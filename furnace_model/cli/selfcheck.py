@@ -55,9 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from ..selfcheck import check
-
+def labels_of(args: argparse.Namespace) -> list[str]:
+    """The rows the arguments ask for, checked: what this command and the fleet's selfcheck
+    both draw."""
     if args.first_draw < 0:
         raise FurnaceError("--first-draw must be 0 or more")
     if args.draws < 1:
@@ -67,8 +67,14 @@ def run(args: argparse.Namespace) -> int:
         for name in {n for label in args.effects for n in label.split("+")} - drawable:
             raise FurnaceError(f"effect {name} has no `draw`: the selfcheck cannot make a "
                                "furnace with it at random (give its class a draw classmethod)")
-    labels = list(args.effects or ("none", *(n for n in effect_names() if n in drawable))) + \
+    return list(args.effects or ("none", *(n for n in effect_names() if n in drawable))) + \
         (list(EXTRA) if args.all else [])
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..selfcheck import check
+
+    labels = labels_of(args)
     outcomes: list[Outcome] = []
 
     def progress(o):
@@ -85,11 +91,11 @@ def run(args: argparse.Namespace) -> int:
         # A full check takes hours: stopping it must not throw away the cases diagnosed.
         if not outcomes:
             raise
-        _report(args, outcomes, complete=False)
+        report(args, outcomes, complete=False)
         print(f"selfcheck: interrupted after {len(outcomes)} case(s); the table and --json "
               "hold those only", file=sys.stderr)
         return 130
-    rows = _report(args, outcomes, complete=True)
+    rows = report(args, outcomes, complete=True)
     failed = [r.label for r in rows if not r.passed]
     if failed:
         print(f"selfcheck: acceptance missed for {', '.join(failed)}", file=sys.stderr)
@@ -97,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool) -> list[Row]:
+def report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool) -> list[Row]:
     """Print the table and write --json; the rows, for the acceptance."""
     from ..selfcheck import summarize, table
 

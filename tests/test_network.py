@@ -191,7 +191,9 @@ def test_effects_extend_the_paper_furnace_only():
 
 
 def test_six_zone_fit_recovers_the_parameters(six_run):
-    """Every parameter within 2% of the truth and inside its 95% interval."""
+    """Every parameter within 2% of the truth, or, where this record determines it less
+    well, within its interval's reach: the truth inside the interval is the coverage test's
+    claim (below), over many draws, not this one's."""
     sc, path = six_run
     exp = load_experiment(path, furnace=sc.furnace)
     start = equation_error(sc.furnace, [exp])
@@ -199,9 +201,9 @@ def test_six_zone_fit_recovers_the_parameters(six_run):
     res = fit([exp], sc.structure(), zone_offsets=True)
     assert res.undetermined == [] and res.stop_reason == "converged"
     for name, truth in sc.params.items():
-        assert res.params[name] == pytest.approx(truth, rel=0.02), name
         lo, hi = res.ci95[name]
-        assert lo <= truth <= hi, name
+        reach = max(0.02, (hi - lo) / truth)
+        assert res.params[name] == pytest.approx(truth, rel=reach), name
     assert set(res.per_zone) == set(sc.furnace.zones)
     doc = res.to_json([str(path)])
     assert doc["model"] == "network-six-zone" and doc["furnace"] == "six-zone"
@@ -245,3 +247,27 @@ def test_simulate_fit_validate_with_furnace_end_to_end(tmp_path, capsys, monkeyp
     code, _, err = cli(capsys, "simulate", "--scenario", str(SIX_SCENARIO), "--furnace",
                        "config/furnaces/paper.yaml", "--out", str(tmp_path / "x.csv"))
     assert code == 2 and ": furnace: the scenario is of furnace 'six-zone'" in err
+
+
+def test_six_zone_intervals_hold_the_truth_as_often_as_they_say():
+    """Over 100 noise draws of the six-zone heat-up, each of the 22 parameters' 95%
+    intervals holds the truth in 90-99% of them (a 100-draw binomial at 95% falls outside
+    that band with probability under 3% per parameter), and every parameter's median error
+    is inside 2% (the worst, the preheating zones' exchange, about 1.1%). One draw holding all 22 would be luck: 0.95**22 is about a third."""
+    sc = load_scenario(SIX_SCENARIO)
+    start = {k: v * 1.05 for k, v in sc.params.items()}
+    inside = {k: 0 for k in sc.params}
+    errors = {k: [] for k in sc.params}
+    draws = 100
+    for seed in range(7000, 7000 + draws):
+        exp = Plant.from_scenario(sc, seed=seed).run_scenario(sc).to_experiment()
+        res = fit([exp], sc.structure(), zone_offsets=True, init=start)
+        for k, truth in sc.params.items():
+            lo, hi = res.ci95[k]
+            inside[k] += lo <= truth <= hi
+            errors[k].append(abs(res.params[k] / truth - 1))
+    cover = {k: n / draws for k, n in inside.items()}
+    bad = {k: v for k, v in cover.items() if not 0.90 <= v <= 0.99}
+    assert not bad, f"coverage outside 90-99%: {bad} (all: {cover})"
+    typical = {k: float(np.median(v)) for k, v in errors.items()}
+    assert max(typical.values()) < 0.02, typical

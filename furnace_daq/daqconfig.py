@@ -15,6 +15,7 @@ import pandas as pd
 from furnace_model.config import Node, load_yaml
 from furnace_model.errors import ConfigError
 from furnace_model.furnace import FURNACES_DIR, PAPER, Furnace, load_furnace
+from furnace_model.network import parameter_names
 
 from .liveview import LiveViewConfig
 from .registers import (
@@ -590,6 +591,13 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
         write_back=parse_write_back(root.child("write_back", None)),
         device_list=device_list, live_view=_live_view(root.child("live_view", {})),
         document=root.value, furnace=furnace)
+    if config.write_back is not None:
+        names = parameter_names(furnace)
+        for point in config.write_back.points:
+            if point.name not in names:
+                raise ConfigError(root.file, f"write_back.params.{point.name}",
+                                  f"not a parameter of the model of furnace '{furnace.name}' "
+                                  f"(its parameters: {', '.join(names)})")
     if config.write_back is not None and plc.transport != "tcp":
         raise root.child("write_back").error(
             f"writes to the first device, {plc.name}, over Modbus TCP; its transport is "

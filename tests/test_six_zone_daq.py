@@ -119,6 +119,9 @@ def _drop(d: dict, *path: str) -> dict:
     (lambda d: d["burners"]["can"].update(heat={"id": 0x181, "start_bit": 0}),
      "burners.can.heat", "has no zone 'heat'"),
     (lambda d: d.update(furnace="nowhere.yaml"), "furnace", "no furnace description"),
+    (lambda d: d.update(write_back={"enabled": True, "allow": [[100, 101]],
+                                    "params": {"a": {"address": 100}}}),
+     "write_back.params.a", "not a parameter of the model of furnace 'six-zone'"),
     (lambda d: _drop(d, "furnace"), "thermocouples.soak_top_1",
      "furnace 'paper' has no thermocouple 'soak_top_1'"),
 ])

@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import asyncio
 import json
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from daq_processes import start_daemon
+from daq_processes import start_daemon, start_simplc, stop
 from logcheck import check_files
+from test_mbpoll import mbpoll
 
 from furnace_daq.daqconfig import RefitConfig, load_config, parse_config
 from furnace_daq.gatewayconfig import gateway_yaml
@@ -346,3 +348,28 @@ def test_live_refits_of_the_six_zone_furnace_equal_their_replay(tmp_path):
                 assert g[p] == pytest.approx(w[p], rel=1e-6), (w["window_end"], p)
     counts, problems = check_files([tmp_path / "replay.mcap"])
     assert problems == [] and counts[MODEL_PARAMETERS] == len(got)
+
+
+@pytest.mark.skipif(shutil.which("mbpoll") is None,
+                    reason="mbpoll not installed (make system-deps)")
+def test_mbpoll_reads_the_six_zone_map(tmp_path):
+    """A Modbus master we did not write reads the derived map as documented."""
+    path = quiet_scenario(tmp_path)
+    scenario = load_scenario(path)
+    proc, port = start_simplc("--scenario", str(path), "--furnace", str(SIX_FILE),
+                              "--speed", "60")
+    try:
+        regs = mbpoll(port, "-t", "3", "-r", "1", "-c", "15")     # FC4
+        burners = mbpoll(port, "-t", "1", "-r", "1", "-c", "30")  # FC2
+    finally:
+        assert stop(proc) == 0
+    seconds = (regs[12] << 16) | regs[13]  # UINT32, high word first, at n+1
+    assert 0 <= seconds < 5 * 60 and regs[14] > 0
+    run = Plant.from_scenario(scenario).run(scenario.inputs(), np.array([seconds / 60.0]),
+                                            scenario.initial_c)
+    np.testing.assert_array_equal(regs[:11], np.round(run.tc[0] * 10).astype(int))
+    assert regs[11] == round(scenario.t_air_c * 10)
+    # the first step: soak_top 2, soak_bottom 2, heat_top 4, heat_bottom 0, preheat_top 0,
+    # preheat_bottom 1 (of 6/4/8/6/4/2), the first burners of each zone firing
+    assert burners == [1, 1, 0, 0, 0, 0] + [1, 1, 0, 0] + [1] * 4 + [0] * 4 + [0] * 6 \
+        + [0] * 4 + [1, 0]

@@ -23,8 +23,9 @@ system-deps:
 	    $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$tool >/dev/null; }; \
 	done
 
+# `make demo FURNACE=config/furnaces/six-zone.yaml`: the same chain on another furnace.
 demo: $(STAMP)
-	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo
+	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo$(if $(FURNACE), --furnace $(FURNACE))
 
 # Two workers (pytest-xdist), one per core of the 2-core target; a test module stays on one
 # worker, so its module-wide fixtures (a live daemon run, a fitted record) are built once.

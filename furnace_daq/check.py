@@ -14,8 +14,6 @@ import asyncio
 import time
 from dataclasses import dataclass, field
 
-from furnace_model import BURNERS_PER_ZONE, ZONES
-
 from .daqconfig import DaqConfig, PlcConfig
 from .registers import BIT_TABLES, COMM_ERROR, OK, BitRange, Image, Point, ReadRequest, span
 from .sources import CanSource, ModbusSource, SourceError, exception_text
@@ -168,15 +166,15 @@ async def check_can(config: DaqConfig, report: CheckReport) -> None:
     try:
         await source.connect()
         deadline = time.monotonic() + can_cfg.timeout_s
-        while time.monotonic() < deadline and not all(source.latest(z) for z in ZONES):
+        while time.monotonic() < deadline and not all(source.latest(z) for z in can_cfg.frames):
             await asyncio.sleep(0.02)
         report.devices.append((device, f"open, {source.frames} frame(s) heard"))
     except SourceError as exc:
         error = str(exc)
         report.devices.append((device, error))
     try:
-        for i, zone in enumerate(ZONES):
-            frame, n = can_cfg.frames[zone], BURNERS_PER_ZONE[i]
+        for zone, frame in can_cfg.frames.items():
+            n = frame.burners
             row = PointCheck(f"burners.can.{zone}", f"CAN id 0x{frame.can_id:x} bits "
                                                     f"{frame.start_bit}-{frame.start_bit + n - 1}")
             data = source.last_data.get((frame.can_id, frame.extended))

@@ -49,7 +49,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Protocol
 
-from furnace_model import SENSORS, ZONES
 from furnace_model.logschema import (
     AMBIENT,
     BURNERS,
@@ -234,7 +233,7 @@ class Daemon:
         if config.refit is not None:
             self.refit = RefitRunner(config.refit, self._model_message,
                                      t_air_default=config.ambient_default_c,
-                                     max_queue=config.refit.queue_max)
+                                     max_queue=config.refit.queue_max, furnace=config.furnace)
         self._state_writer: ThreadPoolExecutor | None = None
         self._state_error: str | None = None  # set by the writer thread
         self._state_reported: str | None = None
@@ -409,7 +408,8 @@ class Daemon:
                 self._tell_sample(link, sample)
         elif failed:
             # no reading: the sensors' fields are absent (the schema has no null), quality says why
-            msg: dict = {"quality": {s: COMM_ERROR for s in SENSORS}, "error": "; ".join(missing)}
+            msg: dict = {"quality": {s: COMM_ERROR for s in self.config.furnace.sensors},
+                         "error": "; ".join(missing)}
             self._write(THERMOCOUPLES, msg, log_ns, log_ns)
         for link, reason, kind in failed:
             if link.consecutive_errors >= link.device.max_consecutive_errors:
@@ -458,7 +458,7 @@ class Daemon:
             out.refused.update(s.refused)
         out.errors += missing
         if self.config.burner_source in ("modbus", "both"):
-            if all(z in burners for z in ZONES):
+            if all(z in burners for z in self.config.furnace.zones):
                 out.burners = burners
             else:
                 burner_quality = COMM_ERROR
@@ -565,8 +565,9 @@ class Daemon:
         pub = self._publish_ns(sample, log_ns)
         quality = sample.quality  # each device's staleness is in its qualities already (_merge)
         # a reading that is not there is left out: the schema declares numbers, never null
-        tc: dict = {s: v for s in SENSORS if (v := sample.values.get(s)) is not None}
-        tc["quality"] = {s: quality.get(s, COMM_ERROR) for s in SENSORS}
+        sensors = self.config.furnace.sensors
+        tc: dict = {s: v for s in sensors if (v := sample.values.get(s)) is not None}
+        tc["quality"] = {s: quality.get(s, COMM_ERROR) for s in sensors}
         stamp: dict = {}
         if sample.plc_seconds is not None:
             tc["plc_seconds"] = sample.plc_seconds
@@ -585,11 +586,11 @@ class Daemon:
         if sample.burners is not None:
             self._write(BURNERS, {**self._burner_message(sample, "modbus"), **stamp}, log_ns, pub)
 
-    @staticmethod
-    def _burner_message(sample: Sample, source: str) -> dict:
+    def _burner_message(self, sample: Sample, source: str) -> dict:
         assert sample.burners is not None
-        msg: dict = {z: sample.burners[z] for z in ZONES}
-        msg.update({f"count_{z}": sum(sample.burners[z]) for z in ZONES})
+        zones = self.config.furnace.zones
+        msg: dict = {z: sample.burners[z] for z in zones}
+        msg.update({f"count_{z}": sum(sample.burners[z]) for z in zones})
         msg["source"] = source
         msg["quality"] = sample.burner_quality
         return msg
@@ -601,7 +602,7 @@ class Daemon:
         if plc.burners is None or flame.burners is None or plc.burner_quality != OK \
                 or flame.burner_quality != OK:
             return
-        diff = frozenset(f"{z}[{i}]" for z in ZONES
+        diff = frozenset(f"{z}[{i}]" for z in self.config.furnace.zones
                          for i, (a, b) in enumerate(zip(plc.burners[z], flame.burners[z],
                                                         strict=True)) if a != b)
         seen, n = self._disagree

@@ -12,9 +12,10 @@ from typing import Any
 
 import pandas as pd
 
-from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
 from furnace_model.config import Node, load_yaml
 from furnace_model.errors import ConfigError
+from furnace_model.furnace import FURNACES_DIR, PAPER, Furnace, load_furnace
+from furnace_model.network import parameter_names
 
 from .liveview import LiveViewConfig
 from .registers import (
@@ -131,6 +132,8 @@ class CanFrame:
     can_id: int
     start_bit: int
     extended: bool = False
+    burners: int = 0
+    """The zone's burners: bits start_bit .. start_bit + burners - 1."""
 
 
 @dataclass(frozen=True)
@@ -140,6 +143,7 @@ class CanConfig:
     bitrate: int | None = None
     timeout_s: float = 3.0
     frames: dict[str, CanFrame] = field(default_factory=dict)
+    """Per zone, in the furnace's zone order."""
 
 
 @dataclass(frozen=True)
@@ -206,6 +210,9 @@ class DaqConfig:
     document: Any = field(default=None, repr=False, compare=False)
     """The YAML mapping this config was read from: recorded in each log, so that the log
     alone rebuilds it (`sim-plc --from-log` serves its register map)."""
+    furnace: Furnace = PAPER
+    """The furnace the map reads (`furnace:`, default the paper's): its thermocouples and
+    zones are the map's keys, the log's fields and the refit's model."""
 
     @property
     def devices(self) -> tuple[PlcConfig, ...]:
@@ -237,7 +244,7 @@ class DaqConfig:
         `furnace-daq check` name the key an engineer edits."""
         where = {p.name: f"thermocouples.{p.name}" for p in self.thermocouples}
         where.update(t_air="ambient", clock="clock", heartbeat="heartbeat")
-        where.update({z: f"burners.modbus.{z}" for z in ZONES})
+        where.update({z: f"burners.modbus.{z}" for z in self.furnace.zones})
         return where
 
 
@@ -311,17 +318,43 @@ def _bits(node: Node, zone: str, n: int, devices: tuple[str, ...] = ()) -> BitRa
                     node.get_bool("invert", False), bit, _device_of(node, devices))
 
 
-def _can(node: Node) -> CanConfig:
-    node.mapping({"interface", "channel", "bitrate", "timeout_s", *ZONES})
+def _exact_keys(node: Node, names: tuple[str, ...], what: str, furnace: Furnace,
+                required: bool = True, also: tuple[str, ...] = ()) -> Node:
+    """A mapping whose keys are the furnace's `names` (thermocouples or zones), besides the
+    settings `also`: a key the furnace does not have, or one of its own left out, names the
+    key path and the furnace."""
+    node.mapping()
+    for key in node.value:
+        if key not in names and key not in also:
+            settings = f"; settings: {', '.join(also)}" if also else ""
+            raise ConfigError(node.file, node._sub(key),
+                              f"unknown key: furnace '{furnace.name}' has no {what} '{key}' "
+                              f"(its {what}s: {', '.join(names)}{settings})")
+    if required:
+        for key in names:
+            if key not in node.value:
+                raise ConfigError(node.file, node._sub(key),
+                                  f"required key is missing: {what} '{key}' of furnace "
+                                  f"'{furnace.name}'")
+    return node
+
+
+def _can(node: Node, furnace: Furnace = PAPER) -> CanConfig:
+    _exact_keys(node, furnace.zones, "zone", furnace, required=False,
+                also=("interface", "channel", "bitrate", "timeout_s"))
     frames = {}
-    defaults = {"soak": 0, "heat": 10, "preheat": 18}
-    for i, zone in enumerate(ZONES):
-        f = node.child(zone, {"id": 0x180, "start_bit": defaults[zone]}).mapping(
+    for i, zone in enumerate(furnace.zones):
+        # default: one frame, the zones' burners in order (CONTRACTS.md: soak 0, heat 10, ...)
+        default_start = sum(furnace.burners[:i])
+        f = node.child(zone, {"id": 0x180, "start_bit": default_start}).mapping(
             {"id", "start_bit", "extended"})
         extended = f.get_bool("extended", False)
         can_id = f.get_integer("id", lo=0, hi=0x1FFFFFFF if extended else 0x7FF)
-        start = f.get_integer("start_bit", lo=0, hi=64 - BURNERS_PER_ZONE[i])
-        frames[zone] = CanFrame(can_id, start, extended)
+        if furnace.burners[i] > 64:
+            raise f.error(f"the {zone} zone's {furnace.burners[i]} burners do not fit in one "
+                          "CAN frame (64 bits)")
+        start = f.get_integer("start_bit", lo=0, hi=64 - furnace.burners[i])
+        frames[zone] = CanFrame(can_id, start, extended, furnace.burners[i])
     bitrate = node.child("bitrate", None)
     return CanConfig(interface=node.get_string("interface", "virtual"),
                      channel=str(node.get_string("channel", "furnace")),
@@ -406,6 +439,24 @@ def load_config(path: str | Path) -> DaqConfig:
     return parse_config(load_yaml(path))
 
 
+def config_furnace(root: Node) -> Furnace:
+    """The furnace a config's `furnace:` key names: a description file relative to the
+    config's directory, then to the working directory, then a name in config/furnaces/
+    (`six-zone`); the paper's when the key is absent."""
+    if not root.has("furnace"):
+        return PAPER
+    node = root.child("furnace")
+    text = node.string()
+    here = Path(root.file).parent if root.file and not root.file.startswith("<") else None
+    candidates = [here / text] if here is not None else []
+    candidates += [Path(text), FURNACES_DIR / text, FURNACES_DIR / f"{text}.yaml"]
+    for candidate in candidates:
+        if candidate.is_file():
+            return load_furnace(candidate)
+    raise node.error(f"no furnace description '{text}' (a YAML file relative to the config's "
+                     f"directory or the working directory, or a name in {FURNACES_DIR})")
+
+
 PLC_KEYS = {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
             "max_consecutive_errors", "reconnect"}
 DEVICE_KEYS = PLC_KEYS | {"name", "transport", "serial", "workarounds"}
@@ -479,17 +530,30 @@ def _devices(root: Node) -> tuple[PlcConfig, ...]:
     return tuple(out)
 
 
-def parse_config(root: Node) -> DaqConfig:
+def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
+    """A daemon config from its YAML. `furnace`: the description to hold the map against
+    instead of the one `furnace:` names (a log's recorded config: the log carries the
+    description itself, and the path may not resolve where the log is read)."""
     root.mapping({"plc", "devices", "poll_period_s", "thermocouples", "ambient",
                   "ambient_default_c", "clock", "heartbeat", "stale_after_s", "burners",
                   "status_interval_s", "stderr_interval_s", "log", "refit", "write_back",
-                  "live_view"})
+                  "live_view", "furnace"})
+    if furnace is None:
+        furnace = config_furnace(root)
+    elif root.has("furnace"):
+        root.get_string("furnace")
     device_list = _devices(root)
     plc = device_list[0] if device_list else _device(root.child("plc", {}).mapping(PLC_KEYS))
     names = tuple(d.name for d in device_list)
 
-    tc_node = root.child("thermocouples").mapping(SENSORS)
-    thermocouples = tuple(_point(tc_node.child(s), s, devices=names) for s in SENSORS)
+    sensors = furnace.sensors
+    tc_node = _exact_keys(root.child("thermocouples"), sensors, "thermocouple", furnace)
+    clash = {"t_air", "clock", "heartbeat"} & {*furnace.zones, *sensors}
+    if clash:
+        raise root.child("furnace", "").error(
+            f"furnace '{furnace.name}' names a zone or thermocouple {', '.join(sorted(clash))}, "
+            "which the map uses for its own points; rename it in the description")
+    thermocouples = tuple(_point(tc_node.child(s), s, devices=names) for s in sensors)
     ambient = _point(root.child("ambient"), "t_air", devices=names) if root.has("ambient") \
         else None
     clock = None
@@ -506,10 +570,11 @@ def parse_config(root: Node) -> DaqConfig:
     bits: tuple[BitRange, ...] = ()
     # A block the chosen source does not use is still checked: a typo there would bite later.
     if source in ("modbus", "both") or bn.has("modbus"):
-        mb = bn.child("modbus").mapping(ZONES)
-        bits = tuple(_bits(mb.child(z), z, BURNERS_PER_ZONE[i], names)
-                     for i, z in enumerate(ZONES))
-    can = _can(bn.child("can")) if source in ("can", "both") or bn.has("can") else None
+        mb = _exact_keys(bn.child("modbus"), furnace.zones, "zone", furnace)
+        bits = tuple(_bits(mb.child(z), z, furnace.burners[i], names)
+                     for i, z in enumerate(furnace.zones))
+    can = _can(bn.child("can"), furnace) if source in ("can", "both") or bn.has("can") \
+        else None
 
     poll = root.get_number("poll_period_s", 1.0, lo=0.01, hi=3600.0)
     config = DaqConfig(
@@ -525,7 +590,14 @@ def parse_config(root: Node) -> DaqConfig:
         refit=parse_refit(root.child("refit")) if root.has("refit") else None,
         write_back=parse_write_back(root.child("write_back", None)),
         device_list=device_list, live_view=_live_view(root.child("live_view", {})),
-        document=root.value)
+        document=root.value, furnace=furnace)
+    if config.write_back is not None:
+        names = parameter_names(furnace)
+        for point in config.write_back.points:
+            if point.name not in names:
+                raise ConfigError(root.file, f"write_back.params.{point.name}",
+                                  f"not a parameter of the model of furnace '{furnace.name}' "
+                                  f"(its parameters: {', '.join(names)})")
     if config.write_back is not None and plc.transport != "tcp":
         raise root.child("write_back").error(
             f"writes to the first device, {plc.name}, over Modbus TCP; its transport is "

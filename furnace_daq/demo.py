@@ -7,6 +7,12 @@ window of the PLC clock, in its worker process, as on a gateway. The terminal fo
 simulated time, the logged temperatures and burners, and each refit. At the end the last
 online model is printed next to the simulator's truth and next to one fit of the whole run
 from the exported log, with what 1-minute data do and do not determine.
+
+Another furnace: `--furnace F` (`make demo FURNACE=F`) runs the same chain on the furnace
+description F: a scenario of that furnace from config/scenarios/ (or `--scenario`), the
+default register map derived from F served by the simulated PLC and read by the daemon
+(a config written by `furnace-daq config` unless `--config` is given), and the furnace's
+thermal network identified online and from the export.
 """
 
 from __future__ import annotations
@@ -25,12 +31,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from furnace_model import SENSORS, ZONES
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import experiment_from_frame, write_table
 from furnace_model.fit import FitResult, Model, fit
+from furnace_model.furnace import PAPER, Furnace, load_furnace
 from furnace_model.logresample import resample_logs
-from furnace_model.logschema import BURNERS, PARAM_NAMES, THERMOCOUPLES
+from furnace_model.logschema import BURNERS, THERMOCOUPLES, param_names
 from furnace_model.scenario import Scenario, load_scenario
 from furnace_model.structure import ModelStructure
 
@@ -42,12 +48,16 @@ from .mcaplog import LogWriter
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SCENARIO = ROOT / "config" / "scenarios" / "paper_exp1.yaml"
 DEFAULT_CONFIG = ROOT / "config" / "gateway.yaml"
+SCENARIOS = ROOT / "config" / "scenarios"
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="furnace-demo", description=__doc__)
-    ap.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO)
-    ap.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
+    ap.add_argument("--furnace", type=Path,
+                    help="furnace description (default the paper's furnace); the scenario "
+                         "and the register map are then that furnace's")
+    ap.add_argument("--scenario", type=Path)
+    ap.add_argument("--config", type=Path)
     ap.add_argument("--out", type=Path, default=Path("out/demo"))
     ap.add_argument("--speed", type=float, default=5000.0,
                     help="simulated seconds per wall second (default 5000)")
@@ -73,12 +83,48 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def _of_furnace(args: argparse.Namespace) -> Furnace:
+    """Fill in --scenario and --config for the furnace asked for: the paper's defaults, or a
+    scenario of that furnace from config/scenarios/ and its derived map's config."""
+    furnace = PAPER if args.furnace is None else load_furnace(args.furnace)
+    if args.scenario is None:
+        if furnace == PAPER:
+            args.scenario = DEFAULT_SCENARIO
+        else:
+            mine = [p for p in sorted(SCENARIOS.glob("*.yaml"))
+                    if "furnace" in p.read_text(encoding="utf-8")
+                    and _scenario_furnace(p) == furnace]
+            if not mine:
+                raise FurnaceError(f"no scenario of furnace '{furnace.name}' in {SCENARIOS}: "
+                                   "give --scenario")
+            args.scenario = mine[0]
+    if args.config is None:
+        if furnace == PAPER:
+            args.config = DEFAULT_CONFIG
+        else:
+            from .gatewayconfig import gateway_yaml
+
+            args.out.mkdir(parents=True, exist_ok=True)
+            args.config = args.out / "gateway.yaml"
+            args.config.write_text(gateway_yaml(furnace, str(args.furnace.resolve())))
+    return furnace
+
+
+def _scenario_furnace(path: Path) -> Furnace | None:
+    try:
+        return load_scenario(path).furnace
+    except FurnaceError:
+        return None
+
+
 def run(args: argparse.Namespace) -> int:
     if not (args.speed > 0 and args.every > 0 and args.polls_per_minute > 0):
         raise FurnaceError("--speed, --polls-per-minute and --every must be positive")
-    scenario = load_scenario(args.scenario)
+    furnace = _of_furnace(args)
+    scenario = load_scenario(args.scenario, furnace)
     log_dir = args.out / "logs"
-    for old in [*log_dir.glob("*.mcap*"), args.out / "state" / "model.json"]:
+    for old in [*log_dir.glob("*.mcap*"), args.out / "state" / "model.json",
+                args.out / "state" / "refit_chain.json"]:
         old.unlink(missing_ok=True)  # a previous run's results must not pass for this one's
     print(f"1. Simulated PLC: {scenario.name}: {scenario.description}")
     steps = ", ".join(f"{int(n.sum())} from {t / 60:g} h"
@@ -93,9 +139,10 @@ def run(args: argparse.Namespace) -> int:
     frame = resample_logs(logs, period_s=60.0)
     data = args.out / f"{scenario.name}.csv"
     write_table(frame, data)
-    exp = experiment_from_frame(frame, str(data))
+    exp = experiment_from_frame(frame, str(data), furnace=furnace)
     t0 = time.perf_counter()
-    whole = fit([exp], method="fast", seed=args.seed, zone_offsets=True)
+    whole = fit([exp], ModelStructure(furnace=furnace), method="fast", seed=args.seed,
+                zone_offsets=True)
     print(f"   {len(exp)} one-minute rows -> {data}; fitted in {time.perf_counter() - t0:.2f} s")
     out_json = args.out / "fit.json"
     out_json.write_text(json.dumps(whole.to_json([str(data)]), indent=2))
@@ -114,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     from furnace_model.plots import plot_fit  # matplotlib: not for the refit worker's import
 
     label = f"online model of {_hours(last['window_end'], start)} h"
-    online = Model(ModelStructure(), {p: last[p] for p in PARAM_NAMES})
+    online = Model(ModelStructure(furnace=furnace), {p: last[p] for p in param_names(furnace)})
     plots = plot_fit(exp, online.predict(exp), args.out, label)
     plots.append(plot_refits(good, scenario, args.out / "refits.png"))
     print(f"\n   MCAP log:   {', '.join(map(str, logs))}")
@@ -154,10 +201,12 @@ class _Tap:
 async def _start_plc(args: argparse.Namespace, scan_s: float
                      ) -> tuple[asyncio.subprocess.Process, int]:
     """`furnace-daq sim-plc` in its own process, as the PLC is its own device on a plant."""
+    furnace = [] if args.furnace is None else ["--furnace", str(args.furnace)]
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "furnace_daq.cli", "sim-plc", "--scenario", str(args.scenario),
-        "--speed", f"{args.speed:g}", "--seed", str(args.seed), "--scan-s", f"{scan_s:g}",
-        "--port", "0", stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+        *furnace, "--speed", f"{args.speed:g}", "--seed", str(args.seed), "--scan-s",
+        f"{scan_s:g}", "--port", "0", stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE)
     try:
         line = (await asyncio.wait_for(proc.stdout.readline(), 60.0)).decode()
     except TimeoutError:
@@ -200,14 +249,17 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
           f"({60 / args.polls_per_minute:g} simulated seconds), logging MCAP to {log_dir}; "
           f"a refit of the last {args.refit_window_h:g} h every {args.refit_period_h:g} h "
           "of PLC time")
-    print(f"   {'PLC time':>7}  {'thermocouples, °C':^53}  burners")
-    print(f"   {'':7}  " + " ".join(f"{s:>8}" for s in SENSORS) + "  soak/heat/preheat")
+    zones = config.furnace.zones
+    columns = _columns(config.furnace)
+    what = "thermocouples, °C" if config.furnace == PAPER else "zone means, °C"
+    print(f"   {'PLC time':>7}  {what:^{9 * len(columns) - 1}}  burners")
+    print(f"   {'':7}  " + " ".join(f"{s:>8}" for s in columns) + "  " + "/".join(zones))
     duration = scenario.duration_min * 60.0 / args.speed + 3 * poll_s
 
     async def show() -> None:
         while True:
             await asyncio.sleep(args.every)
-            print(_progress_line(log.latest), flush=True)
+            print(_progress_line(log.latest, config.furnace), flush=True)
 
     shower = asyncio.create_task(show())
     try:
@@ -217,7 +269,7 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
         if plc.returncode is None:
             plc.terminate()
         await plc.wait()
-    print(_progress_line(log.latest))
+    print(_progress_line(log.latest, config.furnace))
     print(f"   {counters.ok_polls} of {counters.polls} polls answered, "
           f"{counters.skipped_ticks} ticks skipped; {len(refits)} refits, "
           f"{sum(m.get('status') == 'ok' for m in refits)} ok")
@@ -228,14 +280,27 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
     return refits
 
 
-def _progress_line(latest: dict[str, dict]) -> str:
+def _columns(furnace: Furnace) -> tuple[str, ...]:
+    """What the progress lines show: the paper's six thermocouples, or another furnace's
+    zones (the mean of each zone's readings: a dozen thermocouples do not fit a line)."""
+    return furnace.sensors if furnace == PAPER else furnace.zones
+
+
+def _progress_line(latest: dict[str, dict], furnace: Furnace = PAPER) -> str:
     tc, burners = latest.get(THERMOCOUPLES), latest.get(BURNERS)
     if tc is None:
         return "   (no reading yet)"
     hours = tc.get("plc_seconds", math.nan) / 3600.0
+    if furnace == PAPER:
+        values = [tc.get(s) for s in furnace.sensors]
+    else:
+        readings = np.array([v if isinstance(v, int | float) else np.nan
+                             for v in (tc.get(s) for s in furnace.sensors)], dtype=float)
+        values = [None if not np.isfinite(v) else float(v)
+                  for v in furnace.zone_means(readings[None, :])[0]]
     temps = " ".join(f"{v:8.1f}" if isinstance(v, int | float) else f"{'-':>8}"
-                     for v in (tc.get(s) for s in SENSORS))
-    fired = "/".join(str(burners[f"count_{z}"]) for z in ZONES) if burners else "?"
+                     for v in values)
+    fired = "/".join(str(burners[f"count_{z}"]) for z in furnace.zones) if burners else "?"
     return f"   {hours:5.1f} h  {temps}  {fired}"
 
 
@@ -250,15 +315,21 @@ def _refit_line(msg: dict, start: pd.Timestamp | None) -> str:
     status = msg.get("status")
     head = f"   refit of {window:>10}: {status}"
     if status != "ok":
-        kept = "previous model kept" if msg.get("a") is not None else "no model yet"
+        kept = "previous model kept" if msg.get("ci95") else "no model yet"
         return f"{head} ({msg.get('detail', '')}); {kept}"
+    names = list(msg["ci95"])  # the furnace's parameters: a..f for the paper's
     combos = msg.get("combinations") or {}
     named = [c for c in msg.get("determined_combinations") or () if c in combos]
-    params = " ".join(f"{c} {combos[c]['value']:.5g}" for c in named)
-    loose = [p for p in PARAM_NAMES if p not in named]
-    if loose:
-        params += "; not determined: " + " ".join(f"{p} {msg[p]:.3g}" for p in loose)
-    rmse = "/".join(f"{msg['rmse_c'][z]:.2f}" for z in ZONES)
+    loose = [p for p in names if p not in named]
+    if len(names) > 6:  # a network of many parameters: how many the window determines
+        params = f"{len(names) - len(loose)} of {len(names)} parameters determined"
+        if loose:
+            params += f" (not: {' '.join(loose)})"
+    else:
+        params = " ".join(f"{c} {combos[c]['value']:.5g}" for c in named)
+        if loose:
+            params += "; not determined: " + " ".join(f"{p} {msg[p]:.3g}" for p in loose)
+    rmse = "/".join(f"{v:.2f}" for v in msg["rmse_c"].values())
     took = f", {msg['elapsed_s']:.2f} s" if isinstance(msg.get("elapsed_s"), float) else ""
     return f"{head}: {params}; RMSE {rmse} °C{took}"
 
@@ -282,15 +353,18 @@ def combination_value(name: str, params: dict[str, float]) -> float:
 
 def _report(online: dict, whole: FitResult, scenario: Scenario) -> None:
     truth = scenario.values()
-    print(f"   {'':10}{'truth':>10}  {'last online refit':>28}  {'whole run':>28}")
+    names = param_names(scenario.furnace)
+    width = max(10, *(len(n) + 1 for n in names))
+    print(f"   {'':{width}}{'truth':>10}  {'last online refit':>28}  {'whole run':>28}")
     undetermined = set(online.get("undetermined") or ())
-    for name in PARAM_NAMES:
+    for name in names:
         lo, hi = online["ci95"][name]
         note = "  not determined alone (online)" if name in undetermined else ""
-        print(f"   {name:10}{truth[name]:10.5g}  {_cell(online[name], truth[name], lo, hi)}  "
+        print(f"   {name:{width}}{truth[name]:10.5g}  "
+              f"{_cell(online[name], truth[name], lo, hi)}  "
               f"{_cell(whole.params[name], truth[name], *whole.ci95[name])}{note}")
-    combos = [c for c in online.get("determined_combinations", []) if c not in PARAM_NAMES]
-    combos += [c for c in whole.determined_combinations if c not in PARAM_NAMES + tuple(combos)]
+    combos = [c for c in online.get("determined_combinations", []) if c not in names]
+    combos += [c for c in whole.determined_combinations if c not in names + tuple(combos)]
     if combos:
         print("   determined combinations:")
     for name in combos:
@@ -299,15 +373,17 @@ def _report(online: dict, whole: FitResult, scenario: Scenario) -> None:
         for combos_of in (online.get("combinations") or {}, whole.combinations):
             c = combos_of.get(name)
             cells.append(_cell(c["value"], want, *c["ci95"]) if c else f"{'-':>28}")
-        print(f"   {name:10}{want:10.5g}  {cells[0]}  {cells[1]}")
-    rmse = lambda m: "/".join(f"{m[z]:.2f}" for z in ZONES)  # noqa: E731
-    print(f"   {'RMSE, °C':10}{'':10}  {rmse(online['rmse_c']):>28}  "
-          f"{rmse({z: whole.per_zone[z]['rmse_c'] for z in ZONES}):>28}")
+        print(f"   {name:{width}}{want:10.5g}  {cells[0]}  {cells[1]}")
+    zones = scenario.furnace.zones
+    rmse = lambda m: "/".join(f"{m[z]:.2f}" for z in zones)  # noqa: E731
+    print(f"   {'RMSE, °C':{width}}{'':10}  {rmse(online['rmse_c']):>28}  "
+          f"{rmse({z: whole.per_zone[z]['rmse_c'] for z in zones}):>28}")
 
 
 def plot_refits(refits: list[dict], scenario: Scenario, path: Path) -> Path:
-    """Each fitted window's a, f, b/c and d/e against the truth, with 95% intervals: what the
-    online identification did over the run, on one page."""
+    """Each fitted window's a, f, b/c and d/e (another furnace's: its heats per burner)
+    against the truth, with 95% intervals: what the online identification did over the run,
+    on one page."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -318,15 +394,20 @@ def plot_refits(refits: list[dict], scenario: Scenario, path: Path) -> Path:
     ax = fig.subplots()
     ends = [float(_hours(m["window_end"], start)) if start is not None else k
             for k, m in enumerate(refits)]
-    for k, name in enumerate(("a", "f", "b/c", "d/e")):
+    furnace = scenario.furnace
+    shown = (("a", "f", "b/c", "d/e") if furnace.paper_structure
+             else tuple(p for p in param_names(furnace) if p.startswith("gain_")))
+    for k, name in enumerate(shown):
         want = combination_value(name, truth)
         x, y, err = [], [], []
         for end, m in zip(ends, refits, strict=True):
             c = (m.get("combinations") or {}).get(name)
+            if c is None and name in m.get("ci95", {}) and name in m:
+                c = {"value": m[name], "ci95": m["ci95"][name]}
             if c is None:
                 continue
             lo, hi = c["ci95"]
-            x.append(end + 0.25 * (k - 1.5))
+            x.append(end + 0.25 * (k - (len(shown) - 1) / 2))
             y.append(100 * (c["value"] / want - 1))
             err.append([100 * (c["value"] - lo) / want, 100 * (hi - c["value"]) / want])
         if x:

@@ -17,7 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from furnace_model.errors import FurnaceError
-from furnace_model.logschema import MESSAGE_ENCODING, SCHEMA_ENCODING, TOPICS, topic
+from furnace_model.furnace import PAPER, Furnace
+from furnace_model.logschema import MESSAGE_ENCODING, SCHEMA_ENCODING, topic, topics
 
 
 @dataclass(frozen=True)
@@ -32,8 +33,11 @@ class LiveViewConfig:
 class LiveView:
     """A running server and its channels, one per log topic."""
 
-    def __init__(self, config: LiveViewConfig, name: str = "furnace-daq", where: str = ""):
+    def __init__(self, config: LiveViewConfig, name: str = "furnace-daq", where: str = "",
+                 furnace: Furnace = PAPER):
         import foxglove
+
+        self.furnace = furnace
 
         self._foxglove = foxglove
         # A context of its own: the server sees only these channels, and nothing else in the
@@ -52,7 +56,7 @@ class LiveView:
                                f"{config.host}:{config.port}: {_reason(exc)}") from None
         self.host = config.host
         self.port = int(self._server.port)
-        for name_ in TOPICS:  # every topic of the contract, even one not yet written
+        for name_ in topics(furnace):  # every topic of the contract, even one not yet written
             self._channel(name_)
 
     @property
@@ -80,7 +84,7 @@ class LiveView:
     def _channel(self, name: str):
         channel = self._channels.get(name)
         if channel is None:
-            t = topic(name)
+            t = topic(name, self.furnace)
             schema = self._foxglove.Schema(name=t.schema_name, encoding=SCHEMA_ENCODING,
                                            data=t.schema_bytes())
             channel = self._foxglove.Channel(name, schema=schema,

@@ -11,23 +11,16 @@ from __future__ import annotations
 import dataclasses
 import json
 import socket
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
+from furnace_model.furnace import PAPER, Furnace
+from furnace_model.logread import METADATA_NAME, furnace_record, read_metadata, recorded_furnace
 
-METADATA_NAME = "furnace-daq"
+__all__ = ["METADATA_NAME", "build_metadata", "read_metadata", "recorded_furnace"]
 SECRET_WORDS = ("password", "secret", "token")
 """A config key containing one of these is left out of the recorded config."""
-
-
-def paper_furnace() -> dict:
-    """The paper's furnace as a plain mapping: what a log's readings belong to."""
-    return {"name": "paper-3zone",
-            "zones": [{"name": z, "burners": n,
-                       "thermocouples": [s for s in SENSORS if s.startswith(z + "_")]}
-                      for z, n in zip(ZONES, BURNERS_PER_ZONE, strict=True)]}
 
 
 def plain(value: Any) -> Any:
@@ -49,11 +42,12 @@ def plain(value: Any) -> Any:
     return str(value)
 
 
-def build_metadata(config: Any = None, *, furnace: Mapping | None = None,
+def build_metadata(config: Any = None, *, furnace: Furnace | None = None,
                    software_version: str | None = None,
                    host: str | None = None) -> dict[str, str]:
     """The record's key-value pairs for a daemon run with `config` (a DaqConfig, or None for
-    a writer without one)."""
+    a writer without one). `furnace`: the full description the readings belong to (default
+    the config's), from which every reader rebuilds the furnace."""
     if software_version is None:
         from furnace_model.cli.arguments import version
 
@@ -62,35 +56,18 @@ def build_metadata(config: Any = None, *, furnace: Mapping | None = None,
     settings = plain(config)
     if isinstance(settings, dict):
         settings.pop("document", None)  # recorded on its own, as written
+        settings.pop("furnace", None)  # recorded on its own, in full
+    if furnace is None:
+        furnace = getattr(config, "furnace", None) or PAPER
     return {
         "software_version": software_version,
-        "furnace": json.dumps(plain(furnace if furnace is not None else paper_furnace())),
+        "furnace": json.dumps(furnace_record(furnace)),
         "config": json.dumps(settings),
         "config_source": json.dumps(plain(getattr(config, "document", None))),
         "config_file": str(getattr(config, "file", "") or ""),
         "host": host if host is not None else socket.gethostname(),
         "refit": json.dumps(plain(refit)),
     }
-
-
-def read_metadata(paths: Iterable[str | Path]) -> dict[str, str] | None:
-    """The first `furnace-daq` metadata record found in `paths`, or None when none has one
-    (logs written before the record existed). The writer puts the record right after the
-    header, so only the front of each file is read, finished or cut alike."""
-    from mcap.records import Header, Metadata
-    from mcap.stream_reader import StreamReader
-
-    for path in paths:
-        try:
-            with open(path, "rb") as fh:
-                for record in StreamReader(fh, emit_chunks=True).records:
-                    if isinstance(record, Metadata) and record.name == METADATA_NAME:
-                        return dict(record.metadata)
-                    if not isinstance(record, Header | Metadata):
-                        break
-        except Exception:  # noqa: BLE001 - a cut or damaged file: try the next one
-            continue
-    return None
 
 
 def recorded_refit(metadata: Mapping[str, str] | None) -> dict | None:
@@ -136,4 +113,5 @@ def recorded_config(metadata: Mapping[str, str] | None, where: str) -> Any:
 
     from .daqconfig import parse_config
 
-    return parse_config(Node(document, f"{where} (recorded config)"))
+    return parse_config(Node(document, f"{where} (recorded config)"),
+                        furnace=recorded_furnace(metadata, where))

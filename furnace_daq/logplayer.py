@@ -12,6 +12,9 @@ failed in the recording (every quality `comm_error`) carry no PLC values and are
 values before them hold. Burner states are the PLC's (`source: modbus`) when the log has them,
 else the flame scanners' (`source: can`, time-stamped by the gateway clock and moved onto the
 PLC clock with the offset of the nearest thermocouple reading).
+
+Which furnace: the one the log's metadata record describes (the paper's for a log without
+one), so its thermocouples and burners are served in that furnace's order.
 """
 
 from __future__ import annotations
@@ -22,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
 from furnace_model.errors import DataError
-from furnace_model.logread import iso_time, read_messages
+from furnace_model.furnace import Furnace
+from furnace_model.logread import iso_time, log_furnace, read_messages
 from furnace_model.logschema import AMBIENT, BURNERS, THERMOCOUPLES
 
 from .registers import COMM_ERROR
-from .simplc import N_BURNERS, PlcValues, states_from_counts
+from .simplc import PlcValues, states_from_counts
 
 _NS = 1_000_000_000
 
@@ -41,7 +44,10 @@ class LogPlayer:
         self.paths = [Path(paths)] if isinstance(paths, str | Path) else [Path(p) for p in paths]
         self.loop = loop
         names = ", ".join(map(str, self.paths))
-        tc, air, burners = _read(self.paths, names)
+        files = sorted(f for p in self.paths for f in ([p] if not p.is_dir() else p.glob("*.mcap*")))
+        self.furnace = log_furnace(files, names)
+        """The furnace of the log, from its metadata record."""
+        tc, air, burners = _read(self.paths, names, self.furnace)
         if not tc:
             raise DataError(names, f"no thermocouple readings on {THERMOCOUPLES}: "
                                    "not a furnace acquisition log")
@@ -84,7 +90,7 @@ class LogPlayer:
         if self._burner_t.size:
             states = [bool(v) for v in self._burners[_held(self._burner_t, t)]]
         else:
-            states = [False] * N_BURNERS
+            states = [False] * sum(self.furnace.burners)
         return PlcValues([float(v) for v in tc], air, states)
 
 
@@ -102,7 +108,7 @@ def _series(records: list[tuple[int, list]], origin_ns: int) -> tuple[np.ndarray
             np.array([r[1] for r in records], dtype=float))
 
 
-def _read(paths: Iterable[Path], names: str) -> tuple[list, list, list]:
+def _read(paths: Iterable[Path], names: str, furnace: Furnace) -> tuple[list, list, list]:
     """(publish ns, values) per topic, failed polls left out; burner states of one source."""
     tc: list[tuple[int, list[float]]] = []
     tc_offsets: list[tuple[int, int]] = []  # (log ns, publish - log ns) of PLC readings
@@ -114,18 +120,18 @@ def _read(paths: Iterable[Path], names: str) -> tuple[list, list, list]:
         if topic == THERMOCOUPLES:
             quality = msg.get("quality")
             quality = quality if isinstance(quality, dict) else {}
-            if all(quality.get(s) == COMM_ERROR for s in SENSORS):
+            if all(quality.get(s) == COMM_ERROR for s in furnace.sensors):
                 continue
-            tc.append((pub_ns, [_number(msg.get(s)) for s in SENSORS]))
+            tc.append((pub_ns, [_number(msg.get(s)) for s in furnace.sensors]))
             tc_offsets.append((log_ns, pub_ns - log_ns))
         elif topic == AMBIENT:
             if msg.get("quality", "ok") == COMM_ERROR:
                 continue
             air.append((pub_ns, [_number(msg.get("t_air"))]))
         elif msg.get("source") == "can":
-            can_burners.append((log_ns, _states(msg, where)))
+            can_burners.append((log_ns, _states(msg, where, furnace)))
         else:
-            plc_burners.append((pub_ns, _states(msg, where)))
+            plc_burners.append((pub_ns, _states(msg, where, furnace)))
     burners = plc_burners
     if not burners and can_burners and tc_offsets:
         logs = np.array([t for t, _ in tc_offsets], dtype=np.int64)
@@ -135,15 +141,16 @@ def _read(paths: Iterable[Path], names: str) -> tuple[list, list, list]:
     return tc, air, burners
 
 
-def _states(msg: dict, where: str) -> list[bool]:
-    """The 26 flame states of a burner message (from the counts when the lists are absent)."""
-    lists = [msg.get(z) for z in ZONES]
+def _states(msg: dict, where: str, furnace: Furnace) -> list[bool]:
+    """The flame states of a burner message, zone after zone (from the counts when the lists
+    are absent)."""
+    lists = [msg.get(z) for z in furnace.zones]
     if all(isinstance(v, list) for v in lists) and \
-            [len(v) for v in lists] == list(BURNERS_PER_ZONE):
+            [len(v) for v in lists] == list(furnace.burners):
         return [bool(b) for v in lists for b in v]
-    counts = [msg.get(f"count_{z}") for z in ZONES]
+    counts = [msg.get(f"count_{z}") for z in furnace.zones]
     if all(isinstance(n, int) and not isinstance(n, bool) for n in counts):
-        return states_from_counts(np.array(counts))
+        return states_from_counts(np.array(counts), furnace)
     raise DataError(where, f"no burner states or counts in {msg}")
 
 

@@ -43,7 +43,8 @@ from typing import Any, BinaryIO, NamedTuple
 
 from mcap.writer import CompressionType, Writer
 
-from furnace_model.logread import PART_SUFFIX, iso_time
+from furnace_model.furnace import Furnace
+from furnace_model.logread import PART_SUFFIX, iso_time, recorded_furnace
 from furnace_model.logschema import (
     DAQ_EVENTS,
     DAQ_STATUS,
@@ -92,7 +93,8 @@ class LogWriter:
                  retention_files: int = 0, file_mode: int = 0o640,
                  max_buffered: int = 20000, retry_s: float = 5.0,
                  metadata: Mapping[str, str] | None = None,
-                 event_priority: Mapping[str, int] | None = None):
+                 event_priority: Mapping[str, int] | None = None,
+                 furnace: Furnace | None = None):
         if not re.fullmatch(r"[A-Za-z0-9_.-]+", prefix):
             raise ValueError(f"log file prefix {prefix!r}: use letters, digits, '_', '.', '-'")
         self.log_dir = Path(log_dir)
@@ -106,6 +108,10 @@ class LogWriter:
         self.retry_s = float(retry_s)
         self.metadata: dict[str, str] | None = None if metadata is None else dict(metadata)
         """The `furnace-daq` metadata record of every file opened from now on."""
+        self.furnace = furnace if furnace is not None \
+            else recorded_furnace(self.metadata, str(log_dir))
+        """The furnace the readings are of: the furnace topics' schemas list its fields. By
+        default the one the metadata record describes (the paper's without one)."""
         self.event_priority = dict(event_priority or {})
         """Journal (sd-daemon) priority of each event kind: the level of its /log line."""
         self.listeners: list[Callable[[str, bytes, int], None]] = []
@@ -218,7 +224,7 @@ class LogWriter:
             try:
                 channel = f.channels.get(rec.topic)
                 if channel is None:
-                    t = topic(rec.topic)
+                    t = topic(rec.topic, self.furnace)
                     schema_id = f.writer.register_schema(t.schema_name, SCHEMA_ENCODING,
                                                          t.schema_bytes())
                     channel = f.writer.register_channel(rec.topic, MESSAGE_ENCODING, schema_id)

@@ -13,14 +13,11 @@ from collections.abc import Iterator
 import numpy as np
 import pandas as pd
 
-from furnace_model import SENSORS, ZONES
 from furnace_model.logschema import AMBIENT, BURNERS, THERMOCOUPLES
 from furnace_model.plant import PlantRun
 
 from .mcaplog import LogWriter
-from .simplc import states_from_counts
-
-_ZONE_SPLIT = ((0, 10), (10, 18), (18, 26))
+from .simplc import states_from_counts, zone_slices
 
 
 def run_messages(run: PlantRun, start: pd.Timestamp | None = None
@@ -30,21 +27,24 @@ def run_messages(run: PlantRun, start: pd.Timestamp | None = None
     t0 = (start or run.start_time or pd.Timestamp("2026-01-01T00:00:00Z")).value
     pub = t0 + np.round(run.t_min * 60e9).astype(np.int64)
     tc = np.round(run.tc * 10.0) / 10.0
-    ok = {s: "ok" for s in SENSORS}
+    furnace = run.furnace
+    ok = {s: "ok" for s in furnace.sensors}
     last_counts = None
     burner_msg: dict = {}
     for i in range(run.t_min.size):
         t = int(pub[i])
-        msg: dict = dict(zip(SENSORS, tc[i].tolist(), strict=True))
+        msg: dict = dict(zip(furnace.sensors, tc[i].tolist(), strict=True))
         msg["quality"] = ok
         msg["plc_seconds"] = float(run.t_min[i] * 60.0)
         yield THERMOCOUPLES, msg, t
         yield AMBIENT, {"t_air": float(run.t_air[i]), "quality": "ok"}, t
         counts = tuple(int(n) for n in run.burners[i])
         if counts != last_counts:
-            states = states_from_counts(np.array(counts))
-            burner_msg = {z: states[a:b] for z, (a, b) in zip(ZONES, _ZONE_SPLIT, strict=True)}
-            burner_msg.update({f"count_{z}": n for z, n in zip(ZONES, counts, strict=True)})
+            states = states_from_counts(np.array(counts), furnace)
+            burner_msg = {z: states[k] for z, k in zip(furnace.zones, zone_slices(furnace),
+                                                       strict=True)}
+            burner_msg.update({f"count_{z}": n for z, n in zip(furnace.zones, counts,
+                                                               strict=True)})
             burner_msg.update(source="modbus", quality="ok")
             last_counts = counts
         yield BURNERS, burner_msg, t
@@ -52,7 +52,7 @@ def run_messages(run: PlantRun, start: pd.Timestamp | None = None
 
 def write_run(run: PlantRun, log: LogWriter, start: pd.Timestamp | None = None) -> int:
     """Log a run (log time = publish time, as a daemon whose PLC clock is the host's);
-    returns the number of messages written."""
+    returns the number of messages written. The writer must be of the run's furnace."""
     n = 0
     for topic, msg, t in run_messages(run, start):
         log.write(topic, msg, t, t)

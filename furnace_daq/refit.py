@@ -37,6 +37,13 @@ f's reference: outside its interval, beyond the two uncertainties combined and b
 twice `drift_min_change` (RECENT_MIN_CHANGE_FACTOR). `drift_windows` such refits in a row moving the same way raise one event
 (`basis: recent`) and move f's reference to the recent value. A span in which no burner fires
 is not judged (f is seen only with heat input), nor is one longer than the window.
+Only the paper's structure has this one heat per burner; another furnace's network is judged
+on its windows alone.
+
+Any furnace. The windows are of the furnace the daemon's config describes, and the model is
+its thermal network: /model/parameters carries the network's parameters (a..f for the
+paper's furnace, `k_`/`loss_`/`gain_` names for another, furnace_model.network), and drift
+is judged on each of them the same way.
 
 After a drift event no window that still holds data from before the end of the event's
 window is judged (nor counts), by either test: with windows much longer than the period, a change inside
@@ -55,12 +62,13 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 
-from furnace_model import ZONES
 from furnace_model.experiment import Experiment
 from furnace_model.fit import FitResult, fit
+from furnace_model.furnace import PAPER, Furnace
 from furnace_model.logread import iso_time
 from furnace_model.logresample import Resampler
-from furnace_model.logschema import AMBIENT, PARAM_NAMES, THERMOCOUPLES, absent
+from furnace_model.logschema import AMBIENT, THERMOCOUPLES, absent, param_names
+from furnace_model.structure import ModelStructure
 
 from .daqconfig import RefitConfig
 
@@ -96,8 +104,9 @@ class Window:
 
 def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
                t_air_default: float, name: str = "window") -> Window:
-    """The window's resampled rows as an experiment (None when no row has a burner state):
-    the rows `logs export` writes for the same span, burner-change rows included."""
+    """The window's resampled rows as an experiment of the resampler's furnace (None when no
+    row has a burner state): the rows `logs export` writes for the same span, burner-change
+    rows included."""
     rows = resampler.table(start_ns, end_ns)
     expected = int(round((end_ns - start_ns) / step_ns))
     if rows.t.size == 0:
@@ -106,7 +115,7 @@ def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
     air = pd.Series(rows.t_air).ffill().fillna(t_air_default).to_numpy()
     t0 = int(rows.t[0])
     exp = Experiment(name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
-                     pd.Timestamp(t0, unit="ns", tz="UTC"), name)
+                     pd.Timestamp(t0, unit="ns", tz="UTC"), name, resampler.furnace)
     complete = int((np.all(np.isfinite(exp.zone_temp), axis=1) & rows.reading).sum())
     return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps)
 
@@ -132,14 +141,17 @@ def run_fit(job: FitJob) -> dict:
 
     `polish` fits with zone offsets from `init` (the fast search when there is none); `ga`
     is the paper's search on the paper's criterion, which has no offsets (the GA holds them
-    at zero), so none are fitted or reported."""
+    at zero), so none are fitted or reported. The model is the experiment's furnace's
+    network (the paper's eq. 11 for its furnace)."""
     t0 = time.perf_counter()
+    furnace = job.experiment.furnace
+    structure = ModelStructure(furnace=furnace)
     if job.method == "ga":
-        res = fit([job.experiment], method="ga", population=job.population,
+        res = fit([job.experiment], structure, method="ga", population=job.population,
                   generations=job.generations, seed=FITTING_SEED, time_budget_s=job.budget_s)
     else:
-        res = fit([job.experiment], init=job.init, seed=FITTING_SEED, zone_offsets=True,
-                  time_budget_s=job.budget_s)
+        res = fit([job.experiment], structure, init=job.init, seed=FITTING_SEED,
+                  zone_offsets=True, time_budget_s=job.budget_s)
     over = any(w.startswith("time budget") for w in res.warnings)
     search = {"method": job.method, "warm_start": job.init is not None}
     if job.method == "ga":
@@ -150,13 +162,13 @@ def run_fit(job: FitJob) -> dict:
         "search": search,
         "params": dict(res.params),
         "ci95": {k: [float(v[0]), float(v[1])] for k, v in res.ci95.items()},
-        "rmse_c": {z: float(res.per_zone[z]["rmse_c"]) for z in ZONES},
+        "rmse_c": {z: float(res.per_zone[z]["rmse_c"]) for z in furnace.zones},
         "combinations": res.combinations,
         "determined_combinations": list(res.determined_combinations),
         "undetermined": list(res.undetermined),
         "zone_offsets_c": (res.zone_offsets_c or [None])[0],
         "sigma_c": float(res.sigma_c),
-        "recent": None if over or job.recent_from_min is None
+        "recent": None if over or job.recent_from_min is None or not furnace.paper_structure
         else recent_f(res, job.experiment, job.recent_from_min),
         "elapsed_s": time.perf_counter() - t0,
     }
@@ -207,6 +219,7 @@ class RefitChain:
 
     config: RefitConfig
     t_air_default: float = 30.0
+    furnace: Furnace = PAPER
     model: dict | None = None
     """The model in force: the last window fitted with status ok (its message)."""
     references: dict[str, _Reference] = field(default_factory=dict)
@@ -214,6 +227,11 @@ class RefitChain:
     """Window end of the last drift event: later windows that overlap it are not judged."""
     recent_streak: int = 0
     recent_direction: int = 0
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The parameters of the furnace's network, as /model/parameters carries them."""
+        return param_names(self.furnace)
 
     def state(self) -> dict:
         """What a restarted daemon needs to go on where this chain stopped: the model in force
@@ -234,13 +252,13 @@ class RefitChain:
             if model is not None and not (
                     isinstance(model, dict) and model.get("status") == "ok"
                     and all(isinstance(model.get(p), float | int) and model[p] > 0
-                            for p in PARAM_NAMES)
+                            for p in self.names)
                     and all(k in model for k in MODEL_KEYS)):
                 raise ValueError("its model is not a fitted /model/parameters message")
             refs = {p: _Reference(float(r["value"]), (float(r["ci95"][0]), float(r["ci95"][1])),
                                   str(r["window_end"]), bool(r["determined"]), int(r["streak"]),
                                   int(r["direction"]))
-                    for p, r in state["references"].items() if p in PARAM_NAMES}
+                    for p, r in state["references"].items() if p in self.names}
             quiet = state["quiet_until"]
             streak, direction = int(state["recent_streak"]), int(state["recent_direction"])
         except (KeyError, TypeError, IndexError, AttributeError) as exc:
@@ -269,7 +287,7 @@ class RefitChain:
         exp = window.experiment
         cfg = self.config
         init = None if self.model is None or cfg.method == "ga" \
-            else {p: self.model[p] for p in PARAM_NAMES}
+            else {p: self.model[p] for p in self.names}
         recent_ns = window.end_ns - int(round(RECENT_PERIODS * cfg.period_s * 1e9))
         t0 = exp.start_time.value if exp.start_time is not None else window.start_ns
         recent = (recent_ns - t0) / 60e9 if recent_ns > window.start_ns else None
@@ -304,7 +322,7 @@ class RefitChain:
         msg = self._base(window, status, detail)
         m = self.model
         if m is not None:  # before the first model a..f are absent (the schema has no null)
-            msg.update({p: m[p] for p in PARAM_NAMES})
+            msg.update({p: m[p] for p in self.names})
         msg["ci95"] = {} if m is None else m["ci95"]
         msg["rmse_c"] = {} if m is None else m["rmse_c"]
         if m is not None:
@@ -316,14 +334,14 @@ class RefitChain:
 
     def accept(self, window: Window, outcome: dict) -> tuple[dict, list[dict]]:
         """The worker's outcome for `window` -> (the /model/parameters message, events)."""
-        if outcome.get("status") != "ok" or not _finite(outcome):
+        if outcome.get("status") != "ok" or not _finite(outcome, self.names):
             detail = outcome.get("detail") or "the fit returned non-finite values"
             msg = self.kept(window, "failed", detail)
             msg.update(absent({"elapsed_s": outcome.get("elapsed_s"),
                                "search": outcome.get("search")}))
             return msg, []
         msg = self._base(window, "ok", outcome["detail"])
-        msg.update({p: outcome["params"][p] for p in PARAM_NAMES})
+        msg.update({p: outcome["params"][p] for p in self.names})
         msg.update(absent({k: outcome[k] for k in ("ci95", "rmse_c", "combinations",
                                                    "determined_combinations", "undetermined",
                                                    "zone_offsets_c", "sigma_c", "elapsed_s",
@@ -342,7 +360,7 @@ class RefitChain:
         events: list[dict] = []
         if self.quiet_until is not None and msg["window_start"] < self.quiet_until:
             return events  # still holds data from before the last event: see module doc
-        for p in PARAM_NAMES:
+        for p in self.names:
             new, (lo, hi) = float(msg[p]), msg["ci95"][p]
             determined = p not in msg["undetermined"]
             ref = self.references.get(p)
@@ -450,9 +468,9 @@ def _moved(ref: _Reference, new: float, ci: tuple[float, float], min_change: flo
     return 1 if distance > 0 else -1
 
 
-def _finite(outcome: dict) -> bool:
-    values = [outcome["params"][p] for p in PARAM_NAMES]
-    values += [v for p in PARAM_NAMES for v in outcome["ci95"][p]]
+def _finite(outcome: dict, names: tuple[str, ...]) -> bool:
+    values = [outcome["params"][p] for p in names]
+    values += [v for p in names for v in outcome["ci95"][p]]
     return all(isinstance(v, float | int) and math.isfinite(v) and v > 0 for v in values)
 
 
@@ -467,6 +485,7 @@ class WindowCutter:
 
     config: RefitConfig
     t_air_default: float = 30.0
+    furnace: Furnace = PAPER
     resampler: Resampler = field(init=False)
     next_due_ns: int | None = None
     _last_ns: int | None = None
@@ -475,7 +494,7 @@ class WindowCutter:
         self.step_ns = int(round(self.config.step_s * 1e9))
         self.period_ns = int(round(self.config.period_s * 1e9))
         self.window_ns = int(round(self.config.window_s * 1e9))
-        self.resampler = Resampler(self.step_ns, 0)
+        self.resampler = Resampler(self.step_ns, 0, self.furnace)
 
     def feed(self, topic: str, msg: dict, pub_ns: int) -> list[Window]:
         """Only readings move the data clock: a failed poll is stamped with the host's time
@@ -488,7 +507,7 @@ class WindowCutter:
         if self._last_ns is not None and pub_ns < self._last_ns - self.window_ns:
             # The data clock went back by more than a window (a PLC restarted with its clock
             # at zero and a fixed epoch): what was binned belongs to another time line.
-            self.resampler = Resampler(self.step_ns, 0)
+            self.resampler = Resampler(self.step_ns, 0, self.furnace)
             self._last_ns = None
             due = None
         if due is None:

@@ -24,6 +24,7 @@ from collections import deque
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 
+from furnace_model.furnace import PAPER, Furnace
 from furnace_model.logread import iso_time
 from furnace_model.logschema import MODEL_EVENTS, MODEL_PARAMETERS
 
@@ -130,12 +131,12 @@ class RefitRunner:
     Not thread-safe: call everything from one thread (the event loop, or replay's loop)."""
 
     def __init__(self, config: RefitConfig, emit: Emit, *, t_air_default: float = 30.0,
-                 max_queue: int | None = None):
+                 max_queue: int | None = None, furnace: Furnace = PAPER):
         self.config = config
         self.emit = emit
         self.max_queue = max_queue
-        self.cutter = WindowCutter(config, t_air_default)
-        self.chain = RefitChain(config, t_air_default)
+        self.cutter = WindowCutter(config, t_air_default, furnace)
+        self.chain = RefitChain(config, t_air_default, furnace)
         self.queue: deque[Window] = deque()
         self.in_flight: tuple[Window, float] | None = None
         self.worker = RefitWorker()

@@ -27,7 +27,8 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from furnace_model.errors import DataError
-from furnace_model.logread import read_messages
+from furnace_model.furnace import PAPER, Furnace
+from furnace_model.logread import read_messages, recorded_furnace
 from furnace_model.logschema import (
     AMBIENT,
     BURNERS,
@@ -59,8 +60,10 @@ PUMP_EVERY = 256
 class ModelLog:
     """One MCAP file of /model/* messages (replay output); finished on close."""
 
-    def __init__(self, path: Path, metadata: dict[str, str] | None = None):
+    def __init__(self, path: Path, metadata: dict[str, str] | None = None,
+                 furnace: Furnace = PAPER):
         self.path = path
+        self.furnace = furnace
         path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = path.open("wb")
         self._writer = Writer(self._fh, compression=CompressionType.ZSTD, enable_crcs=True,
@@ -73,7 +76,7 @@ class ModelLog:
     def write(self, name: str, message: dict, log_ns: int, pub_ns: int) -> None:
         channel = self._channels.get(name)
         if channel is None:
-            t = topic(name)
+            t = topic(name, self.furnace)
             schema = self._writer.register_schema(t.schema_name, SCHEMA_ENCODING, t.schema_bytes())
             channel = self._writer.register_channel(name, MESSAGE_ENCODING, schema)
             self._channels[name] = channel
@@ -98,13 +101,19 @@ def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str 
     order. `speed` paces the data at that many data seconds per wall second (None: as fast
     as possible). `echo(topic, message)` sees every /model message as it is produced.
     The refit settings are `config.refit` when `config` is given, else those recorded in
-    the logs (see `settings`)."""
+    the logs (see `settings`). The furnace is the one the logs record; a config must be of
+    the same furnace."""
     paths = [Path(p) for p in paths]
     if not paths:
         raise DataError("replay", "no log files given")
     if speed is not None and not speed > 0:
         raise DataError("--speed", f"must be positive, got {speed:g}")
     refit, t_air, _ = settings(paths, config)
+    names = ", ".join(map(str, paths))
+    furnace = recorded_furnace(read_metadata(sorted(paths)), names)
+    if config is not None and config.furnace != furnace:
+        raise DataError(names, f"the logs are of furnace '{furnace.name}', the config "
+                               f"{config.file} of furnace '{config.furnace.name}'")
     out = Path(out_path) if out_path is not None else default_out(paths)
     if out.resolve() in {p.resolve() for p in paths}:
         raise DataError(str(out), "the output would overwrite one of the logs being replayed")
@@ -119,16 +128,16 @@ def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str 
         if echo is not None:
             echo(name, message)
 
-    runner = RefitRunner(refit, emit, t_air_default=t_air, max_queue=None)
+    runner = RefitRunner(refit, emit, t_air_default=t_air, max_queue=None, furnace=furnace)
     messages = read_messages(paths, FURNACE_TOPICS)
     first = next(messages, None)  # reads and checks every file before anything is written
     if first is None:
         raise DataError(", ".join(map(str, paths)), "no furnace data in the logs")
-    metadata = build_metadata(config)
+    metadata = build_metadata(config, furnace=furnace)
     metadata["refit"] = json.dumps(plain(refit))
     metadata["replayed_from"] = json.dumps([p.name for p in paths])
     try:
-        log = ModelLog(out, metadata)
+        log = ModelLog(out, metadata, furnace)
     except OSError as exc:
         raise DataError(str(out), f"cannot write: {exc.strerror or exc}") from None
     runner.start()

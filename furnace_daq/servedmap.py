@@ -1,7 +1,8 @@
 """What a simulated PLC puts on its registers and bits: the values of one second, encoded
 through a register map as the daemon would decode them.
 
-The default is the map of CONTRACTS.md section 3. Any daemon config's map can be served
+The default is the map of CONTRACTS.md section 3, derived for any furnace description by one
+rule (`ServedMap.default`, docs/operations.md). Any daemon config's map can be served
 instead (`sim-plc --config`), and a log's recorded map (`sim-plc --from-log`): a log taken
 from a PLC with floats in swapped words and burner bits packed in a status word is served
 again on the same wire, so the same daemon config reads it back.
@@ -13,7 +14,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from furnace_model import BURNERS_PER_ZONE, SENSORS, ZONES
+from furnace_model.furnace import PAPER, Furnace
 
 from .registers import (
     BIT_TABLES,
@@ -35,25 +36,34 @@ INTEGER_RANGE = {"int16": (-2**15, 2**15 - 1), "uint16": (0, 2**16 - 1),
 
 @dataclass(frozen=True)
 class ServedMap:
-    """Where each value goes: thermocouples (SENSORS order), ambient, PLC clock, heartbeat,
-    and each zone's burner bits. A missing point is not served."""
+    """Where each value goes: thermocouples (the furnace's sensor order), ambient, PLC clock,
+    heartbeat, and each zone's burner bits. A missing point is not served."""
 
     thermocouples: tuple[Point, ...]
     ambient: Point | None
     clock: Point | None
     heartbeat: Point | None
     burners: tuple[BitRange, ...]
+    furnace: Furnace = PAPER
 
     @classmethod
-    def default(cls) -> ServedMap:
-        """CONTRACTS.md section 3: input registers 0-9, burner states on discrete inputs."""
+    def default(cls, furnace: Furnace = PAPER) -> ServedMap:
+        """The default map of a furnace with n thermocouples (CONTRACTS.md section 3 for the
+        paper's, n = 6): input registers 0..n-1 the thermocouples in the description's order
+        (INT16, 0.1 °C, 32767 = open), n the ambient (INT16, 0.1 °C), n+1..n+2 the PLC clock
+        (UINT32, high word first), n+3 the heartbeat (UINT16); discrete inputs from 0 the
+        burners, zone after zone in the description's order, one bit each; coils the same
+        addresses for the burner commands."""
+        n = len(furnace.sensors)
         tc = tuple(Point(s, "input", i, "int16", scale=0.1, sentinels=(32767.0,))
-                   for i, s in enumerate(SENSORS))
-        starts = [sum(BURNERS_PER_ZONE[:i]) for i in range(len(ZONES))]
-        return cls(tc, Point("t_air", "input", 6, "int16", scale=0.1),
-                   Point("clock", "input", 7, "uint32"), Point("heartbeat", "input", 9, "uint16"),
-                   tuple(BitRange(z, "discrete", a, n)
-                         for z, a, n in zip(ZONES, starts, BURNERS_PER_ZONE, strict=True)))
+                   for i, s in enumerate(furnace.sensors))
+        starts = [sum(furnace.burners[:i]) for i in range(furnace.n_zones)]
+        return cls(tc, Point("t_air", "input", n, "int16", scale=0.1),
+                   Point("clock", "input", n + 1, "uint32"),
+                   Point("heartbeat", "input", n + 3, "uint16"),
+                   tuple(BitRange(z, "discrete", a, k) for z, a, k
+                         in zip(furnace.zones, starts, furnace.burners, strict=True)),
+                   furnace)
 
     @classmethod
     def of_config(cls, config: DaqConfig, device: str | None = None) -> ServedMap:
@@ -67,15 +77,17 @@ class ServedMap:
         def own(p: Point | None) -> Point | None:
             return p if p is not None and p.name in mine else None
 
-        return cls(tuple(by_name[s] for s in SENSORS if s in by_name), own(config.ambient),
-                   own(clock), own(config.heartbeat),
-                   tuple(b for b in config.burner_bits if b.name in mine))
+        furnace = config.furnace
+        return cls(tuple(by_name[s] for s in furnace.sensors if s in by_name),
+                   own(config.ambient), own(clock), own(config.heartbeat),
+                   tuple(b for b in config.burner_bits if b.name in mine), furnace)
 
     def sizes(self) -> dict[str, int]:
         """Addresses each table needs, at least the default map's (coils mirror the burner
-        states at 0-25 for manual mode)."""
-        need = {"input": 10, "holding": 1, "discrete": sum(BURNERS_PER_ZONE),
-                "coil": sum(BURNERS_PER_ZONE)}
+        states at 0.. for manual mode)."""
+        n_burners = sum(self.furnace.burners)
+        need = {"input": len(self.furnace.sensors) + 4, "holding": 1, "discrete": n_burners,
+                "coil": n_burners}
         for p in (*self.thermocouples, self.ambient, self.clock, self.heartbeat):
             if p is not None:
                 need[p.table] = max(need[p.table], p.address + p.count)
@@ -89,7 +101,8 @@ class ServedMap:
         """{table: {address: word or bit}} of one PLC scan. A NaN reading or an open
         sensor is served as the point's first sentinel (NaN for a float point without one)."""
         out: dict[str, dict[int, int | bool]] = {t: {} for t in TABLES}
-        by_name = dict(zip(SENSORS, thermocouples, strict=True))
+        furnace = self.furnace
+        by_name = dict(zip(furnace.sensors, thermocouples, strict=True))
         for p in self.thermocouples:
             v = math.nan if p.name in open_sensors else by_name[p.name]
             _put(out, p, _words(p, v))
@@ -99,7 +112,8 @@ class ServedMap:
             _put(out, self.clock, _words(self.clock, plc_seconds, wrap=True))
         if self.heartbeat is not None and self.heartbeat.dtype != STRING:
             _put(out, self.heartbeat, _words(self.heartbeat, heartbeat, wrap=True))
-        starts = dict(zip(ZONES, [sum(BURNERS_PER_ZONE[:i]) for i in range(len(ZONES))],
+        starts = dict(zip(furnace.zones,
+                          [sum(furnace.burners[:i]) for i in range(furnace.n_zones)],
                           strict=True))
         for b in self.burners:
             states = [s != b.invert for s in burners[starts[b.name]:starts[b.name] + b.count]]

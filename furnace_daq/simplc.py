@@ -1,5 +1,6 @@
 """A simulated furnace PLC: a real Modbus TCP server (and optionally a CAN bus) serving the
-default register map of CONTRACTS.md section 3 from a value source.
+default register map of CONTRACTS.md section 3 (or the one derived from another furnace's
+description by the same rule, `ServedMap.default`) from a value source.
 
 It lets the daemon, mbpoll and the demo run against the same wire protocol as the plant
 without hardware. Two sources feed the same server: the plant simulator running a scenario
@@ -24,18 +25,24 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import SimData, SimDevice
 from pymodbus.simulator.simdata import DataType
 
-from furnace_model import BURNERS_PER_ZONE
+from furnace_model.furnace import PAPER, Furnace
 from furnace_model.plant import Plant
 from furnace_model.scenario import Scenario
 
 from .registers import FUNCTION_CODE
 from .servedmap import ServedMap
 
-N_BURNERS = sum(BURNERS_PER_ZONE)
+N_BURNERS = sum(PAPER.burners)
+"""The paper's furnace's burners; another furnace's are `sum(furnace.burners)`."""
 CAN_ID = 0x180
-"""Flame states on CAN: one 4-byte frame, bit n (byte n // 8, LSB first) = burner n."""
-ZONE_SLICES = tuple(slice(sum(BURNERS_PER_ZONE[:i]), sum(BURNERS_PER_ZONE[:i + 1]))
-                    for i in range(len(BURNERS_PER_ZONE)))
+"""Flame states on CAN: one frame (4 bytes, more for a furnace of more than 32 burners), bit
+n (byte n // 8, LSB first) = burner n."""
+
+
+def zone_slices(furnace: Furnace = PAPER) -> tuple[slice, ...]:
+    """Each zone's burners in the PLC's list of states: zone after zone."""
+    return tuple(slice(sum(furnace.burners[:i]), sum(furnace.burners[:i + 1]))
+                 for i in range(furnace.n_zones))
 
 
 def _padded(states: list[bool], n: int) -> list[bool]:
@@ -53,21 +60,21 @@ def _runs(cells: dict[int, int | bool]) -> list[tuple[int, list]]:
     return runs
 
 
-def states_from_counts(counts: np.ndarray) -> list[bool]:
+def states_from_counts(counts: np.ndarray, furnace: Furnace = PAPER) -> list[bool]:
     """Burner on/off states when `counts` burners fire per zone: the first ones of each zone."""
     out: list[bool] = []
-    for n, total in zip(counts, BURNERS_PER_ZONE, strict=True):
+    for n, total in zip(counts, furnace.burners, strict=True):
         out += [k < int(n) for k in range(total)]
     return out
 
 
-def counts_from_states(states: list[bool]) -> np.ndarray:
-    return np.array([sum(states[s]) for s in ZONE_SLICES])
+def counts_from_states(states: list[bool], furnace: Furnace = PAPER) -> np.ndarray:
+    return np.array([sum(states[s]) for s in zone_slices(furnace)])
 
 
 def flame_frame(states: list[bool]) -> bytes:
     value = sum(1 << i for i, on in enumerate(states) if on)
-    return value.to_bytes(4, "little")
+    return value.to_bytes(max(4, (len(states) + 7) // 8), "little")
 
 
 @dataclass
@@ -75,10 +82,12 @@ class PlcValues:
     """What the PLC shows at one second, in engineering units."""
 
     thermocouples: list[float]
-    """Six readings in SENSORS order, degC; NaN = open circuit (served as 32767)."""
+    """One reading per thermocouple in the furnace's order (the paper's six), degC; NaN =
+    open circuit (served as 32767)."""
     t_air: float
     burners: list[bool]
-    """Flame-on state of the 26 burners: soak 0-9, heat 10-17, preheat 18-25."""
+    """Flame-on state of every burner, zone after zone (the paper's: soak 0-9, heat 10-17,
+    preheat 18-25)."""
 
 
 class ValueSource(Protocol):
@@ -86,6 +95,8 @@ class ValueSource(Protocol):
 
     end_s: int | None
     """The last PLC second with values of its own (None: never ends)."""
+    furnace: Furnace
+    """The furnace the values are of: its thermocouples and burners in order."""
 
     def values_at(self, plc_seconds: int) -> PlcValues:
         """The values at `plc_seconds`; called with non-decreasing seconds."""
@@ -100,6 +111,7 @@ class PlantSource:
 
     def __init__(self, scenario: Scenario, *, seed: int = 0, manual: bool = False):
         self.scenario, self.manual = scenario, manual
+        self.furnace = scenario.furnace
         self.plant = Plant.from_scenario(scenario, seed=seed)
         self.stepper = self.plant.stepper(scenario.initial_c, scenario.burners_at(0.0),
                                           scenario.t_air_c)
@@ -114,7 +126,8 @@ class PlantSource:
         if self.manual:
             self.stepper.advance(target)
             if self._commands is not None:
-                self.stepper.set_inputs(burners=counts_from_states(self._commands))
+                self.stepper.set_inputs(burners=counts_from_states(self._commands,
+                                                                   self.furnace))
         else:
             steps = self.scenario.steps_t
             for at in steps[(steps > self.stepper.t) & (steps <= target)]:
@@ -122,7 +135,7 @@ class PlantSource:
                 self.stepper.set_inputs(burners=self.scenario.burners_at(float(at)))
             self.stepper.advance(target)
         states = (list(self._commands) if self.manual and self._commands is not None
-                  else states_from_counts(self.stepper.burners))
+                  else states_from_counts(self.stepper.burners, self.furnace))
         return PlcValues(list(self.stepper.readings()), self.stepper.t_air, states)
 
 
@@ -147,8 +160,12 @@ class SimPLC:
         self.manual = bool(getattr(source, "manual", False))
         self.speed, self.host, self.port, self.scan_s = speed, host, port, scan_s
         self.holding_registers = holding_registers
-        self.served = served or ServedMap.default()
+        furnace = getattr(source, "furnace", PAPER)
+        self.served = served or ServedMap.default(furnace)
         """The register map the values are served through."""
+        if self.served.furnace != furnace:
+            raise ValueError(f"the values are of furnace '{furnace.name}', the register map "
+                             f"is of furnace '{self.served.furnace.name}'")
         if transport not in ("tcp", "rtu-over-tcp", "rtu") or \
                 (transport == "rtu") != (serial_port is not None):
             raise ValueError("transport is tcp, rtu-over-tcp, or rtu with a serial_port")
@@ -240,7 +257,8 @@ class SimPLC:
             sim_s = end
             self.ended.set()
         if self.manual:
-            coils = await self._server.async_getValues(0, FUNCTION_CODE["coil"], 0, N_BURNERS)
+            coils = await self._server.async_getValues(0, FUNCTION_CODE["coil"], 0,
+                                                       sum(self.served.furnace.burners))
             self.source.command([bool(c) for c in coils])
         self.values = self.source.values_at(sim_s)
         self.plc_seconds = sim_s

@@ -18,8 +18,6 @@ from pymodbus import FramerType
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from furnace_model import BURNERS_PER_ZONE, ZONES
-
 from .daqconfig import CanConfig, DaqConfig, PlcConfig
 from .registers import COMM_ERROR, OK, STALE, BitRange, Image, Point, ReadRequest, plan_reads
 
@@ -360,10 +358,9 @@ class CanSource(Source):
         self.last_data: dict[tuple[int, bool], bytes] = {}
         """The latest payload of each frame id (what `furnace-daq check` shows raw)."""
         self._by_id: dict[tuple[int, bool], list[tuple[str, int, int]]] = {}
-        for i, zone in enumerate(ZONES):
-            f = config.frames[zone]
+        for zone, f in config.frames.items():
             self._by_id.setdefault((f.can_id, f.extended), []).append(
-                (zone, f.start_bit, BURNERS_PER_ZONE[i]))
+                (zone, f.start_bit, f.burners))
 
     @property
     def connected(self) -> bool:
@@ -400,12 +397,13 @@ class CanSource(Source):
     async def read(self) -> Sample:
         if self._bus is None:
             raise SourceError("CAN bus not open", "CAN unavailable")
-        if len(self._latest) < len(ZONES):
+        if len(self._latest) < len(self.config.frames):
             return Sample(burners=None, burner_quality=COMM_ERROR)
         now = time.monotonic()
         oldest = min(t for _, t in self._latest.values())
         quality = STALE if now - oldest > self.config.timeout_s else OK
-        return Sample(burners={z: list(self._latest[z][0]) for z in ZONES}, burner_quality=quality)
+        return Sample(burners={z: list(self._latest[z][0]) for z in self.config.frames},
+                      burner_quality=quality)
 
     async def close(self) -> None:
         if self._notifier is not None:

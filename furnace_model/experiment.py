@@ -121,7 +121,8 @@ def load_experiments(paths: Iterable[str | Path], t_air_default: float = DEFAULT
     order: each CSV or Parquet file is one; MCAP logs are resampled as `logs export` does and
     make one per directory (`logexperiment`). `start`/`end` keep [start, end) of the PLC
     clock; `period_s` is the logs' resampling period (default that of `logs export`).
-    `furnace`: the description the tables' columns must match (logs: the paper's only)."""
+    `furnace`: the description the tables' columns, and the furnace a log records in its
+    metadata, must match."""
     from .logexperiment import group_logs, is_log, load_log
     from .logresample import DEFAULT_PERIOD_S
 
@@ -130,14 +131,11 @@ def load_experiments(paths: Iterable[str | Path], t_air_default: float = DEFAULT
     groups = {logs[first]: (label, files)
               for first, label, files in group_logs(paths[i] for i in logs)}
     out = []
-    if logs and furnace != PAPER:
-        raise DataError(str(paths[logs[0]]), f"MCAP logs hold the paper's furnace only; "
-                        f"furnace '{furnace.name}' is read from CSV or Parquet")
     for i, path in enumerate(paths):
         if i in groups:
             label, files = groups[i]
             out.append(load_log(label, files, t_air_default, start, end,
-                                DEFAULT_PERIOD_S if period_s is None else period_s))
+                                DEFAULT_PERIOD_S if period_s is None else period_s, furnace))
         elif i not in logs:
             out.append(load_experiment(path, t_air_default, start=start, end=end,
                                        furnace=furnace))

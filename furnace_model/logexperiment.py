@@ -27,7 +27,8 @@ import pandas as pd
 
 from .errors import DataError
 from .experiment import DEFAULT_T_AIR_C, Experiment, experiment_from_frame
-from .logread import LOG_SUFFIX, PART_SUFFIX
+from .furnace import Furnace
+from .logread import LOG_SUFFIX, PART_SUFFIX, log_furnace
 from .logresample import DEFAULT_PERIOD_S, resample_logs
 from .logsalvage import MAGIC
 
@@ -129,10 +130,16 @@ def record_name(label: str) -> str:
 
 def load_log(label: str, files: list[Path], t_air_default: float = DEFAULT_T_AIR_C,
              start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
-             period_s: float = DEFAULT_PERIOD_S) -> Experiment:
+             period_s: float = DEFAULT_PERIOD_S, furnace: Furnace | None = None) -> Experiment:
     """One record from log files, resampled as `logs export` does, with the rows whose bins
-    start in [start, end) on the PLC clock."""
-    frame = resample_logs(files, period_s, start, end, name=label)
+    start in [start, end) on the PLC clock. The furnace is the one the log records; when
+    `furnace` is given (the command's --furnace) the log must be of it."""
+    own = log_furnace(files, label)
+    if furnace is not None and own != furnace:
+        raise DataError(label, f"the log is of furnace '{own.name}' (its metadata record), "
+                               f"not of furnace '{furnace.name}': give --furnace with the "
+                               "log's description")
+    frame = resample_logs(files, period_s, start, end, name=label, furnace=own)
     exp = experiment_from_frame(frame, label, t_air_default, row_offset=1,
-                                row_label="resampled row")
+                                row_label="resampled row", furnace=own)
     return replace(exp, name=record_name(label))

@@ -32,12 +32,92 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 
-from .errors import DataError
+from .errors import ConfigError, DataError
+from .furnace import PAPER, Furnace, furnace_from_node
 from .logsalvage import has_footer, salvage
 
 LOG_SUFFIX = ".mcap"
 PART_SUFFIX = ".part"
 """A file being written is `<prefix>-<UTC start>.mcap.part`, renamed to `.mcap` once whole."""
+METADATA_NAME = "furnace-daq"
+"""The metadata record every log file carries (furnace_daq.logmeta writes it)."""
+
+
+def read_metadata(paths: Iterable[str | Path]) -> dict[str, str] | None:
+    """The first `furnace-daq` metadata record found in `paths`, or None when none has one
+    (logs written before the record existed). The writer puts the record right after the
+    header, so only the front of each file is read, finished or cut alike."""
+    from mcap.records import Header, Metadata
+    from mcap.stream_reader import StreamReader
+
+    for path in paths:
+        try:
+            with open(path, "rb") as fh:
+                for record in StreamReader(fh, emit_chunks=True).records:
+                    if isinstance(record, Metadata) and record.name == METADATA_NAME:
+                        return dict(record.metadata)
+                    if not isinstance(record, Header | Metadata):
+                        break
+        except Exception:  # noqa: BLE001 - a cut or damaged file: try the next one
+            continue
+    return None
+
+
+PAPER_RECORD_NAME = "paper-3zone"
+"""The name the metadata record has always given the paper's furnace."""
+
+
+def furnace_record(furnace: Furnace) -> dict:
+    """The `furnace` entry of a log's metadata record: the full description
+    (`Furnace.describe()`), each zone's thermocouples listed by name as the log's fields
+    name them (the record's shape since before it carried links; docs/logs.md), the paper's
+    furnace under the name the record always gave it."""
+    record = furnace.describe()
+    if furnace == PAPER:
+        record["name"] = PAPER_RECORD_NAME
+    names = iter(furnace.sensors)
+    for zone in record["zones"]:
+        zone["thermocouples"] = [next(names) for _ in range(zone["thermocouples"])]
+    return record
+
+
+def recorded_furnace(metadata: dict[str, str] | None, where: str) -> Furnace:
+    """The furnace a log's metadata record describes (`furnace_record`), checked as a
+    description file is. A log without the record, or one written before the record held
+    the full description (then it named the paper's furnace), is of the paper's furnace."""
+    if not metadata or "furnace" not in metadata:
+        return PAPER
+    try:
+        value = json.loads(metadata["furnace"])
+    except ValueError:
+        raise DataError(where, "the metadata record's furnace entry is not JSON") from None
+    if not isinstance(value, dict) or "links" not in value:
+        return PAPER
+    from .config import Node
+
+    if value.get("name") == PAPER_RECORD_NAME:
+        value = {**value, "name": PAPER.name}
+    zones = value.get("zones")
+    if isinstance(zones, list):  # thermocouples by name -> their count, as a description has
+        value = {**value, "zones": [
+            {**z, "thermocouples": len(z["thermocouples"])}
+            if isinstance(z, dict) and isinstance(z.get("thermocouples"), list) else z
+            for z in zones]}
+    try:
+        furnace = furnace_from_node(Node(value, f"{where} (recorded furnace)"), "furnace")
+    except ConfigError as exc:
+        raise DataError(where, f"the recorded furnace description is not valid: {exc}") from None
+    if furnace_record(furnace)["zones"] != json.loads(metadata["furnace"])["zones"]:
+        raise DataError(where, "the recorded furnace's thermocouple names are not "
+                               "<zone>_<k> of its zones")
+    return furnace
+
+
+def log_furnace(paths: Iterable[str | Path], where: str | None = None) -> Furnace:
+    """The furnace of a log (one file or a rotated series): from its metadata record."""
+    paths = [Path(p) for p in paths]
+    return recorded_furnace(read_metadata(paths),
+                            where if where is not None else ", ".join(map(str, paths)))
 
 
 def iso_time(ns: int) -> str:

@@ -37,19 +37,17 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from . import BURNERS_PER_ZONE, SENSORS, ZONES
 from .errors import DataError
-from .experiment import BURNER_COLUMNS, TC_COLUMNS
-from .logread import iso_time, read_messages
+from .furnace import PAPER, Furnace
+from .logread import iso_time, log_furnace, read_messages
 from .logschema import AMBIENT, BURNERS, THERMOCOUPLES
-
-_ALL_OK = dict.fromkeys(SENSORS, "ok")
 
 
 class Binned(NamedTuple):
     """Resampled rows in time order (see the module docstring): row time (ns), thermocouple
-    means (n, 6), burner counts in force (n, 3), t_air mean (n,), the start of the bin each
-    row lies in (ns), and whether the row is a bin's readings (False: a burner change)."""
+    means (n, thermocouples), burner counts in force (n, zones), t_air mean (n,), the start
+    of the bin each row lies in (ns), and whether the row is a bin's readings (False: a
+    burner change)."""
 
     t: np.ndarray
     tc: np.ndarray
@@ -70,23 +68,28 @@ class Resampler:
 
     Messages are buffered as plain lists and binned in one vectorised pass when a table is
     asked for; `forget` drops what no later window can need, so a daemon running for months
-    holds one window of bins."""
+    holds one window of bins. The thermocouples and zones are those of `furnace` (the
+    paper's by default): a log records its furnace (logread.log_furnace)."""
 
-    def __init__(self, step_ns: int, origin_ns: int = 0):
+    def __init__(self, step_ns: int, origin_ns: int = 0, furnace: Furnace = PAPER):
         self.step_ns = int(step_ns)
         self.origin_ns = int(origin_ns)
+        self.furnace = furnace
+        self._sensors = furnace.sensors
+        self._n = n = len(furnace.sensors)
+        self._all_ok = dict.fromkeys(furnace.sensors, "ok")
         self._tc_t: list[int] = []
         self._tc_v: list[list[float]] = []
         self._air_t: list[int] = []
         self._air_v: list[float] = []
         self._seen_t: list[int] = []  # burner messages: they mark their bin as logged
-        # per bin: sums and counts of the 6 thermocouples and t_air, and whether logged
+        # per bin: sums and counts of the n thermocouples and t_air, and whether logged
         self._bins = np.zeros(0, dtype=np.int64)
-        # columns: 6 thermocouples, t_air, time of the thermocouple messages within the bin
-        self._sum = np.zeros((0, 8))
-        self._cnt = np.zeros((0, 8))
+        # columns: n thermocouples, t_air, time of the thermocouple messages within the bin
+        self._sum = np.zeros((0, n + 2))
+        self._cnt = np.zeros((0, n + 2))
         # burner changes (time, counts) per source; unchanged repeats are not kept
-        self._burners: dict[bool, tuple[list[int], list[tuple[float, float, float]]]] = {
+        self._burners: dict[bool, tuple[list[int], list[tuple[float, ...]]]] = {
             True: ([], []), False: ([], [])}
         self._unsorted = False
         self._last_burner_msg: dict | None = None
@@ -96,19 +99,19 @@ class Resampler:
         if topic == THERMOCOUPLES:
             self._tc_t.append(pub_ns)
             quality = msg.get("quality")
-            if quality == _ALL_OK:  # the usual case, checked in one comparison
-                values = [msg.get(s) for s in SENSORS]
+            if quality == self._all_ok:  # the usual case, checked in one comparison
+                values = [msg.get(s) for s in self._sensors]
                 if all(type(v) is float for v in values):
                     self._tc_v.append(values)
                     return
             quality = quality if isinstance(quality, dict) else {}  # no quality: no good reading
             self._tc_v.append([_number(msg.get(s)) if quality.get(s) == "ok" else math.nan
-                               for s in SENSORS])
+                               for s in self._sensors])
         elif topic == BURNERS:
             self._seen_t.append(pub_ns)
             if msg is self._last_burner_msg and pub_ns >= (self._last_burner_pub or 0):
                 return  # read_messages hands repeated messages over as one dict
-            counts = tuple(_counts(msg))
+            counts = tuple(_counts(msg, self.furnace))
             times, states = self._burners[msg.get("source") == "modbus"]
             self._last_burner_msg, self._last_burner_pub = msg, pub_ns
             if times and pub_ns >= times[-1]:
@@ -126,22 +129,23 @@ class Resampler:
     def _consolidate(self) -> None:
         if not (self._tc_t or self._air_t or self._seen_t):
             return
-        n_tc, n_air = len(self._tc_t), len(self._air_t)
-        values = np.full((n_tc + n_air + len(self._seen_t), 8), np.nan)
-        values[:n_tc, :6] = np.asarray(self._tc_v, dtype=float).reshape(-1, 6)
-        values[n_tc:n_tc + n_air, 6] = self._air_v
+        n_tc, n_air, n = len(self._tc_t), len(self._air_t), self._n
+        values = np.full((n_tc + n_air + len(self._seen_t), n + 2), np.nan)
+        values[:n_tc, :n] = np.asarray(self._tc_v, dtype=float).reshape(-1, n)
+        values[n_tc:n_tc + n_air, n] = self._air_v
         t = np.asarray(self._tc_t + self._air_t + self._seen_t, dtype=np.int64)
         new_keys = (t - self.origin_ns) // self.step_ns
         within = (t[:n_tc] - self.origin_ns - new_keys[:n_tc] * self.step_ns) / 1e9
-        values[:n_tc, 7] = np.where(np.isfinite(values[:n_tc, :6]).any(axis=1), within, np.nan)
+        values[:n_tc, n + 1] = np.where(np.isfinite(values[:n_tc, :n]).any(axis=1), within,
+                                        np.nan)
         good = np.isfinite(values)
         keys = np.concatenate([self._bins, new_keys])
         sums = np.concatenate([self._sum, np.where(good, values, 0.0)])
         counts = np.concatenate([self._cnt, good.astype(float)])
         bins, pos = np.unique(keys, return_inverse=True)
         self._bins = bins
-        self._sum = np.zeros((bins.size, 8))
-        self._cnt = np.zeros((bins.size, 8))
+        self._sum = np.zeros((bins.size, n + 2))
+        self._cnt = np.zeros((bins.size, n + 2))
         np.add.at(self._sum, pos, sums)
         np.add.at(self._cnt, pos, counts)
         for buf in (self._tc_t, self._tc_v, self._air_t, self._air_v, self._seen_t):
@@ -150,7 +154,7 @@ class Resampler:
     def _burner_timeline(self) -> tuple[np.ndarray, np.ndarray]:
         times, states = self._burners[True] if self._burners[True][0] else self._burners[False]
         bt = np.asarray(times, dtype=np.int64)
-        bc = np.asarray(states, dtype=float).reshape(-1, 3)
+        bc = np.asarray(states, dtype=float).reshape(-1, self.furnace.n_zones)
         if self._unsorted:
             order = np.argsort(bt, kind="stable")
             bt, bc = bt[order], bc[order]
@@ -168,7 +172,9 @@ class Resampler:
         starts, total, count = starts[known], total[known], count[known]
         means = np.full(total.shape, np.nan)
         np.divide(total, count, out=means, where=count > 0)
-        within = np.where(np.isfinite(means[:, 7]), means[:, 7] * 1e9, self.step_ns / 2)
+        ns = self._n  # thermocouples; then t_air, then the readings' time within the bin
+        within = np.where(np.isfinite(means[:, ns + 1]), means[:, ns + 1] * 1e9,
+                          self.step_ns / 2)
         t = starts + np.round(within).astype(np.int64)
         # changes (not the first state) inside the rows' bins, unless a bin's row carries them
         ct, cb = bt[1:], bc[1:]
@@ -186,9 +192,9 @@ class Resampler:
         n, k = t.size, ct.size
         rows_t = np.concatenate([t, ct])
         order = np.argsort(rows_t, kind="stable")
-        tc = np.concatenate([means[:, :6], np.full((k, 6), np.nan)])[order]
+        tc = np.concatenate([means[:, :ns], np.full((k, ns), np.nan)])[order]
         burners = np.concatenate([bc[state] if n else bc[:0], cb]).astype(int)[order]
-        air = np.concatenate([means[:, 6], np.full(k, np.nan)])[order]
+        air = np.concatenate([means[:, ns], np.full(k, np.nan)])[order]
         reading = np.concatenate([np.ones(n, bool), np.zeros(k, bool)])[order]
         return Binned(rows_t[order], tc, burners, air, np.concatenate([starts, cstart])[order],
                       reading)
@@ -227,9 +233,10 @@ DEFAULT_PERIOD_S = 60.0
 
 def resample_logs(paths: Iterable[str | Path], period_s: float = DEFAULT_PERIOD_S,
                   start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
-                  name: str | None = None) -> pd.DataFrame:
+                  name: str | None = None, furnace: Furnace | None = None) -> pd.DataFrame:
     """The resampled table of one or more log files (a rotated series is merged in time),
-    with the rows whose bins start in [start, end) on the PLC clock. `name` is what an error
+    with the rows whose bins start in [start, end) on the PLC clock, in the columns of the
+    log's furnace (its metadata record; `furnace` to give it). `name` is what an error
     names (default: the files)."""
     paths = [Path(p) for p in paths]
     if not period_s > 0 or not math.isfinite(period_s):
@@ -237,8 +244,10 @@ def resample_logs(paths: Iterable[str | Path], period_s: float = DEFAULT_PERIOD_
     period_ns = int(round(period_s * 1e9))
     lo = None if start is None else start.value
     hi = None if end is None else end.value
-    binner = Resampler(period_ns, lo if lo is not None else 0)
     where = name if name is not None else ", ".join(map(str, paths))
+    if furnace is None:
+        furnace = log_furnace(paths, where)
+    binner = Resampler(period_ns, lo if lo is not None else 0, furnace)
     for topic, msg, _log_ns, pub_ns in read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT)):
         if topic == BURNERS or ((lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)):
             try:
@@ -252,32 +261,33 @@ def resample_logs(paths: Iterable[str | Path], period_s: float = DEFAULT_PERIOD_
                                    "chosen time range")
         raise DataError(where, "no burner state logged on /furnace/burners up to the chosen "
                                "range")
-    return table_frame(rows.t, rows.tc, rows.burners, rows.t_air)
+    return table_frame(rows.t, rows.tc, rows.burners, rows.t_air, furnace)
 
 
 def table_frame(t: np.ndarray, tc: np.ndarray, burners: np.ndarray,
-                air: np.ndarray) -> pd.DataFrame:
-    """Resampled arrays as the tabular contract (CONTRACTS.md section 1)."""
+                air: np.ndarray, furnace: Furnace = PAPER) -> pd.DataFrame:
+    """Resampled arrays as the tabular contract (CONTRACTS.md section 1), in the furnace's
+    columns (`tc_<zone>_<k>`, `burners_<zone>`)."""
     stamps = pd.to_datetime(np.round(t / 1e6).astype(np.int64), unit="ms", utc=True)
     frame = pd.DataFrame({"timestamp": stamps.strftime("%Y-%m-%dT%H:%M:%S.%f").str[:-3] + "Z"})
-    for j, c in enumerate(TC_COLUMNS):
+    for j, c in enumerate(furnace.tc_columns):
         frame[c] = tc[:, j]
-    for j, c in enumerate(BURNER_COLUMNS):
+    for j, c in enumerate(furnace.burner_columns):
         frame[c] = burners[:, j].astype(int)
     frame["t_air"] = air
     return frame
 
 
-def _counts(msg: dict) -> list[float]:
+def _counts(msg: dict, furnace: Furnace) -> list[float]:
     out = []
-    for z in ZONES:
+    for z in furnace.zones:
         n = msg.get(f"count_{z}")
         if n is None and isinstance(msg.get(z), list):
             n = sum(bool(v) for v in msg[z])
         out.append(_number(n))
     if any(math.isnan(v) for v in out):
         raise DataError(BURNERS, f"message without burner counts: {str(msg)[:200]}")
-    for z, v, n in zip(ZONES, out, BURNERS_PER_ZONE, strict=True):
+    for z, v, n in zip(furnace.zones, out, furnace.burners, strict=True):
         if not 0 <= v <= n:
             raise DataError(BURNERS, f"burner count of zone {z} outside 0..{n}: {v:g}")
     return out

@@ -24,8 +24,10 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import lru_cache
 
-from . import BURNERS_PER_ZONE, SENSORS, ZONES
+from .furnace import PAPER, Furnace
+from .network import parameter_names
 
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
@@ -37,6 +39,12 @@ DAQ_STATES: tuple[str, ...] = ("connected", "disconnected")
 BURNER_SOURCES: tuple[str, ...] = ("modbus", "can")
 MODEL_STATUSES: tuple[str, ...] = ("ok", "insufficient_excitation", "failed")
 PARAM_NAMES: tuple[str, ...] = ("a", "b", "c", "d", "e", "f")
+"""The paper's furnace's parameters; another furnace's are `param_names(furnace)`."""
+
+
+def param_names(furnace: Furnace = PAPER) -> tuple[str, ...]:
+    """The names /model/parameters carries for `furnace`: a..f for the paper's."""
+    return PARAM_NAMES if furnace.paper_structure else tuple(parameter_names(furnace))
 
 THERMOCOUPLES = "/furnace/thermocouples"
 BURNERS = "/furnace/burners"
@@ -134,8 +142,13 @@ def _object(properties: dict, description: str = "", required: tuple[str, ...] =
     return s
 
 
-def _params_object(description: str) -> dict:
-    return _object({p: _number(f"parameter {p} of the paper's eq. 11") for p in PARAM_NAMES},
+def _param_doc(furnace: Furnace, p: str) -> str:
+    return (f"parameter {p} of the paper's eq. 11" if furnace.paper_structure
+            else f"parameter {p} of the furnace's thermal network")
+
+
+def _params_object(furnace: Furnace, description: str) -> dict:
+    return _object({p: _number(_param_doc(furnace, p)) for p in param_names(furnace)},
                    description)
 
 
@@ -156,39 +169,45 @@ _PLC_TIME = _time("the PLC's clock at the reading (the message's publish time); 
                   "the register map has no PLC clock or the poll failed")
 
 
-_THERMOCOUPLES = _object(
-    {
-        **{s: _number(f"thermocouple {s} in °C; absent when the reading is not usable "
-                      "(logs written before the schema declared every field carry null)")
-           for s in SENSORS},
-        "quality": _object({s: _string(f"quality of {s}", QUALITIES) for s in SENSORS},
-                           "quality per thermocouple; only 'ok' readings are averaged",
-                           SENSORS),
-        "plc_seconds": _number("the PLC clock register, s since the PLC's own start"),
-        "plc_time": _PLC_TIME,
-        "error": _string("why some or all readings are comm_error: the failed poll, or the "
-                         "blocks the PLC refused"),
-    },
-    "the six zone thermocouples of one poll",
-    ("quality",),
-)
+def _thermocouples(furnace: Furnace) -> dict:
+    sensors = furnace.sensors
+    return _object(
+        {
+            **{s: _number(f"thermocouple {s} in °C; absent when the reading is not usable "
+                          "(logs written before the schema declared every field carry null)")
+               for s in sensors},
+            "quality": _object({s: _string(f"quality of {s}", QUALITIES) for s in sensors},
+                               "quality per thermocouple; only 'ok' readings are averaged",
+                               sensors),
+            "plc_seconds": _number("the PLC clock register, s since the PLC's own start"),
+            "plc_time": _PLC_TIME,
+            "error": _string("why some or all readings are comm_error: the failed poll, or the "
+                             "blocks the PLC refused"),
+        },
+        f"the {'six' if len(sensors) == 6 else len(sensors)} zone thermocouples of one poll",
+        ("quality",),
+    )
 
-_BURNERS = _object(
-    {
-        **{z: {"type": "array", "items": {"type": "boolean"}, "minItems": n, "maxItems": n,
-               "description": f"flame-on state of each of the {n} burners of the {z} zone"}
-           for z, n in zip(ZONES, BURNERS_PER_ZONE, strict=True)},
-        **{f"count_{z}": {"type": "integer", "minimum": 0, "maximum": n,
-                          "description": f"burners firing in the {z} zone"}
-           for z, n in zip(ZONES, BURNERS_PER_ZONE, strict=True)},
-        "source": _string("where the states were read", BURNER_SOURCES),
-        "quality": _string("quality of the states: stale when the PLC's heartbeat stopped",
-                           QUALITIES),
-        "plc_time": _PLC_TIME,
-    },
-    "burner flame-on states",
-    (*ZONES, *(f"count_{z}" for z in ZONES), "source"),
-)
+
+def _burners(furnace: Furnace) -> dict:
+    zones, counts = furnace.zones, furnace.burners
+    return _object(
+        {
+            **{z: {"type": "array", "items": {"type": "boolean"}, "minItems": n, "maxItems": n,
+                   "description": f"flame-on state of each of the {n} burners of the {z} zone"}
+               for z, n in zip(zones, counts, strict=True)},
+            **{f"count_{z}": {"type": "integer", "minimum": 0, "maximum": n,
+                              "description": f"burners firing in the {z} zone"}
+               for z, n in zip(zones, counts, strict=True)},
+            "source": _string("where the states were read", BURNER_SOURCES),
+            "quality": _string("quality of the states: stale when the PLC's heartbeat stopped",
+                               QUALITIES),
+            "plc_time": _PLC_TIME,
+        },
+        "burner flame-on states",
+        (*zones, *(f"count_{z}" for z in zones), "source"),
+    )
+
 
 _AMBIENT = _object(
     {"t_air": _number("ambient air temperature in °C; absent when the reading is not usable"),
@@ -223,106 +242,126 @@ _DAQ_STATUS = _object(
     ("state", "detail"),
 )
 
-_DAQ_EVENTS = _object(
-    {"kind": _string("what happened, e.g. burner_disagreement, missed_tick, log_gap"),
-     "detail": _string("the event in words"),
-     "skipped": _integer("missed_tick: ticks skipped since the last such event"),
-     "step_s": _number("clock_step: the host clock's step in s"),
-     "error": _string("log_gap: why the log could not be written"),
-     "dropped": _integer("log_gap: messages dropped from the full buffer"),
-     "burners": _strings("burner_disagreement: the burners that disagree, e.g. heat[3]"),
-     "plc": _object({z: {"type": "array", "items": {"type": "boolean"},
-                         "description": f"PLC states of the {z} burners"} for z in ZONES},
-                    "burner_disagreement: the PLC's states"),
-     "flame": _object({z: {"type": "array", "items": {"type": "boolean"},
-                           "description": f"flame scanner states of the {z} burners"}
-                       for z in ZONES}, "burner_disagreement: the flame scanners' states")},
-    "acquisition events: PLC and flame signals disagree, a poll tick was missed, the log "
-    "could not be written for a while",
-    ("kind", "detail"),
-)
 
-_CI95 = _object({p: {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2,
-                     "description": f"95% interval of {p}: [lo, hi]"} for p in PARAM_NAMES},
-                "95% confidence intervals")
+def _daq_events(furnace: Furnace) -> dict:
+    zones = furnace.zones
+    return _object(
+        {"kind": _string("what happened, e.g. burner_disagreement, missed_tick, log_gap"),
+         "detail": _string("the event in words"),
+         "skipped": _integer("missed_tick: ticks skipped since the last such event"),
+         "step_s": _number("clock_step: the host clock's step in s"),
+         "error": _string("log_gap: why the log could not be written"),
+         "dropped": _integer("log_gap: messages dropped from the full buffer"),
+         "burners": _strings("burner_disagreement: the burners that disagree, e.g. heat[3]"),
+         "plc": _object({z: {"type": "array", "items": {"type": "boolean"},
+                             "description": f"PLC states of the {z} burners"} for z in zones},
+                        "burner_disagreement: the PLC's states"),
+         "flame": _object({z: {"type": "array", "items": {"type": "boolean"},
+                               "description": f"flame scanner states of the {z} burners"}
+                           for z in zones}, "burner_disagreement: the flame scanners' states")},
+        "acquisition events: PLC and flame signals disagree, a poll tick was missed, the log "
+        "could not be written for a while",
+        ("kind", "detail"),
+    )
+
+
+def _ci95(names: tuple[str, ...]) -> dict:
+    return _object({p: {"type": "array", "items": {"type": "number"}, "minItems": 2,
+                        "maxItems": 2, "description": f"95% interval of {p}: [lo, hi]"}
+                    for p in names}, "95% confidence intervals")
+
+
 def _combination(name: str) -> dict:
     return _object({"value": _number(f"value of {name}"),
                     "ci95": _numbers(f"95% interval of {name}")}, name)
 
 
-_COMBINATIONS = _object(
-    {name: _combination(name) for name in (*PARAM_NAMES, "b/c", "d/e")},
-    "what the window's data determine, {name: {value, ci95}}; other names may appear")
-_COMBINATIONS["additionalProperties"] = _combination("another combination")
+def _combinations(furnace: Furnace) -> dict:
+    names = param_names(furnace)
+    extra = ("b/c", "d/e") if furnace.paper_structure else ()
+    out = _object(
+        {name: _combination(name) for name in (*names, *extra)},
+        "what the window's data determine, {name: {value, ci95}}; other names may appear")
+    out["additionalProperties"] = _combination("another combination")
+    return out
 
-_MODEL_PARAMETERS = _object(
-    {
-        **{p: _number(f"parameter {p} of the paper's eq. 11 in force after this window; "
-                      "absent before the first model (null in older logs)") for p in PARAM_NAMES},
-        "ci95": _CI95,
-        "window_start": _string("start of the data window of the fit, ISO 8601 UTC (PLC clock)"),
-        "window_end": _string("end of the data window of the fit, ISO 8601 UTC (PLC clock)"),
-        "rmse_c": _object({z: _number(f"fit RMSE of the {z} zone in °C") for z in ZONES},
-                          "fit RMSE per zone"),
-        "status": _string("outcome of the refit; unless ok, the previous model is kept",
-                          MODEL_STATUSES),
-        "detail": _string("why a window was not fitted, or the fit's warnings"),
-        "model_window_start": _string("start of the window the model in force was fitted on"),
-        "model_window_end": _string("end of the window the model in force was fitted on"),
-        "n_samples": {"type": "integer", "description": "resampled rows in the window"},
-        "gap_fraction": _number("share of the window's rows missing or without every zone"),
-        "burner_steps": {"type": "integer", "description": "burner pattern changes in the window"},
-        "elapsed_s": _number("wall time of the fit in s"),
-        "sigma_c": _number("residual standard deviation of the fit in °C"),
-        "determined_combinations": {"type": "array", "items": {"type": "string"},
-                                    "description": "what the window's data determine"},
-        "undetermined": {"type": "array", "items": {"type": "string"},
-                         "description": "parameters with a 95% interval wider than +-5%"},
-        "combinations": _COMBINATIONS,
-        "zone_offsets_c": _object({z: _number(f"fitted thermocouple offset of the {z} zone")
-                                   for z in ZONES}, "fitted thermocouple bias per zone"),
-        "recent_f": _object({
-            "f": _number("f on the recent span alone, a..e of the window held"),
-            "se": _number("standard error of that f"),
-            "n_samples": _integer("rows of the recent span with a zone temperature"),
-        }, "what the newest data say about the heat per burner (drift detection)"),
-        "plc_time": _time("the window's end on the PLC's clock, when the register map has "
-                          "one"),
-        "search": _object({
-            "method": _string("refit.method: polish (from the previous model) or ga (the "
-                              "paper's GA from scratch)", ("polish", "ga")),
-            "warm_start": {"type": "boolean",
-                           "description": "started from the previous window's model"},
-            "population": {"type": "integer", "description": "GA population (ga only)"},
-            "generations": {"type": "integer", "description": "GA generations run (ga only)"},
-        }, "how this window was fitted"),
-    },
-    "an online refit of the three-zone model over one window of the data clock",
-    ("ci95", "window_start", "window_end", "rmse_c", "status"),
-)
 
-_MODEL_EVENTS = _object(
-    {"kind": _string("what happened: drift, window_dropped"),
-     "detail": _string("the event in words"),
-     "parameter": _string("drift: the parameter that moved"),
-     "old": _number("drift: its reference value"),
-     "old_ci95": {"type": "array", "items": {"type": "number"}, "description": "drift: the "
-                  "reference's 95% interval"},
-     "new": _number("drift: its value now"),
-     "new_ci95": {"type": "array", "items": {"type": "number"}, "description": "drift: the new "
-                  "95% interval"},
-     "relative_change": _number("drift: new / old - 1"),
-     "windows": {"type": "integer", "description": "drift: windows in a row that moved"},
-     "window_start": _string("the window that raised the event"),
-     "window_end": _string("the window that raised the event"),
-     "parameters": _params_object("the parameters involved and their new values"),
-     "old_window_end": _string("drift: the window the reference value was fitted on"),
-     "basis": _string("drift: recent when judged on the recent span's f, else absent"),
-     "recent_start": _string("drift on the recent span: where that span starts"),
-     "plc_time": _time("the window's end on the PLC's clock, when the register map has one")},
-    "model events such as parameter drift",
-    ("kind", "detail"),
-)
+def _model_parameters(furnace: Furnace) -> dict:
+    names, zones = param_names(furnace), furnace.zones
+    return _object(
+        {
+            **{p: _number(f"{_param_doc(furnace, p)} in force after this window; "
+                          "absent before the first model (null in older logs)") for p in names},
+            "ci95": _ci95(names),
+            "window_start": _string("start of the data window of the fit, ISO 8601 UTC (PLC clock)"),
+            "window_end": _string("end of the data window of the fit, ISO 8601 UTC (PLC clock)"),
+            "rmse_c": _object({z: _number(f"fit RMSE of the {z} zone in °C") for z in zones},
+                              "fit RMSE per zone"),
+            "status": _string("outcome of the refit; unless ok, the previous model is kept",
+                              MODEL_STATUSES),
+            "detail": _string("why a window was not fitted, or the fit's warnings"),
+            "model_window_start": _string("start of the window the model in force was fitted on"),
+            "model_window_end": _string("end of the window the model in force was fitted on"),
+            "n_samples": {"type": "integer", "description": "resampled rows in the window"},
+            "gap_fraction": _number("share of the window's rows missing or without every zone"),
+            "burner_steps": {"type": "integer", "description": "burner pattern changes in the window"},
+            "elapsed_s": _number("wall time of the fit in s"),
+            "sigma_c": _number("residual standard deviation of the fit in °C"),
+            "determined_combinations": {"type": "array", "items": {"type": "string"},
+                                        "description": "what the window's data determine"},
+            "undetermined": {"type": "array", "items": {"type": "string"},
+                             "description": "parameters with a 95% interval wider than +-5%"},
+            "combinations": _combinations(furnace),
+            "zone_offsets_c": _object({z: _number(f"fitted thermocouple offset of the {z} zone")
+                                       for z in zones}, "fitted thermocouple bias per zone"),
+            "recent_f": _object({
+                "f": _number("f on the recent span alone, a..e of the window held"),
+                "se": _number("standard error of that f"),
+                "n_samples": _integer("rows of the recent span with a zone temperature"),
+            }, "what the newest data say about the heat per burner (drift detection)"),
+            "plc_time": _time("the window's end on the PLC's clock, when the register map has "
+                              "one"),
+            "search": _object({
+                "method": _string("refit.method: polish (from the previous model) or ga (the "
+                                  "paper's GA from scratch)", ("polish", "ga")),
+                "warm_start": {"type": "boolean",
+                               "description": "started from the previous window's model"},
+                "population": {"type": "integer", "description": "GA population (ga only)"},
+                "generations": {"type": "integer", "description": "GA generations run (ga only)"},
+            }, "how this window was fitted"),
+        },
+        "an online refit of the three-zone model over one window of the data clock"
+        if furnace.paper_structure else
+        f"an online refit of the thermal network of furnace {furnace.name} over one window of "
+        "the data clock",
+        ("ci95", "window_start", "window_end", "rmse_c", "status"),
+    )
+
+
+def _model_events(furnace: Furnace) -> dict:
+    return _object(
+        {"kind": _string("what happened: drift, window_dropped"),
+         "detail": _string("the event in words"),
+         "parameter": _string("drift: the parameter that moved"),
+         "old": _number("drift: its reference value"),
+         "old_ci95": {"type": "array", "items": {"type": "number"}, "description": "drift: the "
+                      "reference's 95% interval"},
+         "new": _number("drift: its value now"),
+         "new_ci95": {"type": "array", "items": {"type": "number"}, "description": "drift: the new "
+                      "95% interval"},
+         "relative_change": _number("drift: new / old - 1"),
+         "windows": {"type": "integer", "description": "drift: windows in a row that moved"},
+         "window_start": _string("the window that raised the event"),
+         "window_end": _string("the window that raised the event"),
+         "parameters": _params_object(furnace, "the parameters involved and their new values"),
+         "old_window_end": _string("drift: the window the reference value was fitted on"),
+         "basis": _string("drift: recent when judged on the recent span's f, else absent"),
+         "recent_start": _string("drift on the recent span: where that span starts"),
+         "plc_time": _time("the window's end on the PLC's clock, when the register map has one")},
+        "model events such as parameter drift",
+        ("kind", "detail"),
+    )
+
 
 _LOG = {
     "title": "foxglove.Log",
@@ -341,23 +380,33 @@ _LOG = {
     "required": ["timestamp", "level", "message", "name", "file", "line"],
 }
 
-TOPICS: dict[str, Topic] = {t.name: t for t in (
-    Topic(THERMOCOUPLES, "furnace.Thermocouples", _THERMOCOUPLES),
-    Topic(BURNERS, "furnace.Burners", _BURNERS),
-    Topic(AMBIENT, "furnace.Ambient", _AMBIENT),
-    Topic(DAQ_STATUS, "daq.Status", _DAQ_STATUS),
-    Topic(DAQ_EVENTS, "daq.Event", _DAQ_EVENTS),
-    Topic(MODEL_PARAMETERS, "model.Parameters", _MODEL_PARAMETERS),
-    Topic(MODEL_EVENTS, "model.Event", _MODEL_EVENTS),
-    Topic(LOG, "foxglove.Log", _LOG),
-)}
-"""Every topic of the contract, in the order the writer registers them."""
+
+@lru_cache(maxsize=16)
+def topics(furnace: Furnace = PAPER) -> dict[str, Topic]:
+    """Every topic of the contract for `furnace`, in the order the writer registers them:
+    the furnace topics' fields are its thermocouples and zones, /model/parameters its
+    network's parameters (CONTRACTS.md section 2). Same names and schema names for every
+    furnace, so a reader finds the topics of any log."""
+    return {t.name: t for t in (
+        Topic(THERMOCOUPLES, "furnace.Thermocouples", _thermocouples(furnace)),
+        Topic(BURNERS, "furnace.Burners", _burners(furnace)),
+        Topic(AMBIENT, "furnace.Ambient", _AMBIENT),
+        Topic(DAQ_STATUS, "daq.Status", _DAQ_STATUS),
+        Topic(DAQ_EVENTS, "daq.Event", _daq_events(furnace)),
+        Topic(MODEL_PARAMETERS, "model.Parameters", _model_parameters(furnace)),
+        Topic(MODEL_EVENTS, "model.Event", _model_events(furnace)),
+        Topic(LOG, "foxglove.Log", _LOG),
+    )}
 
 
-def topic(name: str) -> Topic:
+TOPICS: dict[str, Topic] = topics(PAPER)
+"""The paper's furnace's topics."""
+
+
+def topic(name: str, furnace: Furnace = PAPER) -> Topic:
     """The contract's topic, or an open object schema for a topic the contract does not name
     yet (logged rather than lost; Foxglove shows its fields without autocompletion)."""
-    known = TOPICS.get(name)
+    known = topics(furnace).get(name)
     if known is not None:
         return known
     schema_name = "extra." + name.strip("/").replace("/", ".")

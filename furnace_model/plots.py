@@ -49,7 +49,8 @@ def plot_fit(exp: Experiment, model: np.ndarray, out_dir: Path, label: str = "")
     for w, zone in enumerate(exp.furnace.zones):
         ok = np.isfinite(measured[:, w])
         rmse = float(np.sqrt(np.mean((measured[ok, w] - model[ok, w]) ** 2))) if ok.any() else np.nan
-        title = f"{exp.name}: {ZONE_TITLES[zone]}{', ' + label if label else ''}  (RMSE {rmse:.2f} °C)"
+        where = ZONE_TITLES.get(zone, f"zone {w + 1} ({zone})")  # another furnace's zones
+        title = f"{exp.name}: {where}{', ' + label if label else ''}  (RMSE {rmse:.2f} °C)"
         paths.append(plot_zone(exp.t_min, measured[:, w], model[:, w], title,
                                Path(out_dir) / f"{exp.name}_{zone}.png"))
     return paths

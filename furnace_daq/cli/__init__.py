@@ -12,7 +12,7 @@ import sys
 from furnace_model.cli.arguments import CommandParser, add_version
 from furnace_model.errors import FurnaceError
 
-COMMANDS: tuple[str, ...] = ("simplc", "run", "check", "logs", "replay", "fleet")
+COMMANDS: tuple[str, ...] = ("simplc", "run", "check", "config", "logs", "replay", "fleet")
 """Subcommand modules of this package, in the order `--help` lists them."""
 
 

@@ -34,11 +34,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def summary(message: dict) -> str:
-    """One line per refit: window end, status, a..f, RMSE per zone (or the reason)."""
+    """One line per refit: window end, status, the parameters (a..f for the paper's
+    furnace), RMSE per zone (or the reason)."""
     head = f"{message['window_end']}  {message['status']:<23}"
     if message["status"] != "ok":
         return f"{head} {message.get('detail', '')}"
-    params = " ".join(f"{p}={message[p]:.5g}" for p in PARAM_NAMES)
+    # the parameters of the log's furnace: a..f for the paper's, as its intervals name them
+    names = [p for p in message.get("ci95", {}) if p in message] or PARAM_NAMES
+    params = " ".join(f"{p}={message[p]:.5g}" for p in names)
     rmse = "/".join(f"{v:.2f}" for v in message["rmse_c"].values())
     return f"{head} {params}  rmse {rmse} °C  ({message.get('elapsed_s', 0):.2f} s)"
 

@@ -76,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
         log = LogWriter(lc.dir, prefix=lc.prefix, flush_interval_s=lc.flush_interval_s,
                         rotate_s=lc.rotate_s, rotate_bytes=lc.rotate_bytes,
                         retention_files=lc.retention_files, file_mode=lc.file_mode,
-                        metadata=build_metadata(config), event_priority=EVENT_PRIORITY)
+                        metadata=build_metadata(config), event_priority=EVENT_PRIORITY,
+                        furnace=config.furnace)
         lock, recovered = _recover_at_start(lc.dir, lc.prefix)
     except (OSError, ValueError) as exc:
         raise FurnaceError(f"log directory {lc.dir}: {exc}") from None
@@ -90,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         from ..liveview import LiveView
 
         try:
-            live = LiveView(config.live_view, where=config.file)
+            live = LiveView(config.live_view, where=config.file, furnace=config.furnace)
         except FurnaceError:
             log.close()
             if lock is not None:

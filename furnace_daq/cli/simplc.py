@@ -1,7 +1,10 @@
 """`furnace-daq sim-plc`: a Modbus PLC serving either a scenario's simulated plant
 (`--scenario`) or recorded logs (`--from-log`), optionally broadcasting flame states on a CAN
-bus. The register map is the default of CONTRACTS.md section 3, a daemon config's
-(`--config`), or with `--from-log` the one the log was recorded with."""
+bus. The register map is the default of CONTRACTS.md section 3 (for another furnace the map
+derived from its description by the same rule, docs/operations.md), a daemon config's
+(`--config`), or with `--from-log` the one the log was recorded with. The furnace is the
+scenario's (its `furnace` key) or the log's (its metadata record); `--furnace` names the
+description it must be."""
 
 from __future__ import annotations
 
@@ -24,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     what.add_argument("--scenario", type=Path, help="scenario YAML: serve the simulated plant")
     what.add_argument("--from-log", type=Path, nargs="+", metavar="LOG",
                       help="MCAP log file(s) of the daemon: serve the recorded values")
+    p.add_argument("--furnace", type=Path, metavar="FURNACE.yaml",
+                   help="furnace description the scenario or log must be of (default: the "
+                        "scenario's or log's own, the paper's when it names none)")
     p.add_argument("--speed", type=float, default=3600.0,
                    help="simulated seconds per wall second (default 3600)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
@@ -59,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         raise FurnaceError("--serial-port goes with --transport rtu, and only with it")
     import asyncio
 
+    from furnace_model.furnace import PAPER, load_furnace
     from furnace_model.scenario import load_scenario
 
     from ..logplayer import LogPlayer
@@ -68,18 +75,28 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.port <= 65535:
         raise FurnaceError(f"--port must be 0-65535, got {args.port}")
     source: ValueSource
+    furnace = None if args.furnace is None else load_furnace(args.furnace)
     if args.from_log:
         if args.manual:
             raise FurnaceError("--manual works with --scenario only: a log's burners are recorded")
         source = LogPlayer(args.from_log, loop=args.loop)
+        if furnace is not None and source.furnace != furnace:
+            raise FurnaceError(f"--furnace {args.furnace}: the log is of furnace "
+                               f"'{source.furnace.name}', not '{furnace.name}'")
         what = f"{', '.join(map(str, args.from_log))}: {source.describe()}"
     else:
         if args.loop:
             raise FurnaceError("--loop works with --from-log only")
-        scenario = load_scenario(args.scenario)
+        scenario = load_scenario(args.scenario, furnace)
         source = scenario
         what = f"{scenario.name}: {'manual' if args.manual else 'schedule'} burners"
     served, map_from = _served_map(args)
+    own = source.furnace if isinstance(source, LogPlayer) else scenario.furnace
+    if served is not None and served.furnace != own:
+        raise FurnaceError(f"--config {args.config}: its map is of furnace "
+                           f"'{served.furnace.name}', the values of furnace '{own.name}'")
+    if served is None and own != PAPER:
+        map_from = f"the default derived from furnace '{own.name}'"
     return asyncio.run(_serve(source, f"{what}; register map: {map_from}", args, served))
 
 

@@ -15,6 +15,7 @@ a quarter of it is the variance of their mean, the zone temperature. How sure th
 comes from the same difference: its autocorrelation (a low-order autoregression fitted to
 it) says how many independent samples it holds.
 
+A zone of three thermocouples has two pairs of neighbours, whose estimates are pooled.
 A zone read by one thermocouple has no partner to compare with. Its floor is then borrowed
 from the record's pairs (a thermocouple of the same kind in another zone), or, with no pair
 anywhere in the record, read off the second differences of its own reading: that assumes
@@ -27,7 +28,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import ZONES
 from .autoregression import acf, fit_ar
 from .experiment import Experiment
 
@@ -92,19 +92,22 @@ class RecordFloor:
 def record_floor(exp: Experiment) -> RecordFloor:
     """The noise floor of one record, each zone from its own thermocouples where it can."""
     pairs: dict[str, tuple[float, float, float, int]] = {}
-    for w, zone in enumerate(ZONES):
-        est = _pair_variance(exp, w)
+    furnace = exp.furnace
+    first = np.concatenate(([0], np.cumsum(furnace.thermocouples)[:-1])).astype(int)
+    for w, zone in enumerate(furnace.zones):
+        est = _zone_pairs(exp, int(first[w]), furnace.thermocouples[w])
         if est is not None:
             pairs[zone] = est
     zones = {}
-    for w, zone in enumerate(ZONES):
-        counts = np.isfinite(exp.tc[:, 2 * w:2 * w + 2]).sum(axis=1)
+    for w, zone in enumerate(furnace.zones):
+        a = int(first[w])
+        counts = np.isfinite(exp.tc[:, a:a + furnace.thermocouples[w]]).sum(axis=1)
         present = counts[counts > 0]
         samples = int(present.size)
         if not samples:
             zones[zone] = ZoneFloor(np.nan, np.nan, "none", np.nan, np.nan, 0.0, 0)
             continue
-        mean_inv = float(np.mean(1.0 / present))  # a zone mean of two halves the variance
+        mean_inv = float(np.mean(1.0 / present))  # a zone mean of k takes 1/k of the variance
         if zone in pairs:
             var_d, lag1, n_eff, _ = pairs[zone]
             how = "pair"
@@ -128,7 +131,7 @@ def pooled_floor(floors: list[RecordFloor]) -> dict[str, float]:
     """Per zone, the floor of several records scored together: the RMS of their floors
     weighted by their readings, as a pooled RMSE weights them, so the two compare."""
     out = {}
-    for zone in ZONES:
+    for zone in (floors[0].zones if floors else ()):
         num = den = 0.0
         for f in floors:
             zf = f.zones[zone]
@@ -139,10 +142,25 @@ def pooled_floor(floors: list[RecordFloor]) -> dict[str, float]:
     return out
 
 
-def _pair_variance(exp: Experiment, w: int) -> tuple[float, float, float, int] | None:
+def _zone_pairs(exp: Experiment, a: int, k: int) -> tuple[float, float, float, int] | None:
+    """`_pair_variance` of a zone whose k thermocouples start at column a: its one pair, or
+    its pairs of neighbours pooled (weighted by their independent samples)."""
+    ests = [e for e in (_pair_variance(exp, a + i) for i in range(k - 1)) if e is not None]
+    if len(ests) <= 1:
+        return ests[0] if ests else None
+    w = np.array([e[2] for e in ests])
+    if not w.sum() > 0:
+        w = np.ones(len(ests))
+    return (float(np.average([e[0] for e in ests], weights=w)),
+            float(np.average([e[1] for e in ests], weights=w)),
+            float(sum(e[2] for e in ests)), int(sum(e[3] for e in ests)))
+
+
+def _pair_variance(exp: Experiment, a: int) -> tuple[float, float, float, int] | None:
     """(variance of the pair difference's noise, its lag-1 autocorrelation, effective
-    samples, samples) of zone w, or None when the zone has no working pair."""
-    pair = exp.tc[:, 2 * w:2 * w + 2]
+    samples, samples) of the thermocouples in columns a and a + 1, or None when they are no
+    working pair."""
+    pair = exp.tc[:, a:a + 2]
     both = np.all(np.isfinite(pair), axis=1)
     if both.sum() < MIN_PAIR:
         return None
@@ -213,7 +231,7 @@ def limits(floors: list[RecordFloor], ratio: float, z: float) -> dict[str, float
     ten."""
     floor = pooled_floor(floors)
     out = {}
-    for zone in ZONES:
+    for zone in floor:
         n_eff = sum(f.zones[zone].n_eff if np.isfinite(f.zones[zone].n_eff)
                     else f.zones[zone].samples for f in floors)
         spread = 1.0 / np.sqrt(n_eff) if n_eff > 0 else np.inf

@@ -18,9 +18,9 @@ import numpy as np
 from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
 
-from . import ZONES
 from .diagnosis import MIN_GAP_CLOSED, RULE, CandidateResult, Diagnosis, shortfall, where_lines
 from .experiment import Experiment
+from .furnace import PAPER
 from .residuals import ZONE_WORDS
 
 STATUS_WORDS = {"no_gap": "no gap", "explained": "explained", "unexplained": "unexplained"}
@@ -118,6 +118,11 @@ def _e(text: object) -> str:
     return html.escape(str(text), quote=True)
 
 
+def _zones(d: Diagnosis) -> tuple[str, ...]:
+    """The diagnosed furnace's zones, in order."""
+    return d.fit_data[0].furnace.zones if d.fit_data else PAPER.zones
+
+
 def _section(title: str, body: str, figure: str, note: str) -> str:
     note_html = f"<p>{_e(note)}</p>" if note else ""
     return f"<section><h2>{_e(title)}</h2>{note_html}{body}{figure}</section>"
@@ -132,6 +137,7 @@ def _g(x: float) -> str:
 
 
 def _rmse_table(d: Diagnosis, best: CandidateResult | None) -> str:
+    zone_names = _zones(d)
     b = d.baseline
     head = ["zone", "noise floor fitted (°C)", "baseline fit", "noise floor held out (°C)",
             "baseline held out"]
@@ -140,7 +146,7 @@ def _rmse_table(d: Diagnosis, best: CandidateResult | None) -> str:
     head += ["gap above (°C)", "gap"]
     rows = []
     fit_floor, limit = d.noise_floor_fit_c or {}, d.gap_limit_c or {}
-    for z in ZONES:
+    for z in zone_names:
         cells = [ZONE_WORDS[z], _f(fit_floor.get(z, np.nan)), _f(b.rmse_fit_c[z]),
                  _f(d.noise_floor_c[z]), _f(b.rmse_holdout_c[z])]
         if best is not None:
@@ -156,12 +162,13 @@ def _rmse_table(d: Diagnosis, best: CandidateResult | None) -> str:
 
 def _floor_table(d: Diagnosis) -> str:
     """Each record's own floor per zone, and how it was estimated and how sure it is."""
+    zone_names = _zones(d)
     if not d.record_floors:
         return ""
     rows = []
     for i, f in enumerate(d.record_floors):
         role = "fitted" if i < len(d.fit_data) else "held out"
-        for z in ZONES:
+        for z in zone_names:
             zf = f.zones[z]
             rows.append([f.record, role, ZONE_WORDS[z], _f(zf.floor_c), _f(zf.tc_sd_c),
                          zf.words()])
@@ -175,14 +182,15 @@ def _where_table(d: Diagnosis) -> str:
     rows = [[w.who, w.experiment,
              (f"throughout ({w.span})" if w.kind == "throughout" else w.span)
              + (f" ({w.clock})" if w.clock else ""), w.share, w.regime]
-            for w in where_lines(d.where)]
+            for w in where_lines(d.where, _zones(d))]
     return _table(["where", "experiment", "when", "share of the zone's squared error",
                    "operating regime"], rows)
 
 
 def _tests_table(d: Diagnosis) -> str:
+    zone_names = _zones(d)
     rows = []
-    for z in ZONES:
+    for z in zone_names:
         t = d.residual_tests.get(z)
         if not t:
             continue
@@ -205,15 +213,16 @@ def _tests_table(d: Diagnosis) -> str:
 def _candidate_table(d: Diagnosis) -> str:
     """The candidates, best first, each with its credit and the bar that draws it: the
     credit is `credit.shortfall`'s, the rule the verdict keeps effects by."""
+    zone_names = _zones(d)
     if not d.candidates:
         return "<p>No candidate was tried: there is no gap to explain.</p>"
     kept = set(d.verdict.effects) if d.verdict.status == "explained" else set()
-    head = ["effect(s)", "gap closed", "held-out RMSE soak / heat / preheat (°C)", "shrink %",
+    head = ["effect(s)", "gap closed", f"held-out RMSE {' / '.join(zone_names)} (°C)", "shrink %",
             "gap closed %", "dBIC", "credit", "note"]
     rows = []
     for c in d.candidates:
         short = shortfall(c)
-        ho = " / ".join(_f(c.rmse_holdout_c[z]) for z in ZONES)
+        ho = " / ".join(_f(c.rmse_holdout_c[z]) for z in zone_names)
         cells = [_e(c.label), _bar(c, not short, set(c.effects) == kept), _e(ho),
                  _e(_f(c.shrink_pct, 0)), _e(_f(c.gap_closed_pct, 0)), _e(_f(c.delta_bic, 0)),
                  _e("no: " + "; ".join(short) if short else "yes"), _e(c.note)]
@@ -323,11 +332,13 @@ def _pred(c: CandidateResult | None, kind: str, j: int) -> np.ndarray | None:
 
 
 def _fig_traces(d: Diagnosis, best: CandidateResult | None) -> Figure:
+    zone_names = _zones(d)
     recs = _records(d)
-    fig, axes = _new(3, len(recs), 4.2 * len(recs) + 0.8, 8.0, sharex="col")
+    fig, axes = _new(len(zone_names), len(recs), 4.2 * len(recs) + 0.8, 8.0 * len(zone_names) / 3,
+                     sharex="col")
     for k, (exp, kind, j) in enumerate(recs):
         base, ext = _pred(d.baseline, kind, j), _pred(best, kind, j)
-        for w, z in enumerate(ZONES):
+        for w, z in enumerate(zone_names):
             ax = axes[w, k]
             ax.plot(exp.t_min, exp.zone_temp[:, w], "-", lw=2.2, color="0.7", label="measured")
             if base is not None:
@@ -335,29 +346,31 @@ def _fig_traces(d: Diagnosis, best: CandidateResult | None) -> Figure:
             if ext is not None:
                 ax.plot(exp.t_min, ext[:, w], "--", lw=1.0, color="C0",
                         label=f"with {best.label}")
-            _frame(ax, w, k, f"{exp.name} ({kind})", f"{ZONE_WORDS[z]} (°C)")
+            _frame(ax, w, k, f"{exp.name} ({kind})", f"{ZONE_WORDS[z]} (°C)", len(zone_names))
     axes[0, 0].legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     return fig
 
 
-def _frame(ax, row: int, col: int, title: str, ylabel: str) -> None:
+def _frame(ax, row: int, col: int, title: str, ylabel: str, rows: int = 3) -> None:
     """Grid, and the labels only on the panel edges of a zones-by-records grid."""
     ax.grid(alpha=0.3)
     if row == 0:
         ax.set_title(title, fontsize=10)
     if col == 0:
         ax.set_ylabel(ylabel)
-    if row == len(ZONES) - 1:
+    if row == rows - 1:
         ax.set_xlabel("time (min)")
 
 
 def _fig_residuals(d: Diagnosis) -> Figure:
+    zone_names = _zones(d)
     recs = _records(d)
-    fig, axes = _new(3, len(recs), 4.2 * len(recs) + 0.8, 6.5, sharex="col")
+    fig, axes = _new(len(zone_names), len(recs), 4.2 * len(recs) + 0.8, 6.5 * len(zone_names) / 3,
+                     sharex="col")
     for k, (exp, kind, j) in enumerate(recs):
         base = _pred(d.baseline, kind, j)
-        for w, z in enumerate(ZONES):
+        for w, z in enumerate(zone_names):
             ax = axes[w, k]
             if base is not None:
                 ax.plot(exp.t_min, exp.zone_temp[:, w] - base[:, w], "-", lw=0.6, color="C3")
@@ -372,13 +385,14 @@ def _fig_residuals(d: Diagnosis) -> Figure:
                     ax.axvspan(loc.start_min, max(loc.end_min, loc.start_min + 1),
                                color="C4" if loc.sensor else "C1", alpha=0.3, lw=0)
             ax.axhline(0.0, color="0.3", lw=0.6)
-            _frame(ax, w, k, f"{exp.name} ({kind})", f"{ZONE_WORDS[z]} error (°C)")
+            _frame(ax, w, k, f"{exp.name} ({kind})", f"{ZONE_WORDS[z]} error (°C)", len(zone_names))
     fig.tight_layout()
     return fig
 
 
 def _fig_tests(d: Diagnosis) -> Figure | None:
-    zones = [z for z in ZONES if d.residual_tests.get(z)]
+    zone_names = _zones(d)
+    zones = [z for z in zone_names if d.residual_tests.get(z)]
     if not zones:
         return None
     fig, axes = _new(1, len(zones), 3.6 * len(zones) + 0.6, 2.8)
@@ -399,9 +413,10 @@ def _fig_tests(d: Diagnosis) -> Figure | None:
 
 
 def _fig_noise(d: Diagnosis, best: CandidateResult | None) -> Figure:
+    zone_names = _zones(d)
     fig, axes = _new(1, 1, 6.5, 2.8)
     ax = axes[0, 0]
-    x = np.arange(len(ZONES))
+    x = np.arange(len(zone_names))
     series = [("paper's model", d.baseline.rmse_holdout_c, "C3")]
     if best is not None:
         series.append((f"with {best.label}", best.rmse_holdout_c, "C0"))
@@ -409,9 +424,9 @@ def _fig_noise(d: Diagnosis, best: CandidateResult | None) -> Figure:
     width = 0.8 / len(series)
     for k, (label, vals, colour) in enumerate(series):
         ax.bar(x + (k - (len(series) - 1) / 2) * width,
-               [vals.get(z, np.nan) for z in ZONES], width, label=label, color=colour)
+               [vals.get(z, np.nan) for z in zone_names], width, label=label, color=colour)
     ax.set_xticks(x)
-    ax.set_xticklabels([ZONE_WORDS[z] for z in ZONES])
+    ax.set_xticklabels([ZONE_WORDS[z] for z in zone_names])
     ax.set_ylabel("held-out RMSE (°C)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")

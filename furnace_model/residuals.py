@@ -14,7 +14,6 @@ import numpy as np
 import pandas as pd
 from scipy.ndimage import median_filter
 
-from . import SENSORS, ZONES
 from .experiment import Experiment
 from .noisefloor import RecordFloor
 
@@ -29,7 +28,16 @@ THROUGHOUT_SHARE = 0.8
 """A zone's stretches that together cover this share of a record's samples are one entry,
 the whole record: an error that runs through most of a record is not localised by cutting
 it where the residual happens to cross the noise band."""
-ZONE_WORDS = {"soak": "soaking", "heat": "heating", "preheat": "preheating"}
+
+
+class _ZoneWords(dict):
+    """The paper's zones in words; any other zone by its name, `_` read as a space."""
+
+    def __missing__(self, zone: str) -> str:
+        return zone.replace("_", " ")
+
+
+ZONE_WORDS = _ZoneWords(soak="soaking", heat="heating", preheat="preheating")
 
 
 @dataclass
@@ -55,7 +63,7 @@ def error_spans(experiments: list[Experiment], residuals: list[np.ndarray],
     """
     spans: list[Span] = []
     for j, r in enumerate(residuals):
-        for w, zone in enumerate(ZONES):
+        for w, zone in enumerate(experiments[j].furnace.zones):
             rz = r[:, w]
             sq = np.where(np.isfinite(rz), rz * rz, 0.0)
             fl = floors[j][zone]
@@ -121,7 +129,7 @@ def sudden_change(experiments: list[Experiment], residuals: list[np.ndarray],
         m = len(e) // n
         if m < 2:
             continue
-        for w, zone in enumerate(ZONES):
+        for w, zone in enumerate(e.furnace.zones):
             fl = floors[j].zones[zone].floor_c * _mean_sd_factor(floors[j].zones[zone].lag1, n)
             blocks = r[:m * n, w].reshape(m, n)
             with np.errstate(all="ignore"):
@@ -170,7 +178,8 @@ def regime(exp: Experiment, i0: int, i1: int, zone: str) -> str:
     """The operating regime of samples i0:i1 in plain words: which zones' burners fire,
     burner steps inside, and the zone's temperature band."""
     b = exp.burners[i0:i1]
-    firing = [ZONE_WORDS[z] for k, z in enumerate(ZONES) if np.mean(b[:, k] > 0) >= 0.5]
+    zones = exp.furnace.zones
+    firing = [ZONE_WORDS[z] for k, z in enumerate(zones) if np.mean(b[:, k] > 0) >= 0.5]
     if not firing:
         words = ["no burners firing"]
     elif len(firing) == 1:
@@ -187,7 +196,7 @@ def regime(exp: Experiment, i0: int, i1: int, zone: str) -> str:
                         if steps.size > 1 else ""))
     else:
         words.append(f"{int(total[0])} burners on" if total.size else "")
-    y = exp.zone_temp[i0:i1, ZONES.index(zone)]
+    y = exp.zone_temp[i0:i1, zones.index(zone)]
     if np.isfinite(y).any():
         lo, hi = np.nanmin(y), np.nanmax(y)
         band = 100.0 if hi - lo > 150 else 50.0
@@ -225,8 +234,9 @@ def sensor_faults(experiments: list[Experiment], predictions: list[np.ndarray],
     out: list[SensorFault] = []
     for j, exp in enumerate(experiments):
         pred = predictions[j]
-        for w, zone in enumerate(ZONES):
-            pair = exp.tc[:, 2 * w:2 * w + 2]
+        sensors = exp.furnace.sensors
+        for w, zone, a in _pairs(exp):
+            pair = exp.tc[:, a:a + 2]
             both = np.all(np.isfinite(pair), axis=1)
             s = tc_noise[j].get(zone, float("nan"))
             if both.sum() < 50 or not np.isfinite(s) or s <= 0:
@@ -242,17 +252,36 @@ def sensor_faults(experiments: list[Experiment], predictions: list[np.ndarray],
             if far.sum() >= 3:
                 idx = np.nonzero(both)[0][far]
                 culprit = int(np.argmax(np.nanmean(np.abs(dev[idx]), axis=0)))
-                out.append(SensorFault(SENSORS[2 * w + culprit], j, int(idx[0]), int(idx[-1]) + 1,
-                                       "episodes", float(np.median(np.abs(d - smooth)[far]))))
+                _add(out, SensorFault(sensors[a + culprit], j, int(idx[0]), int(idx[-1]) + 1,
+                                      "episodes", float(np.median(np.abs(d - smooth)[far]))))
             t0, change = _hinge(t[~far], d[~far])
             late_n = max(1.0, float((t >= t0).sum()) / 50.0)
             if abs(change) > max(8.0 * sd_d / np.sqrt(late_n), 2.0):
                 i0 = int(np.searchsorted(exp.t_min, t0))
                 late = slice(i0, None)
                 culprit = int(np.argmax(np.nanmean(np.abs(dev[late]), axis=0)))
-                out.append(SensorFault(SENSORS[2 * w + culprit], j, i0, len(exp), "drift",
-                                       float(change if culprit == 0 else -change)))
+                _add(out, SensorFault(sensors[a + culprit], j, i0, len(exp), "drift",
+                                      float(change if culprit == 0 else -change)))
     return out
+
+
+def _pairs(exp: Experiment):
+    """(zone index, zone, first column) of each pair of neighbouring thermocouples of a
+    zone: one per zone of two (the paper's), two for a zone of three; none for a zone of one,
+    which has no partner to disagree with."""
+    first = 0
+    for w, (zone, k) in enumerate(zip(exp.furnace.zones, exp.furnace.thermocouples,
+                                      strict=True)):
+        for i in range(k - 1):
+            yield w, zone, first + i
+        first += k
+
+
+def _add(out: list[SensorFault], fault: SensorFault) -> None:
+    """A thermocouple of three is in two pairs: its fault is said once."""
+    if not any(f.sensor == fault.sensor and f.experiment == fault.experiment
+               and f.kind == fault.kind for f in out):
+        out.append(fault)
 
 
 def _hinge(t: np.ndarray, d: np.ndarray, n_grid: int = 40) -> tuple[float, float]:
@@ -291,14 +320,15 @@ def residual_tests(experiments: list[Experiment], residuals: list[np.ndarray],
     A residual outside the band at lag k > 0 of an input says the model misses how the
     furnace responds to that input k samples later."""
     inputs = {}
-    for k, z in enumerate(ZONES):
+    zones = experiments[0].furnace.zones if experiments else ()
+    for k, z in enumerate(zones):
         inputs[f"burners_{z}"] = [e.burners[:, k].astype(float) for e in experiments]
         inputs[f"d_burners_{z}"] = [np.diff(e.burners[:, k].astype(float), prepend=e.burners[0, k])
                                     for e in experiments]
     lags_a = np.arange(max_lag + 1)
     lags_x = np.arange(-max_lag, max_lag + 1)
     out: dict = {}
-    for w, zone in enumerate(ZONES):
+    for w, zone in enumerate(zones):
         parts = []
         for r in residuals:
             e = r[:, w]

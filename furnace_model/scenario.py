@@ -177,9 +177,7 @@ def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
 
     effects, values = [], {}
     effects_node = root.child("effects", {})
-    if furnace != PAPER and effects_node.mapping().value:
-        raise effects_node.error(f"effects extend the paper's three-zone furnace only; "
-                                 f"furnace '{furnace.name}' takes none")
+    effects_node.mapping()
     for key, node in effects_node.items():
         if key not in EFFECTS:
             raise node.error(f"unknown effect (expected one of: {', '.join(EFFECTS)}; an "
@@ -187,7 +185,7 @@ def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
         node.mapping()
         if not node.get_bool("enabled", True):
             continue
-        effect, vals = effect_from_yaml(EFFECTS[key], node)
+        effect, vals = effect_from_yaml(EFFECTS[key], node, furnace)
         effects.append(effect)
         values.update(vals)
 
@@ -200,18 +198,24 @@ def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
     )
 
 
-def effect_from_yaml(cls: type[Effect], node: Node) -> tuple[Effect, dict[str, float]]:
-    """`effects.<name>` of a scenario: the effect with its options, and its parameter values
-    (each within its search box); the options declared by the class are the keys allowed
-    beside its parameters."""
+def effect_from_yaml(cls: type[Effect], node: Node, furnace: Furnace = PAPER
+                     ) -> tuple[Effect, dict[str, float]]:
+    """`effects.<name>` of a scenario: the effect on `furnace` with its options, and its
+    parameter values (each within its search box); the options the class declares for that
+    furnace (its zones and thermocouples) are the keys allowed beside its parameters. An
+    effect that cannot apply to the furnace is an error on its key, with the reason."""
+    why = cls.refusal(furnace)
+    if why:
+        raise node.error(f"{cls.name} does not apply to furnace '{furnace.name}': {why}")
+    specs = cls.specs(furnace)
     options = {key: _option(node.child(key), spec)
-               for key, spec in cls.option_specs.items() if node.has(key)}
+               for key, spec in specs.items() if node.has(key)}
     implied = cls.options_from_params(set(node.keys()))
     try:
-        effect = cls(**{**implied, **options})
+        effect = cls(**{**implied, **options}, furnace=furnace)
     except ValueError as exc:
         raise node.error(str(exc)) from None
-    node.mapping({"enabled", *cls.option_specs, *(p.name for p in effect.params)})
+    node.mapping({"enabled", *specs, *(p.name for p in effect.params)})
     return effect, {p.name: node.get_number(p.name, p.default, lo=p.lo, hi=p.hi)
                     for p in effect.params}
 

@@ -33,10 +33,22 @@ them; the honest verdict for them is `unexplained`, with the zone or sensor loca
 - `tc_reads_low`: one thermocouple intermittently reads low (a loose junction): in a handful
   of episodes of 5-40 minutes its reading drops by 15-60 °C. Applied to the recorded
   readings after the plant run, since the furnace itself is unaffected.
+
+Any furnace description (`furnace`): the cases are heat-ups of its network, with its zones,
+burners and thermocouples, and every effect made for it (`Effect.draw(..., furnace)`). The
+paper's furnace runs on Table V; any other on `network_truth`: the network's default rates
+(network.parameters) with one heat per burner for every heated zone, set so that every
+burner firing would hold the hottest zone 3000 °C above ambient, as Table V's would
+(3387 °C): the schedules then heat it as the paper's heat-ups do. Own-zone burners on a
+furnace whose description has each zone's burners heat their own (`burner_heat: own_zone`)
+are checked on the same description read the paper's way (`ZoneBurners.check_furnace`):
+the plant is the description itself, the records are given to the diagnosis as of the
+furnace with every burner heating the first zone, whose model lacks what the plant does.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import zlib
 from collections.abc import Callable
@@ -45,9 +57,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from . import BURNERS_PER_ZONE, SENSORS, ZONES
 from .effects import EFFECTS, Effect, ZoneLosses
 from .experiment import Experiment
+from .furnace import PAPER, Furnace
+from .network import parameters, terms
 from .parameters import PAPER_TABLE_V
 from .plant import Plant, PlantRun
 from .scenario import SensorSpec
@@ -71,7 +84,8 @@ T_MAX_C = 1350.0
 """A schedule that would drive a zone past this is redrawn: no reheating furnace runs there."""
 
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
-    "door_open": {"soak": (0.0005, 0.0015), "heat": (0.005, 0.02), "preheat": (0.1, 0.3)},
+    "door_open": {"soak": (0.0005, 0.0015), "heat": (0.005, 0.02), "preheat": (0.1, 0.3),
+                  "other": (0.005, 0.02)},
     "tc_reads_low": {"drop_c": (15.0, 60.0), "episodes": (4, 10), "minutes": (5.0, 40.0)},
 }
 """Strengths of the perturbations outside the library; an effect's own are its `ranges`
@@ -105,12 +119,35 @@ class Case:
         return tuple(e for e in self.effects if e in EFFECTS)
 
 
+TARGET_RISE_C = 3000.0
+"""`network_truth`: the hottest zone's steady rise above ambient with every burner firing."""
+
+
+def network_truth(furnace: Furnace) -> dict[str, float]:
+    """The true parameters of a furnace's cases: Table V for the paper's; for any other the
+    network's defaults with one heat per burner (every heated zone alike) scaled so that all
+    burners firing would hold the hottest zone `TARGET_RISE_C` above ambient."""
+    if furnace == PAPER:
+        return dict(PAPER_TABLE_V)
+    values = {p.name: p.default for p in parameters(furnace)}
+    structure = ModelStructure(furnace=furnace)
+    system = structure.system(structure.theta(values))
+    u = np.array([*furnace.burners, 0.0], dtype=float)
+    rise = float(np.max(-np.linalg.solve(system.A[0], system.B[0] @ u)))
+    for t in terms(furnace):
+        if t.kind == "gain":
+            values[t.name] *= TARGET_RISE_C / rise
+    return values
+
+
 def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
               form: str = "candidate",
-              sensors: tuple[SensorSpec, SensorSpec] = (SENSORS_SPEC, SENSORS_SPEC)) -> Case:
+              sensors: tuple[SensorSpec, SensorSpec] = (SENSORS_SPEC, SENSORS_SPEC),
+              furnace: Furnace = PAPER) -> Case:
     """A random two-experiment case with `effect` (a contract name, one of OUT_OF_LIBRARY,
-    several of them, or None for a control) switched on in the plant; `sensors`: the
-    thermocouples of the fitted and of the held-out heat-up (campaigns differ)."""
+    several of them, or None for a control) switched on in the plant of `furnace`;
+    `sensors`: the thermocouples of the fitted and of the held-out heat-up (campaigns
+    differ)."""
     names: tuple[str, ...] = () if effect is None else (
         (effect,) if isinstance(effect, str) else tuple(effect))
     unknown = [n for n in names if n not in EFFECTS and n not in OUT_OF_LIBRARY]
@@ -125,18 +162,27 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
     starts = [start, start + pd.Timedelta(days=int(rng.integers(3, 15)))]
 
     effects: list[Effect] = []
-    values: dict[str, float] = dict(PAPER_TABLE_V)
+    values: dict[str, float] = network_truth(furnace)
     truth: dict[str, dict] = {}
+    seen_as = furnace  # the furnace the records are given to the diagnosis as
     for name in names:
-        if name in EFFECTS:
-            eff, vals, info = _draw_effect(name, rng, form, float(durations.min()))
-            effects.append(eff)
-            values.update(vals)
-            truth[name] = {**vals, **info}
-    structure = ModelStructure(effects)
+        if name not in EFFECTS:
+            continue
+        other = EFFECTS[name].check_furnace(furnace)
+        if other != furnace:
+            # the plant is the description itself; the model reads it another way
+            seen_as = other
+            truth[name] = {"as_furnace": other.name,
+                           **{k: v for k, v in values.items() if k.startswith("gain_")}}
+            continue
+        eff, vals, info = _draw_effect(name, rng, form, float(durations.min()), furnace)
+        effects.append(eff)
+        values.update(vals)
+        truth[name] = {**vals, **info}
+    structure = ModelStructure(effects, furnace)
 
-    door = _draw_door(rng, durations) if "door_open" in names else None
-    low = _draw_low_readings(rng, durations) if "tc_reads_low" in names else None
+    door = _draw_door(rng, durations, furnace) if "door_open" in names else None
+    low = _draw_low_readings(rng, durations, furnace) if "tc_reads_low" in names else None
     if door:
         truth["door_open"] = door
     if low:
@@ -145,14 +191,17 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
     exps = []
     for j in range(2):
         t = np.arange(0.0, durations[j] + SAMPLE_MIN / 2, SAMPLE_MIN)
-        x0 = np.full(3, t_air)
+        x0 = np.full(furnace.n_zones, t_air)
         inputs = _draw_schedule(rng, structure, values, t, x0, t_air, spread=(j == 0))
         plant = Plant(structure, values, sensors[j], seed=int(rng.integers(2**31)))
         run = _run_with_door(plant, inputs, t, x0, door, j) if door else plant.run(inputs, t, x0)
         run.start_time = starts[j]
         if low:
-            run.tc[:, SENSORS.index(low["sensor"])] -= _low_episodes(t, low["episodes"][j])
-        exps.append(run.to_experiment(f"exp{j + 1}"))
+            run.tc[:, furnace.sensors.index(low["sensor"])] -= _low_episodes(t, low["episodes"][j])
+        exp = run.to_experiment(f"exp{j + 1}")
+        if seen_as != furnace:
+            exp = dataclasses.replace(exp, furnace=seen_as)
+        exps.append(exp)
     description = (", ".join(f"{n}({_short(truth[n])})" for n in names) or "no effect") + \
         f"; form {form}; durations {durations[0]:g} and {durations[1]:g} min"
     return Case(fit=[exps[0]], holdout=[exps[1]], truth=truth, description=description,
@@ -174,10 +223,13 @@ def _u(rng: np.random.Generator, name: str, key: str) -> float:
     return float(rng.uniform(lo, hi))
 
 
-def _draw_effect(name: str, rng: np.random.Generator, form: str,
-                 duration: float) -> tuple[Effect, dict[str, float], dict]:
+def _draw_effect(name: str, rng: np.random.Generator, form: str, duration: float,
+                 furnace: Furnace = PAPER) -> tuple[Effect, dict[str, float], dict]:
     """The effect object, its parameter values and its options (for the truth record)."""
-    eff, vals = EFFECTS[name].draw(rng, form, duration)
+    if furnace == PAPER:
+        eff, vals = EFFECTS[name].draw(rng, form, duration)  # a plug-in's draw may take no furnace
+    else:
+        eff, vals = EFFECTS[name].draw(rng, form, duration, furnace=furnace)
     info = {k: (list(v) if isinstance(v, tuple) else v) for k, v in eff.options.items()}
     return eff, {k: float(v) for k, v in vals.items()}, info
 
@@ -188,6 +240,8 @@ def _draw_schedule(rng: np.random.Generator, structure: ModelStructure, values: 
     passes T_MAX_C. With `spread` the burners are shared among the zones for part of the run
     (heating- and preheating-zone burners fire); otherwise zones are filled soaking first,
     as in the paper, with a random chance of a spread step."""
+    furnace = structure.furnace
+    nz = furnace.n_zones
     for _ in range(200):
         k = int(rng.integers(4, 8))
         gaps = rng.uniform(1.0, 2.0, k)
@@ -198,18 +252,18 @@ def _draw_schedule(rng: np.random.Generator, structure: ModelStructure, values: 
         if rng.uniform() < 0.3 and k > 4:  # a step down now and then: the crew trims the firing
             i = int(rng.integers(2, k))
             totals[i] = max(2.0, totals[i] - rng.integers(2, 5))
-        counts = np.zeros((k, 3))
+        counts = np.zeros((k, nz))
         spread_from = int(rng.integers(1, k - 1))
         for i, total in enumerate(totals.astype(int)):
             if (spread and i >= spread_from) or (not spread and rng.uniform() < 0.2):
-                share = rng.dirichlet([2.0, 1.5, 1.5])
-                c = np.minimum(np.floor(share * total), BURNERS_PER_ZONE)
+                share = rng.dirichlet([2.0] + [1.5] * (nz - 1))
+                c = np.minimum(np.floor(share * total), furnace.burners)
                 c[0] += total - c.sum()
-                c = _fit_counts(c)
+                c = _fit_counts(c, furnace)
             else:
-                c = _fill_soak_first(total)
+                c = _fill_soak_first(total, furnace)
             counts[i] = c
-        if spread and not np.any((counts[:, 1] > 0) & (counts[:, 2] > 0)):
+        if spread and not _others_fire(counts):
             continue
         inputs = Inputs(times, counts, np.full(k, t_air))
         y = structure.simulate(values, inputs, t, x0).zones[0]
@@ -218,32 +272,42 @@ def _draw_schedule(rng: np.random.Generator, structure: ModelStructure, values: 
     raise RuntimeError("no burner schedule below the temperature limit was found")
 
 
-def _fill_soak_first(total: int) -> np.ndarray:
-    c = np.zeros(3)
+def _others_fire(counts: np.ndarray) -> bool:
+    """The paper's: heating- and preheating-zone burners fire together in some step. On a
+    furnace of more zones: every zone after the first with burners fires in some step."""
+    if counts.shape[1] == 3:
+        return bool(np.any((counts[:, 1] > 0) & (counts[:, 2] > 0)))
+    return bool(np.all((counts[:, 1:] > 0).any(axis=0) | (counts.max(axis=0)[1:] == 0)))
+
+
+def _fill_soak_first(total: int, furnace: Furnace = PAPER) -> np.ndarray:
+    c = np.zeros(furnace.n_zones)
     left = total
-    for i, cap in enumerate(BURNERS_PER_ZONE):
+    for i, cap in enumerate(furnace.burners):
         c[i] = min(left, cap)
         left -= c[i]
     return c
 
 
-def _fit_counts(c: np.ndarray) -> np.ndarray:
+def _fit_counts(c: np.ndarray, furnace: Furnace = PAPER) -> np.ndarray:
     """Move burners that exceed a zone's count to the next zone with room."""
     c = c.copy()
-    caps = np.array(BURNERS_PER_ZONE, dtype=float)
+    caps = np.array(furnace.burners, dtype=float)
     extra = np.maximum(c - caps, 0.0).sum()
     c = np.minimum(c, caps)
-    for i in range(3):
+    for i in range(furnace.n_zones):
         add = min(extra, caps[i] - c[i])
         c[i] += add
         extra -= add
     return c
 
 
-def _draw_door(rng: np.random.Generator, durations: np.ndarray) -> dict:
-    zone = ZONES[int(rng.integers(3))]
+def _draw_door(rng: np.random.Generator, durations: np.ndarray,
+               furnace: Furnace = PAPER) -> dict:
+    zone = furnace.zones[int(rng.integers(furnace.n_zones))]
     opens = [float(np.round(rng.uniform(0.3, 0.9) * d)) for d in durations]
-    return {"zone": zone, "g_door": _u(rng, "door_open", zone), "t_open": opens,
+    key = zone if furnace == PAPER else "other"
+    return {"zone": zone, "g_door": _u(rng, "door_open", key), "t_open": opens,
             "minutes": 60.0}
 
 
@@ -255,10 +319,14 @@ def _run_with_door(plant: Plant, inputs: Inputs, t: np.ndarray, x0: np.ndarray, 
     hi = lo + door["minutes"]
     zone, g = door["zone"], door["g_door"]
     base, values = plant.structure, plant.values
-    if zone == "preheat":  # a loss to ambient from zone 3 is a larger e
-        door_structure, door_values = base, {**values, "e": values["e"] + g}
+    furnace = base.furnace
+    z = furnace.zones.index(zone)
+    if z in furnace.ambient:  # a zone losing heat to ambient loses more (the paper's: e)
+        loss = next(t.name for t in terms(furnace) if t.kind == "loss" and t.to == z)
+        door_structure, door_values = base, {**values, loss: values[loss] + g}
     else:
-        door_structure = ModelStructure([*base.effects, ZoneLosses(zones=(zone,))])
+        door_structure = ModelStructure([*base.effects, ZoneLosses(zones=(zone,),
+                                                                   furnace=furnace)], furnace)
         door_values = {**values, f"g_{zone}": g}
     states = np.empty((t.size, base.n_states))
     x = base.full_state(x0)[0]
@@ -273,12 +341,13 @@ def _run_with_door(plant: Plant, inputs: Inputs, t: np.ndarray, x0: np.ndarray, 
         x, t_from = piece[-1], end
     C = base.system(base.theta(values)).C[0]
     j_in = np.searchsorted(inputs.t, t, side="right") - 1
-    return PlantRun(t, states[:, :3], plant.read(states @ C.T, t), inputs.burners[j_in],
-                    inputs.t_air[j_in])
+    return PlantRun(t, states[:, :furnace.n_zones], plant.read(states @ C.T, t),
+                    inputs.burners[j_in], inputs.t_air[j_in], furnace=furnace)
 
 
-def _draw_low_readings(rng: np.random.Generator, durations: np.ndarray) -> dict:
-    sensor = SENSORS[int(rng.integers(len(SENSORS)))]
+def _draw_low_readings(rng: np.random.Generator, durations: np.ndarray,
+                       furnace: Furnace = PAPER) -> dict:
+    sensor = furnace.sensors[int(rng.integers(len(furnace.sensors)))]
     lo_n, hi_n = RANGES["tc_reads_low"]["episodes"]
     episodes = []
     for d in durations:
@@ -374,8 +443,8 @@ def judge_case(case: Case, diagnosis) -> tuple[bool, bool, str]:
         return ok, False, "" if ok else f"verdict {v.status} {v.effects} on a furnace with no effect"
     if v.status == "no_gap" and case.expected_status == "explained":
         b, fl = diagnosis.baseline.rmse_holdout_c, diagnosis.noise_floor_c
-        rmse = "/".join(f"{b[z]:.2f}" for z in ZONES)
-        floor = "/".join(f"{fl[z]:.2f}" for z in ZONES)
+        rmse = "/".join(f"{b[z]:.2f}" for z in fl)
+        floor = "/".join(f"{fl[z]:.2f}" for z in fl)
         return False, True, f"{ABSORBED_REASON} (held-out RMSE {rmse} against {floor} °C)"
     if case.expected_status == "unexplained":
         if v.status != "unexplained":
@@ -404,12 +473,14 @@ def _where(w) -> str:
 
 def check(labels: list[str], draws: int, seed: int = 0, *, form: str = "candidate",
           candidates: tuple[str, ...] | None = None, noise: str = "white",
-          report: Callable[[Outcome], None] | None = None, first: int = 0) -> list[Outcome]:
+          report: Callable[[Outcome], None] | None = None, first: int = 0,
+          furnace: Furnace = PAPER) -> list[Outcome]:
     """Draw `draws` cases per label, diagnose each with its effect withheld (the diagnosis is
     told nothing about it), and judge the verdict against the truth. The thermocouples
     (`noise`) are drawn from a stream of their own, so that a case's furnace and schedule
     are the same whatever its thermocouples. `first`: the first draw's number, so that a
-    check can be split into runs (draws 0-1, then 2-4) that together are the longer one."""
+    check can be split into runs (draws 0-1, then 2-4) that together are the longer one.
+    `furnace`: the description the cases are heat-ups of."""
     from .diagnosis import diagnose  # the diagnosis is the checked party, not a dependency
 
     out = []
@@ -418,7 +489,8 @@ def check(labels: list[str], draws: int, seed: int = 0, *, form: str = "candidat
         for k in range(first, first + draws):
             sensors = draw_sensors(noise, np.random.default_rng(
                 [seed, zlib.crc32(label.encode()), k, zlib.crc32(noise.encode())]))
-            case = draw_case(effect, case_rng(seed, label, k), form=form, sensors=sensors)
+            case = draw_case(effect, case_rng(seed, label, k), form=form, sensors=sensors,
+                             furnace=furnace)
             t0 = time.perf_counter()
             d = diagnose(case.fit, case.holdout, effects=candidates, seed=seed)
             correct, absorbed, reason = judge_case(case, d)

@@ -81,17 +81,18 @@ class System:
 class ModelStructure:
     """Baseline plus effects: which states, which parameters, and how to simulate them.
 
-    The baseline is the furnace's thermal network (the paper's eq. 11 by default). The
-    effects are written for the paper's three zones and six thermocouples, so they extend
-    that furnace only."""
+    The baseline is the furnace's thermal network (the paper's eq. 11 by default); each
+    effect is made for the same furnace (`Effect(furnace=...)`), whose zones, thermocouples
+    and input channels it reads."""
 
     def __init__(self, effects: Sequence[Effect] = (), furnace: Furnace = PAPER):
         names = [e.name for e in effects]
         if len(set(names)) != len(names):
             raise ValueError(f"an effect appears twice in {names}")
-        if effects and furnace != PAPER:
-            raise ValueError(f"effects ({', '.join(names)}) extend the paper's three-zone "
-                             f"furnace only; furnace '{furnace.name}' takes none")
+        other = [e.name for e in effects if getattr(e, "furnace", PAPER) != furnace]
+        if other:
+            raise ValueError(f"effect(s) {', '.join(other)} were made for another furnace than "
+                             f"'{furnace.name}' (make them with furnace=...)")
         self.furnace = furnace
         self.n_zones = furnace.n_zones
         self.effects: tuple[Effect, ...] = tuple(effects)

@@ -183,11 +183,14 @@ def test_a_scenario_of_another_furnace_is_an_error_on_its_furnace_key():
     assert err.value.path == "furnace" and "names no furnace" in str(err.value)
 
 
-def test_effects_extend_the_paper_furnace_only():
+def test_an_effect_extends_the_furnace_it_was_made_for():
     from furnace_model.effects import EFFECTS
 
-    with pytest.raises(ValueError, match="takes none"):
-        ModelStructure([EFFECTS["sensor_lag"]()], load_furnace(SIX_YAML))
+    six = load_furnace(SIX_YAML)
+    with pytest.raises(ValueError, match="made for another furnace"):
+        ModelStructure([EFFECTS["sensor_lag"]()], six)
+    structure = ModelStructure([EFFECTS["sensor_lag"](furnace=six, zones=("heat_top",))], six)
+    assert structure.n_states == 7
 
 
 def test_six_zone_fit_recovers_the_parameters(six_run):

@@ -1,7 +1,8 @@
 """`furnace-model diagnose`: where the paper's model errs on these data, which unmodelled
 effect explains the error, and how far the held-out error shrinks once it is added.
 
-Without --holdout the last experiment is held out (one experiment: its last 30%)."""
+Without --holdout the last experiment is held out (one experiment: its last 30%). With
+--furnace the data are of that furnace description and the candidates extend its network."""
 
 from __future__ import annotations
 
@@ -11,9 +12,16 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .. import ZONES
 from ..errors import FurnaceError
-from .arguments import DATA_HELP, add_data_window, add_effects_from, data_window, output_file
+from .arguments import (
+    DATA_HELP,
+    add_data_window,
+    add_effects_from,
+    add_furnace,
+    data_window,
+    furnace_of,
+    output_file,
+)
 from .names import EFFECTS, effect_names, is_effect
 
 if TYPE_CHECKING:
@@ -34,6 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help=f"candidates to try (default all: {','.join(EFFECTS)} and those of "
                         "plug-ins)")
     add_effects_from(p)
+    add_furnace(p)
     add_data_window(p)
     p.add_argument("--seed", type=int, default=0, help="random seed of the searches (default 0)")
     p.set_defaults(run=run)
@@ -55,8 +64,9 @@ def run(args: argparse.Namespace) -> int:
     from ..experiment import load_experiments
 
     window = data_window(args)
-    data = load_experiments(args.data, **window)
-    hold = load_experiments(args.holdout, **window) if args.holdout else None
+    furnace = furnace_of(args)
+    data = load_experiments(args.data, **window, furnace=furnace)
+    hold = load_experiments(args.holdout, **window, furnace=furnace) if args.holdout else None
     result = diagnose(data, hold, effects=args.effects, seed=args.seed)
     print(summary(result))
     if args.json:
@@ -86,31 +96,36 @@ def summary(d: Diagnosis) -> str:
     from ..diagnosis import RULE, shortfall, where_lines
 
     b, v = d.baseline, d.verdict
+    furnace = d.fit_data[0].furnace
+    zone_names = furnace.zones
+    per_zone = "/".join(zone_names)
+    model = ("the paper's model, eq. 11" if furnace.paper_structure
+             else f"the thermal network of furnace '{furnace.name}'")
     lines = [f"Verdict: {v.status}" + (f" ({', '.join(v.effects)})" if v.effects else ""),
              v.sentence, "",
              f"Fitted: {', '.join(e.name for e in d.fit_data)}; held out: {d.holdout_how}", "",
-             "Baseline (the paper's model, eq. 11):",
+             f"Baseline ({model}):",
              "| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap above (°C) "
              "| gap |",
              "|---|---|---|---|---|---|"]
     limit = d.gap_limit_c or {}
-    for z in ZONES:
+    for z in zone_names:
         lines.append(f"| {z} | {b.rmse_fit_c[z]:.2f} | {b.rmse_holdout_c[z]:.2f} | "
                      f"{d.noise_floor_c[z]:.2f} | {limit.get(z, float('nan')):.2f} | "
                      f"{'yes' if z in d.gap_zones else 'no'} |")
     if d.record_floors:
-        lines += ["", "Noise floor per record (°C per zone, soak/heat/preheat; the held-out "
+        lines += ["", f"Noise floor per record (°C per zone, {per_zone}; the held-out "
                   "RMSE is judged against the held-out records'):"]
         for i, f in enumerate(d.record_floors):
             role = "fitted" if i < len(d.fit_data) else "held out"
-            floors = "/".join(f"{f.zones[z].floor_c:.2f}" for z in ZONES)
-            hows = {f.zones[z].words() for z in ZONES}
+            floors = "/".join(f"{f.zones[z].floor_c:.2f}" for z in zone_names)
+            hows = {f.zones[z].words() for z in zone_names}
             lines.append(f"- {f.record} ({role}): {floors}; "
-                         + ("; ".join(f"{z}: {f.zones[z].words()}" for z in ZONES)
+                         + ("; ".join(f"{z}: {f.zones[z].words()}" for z in zone_names)
                             if len(hows) > 1 else hows.pop()))
     if d.where:
         lines += ["", "Where the error lies:"]
-        for w in where_lines(d.where):
+        for w in where_lines(d.where, zone_names):
             when = (f"throughout {w.experiment} ({w.span})" if w.kind == "throughout"
                     else f"{w.experiment} {w.span}")
             lines.append(f"- {w.who}, {when}"
@@ -118,13 +133,13 @@ def summary(d: Diagnosis) -> str:
                          + f": {w.share} of {'each' if ' and ' in w.share else 'the'} "
                          f"zone's squared error; {w.regime}")
     if d.candidates:
-        lines += ["", "Candidates, best first (held-out RMSE per zone soak/heat/preheat; "
+        lines += ["", f"Candidates, best first (held-out RMSE per zone {per_zone}; "
                   f"credit: {RULE}):",
                   "| effect(s) | held out (°C) | shrink % | gap closed % | dBIC | "
                   "strength determined | credit |",
                   "|---|---|---|---|---|---|---|"]
         for c in d.candidates:
-            ho = "/".join(f"{c.rmse_holdout_c[z]:.2f}" for z in ZONES)
+            ho = "/".join(f"{c.rmse_holdout_c[z]:.2f}" for z in zone_names)
             determined = "yes" if c.identifiable else "no"
             short = shortfall(c)
             credit = "no: " + "; ".join(short) if short else "yes"

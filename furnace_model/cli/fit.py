@@ -160,7 +160,8 @@ def run(args: argparse.Namespace) -> int:
 
     furnace = furnace_of(args)
     try:
-        structure = ModelStructure([EFFECTS[n](**EFFECTS[n].candidate_options)
+        structure = ModelStructure([EFFECTS[n](**EFFECTS[n].candidate_for(furnace),
+                                               furnace=furnace)
                                     for n in args.effects or ()], furnace)
     except ValueError as exc:
         raise FurnaceError(str(exc)) from None

@@ -7,7 +7,11 @@ Draws the baseline absorbs (its held-out error is already at the noise floor) ar
 apart with that reason, not counted as failures. Exit code 1 when a row misses the
 acceptance: every control no_gap, each effect named in 9 of 10 draws it was not absorbed
 in, combinations and faults outside the library every time. Stopped with Ctrl-C, it
-prints and writes (--json, "complete": false) the cases diagnosed so far and exits with 130."""
+prints and writes (--json, "complete": false) the cases diagnosed so far and exits with 130.
+
+With --furnace the cases are heat-ups of that description (its zones, burners and
+thermocouples, a network of generic rates: docs/diagnosis.md); an effect that cannot apply
+to it is left out of the default rows and refused when named."""
 
 from __future__ import annotations
 
@@ -18,7 +22,7 @@ from functools import partial
 from typing import TYPE_CHECKING
 
 from ..errors import FurnaceError
-from .arguments import add_effects_from, output_file
+from .arguments import add_effects_from, add_furnace, furnace_of, output_file
 from .diagnose import effect_list
 from .names import NOISE, OUT_OF_LIBRARY, effect_names, is_effect
 
@@ -52,6 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", type=output_file, metavar="OUT",
                    help="write every case and the table")
     add_effects_from(p)
+    add_furnace(p)
     p.set_defaults(run=run)
 
 
@@ -63,12 +68,33 @@ def labels_of(args: argparse.Namespace) -> list[str]:
     if args.draws < 1:
         raise FurnaceError("--draws must be at least 1")
     drawable = _drawable()
+    furnace = furnace_of(args)
+    refused = _refused(furnace)
     if args.effects:
         for name in {n for label in args.effects for n in label.split("+")} - drawable:
             raise FurnaceError(f"effect {name} has no `draw`: the selfcheck cannot make a "
                                "furnace with it at random (give its class a draw classmethod)")
-    return list(args.effects or ("none", *(n for n in effect_names() if n in drawable))) + \
-        (list(EXTRA) if args.all else [])
+        for name in sorted({n for label in args.effects for n in label.split("+")}):
+            if name in refused:
+                raise FurnaceError(f"{name} does not apply to furnace '{furnace.name}': "
+                                   f"{refused[name]}")
+    extra = [x for x in EXTRA if not set(x.split("+")) & set(refused)]
+    return list(args.effects or ("none", *(n for n in effect_names()
+                                           if n in drawable and n not in refused))) + \
+        (extra if args.all else [])
+
+
+def _refused(furnace) -> dict[str, str]:
+    """Effects the selfcheck cannot check on this furnace, with the reason: those that do
+    not apply to it and have no other reading of it to be checked on."""
+    from ..effects import EFFECTS
+
+    out = {}
+    for n, cls in EFFECTS.items():
+        why = cls.refusal(furnace)
+        if why and cls.check_furnace(furnace) == furnace:
+            out[n] = why
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -86,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         check(labels, args.draws, args.seed, form=args.form, candidates=args.candidates,
-              noise=args.noise, report=progress, first=args.first_draw)
+              noise=args.noise, report=progress, first=args.first_draw,
+              furnace=furnace_of(args))
     except KeyboardInterrupt:
         # A full check takes hours: stopping it must not throw away the cases diagnosed.
         if not outcomes:
@@ -113,6 +140,8 @@ def report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool)
         doc = {"seed": args.seed, "draws": args.draws, "first_draw": args.first_draw,
                "form": args.form, "noise": args.noise,
                "candidates": list(args.candidates or effect_names()), "complete": complete,
+               **({"furnace": args.furnace.as_posix()} if getattr(args, "furnace", None)
+                  else {}),
                "rows": [r.__dict__ for r in rows], "cases": [o.to_json() for o in outcomes]}
         try:
             args.json.write_text(json.dumps(doc, indent=1, default=_plain) + "\n")

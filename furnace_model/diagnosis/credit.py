@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import ZONES
 from ..fit import FitResult
 from .candidate import CandidateResult
 
@@ -75,7 +74,7 @@ def identifiable(fr: FitResult, effects: tuple[str, ...]) -> tuple[bool, str]:
         effect = next(e for e in fr.structure.effects if e.name == name)
         box = {p.name: p for p in effect.params}
         ok_any, why = False, []
-        for pname, null in type(effect).null.items():
+        for pname, null in effect.nulls.items():
             if pname not in box:
                 continue
             # Under the candidate's own noise (white): whether the records pin its strength
@@ -112,7 +111,7 @@ def gap_closed_pct(c: CandidateResult, ref: CandidateResult, floor: dict[str, fl
     that c removes: 100 when c reaches the floor, whatever the noise level; 0 when ref is at
     the floor already, since there is nothing to close."""
     rr, rc = ref.rmse_holdout_pooled(), c.rmse_holdout_pooled()
-    excess = rr * rr - float(np.mean([floor[z] ** 2 for z in ZONES]))
+    excess = rr * rr - float(np.mean([f ** 2 for f in floor.values()]))
     return float(100.0 * (rr * rr - rc * rc) / excess) if excess > 0 else 0.0
 
 
@@ -151,7 +150,7 @@ def rank(c: CandidateResult) -> tuple:
 
 def near_floor(c: CandidateResult, near: dict[str, float]) -> bool:
     """Held out within `near` (noisefloor.limits at NEAR_RATIO) in every zone."""
-    return all(c.rmse_holdout_c[z] <= near[z] for z in ZONES)
+    return all(c.rmse_holdout_c[z] <= near[z] for z in near)
 
 
 def closes(c: CandidateResult, kept: CandidateResult, floor: dict[str, float]) -> bool:

@@ -8,10 +8,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import ZONES
 from ..effects import EFFECTS, Effect
 from ..experiment import Experiment
 from ..fit import FitResult, fit
+from ..furnace import PAPER, Furnace
 from ..residuals import lag1
 from ..structure import ModelStructure
 from .candidate import CandidateResult
@@ -42,10 +42,15 @@ class Task:
     generations: int | None = None
     """Generations of a search from scratch (init None); None: the fit's default."""
 
+    @property
+    def furnace(self) -> Furnace:
+        return self.fit_data[0].furnace if self.fit_data else PAPER
 
-def structure_of(effects: tuple[str, ...], options: dict[str, dict]) -> ModelStructure:
-    items: list[Effect] = [EFFECTS[n](**options.get(n, {})) for n in effects]
-    return ModelStructure(items)
+
+def structure_of(effects: tuple[str, ...], options: dict[str, dict],
+                 furnace: Furnace = PAPER) -> ModelStructure:
+    items: list[Effect] = [EFFECTS[n](**options.get(n, {}), furnace=furnace) for n in effects]
+    return ModelStructure(items, furnace)
 
 
 def run_task(task: Task) -> CandidateResult:
@@ -58,7 +63,7 @@ def run_task(task: Task) -> CandidateResult:
     except Exception as exc:  # noqa: BLE001 - any failure of one candidate is reported as such
         if not task.effects:
             raise
-        nan = {z: float("nan") for z in ZONES}
+        nan = {z: float("nan") for z in task.furnace.zones}
         return CandidateResult(task.effects, {}, {}, dict(nan), dict(nan), identifiable=False,
                                note=f"fit failed: {type(exc).__name__}: {exc}",
                                options={n: dict(task.options.get(n, {})) for n in task.effects},
@@ -66,7 +71,8 @@ def run_task(task: Task) -> CandidateResult:
 
 
 def _run_task(task: Task, t0: float) -> CandidateResult:
-    structure = structure_of(task.effects, task.options)
+    structure = structure_of(task.effects, task.options, task.furnace)
+    zones = task.furnace.zones
     init = None
     if task.init is not None:
         init = {k: v for k, v in task.init.items() if k in structure.names}
@@ -85,7 +91,7 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
              runs=runs, bounds=bounds, generations=task.generations, profile=False)
     off_floor = task.cold_above is None or any(
-        fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in ZONES)
+        fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in zones)
     if init is not None and structure.linear and task.cold_too and off_floor:
         cold = fit(task.fit_data, structure, seed=task.seed + 1, zone_offsets=True,
                    bounds=bounds, profile=False)
@@ -104,12 +110,12 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     return CandidateResult(
         effects=task.effects, params=dict(fr.params),
         ci95={k: (float(v[0]), float(v[1])) for k, v in fr.ci95.items()},
-        rmse_fit_c=rmse_per_zone(task.fit_data, fit_pred),
-        rmse_holdout_c=rmse_per_zone(task.holdout, hold_pred),
+        rmse_fit_c=rmse_per_zone(task.fit_data, fit_pred, zones),
+        rmse_holdout_c=rmse_per_zone(task.holdout, hold_pred, zones),
         identifiable=ident, note=note, fit_pred=fit_pred, holdout_pred=hold_pred,
         options={n: dict(task.options.get(n, {})) for n in task.effects},
         sse_fit=fr.sse, n_obs=fr.n_obs,
-        n_params=len(structure.names) + 6 * len(task.fit_data),
+        n_params=len(structure.names) + 2 * len(zones) * len(task.fit_data),
         rho1=lag1(res), rho1_holdout=lag1(hold_res), n_holdout=n_hold,
         held_out_fitted=unseen, elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
 
@@ -126,7 +132,7 @@ def unseen_by_fit(fr: FitResult, bounds: dict[str, tuple[float, float]]) -> tupl
     box = {p.name: bounds.get(p.name, (p.lo, p.hi)) for p in fr.structure.params}
     out = unc.unseen(np.array([box[n][0] for n in unc.names]),
                      np.array([box[n][1] for n in unc.names]))
-    return tuple(n for n in ModelStructure().names if n in out)
+    return tuple(n for n in ModelStructure(furnace=fr.structure.furnace).names if n in out)
 
 
 def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray]:
@@ -160,15 +166,19 @@ def join(head: Experiment, tail: Experiment) -> Experiment:
     return Experiment(head.name, np.concatenate([head.t_min, tail.t_min]),
                       np.concatenate([head.tc, tail.tc]),
                       np.concatenate([head.burners, tail.burners]),
-                      np.concatenate([head.t_air, tail.t_air]), head.start_time, head.source)
+                      np.concatenate([head.t_air, tail.t_air]), head.start_time, head.source,
+                      furnace=head.furnace)
 
 
-def rmse_per_zone(data: list[Experiment], preds: list[np.ndarray]) -> dict[str, float]:
+def rmse_per_zone(data: list[Experiment], preds: list[np.ndarray],
+                  zones: tuple[str, ...] | None = None) -> dict[str, float]:
+    """`zones`: the furnace's (its records' when not given; the paper's without records)."""
+    zones = zones or (data[0].furnace.zones if data else PAPER.zones)
     if not data:
-        return {z: float("nan") for z in ZONES}
+        return {z: float("nan") for z in zones}
     r = np.concatenate([e.zone_temp - p for e, p in zip(data, preds, strict=True)])
     out = {}
-    for w, z in enumerate(ZONES):
+    for w, z in enumerate(zones):
         v = r[:, w][np.isfinite(r[:, w])]
         out[z] = float(np.sqrt(np.mean(v * v))) if v.size else float("nan")
     return out

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import ZONES
 from ..errors import FurnaceError
 from ..experiment import Experiment
 from .words import zones_words
@@ -23,8 +22,12 @@ def split(data: list[Experiment], holdout: list[Experiment] | None
     the holdout was chosen. Refuses, with what is missing, data that cannot be diagnosed."""
     if not data:
         raise FurnaceError("no data to diagnose")
+    furnace = data[0].furnace
     for e in [*data, *(holdout or [])]:
-        for w, z in enumerate(ZONES):
+        if e.furnace != furnace:
+            raise FurnaceError(f"{e.source or e.name}: a record of furnace '{e.furnace.name}', "
+                               f"the others are of furnace '{furnace.name}'")
+        for w, z in enumerate(furnace.zones):
             if not np.isfinite(e.zone_temp[:, w]).any():
                 raise FurnaceError(f"{e.source or e.name}: zone '{z}' has no thermocouple "
                                    "readings: every zone needs at least one")
@@ -77,6 +80,8 @@ def split(data: list[Experiment], holdout: list[Experiment] | None
 
 def uncovered(fit_data: list[Experiment], holdout: list[Experiment]) -> list[str]:
     """Zones whose burners fire in the held-out data but never in the fitted data."""
+    zones = next((e.furnace.zones for e in [*fit_data, *holdout]), ())
+
     def firing(data):
-        return {z for e in data for k, z in enumerate(ZONES) if np.any(e.burners[:, k] > 0)}
-    return [z for z in ZONES if z in firing(holdout) - firing(fit_data)]
+        return {z for e in data for k, z in enumerate(zones) if np.any(e.burners[:, k] > 0)}
+    return [z for z in zones if z in firing(holdout) - firing(fit_data)]

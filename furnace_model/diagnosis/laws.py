@@ -7,19 +7,21 @@ import numpy as np
 
 from ..effects import EFFECTS
 from ..experiment import Experiment
+from ..furnace import PAPER, Furnace
 from .candidate import CandidateResult
 from .credit import helps
 from .fitting import rmse_per_zone
 
 
-def further_laws(fitted: list[CandidateResult]) -> list[tuple[CandidateResult, dict]]:
+def further_laws(fitted: list[CandidateResult], furnace: Furnace = PAPER
+                 ) -> list[tuple[CandidateResult, dict]]:
     """The further laws to fit (`Effect.further_laws`), each with the candidate it starts
     from: only for a candidate that helps in its first law, since the nonlinear ones are
     slow. A furnace's radiation exponent, burner curve or storing walls are its own: the
     laws are fitted warm from the effect's first law (and from scratch on a bent baseline,
     see `diagnose`), and the best kept, or a blend of two (`between_laws`)."""
     return [(c, dict(opts)) for c in fitted if helps(c)
-            for opts in EFFECTS[c.effects[0]].further_laws]
+            for opts in EFFECTS[c.effects[0]].laws_for(furnace)]
 
 
 def between_laws(same: list[CandidateResult], fit_data: list[Experiment],

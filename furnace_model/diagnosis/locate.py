@@ -8,7 +8,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import ZONES
 from ..experiment import Experiment
 from ..noisefloor import RecordFloor
 from ..residuals import SUDDEN_WINDOW_MIN, ZONE_WORDS, error_spans, iso, regime, sudden_change
@@ -40,14 +39,15 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
     """The located error: thermocouples at fault first, then the residual's sharpest step if
     it stands out of the noise (where a disturbance entered), then the spans that hold most
     of the baseline's squared error above the floor."""
-    total = {z: 0.0 for z in ZONES}
+    zones = experiments[0].furnace.zones if experiments else ()
+    total = {z: 0.0 for z in zones}
     for r in residuals:
-        for w, z in enumerate(ZONES):
+        for w, z in enumerate(zones):
             v = r[:, w]
             total[z] += float(np.nansum(v * v))
 
     def share(j: int, z: str, i0: int, i1: int) -> float:
-        sse = float(np.nansum(residuals[j][i0:i1, ZONES.index(z)] ** 2))
+        sse = float(np.nansum(residuals[j][i0:i1, zones.index(z)] ** 2))
         return sse / total[z] if total[z] > 0 else 0.0
 
     out: list[Located] = []
@@ -96,7 +96,11 @@ class WhereLine:
     kind: str
 
 
-def where_lines(where: list[Located]) -> list[WhereLine]:
+def where_lines(where: list[Located], zones: tuple[str, ...] = ()) -> list[WhereLine]:
+    """`zones`: the furnace's, in order (the paper's when not given)."""
+    from ..furnace import PAPER
+
+    order = zones or PAPER.zones
     out: list[WhereLine] = []
     done: set[str] = set()
     for w in where:
@@ -111,7 +115,7 @@ def where_lines(where: list[Located]) -> list[WhereLine]:
             continue
         done.add(w.experiment)
         same = sorted((x for x in where if x.kind == "throughout" and x.experiment == w.experiment),
-                      key=lambda x: ZONES.index(x.zone))
+                      key=lambda x: order.index(x.zone) if x.zone in order else len(order))
         zones = zones_words([x.zone for x in same]) + (" zones" if len(same) > 1 else " zone")
         share = and_words([f"{100 * x.share_of_error:.0f}%" for x in same])
         out.append(WhereLine(zones, w.experiment, span, clock, share,

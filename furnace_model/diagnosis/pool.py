@@ -21,7 +21,7 @@ def run_all(tasks: list[Task], progress: Callable[[float], None]) -> list[Candid
         ctx = multiprocessing.get_context("fork")
         # nonlinear (slow) fits first, so that one does not finish last alone
         order = sorted(range(len(tasks)), key=lambda i: structure_of(
-            tasks[i].effects, tasks[i].options).linear)
+            tasks[i].effects, tasks[i].options, tasks[i].furnace).linear)
         with ProcessPoolExecutor(max_workers=WORKERS, mp_context=ctx) as pool:
             futures = {i: pool.submit(run_task, tasks[i]) for i in order}
             results = {}

@@ -9,7 +9,6 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from .. import ZONES
 from ..effects import EFFECTS, Clues
 from ..errors import FurnaceError
 from ..experiment import Experiment
@@ -63,6 +62,9 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     say = progress or (lambda _s, _f: None)
     names = check_effects(EFFECTS if effects is None else effects)
     fit_data, hold, tail_of, how = split(data, holdout)
+    furnace = fit_data[0].furnace
+    zones = furnace.zones
+    names = tuple(n for n in names if _applies(n, furnace, effects is not None))
     say("baseline", 0.0)
     base = run_task(Task((), {}, fit_data, hold, tail_of, None, seed))
     every = fit_data + hold
@@ -72,25 +74,26 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     fit_limit = limits(fit_floors, GAP_RATIO, GAP_Z)
     gap_limit = limits(hold_floors, GAP_RATIO, GAP_Z)
     near = limits(hold_floors, NEAR_RATIO, NEAR_Z)
-    tc_noise = [{z: f.zones[z].tc_sd_c for z in ZONES} for f in floors]
+    tc_noise = [{z: f.zones[z].tc_sd_c for z in zones} for f in floors]
     base_res = [e.zone_temp - p for e, p in zip(every, base.fit_pred + base.holdout_pred,
                                                 strict=True)]
     faults = sensor_faults(every, base.fit_pred + base.holdout_pred, tc_noise)
     where = locate(every, base_res, floors, faults)
     tests = residual_tests(hold, [e.zone_temp - p for e, p in
                                   zip(hold, base.holdout_pred, strict=True)])
-    gap = tuple(z for z in ZONES if base.rmse_holdout_c[z] > gap_limit[z])
+    gap = tuple(z for z in zones if base.rmse_holdout_c[z] > gap_limit[z])
     noise = {"record_floors": floors, "noise_floor_fit_c": pooled_floor(fit_floors),
              "gap_limit_c": gap_limit, "sensor_noise_c": _pooled_tc(floors)}
 
-    clues = Clues(fit_data, every, faults, baseline_on=lambda heads: _determined(heads, seed))
+    clues = Clues(fit_data, every, faults, baseline_on=lambda heads: _determined(heads, seed),
+                  residuals=base_res, furnace=furnace)
     if not gap:
         # Nothing to explain: no extension can beat the noise on held-out data.
-        verdict = judge(base, None, [], floor, near, gap, where)
+        verdict = judge(base, None, [], floor, near, gap, where, furnace=furnace)
         say("done", 1.0)
         return Diagnosis(fit_data, hold, how, base, floor, where, tests, [], verdict,
                          time.perf_counter() - t_start, gap, **noise)
-    clues.bent = bent = any(base.rmse_fit_c[z] > fit_limit[z] for z in ZONES)
+    clues.bent = bent = any(base.rmse_fit_c[z] > fit_limit[z] for z in zones)
     say("candidates", 0.1)
     trials = {n: EFFECTS[n].trial(clues) for n in names}
     options = {n: t.options for n, t in trials.items()}
@@ -114,9 +117,9 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         # from scratch in their own task.
         stuck = not any(credited(c) and near_floor(c, near) for c in fitted)
         off = [i for i, c in enumerate(fitted)
-               if not structure_of(c.effects, c.options).linear
+               if not structure_of(c.effects, c.options, furnace).linear
                and (stuck or helps(c))
-               and any(c.rmse_fit_c[z] > fit_limit[z] for z in ZONES)]
+               and any(c.rmse_fit_c[z] > fit_limit[z] for z in zones)]
         cold = run_all([Task(fitted[i].effects, fitted[i].options, fit_data, hold, tail_of,
                               None, seed + 1, bounds=bounds, generations=COLD_GENERATIONS)
                          for i in off], lambda f: say("candidates", 0.6 + 0.05 * f))
@@ -132,7 +135,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     cold_laws = bent and not any(credited(c) and near_floor(c, near) for c in fitted)
     laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
                  seed, cold_laws, bounds, fit_limit)
-            for c, opts in further_laws(fitted)]
+            for c, opts in further_laws(fitted, furnace)]
     more = run_all(laws, lambda f: say("candidates", 0.65 + 0.05 * f))
     for c in more:
         score_against(c, base, floor)
@@ -156,7 +159,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                             options, bounds, starts, gap,
                             lambda f: say("combinations", 0.7 + 0.3 * f))
     candidates = sorted(singles + combos, key=rank)
-    verdict = judge(base, kept, candidates, floor, near, gap, where, uncovered(fit_data, hold))
+    verdict = judge(base, kept, candidates, floor, near, gap, where, uncovered(fit_data, hold),
+                    furnace=furnace)
     say("done", 1.0)
     return Diagnosis(fit_data, hold, how, base, floor, where, tests, candidates, verdict,
                      time.perf_counter() - t_start, gap, **noise)
@@ -165,7 +169,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
 def _pooled_tc(floors: list[RecordFloor]) -> dict[str, float]:
     """One thermocouple's noise sd per zone over the records, weighted by their readings."""
     out = {}
-    for z in ZONES:
+    for z in (floors[0].zones if floors else ()):
         pairs = [(f.zones[z].tc_sd_c, f.zones[z].samples) for f in floors
                  if f.zones[z].samples and np.isfinite(f.zones[z].tc_sd_c)]
         out[z] = (float(np.sqrt(np.average([s * s for s, _ in pairs],
@@ -187,7 +191,7 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
     kept = singles[0]
     tried: list[CandidateResult] = []
     for _step in range(MAX_EFFECTS - 1):
-        if all(kept.rmse_holdout_c[z] <= gap_limit[z] for z in ZONES):
+        if all(kept.rmse_holdout_c[z] <= gap_limit[z] for z in gap_limit):
             break
         others = [c.effects[0] for c in singles if c.effects[0] not in kept.effects][:STEP_TRIES]
         tasks = []
@@ -209,7 +213,7 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         # combination's start (a fit that stopped in a side valley), not from the added
         # effect: refit the kept set from there, and add the effect only if it still closes
         # most of what the refitted set leaves.
-        structure = structure_of(kept.effects, options)
+        structure = structure_of(kept.effects, options, fit_data[0].furnace)
         again = run_all([Task(kept.effects, {k: v for k, v in options.items()
                                               if k in kept.effects}, fit_data, hold, tail_of,
                                {k: v for k, v in best.params.items() if k in structure.names},
@@ -238,7 +242,20 @@ def _not_kept(kept: CandidateResult) -> str:
             "kept ones leave, with its strength determined and a lower BIC)")
 
 
+def _applies(name: str, furnace, asked: bool) -> bool:
+    """Whether an effect is a candidate on this furnace. One asked for by name that cannot
+    apply is refused with the reason; of all the effects, those that cannot apply are left
+    out (zone_burners on a furnace whose burners heat their own zones already)."""
+    why = EFFECTS[name].refusal(furnace)
+    if why and asked:
+        raise FurnaceError(f"{name} does not apply to furnace '{furnace.name}': {why}")
+    return not why
+
+
 def _determined(records: list[Experiment], seed: int) -> dict[str, float]:
     """The baseline fitted on `records`, with the parameters they determine."""
-    fr = fit(records, seed=seed, zone_offsets=True, profile=False)
+    from ..structure import ModelStructure
+
+    fr = fit(records, ModelStructure(furnace=records[0].furnace), seed=seed, zone_offsets=True,
+             profile=False)
     return {k: v for k, v in fr.params.items() if k not in fr.undetermined}

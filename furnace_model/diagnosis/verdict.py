@@ -6,8 +6,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from .. import ZONES
 from ..effects import EFFECTS
+from ..furnace import PAPER, Furnace
 from ..residuals import ZONE_WORDS
 from ..structure import ModelStructure
 from .candidate import CandidateResult
@@ -30,20 +30,23 @@ class Verdict:
 
 def judge(base: CandidateResult, kept: CandidateResult | None,
           candidates: list[CandidateResult], floor: dict[str, float], near: dict[str, float],
-          gap: tuple[str, ...], where: list[Located], missing: Sequence[str] = ()) -> Verdict:
+          gap: tuple[str, ...], where: list[Located], missing: Sequence[str] = (),
+          furnace: Furnace = PAPER) -> Verdict:
     """The verdict and its sentence; `missing`: zones whose burners fire only in the
     held-out data."""
-    fl = ", ".join(f"{z} {floor[z]:.1f}" for z in ZONES)
-    rb = ", ".join(f"{z} {base.rmse_holdout_c[z]:.1f}" for z in ZONES)
+    zones = furnace.zones
+    fl = ", ".join(f"{z} {floor[z]:.1f}" for z in zones)
+    rb = ", ".join(f"{z} {base.rmse_holdout_c[z]:.1f}" for z in zones)
+    model = "The paper's model" if furnace == PAPER else f"The model of furnace '{furnace.name}'"
     if not gap:
         return Verdict("no_gap", [], 0.0,
-                       f"The paper's model already predicts the held-out data as well as the "
+                       f"{model} already predicts the held-out data as well as the "
                        f"thermocouples allow (held-out RMSE {rb} °C against a noise floor of "
                        f"{fl} °C): there is no model error to explain, and no candidate "
                        f"effect was tried.")
     if kept is not None and near_floor(kept, near):
         best = kept
-        physics = "; and ".join(EFFECTS[n].physics for n in best.effects)
+        physics = "; and ".join(EFFECTS[n].physics_for(furnace) for n in best.effects)
         one = len(best.effects) == 1
         what, it = ("an effect", "it") if one else (f"{len(best.effects)} effects", "them")
         worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / max(floor[z], 1e-9))
@@ -55,11 +58,11 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
             f"{ZONE_WORDS[worst]} zone from {base.rmse_holdout_c[worst]:.1f} to "
             f"{best.rmse_holdout_c[worst]:.1f} °C (pooled over zones {best.shrink_pct:.0f}% "
             f"smaller), down to about the thermocouple noise of {floor[worst]:.1f} °C."
-            + _unseen_words(best))
+            + _unseen_words(best, furnace))
     worst = max(gap, key=lambda z: base.rmse_holdout_c[z] / max(floor[z], 1e-9))
     place = ""
     if where:
-        w = where_lines(where)[0]
+        w = where_lines(where, zones)[0]
         who = w.who if w.who.startswith("thermocouple") else f"the {w.who}"
         if w.kind == "throughout":
             place = f" It lies in {who} throughout {w.experiment} ({w.regime})."
@@ -80,10 +83,10 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
            f"that the fitted ones fire every burner the held-out one does." if missing else ""))
 
 
-def _unseen_words(c: CandidateResult) -> str:
+def _unseen_words(c: CandidateResult, furnace: Furnace = PAPER) -> str:
     if not c.held_out_fitted:
         return ""
-    docs = {p.name: p.doc.split(": ")[-1] for p in ModelStructure().params}  # words, not 1/C1
+    docs = {p.name: p.doc.split(": ")[-1] for p in ModelStructure(furnace=furnace).params}  # words, not 1/C1
     what = "; ".join(f"{n} ({docs[n]})" for n in c.held_out_fitted)
     it = "it" if len(c.held_out_fitted) == 1 else "them"
     return (f" With {' and '.join(c.effects)} in the model, the fitted data do not show {what} "

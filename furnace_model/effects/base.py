@@ -24,7 +24,11 @@ give a formulation different from the diagnosis's candidate (a second-order lag,
 radiation law that is no power of T) exist so that the diagnosis can be tested on physics
 that is not its own.
 
-Input channels: burners on in soak, heat, preheat (counts), then ambient temperature.
+An effect knows the furnace it extends (`Effect(furnace=...)`, the paper's by default): its
+zone and sensor options range over that furnace's zones and thermocouples (`specs`), and its
+physics reads the input channels as one burner count per zone, in the furnace's zone order,
+then ambient temperature (`u_burners`, `u_air`). An effect that cannot apply to a furnace
+says why (`refusal`), and making it there is a ValueError with that reason.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from ..furnace import PAPER, Furnace
 from ..lti import Drive
 from ..parameters import Param
 
@@ -44,6 +49,8 @@ if TYPE_CHECKING:
 U_BURNERS = slice(0, 3)
 U_AIR = 3
 N_INPUTS = 4
+"""The paper's furnace's input channels (soak, heat, preheat, ambient); an effect reads its
+own furnace's from `u_burners`, `u_air`, `n_inputs`."""
 KELVIN = 273.15
 
 Theta = dict[str, np.ndarray]
@@ -79,6 +86,9 @@ class Clues:
     absorb something, and a warm start from it may sit in a side valley."""
     baseline_on: Callable[[list[Experiment]], dict[str, float]] | None = None
     """The baseline fitted on other records (parts of these), with what they determine."""
+    residuals: list[np.ndarray] = field(default_factory=list)
+    """The baseline's zone residuals on `records` (N, zones) each."""
+    furnace: Furnace = PAPER
 
 
 @dataclass
@@ -116,13 +126,66 @@ class Effect:
     ranges: ClassVar[dict[str, tuple[float, float]]] = {}
     """Ranges the selfcheck draws strengths and timings from (`draw`)."""
 
-    def __init__(self, **options: Any):
-        self.options = {k: o.default for k, o in self.option_specs.items()}
+    def __init__(self, *, furnace: Furnace = PAPER, **options: Any):
+        why = self.refusal(furnace)
+        if why:
+            raise ValueError(f"{self.name} does not apply to furnace '{furnace.name}': {why}")
+        self.furnace = furnace
+        specs = self.specs(furnace)
+        self.options = {k: o.default for k, o in specs.items()}
         unknown = set(options) - set(self.options)
         if unknown:
             raise ValueError(f"{self.name}: unknown option(s) {sorted(unknown)}")
         self.options.update(options)
         self.params: tuple[Param, ...] = self._params()
+
+    # -- the furnace ---------------------------------------------------------------------------
+    @classmethod
+    def refusal(cls, furnace: Furnace) -> str | None:
+        """Why the effect cannot extend this furnace, in words; None when it can."""
+        return None
+
+    @classmethod
+    def specs(cls, furnace: Furnace) -> dict[str, Option]:
+        """The options on this furnace: zone and sensor choices are its zones and sensors."""
+        return cls.option_specs
+
+    @classmethod
+    def candidate_for(cls, furnace: Furnace) -> dict[str, Any]:
+        """The diagnosis's own formulation on this furnace (`candidate_options`)."""
+        return dict(cls.candidate_options)
+
+    @classmethod
+    def laws_for(cls, furnace: Furnace) -> tuple[dict[str, Any], ...]:
+        """The further laws on this furnace (`further_laws`)."""
+        return cls.further_laws
+
+    @classmethod
+    def physics_for(cls, furnace: Furnace) -> str:
+        """`physics` in this furnace's words."""
+        return cls.physics
+
+    @property
+    def nulls(self) -> dict[str, float]:
+        """`null` for this effect's own parameters (their names may follow its zones)."""
+        return type(self).null
+
+    @property
+    def n_zones(self) -> int:
+        return self.furnace.n_zones
+
+    @property
+    def u_burners(self) -> slice:
+        """The input channels of the burner counts, one per zone."""
+        return slice(0, self.furnace.n_zones)
+
+    @property
+    def u_air(self) -> int:
+        return self.furnace.n_zones
+
+    @property
+    def n_inputs(self) -> int:
+        return self.furnace.n_zones + 1
 
     def __repr__(self) -> str:
         opts = ", ".join(f"{k}={v!r}" for k, v in self.options.items())
@@ -138,7 +201,8 @@ class Effect:
         return ()
 
     def extend(self, A: np.ndarray, B: np.ndarray, C: np.ndarray, theta: Theta, first: int) -> None:
-        """Change A (P,n,n), B (P,n,m) and C (P,3,n) in place; own states start at `first`."""
+        """Change A (P,n,n), B (P,n,m) and C (P,zones,n) in place; own states start at
+        `first`."""
 
     def transform_levels(self, theta: Theta, u: np.ndarray) -> np.ndarray:
         """Input levels (P|1, J, m) -> levels; for effects that act on the burner count."""
@@ -153,7 +217,7 @@ class Effect:
         return np.zeros_like(x)
 
     def sensor_offsets(self, theta: Theta, t: np.ndarray) -> np.ndarray | None:
-        """Additive error of each thermocouple (P, N, 6), or None."""
+        """Additive error of each thermocouple (P, N, thermocouples), or None."""
         return None
 
     def nonlinear_off(self, theta: Theta) -> np.ndarray:
@@ -173,7 +237,7 @@ class Effect:
     @classmethod
     def trial(cls, clues: Clues) -> Trial:
         """How the diagnosis tries the effect on these data."""
-        return Trial(dict(cls.candidate_options))
+        return Trial(cls.candidate_for(clues.furnace))
 
     @classmethod
     def search_bounds(cls, fit_data: Sequence[Experiment]) -> dict[str, tuple[float, float]]:
@@ -183,12 +247,19 @@ class Effect:
 
     # -- selfcheck -----------------------------------------------------------------------------
     @classmethod
-    def draw(cls, rng: np.random.Generator, form: str, duration_min: float
-             ) -> tuple[Effect, dict[str, float]]:
+    def draw(cls, rng: np.random.Generator, form: str, duration_min: float,
+             furnace: Furnace = PAPER) -> tuple[Effect, dict[str, float]]:
         """A furnace with the effect, at random: the effect (in the diagnosis's form, or with
         form "other" in a formulation its candidate does not use) and its parameter values,
         drawn from `ranges`; times within a heat-up of `duration_min`."""
         raise NotImplementedError(f"{cls.name} has no random draw for the selfcheck")
+
+    @classmethod
+    def check_furnace(cls, furnace: Furnace) -> Furnace:
+        """The furnace the selfcheck diagnoses this effect on, given the one it checks: the
+        same, unless the effect is the other side of a convention the description fixes
+        (zone_burners on a furnace whose burners heat their own zones)."""
+        return furnace
 
     @classmethod
     def uniform(cls, rng: np.random.Generator, key: str) -> float:

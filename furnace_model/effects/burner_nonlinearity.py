@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..furnace import PAPER
 from ..parameters import Param
-from .base import U_BURNERS, Effect, Option
+from .base import Effect, Option
 
 FORMS = ("linear", "power", "exponential", "quadratic")
 
@@ -30,7 +31,7 @@ class BurnerNonlinearity(Effect):
 
     def transform_levels(self, theta, u):
         k = theta["k_nl"][:, None]
-        n = u[..., U_BURNERS].sum(axis=-1)  # (P|1, J)
+        n = u[..., self.u_burners].sum(axis=-1)  # (P|1, J)
         # Curves of the same trend: a straight line, a power of n (steepest at few burners),
         # the same fraction lost (or gained) with each further burner, and the square of a
         # straight line of half the slope (between the first and the third).
@@ -44,11 +45,11 @@ class BurnerNonlinearity(Effect):
         else:
             factor = np.maximum(1.0 + 0.5 * k * n, 0.0) ** 2
         out = np.array(np.broadcast_to(u, (k.shape[0],) + u.shape[1:]))
-        out[..., U_BURNERS] *= factor[..., None]
+        out[..., self.u_burners] *= factor[..., None]
         return out
 
     @classmethod
-    def draw(cls, rng, form, duration_min):
-        effect = cls(form="quadratic" if form == "other" else "linear")
+    def draw(cls, rng, form, duration_min, furnace=PAPER):
+        effect = cls(form="quadratic" if form == "other" else "linear", furnace=furnace)
         sign = -1.0 if rng.uniform() < 0.75 else 1.0
         return effect, {"k_nl": sign * cls.uniform(rng, "k_nl")}

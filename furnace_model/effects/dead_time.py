@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..furnace import PAPER
 from ..lti import Drive
 from ..parameters import Param
-from .base import N_INPUTS, U_BURNERS, Effect
+from .base import Effect
 
 
 class DeadTime(Effect):
@@ -23,12 +24,12 @@ class DeadTime(Effect):
         P = theta["theta_dead"].shape[0]
         s = np.broadcast_to(drive.s, (P, drive.s.shape[-1]))
         du = np.broadcast_to(drive.du, (P,) + drive.du.shape[1:])
-        burners = np.zeros(N_INPUTS)
-        burners[U_BURNERS] = 1.0
+        burners = np.zeros(self.n_inputs)
+        burners[self.u_burners] = 1.0
         s_new = np.concatenate([s + theta["theta_dead"][:, None], s], axis=1)
         du_new = np.concatenate([du * burners, du * (1.0 - burners)], axis=1)
         return Drive(drive.t0, drive.u0, s_new, du_new)
 
     @classmethod
-    def draw(cls, rng, form, duration_min):
-        return cls(), {"theta_dead": cls.uniform(rng, "theta_dead")}
+    def draw(cls, rng, form, duration_min, furnace=PAPER):
+        return cls(furnace=furnace), {"theta_dead": cls.uniform(rng, "theta_dead")}

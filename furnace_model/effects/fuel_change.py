@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..furnace import PAPER
 from ..lti import Drive
 from ..parameters import Param
-from .base import U_BURNERS, Effect
+from .base import Effect
 
 
 class FuelChange(Effect):
@@ -29,9 +30,9 @@ class FuelChange(Effect):
         du = np.array(np.broadcast_to(drive.du, (P,) + drive.du.shape[1:]))
         u0 = np.broadcast_to(drive.u0, (P, drive.u0.shape[-1]))
         u_at = u0 + np.einsum("pk,pkm->pm", (s < tc[:, None]).astype(float), du)
-        du[..., U_BURNERS] *= np.where(s >= tc[:, None], rho[:, None], 1.0)[..., None]
+        du[..., self.u_burners] *= np.where(s >= tc[:, None], rho[:, None], 1.0)[..., None]
         jump = np.zeros((P, 1, du.shape[-1]))
-        jump[:, 0, U_BURNERS] = (rho - 1.0)[:, None] * u_at[:, U_BURNERS]
+        jump[:, 0, self.u_burners] = (rho - 1.0)[:, None] * u_at[:, self.u_burners]
         return Drive(drive.t0, drive.u0, np.concatenate([s, tc[:, None]], axis=1),
                      np.concatenate([du, jump], axis=1))
 
@@ -42,6 +43,6 @@ class FuelChange(Effect):
                            max(float(e.t_min[-1]) for e in fit_data))}
 
     @classmethod
-    def draw(cls, rng, form, duration_min):
-        return cls(), {"t_fuel": round(cls.uniform(rng, "t_fuel_frac") * duration_min),
+    def draw(cls, rng, form, duration_min, furnace=PAPER):
+        return cls(furnace=furnace), {"t_fuel": round(cls.uniform(rng, "t_fuel_frac") * duration_min),
                        "fuel_ratio": cls.uniform(rng, "fuel_ratio")}

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..furnace import PAPER
 from ..parameters import Param
-from .base import KELVIN, U_AIR, Effect, Option
+from .base import KELVIN, Effect, Option
 
 
 class Radiation(Effect):
@@ -59,22 +60,24 @@ class Radiation(Effect):
             return tref / (p + s) * law - T
 
         w = theta["rad_share"][:, None]
-        r = excess(x[:, :3])
-        r_air = excess(u[:, U_AIR][:, None])
-        K = A[:, :3, :3] * (1.0 - np.eye(3))
-        k_air = B[:, :3, U_AIR]
+        nz = self.n_zones
+        r = excess(x[:, :nz])
+        r_air = excess(u[:, self.u_air][:, None])
+        K = A[:, :nz, :nz] * (1.0 - np.eye(nz))
+        k_air = B[:, :nz, self.u_air]
         dx = np.zeros_like(x)
-        dx[:, :3] = w * (np.einsum("pij,pj->pi", K, r) - K.sum(axis=2) * r + k_air * (r_air - r))
+        dx[:, :nz] = w * (np.einsum("pij,pj->pi", K, r) - K.sum(axis=2) * r + k_air * (r_air - r))
         return dx
 
     @classmethod
-    def draw(cls, rng, form, duration_min):
-        effect = cls()
+    def draw(cls, rng, form, duration_min, furnace=PAPER):
+        effect = cls(furnace=furnace)
         if form == "other":
             # No other exponent: the candidate fits its own. An emissivity that rises or
             # falls with temperature is no power law at all (its local exponent at the
             # reference is 4 + s); another reference temperature alone is no other law (the
             # fitted exchange rates absorb it).
             slope = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.4, 0.8))
-            effect = cls(emissivity_slope=slope, t_ref_c=float(rng.uniform(600.0, 1100.0)))
+            effect = cls(emissivity_slope=slope, t_ref_c=float(rng.uniform(600.0, 1100.0)),
+                         furnace=furnace)
         return effect, {"rad_share": cls.uniform(rng, "rad_share")}

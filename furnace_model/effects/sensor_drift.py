@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import SENSORS, ZONES
+from ..furnace import PAPER, Furnace
 from ..parameters import Param
 from .base import Clues, Effect, Option, Trial
 
@@ -21,10 +21,24 @@ MAX_RATE = 0.2
 class SensorDrift(Effect):
     name = "sensor_drift"
     physics = "one thermocouple of a pair drifts away from its partner"
-    option_specs = {"sensor": Option("heat_2", "choice", choices=SENSORS,
+    option_specs = {"sensor": Option("heat_2", "choice", choices=PAPER.sensors,
                                          doc="the drifting thermocouple")}
     null = {"drift_rate": 0.0}
     ranges = {"drift_rate": (0.005, 0.03), "t_drift_frac": (0.15, 0.6)}
+
+    @classmethod
+    def specs(cls, furnace):
+        if furnace == PAPER:
+            return cls.option_specs
+        return {"sensor": Option(default_sensor(furnace), "choice", choices=furnace.sensors,
+                                 doc="the drifting thermocouple")}
+
+    @classmethod
+    def physics_for(cls, furnace):
+        if all(n == 2 for n in furnace.thermocouples):
+            return cls.physics
+        return ("one thermocouple drifts away from the gas temperature it reads (from its "
+                "zone's other thermocouples, where the zone has more than one)")
 
     def _params(self):
         return (
@@ -35,22 +49,25 @@ class SensorDrift(Effect):
 
     def sensor_offsets(self, theta, t):
         P = theta["drift_rate"].shape[0]
-        out = np.zeros((P, t.size, len(SENSORS)))
+        sensors = self.furnace.sensors
+        out = np.zeros((P, t.size, len(sensors)))
         ramp = np.maximum(t[None, :] - theta["t_drift"][:, None], 0.0)
-        out[:, :, SENSORS.index(self.options["sensor"])] = theta["drift_rate"][:, None] * ramp
+        out[:, :, sensors.index(self.options["sensor"])] = theta["drift_rate"][:, None] * ramp
         return out
 
     @classmethod
     def trial(cls, clues: Clues) -> Trial:
         """On the thermocouple found drifting, from the onset and rate of the hinge fitted to
-        its pair's difference; else on the one whose pair's difference changes most."""
+        its pair's difference; else on the one whose pair's difference changes most (or, in
+        a zone of one thermocouple, whose residual against the baseline does)."""
         for f in clues.faults:
             if f.kind == "drift":
                 exp = clues.records[f.experiment]
                 t0, t1 = float(exp.t_min[f.i0]), float(exp.t_min[-1])
                 return Trial({"sensor": f.sensor},
                              {"t_drift": t0, "drift_rate": f.size_c / max(t1 - t0, 1.0)})
-        return Trial({"sensor": most_changed_pair(clues.records)})
+        return Trial({"sensor": most_changed_pair(clues.records, clues.furnace,
+                                                  clues.residuals)})
 
     @classmethod
     def search_bounds(cls, fit_data):
@@ -60,27 +77,50 @@ class SensorDrift(Effect):
                 "drift_rate": (-MAX_RATE, MAX_RATE)}
 
     @classmethod
-    def draw(cls, rng, form, duration_min):
-        effect = cls(sensor=SENSORS[int(rng.integers(len(SENSORS)))])
+    def draw(cls, rng, form, duration_min, furnace=PAPER):
+        sensors = furnace.sensors
+        effect = cls(sensor=sensors[int(rng.integers(len(sensors)))], furnace=furnace)
         sign = 1.0 if rng.uniform() < 0.5 else -1.0
         return effect, {"drift_rate": sign * cls.uniform(rng, "drift_rate"),
                         "t_drift": round(cls.uniform(rng, "t_drift_frac") * duration_min)}
 
 
-def most_changed_pair(records: Sequence[Experiment]) -> str:
-    """The second thermocouple of the pair whose difference changes most from a record's
-    start to its end (for the zone mean either of a pair is the same candidate, with the
-    sign of the rate flipped)."""
-    best, name = -1.0, "heat_2"
-    for w, z in enumerate(ZONES):
-        for e in records:
-            pair = e.tc[:, 2 * w:2 * w + 2]
-            ok = np.all(np.isfinite(pair), axis=1)
-            if ok.sum() < 50:
-                continue
-            d = pair[ok, 0] - pair[ok, 1]
-            n = d.size // 5
-            change = abs(np.median(d[-n:]) - np.median(d[:n]))
-            if change > best:
-                best, name = change, f"{z}_2"
+def default_sensor(furnace: Furnace) -> str:
+    """The paper's heat_2; elsewhere the second thermocouple of the first zone with two, or
+    the last thermocouple."""
+    if furnace == PAPER:
+        return "heat_2"
+    for z, n in zip(furnace.zones, furnace.thermocouples, strict=True):
+        if n >= 2:
+            return f"{z}_2"
+    return furnace.sensors[-1]
+
+
+def most_changed_pair(records: Sequence[Experiment], furnace: Furnace = PAPER,
+                      residuals: Sequence[np.ndarray] = ()) -> str:
+    """The thermocouple whose difference from its zone's first one changes most from a
+    record's start to its end (for the zone mean any thermocouple of a zone is the same
+    candidate, with the sign of the rate flipped); in a zone of one thermocouple, the change
+    of the zone's residual against the baseline (`residuals`, when given)."""
+    best, name = -1.0, default_sensor(furnace)
+    first = 0
+    for w, (z, k) in enumerate(zip(furnace.zones, furnace.thermocouples, strict=True)):
+        for j, e in enumerate(records):
+            if k >= 2:
+                series = [(e.tc[:, first] - e.tc[:, first + i], f"{z}_{i + 1}")
+                          for i in range(1, k)]
+            elif j < len(residuals):
+                series = [(residuals[j][:, w], f"{z}_1")]
+            else:
+                series = []
+            for d, sensor in series:
+                ok = np.isfinite(d)
+                if ok.sum() < 50:
+                    continue
+                d = d[ok]
+                n = d.size // 5
+                change = abs(np.median(d[-n:]) - np.median(d[:n]))
+                if change > best:
+                    best, name = change, sensor
+        first += k
     return name

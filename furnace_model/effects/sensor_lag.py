@@ -4,23 +4,63 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..furnace import PAPER
 from ..parameters import Param
 from .base import Effect, Option
 
 
 class SensorLag(Effect):
+    """The thermocouples of some zones (every zone by default) read a lag of their zone.
+
+    The model reads a zone through the mean of its thermocouples, so a lag is a zone's: on
+    a zone of one thermocouple it is that thermocouple's; a single lagging thermocouple of a
+    pair shows as a lag of the pair's mean, which is not first-order."""
+
     name = "sensor_lag"
     physics = "thermocouples read a first-order lag of the zone gas temperature"
     option_specs = {"order": Option(1, "integer", lo=1, hi=4, doc="cascaded stages")}
     null = {"tau_lag": 0.0}
     ranges = {"tau_lag": (4.0, 20.0)}
 
+    @classmethod
+    def specs(cls, furnace):
+        """The paper's furnace: every zone lags (its options and JSON as they always were);
+        any other: `zones`, whose thermocouples lag."""
+        if furnace == PAPER:
+            return cls.option_specs
+        z = furnace.zones
+        return {**cls.option_specs,
+                "zones": Option(z, "choices", choices=z, doc="zones whose thermocouples lag")}
+
+    @classmethod
+    def candidate_for(cls, furnace):
+        return {} if furnace == PAPER else {"zones": furnace.zones}
+
+    @classmethod
+    def laws_for(cls, furnace):
+        """On a furnace of more than the paper's zones, one zone's thermocouples lagging: a
+        lag shared by all zones does not fit one lagging zone (one time constant for six
+        zones that mostly have none)."""
+        if furnace == PAPER:
+            return ()
+        return tuple({"zones": (z,)} for z in furnace.zones)
+
+    @classmethod
+    def physics_for(cls, furnace):
+        return cls.physics if furnace == PAPER else (
+            "a zone's thermocouples read a first-order lag of its gas temperature")
+
     def _params(self):
         return (Param("tau_lag", 2.0, 0.01, 120.0, unit="min", doc="thermocouple time constant"),)
 
     @property
+    def _lagged(self) -> list[int]:
+        zones = self.options.get("zones", self.furnace.zones)
+        return [self.furnace.zones.index(z) for z in zones]
+
+    @property
     def state_zones(self):
-        return tuple(z for _ in range(self.options["order"]) for z in range(3))
+        return tuple(z for _ in range(self.options["order"]) for z in self._lagged)
 
     def extend(self, A, B, C, theta, first):
         # `order` cascaded stages (sheath, then junction) whose time constants add up to
@@ -28,10 +68,11 @@ class SensorLag(Effect):
         order = self.options["order"]
         shares = np.arange(1, order + 1, dtype=float)
         shares /= shares.sum()
-        for z in range(3):
+        lagged = self._lagged
+        for j, z in enumerate(lagged):
             prev = z
             for k in range(order):
-                i = first + 3 * k + z
+                i = first + len(lagged) * k + j
                 rate = 1.0 / (shares[k] * theta["tau_lag"])
                 A[:, i, i] -= rate
                 A[:, i, prev] += rate
@@ -40,6 +81,12 @@ class SensorLag(Effect):
             C[:, z, prev] = 1.0
 
     @classmethod
-    def draw(cls, rng, form, duration_min):
-        effect = cls(order=int(rng.integers(2, 4)) if form == "other" else 1)
+    def draw(cls, rng, form, duration_min, furnace=PAPER):
+        order = int(rng.integers(2, 4)) if form == "other" else 1
+        if furnace == PAPER:
+            effect = cls(order=order)
+        else:
+            # one zone's thermocouples (a lagging thermocouple where the zone has one)
+            zone = furnace.zones[int(rng.integers(furnace.n_zones))]
+            effect = cls(order=order, zones=(zone,), furnace=furnace)
         return effect, {"tau_lag": cls.uniform(rng, "tau_lag")}

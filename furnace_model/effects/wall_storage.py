@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import ZONES
+from ..furnace import PAPER
 from ..parameters import Param
 from .base import Effect, Option
+
+ZONES = PAPER.zones
 
 
 class WallStorage(Effect):
@@ -27,6 +29,23 @@ class WallStorage(Effect):
     ranges = {"k_gw": (0.02, 0.2), "k_wg": (0.001, 0.01), "k_wb": (0.002, 0.02),
               "k_bw": (0.0003, 0.003)}
 
+    @classmethod
+    def specs(cls, furnace):
+        if furnace == PAPER:
+            return cls.option_specs
+        z = furnace.zones
+        return {**cls.option_specs,
+                "zones": Option(z, "choices", choices=z, doc="zones with a storing wall")}
+
+    @classmethod
+    def candidate_for(cls, furnace):
+        return {"zones": furnace.zones}
+
+    @classmethod
+    def laws_for(cls, furnace):
+        return cls.further_laws if furnace == PAPER else tuple(
+            {"zones": (z,)} for z in furnace.zones)
+
     def _params(self):
         face = (Param("k_gw", 0.05, 1e-5, 10.0, doc="gas-to-wall exchange rate, seen from the gas"),
                 Param("k_wg", 0.002, 1e-6, 1.0, doc="wall-to-gas exchange rate, seen from the wall"))
@@ -38,10 +57,11 @@ class WallStorage(Effect):
 
     @property
     def state_zones(self):
-        return tuple(ZONES.index(z) for z in self.options["zones"]) * self.options["layers"]
+        zones = self.furnace.zones
+        return tuple(zones.index(z) for z in self.options["zones"]) * self.options["layers"]
 
     def extend(self, A, B, C, theta, first):
-        zones = [ZONES.index(z) for z in self.options["zones"]]
+        zones = [self.furnace.zones.index(z) for z in self.options["zones"]]
         for j, z in enumerate(zones):
             face = first + j
             exchange(A, z, face, theta["k_gw"], theta["k_wg"])
@@ -49,14 +69,20 @@ class WallStorage(Effect):
                 exchange(A, face, face + len(zones), theta["k_wb"], theta["k_bw"])
 
     @classmethod
-    def draw(cls, rng, form, duration_min):
+    def draw(cls, rng, form, duration_min, furnace=PAPER):
+        """On the paper's furnace the candidate's form is a wall in every zone; on any
+        other, a wall in one zone (the zone whose lining stores heat), which the candidate
+        finds among its further laws."""
         values = {"k_gw": cls.uniform(rng, "k_gw"), "k_wg": cls.uniform(rng, "k_wg")}
+        zs = furnace.zones
         if form != "other":
-            return cls(), values
+            if furnace == PAPER:
+                return cls(), values
+            return cls(zones=(zs[int(rng.integers(len(zs)))],), furnace=furnace), values
         # A wall of two layers, in every zone or in one: the candidate's walls have one.
-        zones = (ZONES, *((z,) for z in ZONES))[int(rng.integers(4))]
+        zones = (zs, *((z,) for z in zs))[int(rng.integers(len(zs) + 1))]
         values |= {"k_wb": cls.uniform(rng, "k_wb"), "k_bw": cls.uniform(rng, "k_bw")}
-        return cls(zones=zones, layers=2), values
+        return cls(zones=zones, layers=2, furnace=furnace), values
 
 
 def exchange(A: np.ndarray, i: int, j: int, k_ij: np.ndarray, k_ji: np.ndarray) -> None:

@@ -1,18 +1,27 @@
-"""Each zone's burners heat their own zone (the paper counts every burner as zone-1 input)."""
+"""Each zone's burners heat their own zone (the paper counts every burner as zone-1 input).
+
+The effect is the other side of a description's `burner_heat`: it applies to a furnace
+described with every burner heating the first zone (`first_zone`, the paper's convention),
+and is refused on one whose description already has each zone's burners heat their own."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..furnace import PAPER, Furnace
 from ..parameters import Param
 from .base import Clues, Effect, Trial
 
 if TYPE_CHECKING:
     from ..experiment import Experiment
 
+OTHER_RANGE = (0.1, 0.5)
+"""°C/min per burner drawn for a zone's own burners on a furnace other than the paper's:
+around the network's default heat per burner (network.GAIN) and up to five times it."""
 MIN_HEAD_SAMPLES = 100
 """A record's soaking-burners-only start is fitted only when it is at least this long."""
 
@@ -24,7 +33,52 @@ class ZoneBurners(Effect):
     null = {"f_heat": float("nan"), "f_preheat": float("nan")}
     ranges = {"f_heat": (0.5, 5.0), "f_preheat": (0.5, 5.0)}
 
+    @classmethod
+    def refusal(cls, furnace):
+        if furnace.burner_heat != "first_zone":
+            return ("its description already has each zone's burners heat their own zone "
+                    "(burner_heat: own_zone); zone_burners is that convention tried on a "
+                    "furnace described with every burner heating the first zone "
+                    "(burner_heat: first_zone)")
+        if not any(furnace.burners[1:]):
+            return "only its first zone has burners"
+        return None
+
+    @classmethod
+    def physics_for(cls, furnace):
+        if furnace == PAPER:
+            return cls.physics
+        return (f"the burners of zones after {furnace.zones[0]} heat their own zone, with "
+                f"their own heat per burner, instead of counting as {furnace.zones[0]}-zone "
+                "input")
+
+    @classmethod
+    def check_furnace(cls, furnace: Furnace) -> Furnace:
+        """A furnace described with own-zone burners is checked as its first-zone reading:
+        the model counts every burner as first-zone input, the truth heats each zone with
+        its own (this effect), which the diagnosis must find."""
+        if furnace.burner_heat == "first_zone":
+            return furnace
+        return dataclasses.replace(furnace, name=f"{furnace.name}-first-zone",
+                                   burner_heat="first_zone")
+
+    @property
+    def _own(self) -> list[int]:
+        """Zones after the first with burners of their own."""
+        return [i for i in range(1, self.n_zones) if self.furnace.burners[i] > 0]
+
+    @property
+    def nulls(self):
+        if self.furnace == PAPER:
+            return type(self).null
+        return {f"f_{self.furnace.zones[i]}": float("nan") for i in self._own}
+
     def _params(self):
+        if self.furnace != PAPER:
+            return tuple(Param(f"f_{self.furnace.zones[i]}", 0.15, 1e-4, 10.0,
+                               unit="°C/min per burner",
+                               doc=f"{self.furnace.zones[i]}-zone rise rate per own burner on")
+                         for i in self._own)
         return (
             Param("f_heat", 0.15, 1e-4, 10.0, unit="°C/min per burner",
                   doc="heating-zone rise rate per heating-zone burner on"),
@@ -33,9 +87,9 @@ class ZoneBurners(Effect):
         )
 
     def extend(self, A, B, C, theta, first):
-        B[:, 0, 1:3] = 0.0
-        B[:, 1, 1] = theta["f_heat"]
-        B[:, 2, 2] = theta["f_preheat"]
+        B[:, 0, 1:self.n_zones] = 0.0
+        for p, i in zip(self.params, self._own, strict=True):
+            B[:, i, i] = theta[p.name]
 
     @classmethod
     def trial(cls, clues: Clues) -> Trial:
@@ -51,9 +105,13 @@ class ZoneBurners(Effect):
         return Trial(start=start, from_baseline=False) if start else Trial()
 
     @classmethod
-    def draw(cls, rng, form, duration_min):
-        return cls(), {"f_heat": cls.uniform(rng, "f_heat"),
-                       "f_preheat": cls.uniform(rng, "f_preheat")}
+    def draw(cls, rng, form, duration_min, furnace=PAPER):
+        """On another furnace, each zone's heat per own burner from `OTHER_RANGE`."""
+        if furnace == PAPER:
+            return cls(), {"f_heat": cls.uniform(rng, "f_heat"),
+                           "f_preheat": cls.uniform(rng, "f_preheat")}
+        effect = cls(furnace=furnace)
+        return effect, {p.name: float(rng.uniform(*OTHER_RANGE)) for p in effect.params}
 
 
 def soak_only_heads(fit_data: Sequence[Experiment]) -> list[Experiment] | None:

@@ -1,0 +1,160 @@
+"""Effects on any furnace: each effect made for a furnace description reads its zones,
+thermocouples and input channels; scenarios switch them on by the furnace's names; an
+effect that cannot apply is refused by name with the reason; the diagnosis names an effect
+on the six-zone furnace."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from furnace_model.effects import EFFECTS
+from furnace_model.errors import ConfigError, FurnaceError
+from furnace_model.furnace import PAPER, load_furnace
+from furnace_model.network import parameters
+from furnace_model.scenario import load_scenario
+from furnace_model.structure import Inputs, ModelStructure
+
+ROOT = Path(__file__).resolve().parent.parent
+SIX = load_furnace(ROOT / "config/furnaces/six-zone.yaml")
+FIRST = dataclasses.replace(SIX, burner_heat="first_zone")
+
+
+def _heatup(furnace):
+    nz = furnace.n_zones
+    rng = np.random.default_rng(3)
+    counts = rng.integers(0, 4, (6, nz)).astype(float)
+    return Inputs(np.arange(6) * 150.0, counts, np.full(6, 30.0)), np.arange(0.0, 901.0, 5.0)
+
+
+def _values(structure):
+    """The selfcheck's network for the furnace (a heat-up to some hundreds of °C), the
+    effects at their defaults."""
+    from furnace_model.selfcheck import network_truth
+
+    return {**{p.name: p.default for p in structure.params},
+            **network_truth(structure.furnace)}
+
+
+@pytest.mark.parametrize("name", [n for n in EFFECTS if n != "zone_burners"])
+def test_every_effect_runs_on_the_six_zone_furnace_and_changes_it(name):
+    base = ModelStructure(furnace=SIX)
+    effect = EFFECTS[name](furnace=SIX)
+    ext = ModelStructure([effect], SIX)
+    inputs, t = _heatup(SIX)
+    x0 = np.full(6, 30.0)
+    y0 = base.simulate(_values(base), inputs, t, x0).sensors[0]
+    values = _values(ext)
+    values.update({k: v for k, v in {"t_drift": 100.0, "t_fuel": 400.0}.items() if k in values})
+    y1 = ext.simulate(values, inputs, t, x0).sensors[0]
+    assert y1.shape == (t.size, len(SIX.sensors)) and np.all(np.isfinite(y1))
+    assert np.max(np.abs(y1 - y0)) > 0.5, name
+
+
+def test_zone_burners_on_the_first_zone_reading_is_the_own_zone_network():
+    """The six-zone description read the paper's way, plus own-zone burners, is the
+    description itself: the effect's gains are the own-zone network's."""
+    own = ModelStructure(furnace=SIX)
+    truth = {**_values(own), **{f"gain_{z}": 0.3 + 0.1 * i for i, z in enumerate(SIX.zones)}}
+    first = ModelStructure([EFFECTS["zone_burners"](furnace=FIRST)], FIRST)
+    assert [p.name for p in first.effects[0].params] == [f"f_{z}" for z in SIX.zones[1:]]
+    values = {**{k: v for k, v in truth.items() if k in first.names},
+              **{f"f_{z}": truth[f"gain_{z}"] for z in SIX.zones[1:]}}
+    inputs, t = _heatup(SIX)
+    a = own.simulate(truth, inputs, t, np.full(6, 30.0)).zones[0]
+    b = first.simulate(values, inputs, t, np.full(6, 30.0)).zones[0]
+    np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)
+
+
+def test_zone_options_range_over_the_furnace():
+    lag = EFFECTS["sensor_lag"](furnace=SIX, zones=("soak_bottom",))
+    assert lag.state_zones == (1,)
+    wall = EFFECTS["wall_storage"](furnace=SIX, zones=("heat_top", "preheat_bottom"))
+    assert wall.state_zones == (2, 5)
+    losses = EFFECTS["zone_losses"](furnace=SIX)
+    assert losses.options["zones"] == ("soak_top", "soak_bottom", "heat_top", "heat_bottom")
+    assert [p.name for p in losses.params] == ["g_soak_top", "g_soak_bottom", "g_heat_top",
+                                              "g_heat_bottom"]
+    drift = EFFECTS["sensor_drift"](furnace=SIX, sensor="heat_top_3")
+    off = drift.sensor_offsets({"drift_rate": np.array([0.1]), "t_drift": np.array([10.0])},
+                               np.array([0.0, 20.0]))
+    assert off.shape == (1, 2, 11) and off[0, 1, SIX.sensors.index("heat_top_3")] == 1.0
+    assert np.count_nonzero(off) == 1
+    with pytest.raises(ValueError, match="applies to soak_top and soak_bottom and heat_top and "
+                                         "heat_bottom, not"):
+        EFFECTS["zone_losses"](furnace=SIX, zones=("preheat_top",))
+    with pytest.raises(ValueError, match="zone_burners does not apply to furnace 'six-zone': "
+                                         ".*own_zone"):
+        EFFECTS["zone_burners"](furnace=SIX)
+    # the paper's furnace: options, parameters and defaults as they always were
+    assert EFFECTS["sensor_lag"]().options == {"order": 1}
+    assert EFFECTS["zone_losses"]().options == {"zones": ("soak", "heat")}
+    assert EFFECTS["sensor_drift"]().options == {"sensor": "heat_2"}
+    assert EFFECTS["wall_storage"]().options["zones"] == PAPER.zones
+
+
+SCENARIO = """
+name: six_effects
+furnace: {furnace}
+duration_min: 600
+t_air_c: 30
+burners:
+  steps:
+    - {{at_min: 0, soak_top: 3, heat_top: 2, preheat_bottom: 1}}
+    - {{at_min: 300, soak_top: 5, soak_bottom: 2, heat_bottom: 3}}
+effects:
+{effects}
+"""
+
+
+def _scenario(tmp_path, effects: str, furnace: str = "six-zone"):
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO.format(furnace=furnace, effects=effects))
+    return path
+
+
+def test_a_six_zone_scenario_switches_effects_on_by_the_furnaces_names(tmp_path):
+    sc = load_scenario(_scenario(tmp_path, """\
+  wall_storage: {zones: [heat_top], k_gw: 0.1, k_wg: 0.005}
+  zone_losses: {g_heat_bottom: 0.008}
+  sensor_lag: {zones: [preheat_bottom], tau_lag: 8}
+  sensor_drift: {sensor: soak_bottom_1, drift_rate: 0.05, t_drift: 200}
+  dead_time: {theta_dead: 10}"""))
+    structure = sc.structure()
+    assert structure.furnace == SIX and structure.n_states == 6 + 1 + 1
+    assert sc.effect_values["g_heat_bottom"] == 0.008
+    y = structure.simulate(sc.values(), sc.inputs(), sc.sample_times(), sc.initial_c)
+    assert np.all(np.isfinite(y.sensors))
+    k = SIX.sensors.index("soak_bottom_1")
+    assert y.sensor_offsets[0, -1, k] == pytest.approx(0.05 * 400)
+
+
+@pytest.mark.parametrize(("effects", "path", "words"), [
+    ("  zone_burners: {}", "effects.zone_burners", "own_zone"),
+    ("  sensor_drift: {sensor: heat_2}", "effects.sensor_drift.sensor", "soak_top_1"),
+    ("  zone_losses: {g_preheat_top: 0.01}", "effects.zone_losses", "not ['preheat_top']"),
+    ("  wall_storage: {zones: [soak]}", "effects.wall_storage.zones[0]", "heat_top"),
+])
+def test_an_effect_that_cannot_apply_is_refused_on_its_key(tmp_path, effects, path, words):
+    with pytest.raises(ConfigError) as err:
+        load_scenario(_scenario(tmp_path, effects))
+    assert err.value.path == path and words in str(err.value), str(err.value)
+
+
+def test_a_furnace_with_every_zone_losing_heat_refuses_zone_losses():
+    every = dataclasses.replace(SIX, ambient=tuple(range(6)))
+    with pytest.raises(ValueError, match="every zone of it already loses heat"):
+        EFFECTS["zone_losses"](furnace=every)
+    assert ModelStructure(furnace=every).names == [p.name for p in parameters(every)]
+
+
+def test_diagnose_refuses_an_effect_that_cannot_apply_by_name():
+    from furnace_model.diagnosis import diagnose
+    from furnace_model.selfcheck import case_rng, draw_case
+
+    case = draw_case(None, case_rng(0, "none", 0), furnace=SIX)
+    with pytest.raises(FurnaceError, match="zone_burners does not apply to furnace 'six-zone'"):
+        diagnose(case.fit, case.holdout, effects=("zone_burners",))

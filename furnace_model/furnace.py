@@ -204,6 +204,21 @@ def _check_connected(furnace: Furnace, node: Node) -> None:
 
 FURNACES_DIR = Path(__file__).resolve().parent.parent / "config" / "furnaces"
 
+
+def named_furnace(node: Node, base: Path | None = None, what: str = "the file") -> Furnace:
+    """The furnace a `furnace:` key names, in every file that has one (a daemon config, a
+    scenario, a fleet file): a description's path relative to the naming file's directory
+    (`base`), or to the working directory, or the name of one in config/furnaces/
+    (`six-zone`, `paper`)."""
+    text = node.string()
+    candidates = [] if base is None else [base / text]
+    candidates += [Path(text), FURNACES_DIR / text, FURNACES_DIR / f"{text}.yaml"]
+    for candidate in candidates:
+        if candidate.is_file():
+            return load_furnace(candidate)
+    raise node.error(f"no furnace description '{text}' (a YAML file relative to {what}'s "
+                     f"directory or the working directory, or a name in {FURNACES_DIR})")
+
 PAPER = Furnace(
     name="paper",
     zones=("soak", "heat", "preheat"),

@@ -26,6 +26,7 @@ from furnace_daq.fleet.engine import open_client, prepare_worker
 from furnace_daq.fleet.jobs import run_diagnose, run_refit, run_selfcheck, segment_bounds
 from furnace_model.config import parse_yaml
 from furnace_model.errors import ConfigError
+from furnace_model.furnace import PAPER
 from furnace_model.logschema import PARAM_NAMES
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -290,7 +291,7 @@ def test_fleet_file_errors_name_the_key_path(doc, message):
 
 def test_the_shipped_example_loads_with_the_papers_furnace_by_default():
     fleet = load_fleet(ROOT / "config" / "fleet.yaml")
-    assert [f.furnace for f in fleet.furnaces] == ["paper", "paper"]
+    assert [f.description for f in fleet.furnaces] == [PAPER, PAPER]
     assert fleet.refit.period_s == 900.0 and len(fleet.furnaces[0].campaigns) == 2
 
 
@@ -388,3 +389,48 @@ def test_campaign_pairs_in_time_order_or_as_asked():
     lone = Furnace("y", "paper", (Path("y"),), campaigns=(c("only", 1),))
     assert campaign_pairs(lone, {}, None, None) == \
         ([], ["y: fewer than two campaigns; nothing to diagnose"])
+
+
+def test_a_six_zone_furnace_in_the_fleet_and_a_misfiled_log(local, tmp_path):
+    """A fleet entry names its furnace description (`furnace: six-zone`): its windows are
+    refitted with that furnace's network and its rows carry that network's parameters and
+    zones, beside the paper furnaces' a..f; an entry whose logs record another furnace than
+    the fleet file says is a failure naming both, and the rest completes."""
+    from furnace_daq.logmeta import build_metadata
+    from furnace_daq.mcaplog import LogWriter
+    from furnace_daq.plantlog import write_run
+    from furnace_model.plant import Plant
+    from furnace_model.scenario import load_scenario
+
+    sc = load_scenario(ROOT / "config" / "scenarios" / "six_zone_heatup.yaml")
+    run = Plant.from_scenario(sc, seed=4).run_scenario(sc)
+    log = LogWriter(tmp_path / "six", flush_interval_s=3600.0, rotate_s=86400.0,
+                    metadata=build_metadata(None, furnace=sc.furnace, software_version="t",
+                                            host="h"))
+    write_run(run, log, sc.start_time)
+    log.close()
+    fleet_file = tmp_path / "fleet.yaml"
+    fleet_file.write_text(yaml.safe_dump({
+        "furnaces": [{"name": "six", "furnace": "six-zone", "logs": ["six"]},
+                     {"name": "misfiled", "logs": ["six"]}],
+        "refit": {"period_s": 43200, "window_s": 86400, "step_s": 300}}))
+    fleet = load_fleet(fleet_file)
+    assert fleet.furnace("six").description == sc.furnace
+    out = tmp_path / "out"
+    result = run_refit(local["client"], fleet, out, quiet=True)
+    fails = result.failures_frame()
+    assert list(fails["furnace"].unique()) == ["misfiled"], fails
+    assert "furnace 'six-zone'" in fails["reason"].iloc[0]
+    assert "'paper'" in fails["reason"].iloc[0]
+    rows = table(out, "refit")
+    assert set(rows["furnace"]) == {"six"}
+    fitted = rows[rows["fitted"]]
+    assert len(fitted) >= 3
+    inside = []
+    for name, truth in sc.params.items():
+        inside += list((fitted[f"{name}_ci95_lo"] <= truth) & (truth <= fitted[f"{name}_ci95_hi"]))
+    assert sum(inside) / len(inside) > 0.85, sum(inside) / len(inside)
+    assert all(fitted[f"rmse_{z}_c"].notna().all() for z in sc.furnace.zones)
+    assert "a" not in rows.columns
+    html = (out / "fleet_report.html").read_text()
+    assert "<th>gain_preheat_bottom</th>" in html and "soak_bottom" in html

@@ -11,7 +11,7 @@ gave online.
 ```yaml
 furnaces:
   - name: line1
-    furnace: paper            # optional; the paper's three-zone furnace is the only one yet
+    furnace: paper            # optional: a description's path or a name in config/furnaces/
     logs: [/srv/logs/line1]   # log directories (or log files), one record per directory
     ambient_default_c: 30     # optional: ambient when a log has none
     campaigns:                # optional: named time ranges for diagnosis
@@ -30,13 +30,11 @@ from pathlib import Path
 import pandas as pd
 
 from furnace_model.config import Node, load_yaml
+from furnace_model.furnace import PAPER, named_furnace
+from furnace_model.furnace import Furnace as Description
 
 from ..daqconfig import RefitConfig, parse_refit
 
-FURNACES = ("paper",)
-"""Furnace descriptions a fleet entry may name. Only the paper's three-zone furnace exists
-today; another one is a new name here and its description in furnace_model."""
-DEFAULT_FURNACE = "paper"
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 """Furnace and campaign names become file names and table keys: no spaces or slashes."""
 
@@ -59,7 +57,9 @@ class Campaign:
 @dataclass(frozen=True)
 class Furnace:
     name: str
-    furnace: str
+    description: Description
+    """Which furnace it is (zones, burners, thermocouples, links): what its logs must record
+    and what its refits and diagnoses model."""
     logs: tuple[Path, ...]
     ambient_default_c: float = 30.0
     campaigns: tuple[Campaign, ...] = ()
@@ -120,7 +120,8 @@ def _name(node: Node) -> str:
 def _furnace(node: Node, base: Path) -> Furnace:
     node.mapping({"name", "furnace", "logs", "ambient_default_c", "campaigns"})
     name = _name(node.child("name"))
-    kind = node.get_string("furnace", DEFAULT_FURNACE, choices=FURNACES)
+    description = (named_furnace(node.child("furnace"), base, "the fleet file")
+                   if node.has("furnace") else PAPER)
     logs_node = node.child("logs")
     entries = [logs_node] if isinstance(logs_node.value, str) else logs_node.elements(min_len=1)
     logs = []
@@ -138,7 +139,7 @@ def _furnace(node: Node, base: Path) -> Furnace:
         if any(o.name == c.name for o in campaigns):
             raise cn.child("name").error(f"campaign '{c.name}' is named twice for {name}")
         campaigns.append(c)
-    return Furnace(name, kind, tuple(logs),
+    return Furnace(name, description, tuple(logs),
                    node.get_number("ambient_default_c", 30.0, lo=-60.0, hi=200.0),
                    tuple(campaigns), node.path)
 

@@ -118,7 +118,8 @@ def run_tasks(client, specs: list[TaskSpec], store: Store | None, progress: Prog
 def scan(client, fleet: Fleet, job: str, result: JobResult) -> dict[str, dict]:
     """Every furnace's files and spans (tasks on the cluster: the files may be visible only
     there); a furnace whose scan fails is a failure of the job and is left out."""
-    specs = [TaskSpec(job, f.name, "scan", _scan_task, (f.name, tuple(map(str, f.logs))), "")
+    specs = [TaskSpec(job, f.name, "scan", _scan_task,
+                      (f.name, tuple(map(str, f.logs)), f.description), "")
              for f in fleet.furnaces]
     progress = Progress(f"{job} (scan)", len(specs), quiet=True)  # failures still print
     got = JobResult()
@@ -132,7 +133,7 @@ def scan(client, fleet: Fleet, job: str, result: JobResult) -> dict[str, dict]:
     return {spec.furnace: value for spec, value in got.results}
 
 
-def _scan_task(arg: tuple[str, tuple[str, ...]]) -> dict:
+def _scan_task(arg: tuple) -> dict:
     return scan_furnace(*arg)
 
 
@@ -174,11 +175,11 @@ def plan_refit(fleet: Fleet, scans: dict[str, dict], segment_days: float | None,
                                                           segment_days)):
             chosen = files_between(files, None if after is None else after - window_ns, until)
             seg = Segment(f.name, i, tuple(chosen), cfg, f.ambient_default_c, after, until,
-                          effects_from)
+                          effects_from, f.description)
             ident = [x["identity"] for x in files if x["path"] in chosen]
             key = task_key("refit", f.name, ident,
                            {"refit": cfg, "t_air": f.ambient_default_c, "after": after,
-                            "until": until, "furnace": f.furnace})
+                            "until": until, "furnace": f.description.describe()})
             specs.append(TaskSpec("refit", f.name, f"segment {i}", refit_segment, seg, key))
     return specs
 
@@ -282,11 +283,11 @@ def plan_diagnose(fleet: Fleet, scans: dict[str, dict], pairs: list[tuple[str, s
             fit_files = tuple(files_between(files, fit[1], fit[2]))
             hold_files = tuple(files_between(files, hold[1], hold[2]))
             pair = Pair(f.name, fit, hold, fit_files, hold_files, f.ambient_default_c,
-                        s.effects, s.period_s, s.seed, effects_from)
+                        s.effects, s.period_s, s.seed, effects_from, f.description)
             ident = [x["identity"] for x in files if x["path"] in set(fit_files + hold_files)]
             key = task_key("diagnose", f.name, ident,
                            {"fit": fit, "holdout": hold, "settings": s,
-                            "t_air": f.ambient_default_c, "furnace": f.furnace,
+                            "t_air": f.ambient_default_c, "furnace": f.description.describe(),
                             "effects_from": [_file_id(p) for p in effects_from]})
             specs.append(TaskSpec("diagnose", f.name, f"{fit[0]}:{hold[0]}", diagnose_pair,
                                   pair, key))

@@ -18,9 +18,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from furnace_model import ZONES
-from furnace_model.logschema import PARAM_NAMES
-
 REPORT = "fleet_report.html"
 CSS = """
 body { font-family: system-ui, -apple-system, "Segoe UI", Helvetica, Arial, sans-serif;
@@ -125,7 +122,18 @@ def _event_words(ev: pd.DataFrame | None) -> str:
 
 
 def _summary(furnaces: list[str], refit, events, verdicts) -> str:
-    head = "".join(f"<th>{p}</th>" for p in PARAM_NAMES)
+    """A row per furnace; furnaces of one kind (the same parameters) share a table, so that a
+    fleet of paper furnaces and six-zone ones reads as two tables, not one with holes."""
+    kinds: dict[tuple[str, ...], list[str]] = {}
+    for name in furnaces:
+        kinds.setdefault(tuple(parameters(_of(refit, name))), []).append(name)
+    return "\n".join(_summary_table(names, params, refit, events, verdicts)
+                     for params, names in kinds.items())
+
+
+def _summary_table(furnaces: list[str], params: tuple[str, ...], refit, events,
+                   verdicts) -> str:
+    head = "".join(f"<th>{p}</th>" for p in params)
     rows = ['<table><tr><th>furnace</th><th>windows fitted</th><th>latest window</th>'
             f"{head}<th>drift events</th><th>verdicts</th></tr>"]
     for name in furnaces:
@@ -134,12 +142,27 @@ def _summary(furnaces: list[str], refit, events, verdicts) -> str:
         n = "-" if r is None else f"{int(r['fitted'].sum())} of {len(r)}"
         when = "-" if last is None else last["window_end"].strftime("%Y-%m-%d %H:%M")
         values = "".join(f"<td>{'-' if last is None else f'{last[p]:.4g}'}</td>"
-                         for p in PARAM_NAMES)
+                         for p in params)
         rows.append(f'<tr><td><a href="#f-{_e(name)}">{_e(name)}</a></td><td>{n}</td>'
                     f"<td>{when}</td>{values}<td class=\"text\">{_event_words(_of(events, name))}"
                     f'</td><td class="text">{_verdict_words(_of(verdicts, name))}</td></tr>')
     rows.append("</table>")
     return "\n".join(rows)
+
+
+def parameters(refit: pd.DataFrame | None) -> list[str]:
+    """One furnace's parameters, in its network's order, read off its refit rows (a fleet's
+    table holds every furnace kind's columns; a furnace's own are those it filled)."""
+    if refit is None:
+        return []
+    return [c[:-len("_ci95_lo")] for c in refit.columns if c.endswith("_ci95_lo")
+            and refit[[c[:-len("_ci95_lo")], c]].notna().any(axis=None)]
+
+
+def zones(refit: pd.DataFrame) -> list[str]:
+    """One furnace's zones, from its refit rows' RMSE columns."""
+    return [c[len("rmse_"):-len("_c")] for c in refit.columns
+            if c.startswith("rmse_") and c.endswith("_c") and refit[c].notna().any()]
 
 
 def determined(refit: pd.DataFrame) -> list[str]:
@@ -149,7 +172,7 @@ def determined(refit: pd.DataFrame) -> list[str]:
     if fitted.empty:
         return []
     out = []
-    for p in PARAM_NAMES:
+    for p in parameters(refit):
         undetermined = fitted["undetermined"].fillna("").str.split(",").map(lambda s, p=p: p in s)
         if undetermined.mean() < 0.5:
             out.append(p)
@@ -174,7 +197,7 @@ def _furnace(name: str, refit, events, verdicts) -> str:
                                      bad["status"].value_counts().items()) + "</p>")
         last = _latest(refit)
         if last is not None:
-            rmse = ", ".join(f"{z} {last[f'rmse_{z}_c']:.2f}" for z in ZONES)
+            rmse = ", ".join(f"{z} {last[f'rmse_{z}_c']:.2f}" for z in zones(refit))
             parts.append(f'<p class="meta">Latest window RMSE per zone: {rmse} °C.</p>')
     if events is not None:
         parts.append("<h3>Drift events</h3><ul>" + "".join(

@@ -20,9 +20,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from furnace_model import ZONES
 from furnace_model.errors import DataError
-from furnace_model.logschema import PARAM_NAMES, THERMOCOUPLES
+from furnace_model.furnace import PAPER, Furnace
+from furnace_model.logschema import THERMOCOUPLES, param_names
 
 from ..daqconfig import RefitConfig
 from .engine import prepare_worker
@@ -60,12 +60,13 @@ def file_identity(path: Path) -> list:
     return [str(path.resolve()), st.st_size, st.st_mtime_ns]
 
 
-def scan_furnace(furnace: str, logs: Sequence[str]) -> dict:
-    """Per log file: path, identity, PLC-clock span. A file that is no readable log is left
-    out and listed in `bad` with the reason (the job reports each as a failure of the
-    furnace, and goes on with the rest: one corrupt file must not hide a year); a furnace
-    with no readable file at all raises DataError naming its files' problems."""
-    from furnace_model.logread import open_log
+def scan_furnace(furnace: str, logs: Sequence[str], description: Furnace = PAPER) -> dict:
+    """Per log file: path, identity, PLC-clock span. A file that is no readable log, or the
+    log of another furnace than the fleet file's `description` of this one, is left out and
+    listed in `bad` with the reason (the job reports each as a failure of the furnace, and
+    goes on with the rest: one corrupt or misfiled log must not hide a year); a furnace with
+    no usable file at all raises DataError naming its files' problems."""
+    from furnace_model.logread import open_log, read_metadata, recorded_furnace
 
     files = []
     bad: list[str] = []
@@ -73,6 +74,10 @@ def scan_furnace(furnace: str, logs: Sequence[str]) -> dict:
         try:
             log = open_log(path)
             lo, hi = log.span()
+            recorded = recorded_furnace(read_metadata([path]), str(path))
+            if recorded != description:
+                raise DataError(str(path), f"a log of furnace '{recorded.name}', and the "
+                                f"fleet file says this furnace is '{description.name}'")
         except DataError as exc:
             bad.append(str(exc))
             continue
@@ -119,6 +124,7 @@ class Segment:
     after_ns: int | None
     until_ns: int | None
     effects_from: tuple[str, ...] = ()
+    description: Furnace = PAPER
 
 
 def refit_segment(seg: Segment) -> dict:
@@ -132,8 +138,8 @@ def refit_segment(seg: Segment) -> dict:
     prepare_worker(seg.effects_from)
     cpu0 = time.process_time()
     cfg = seg.refit
-    cutter = WindowCutter(cfg, seg.t_air_default)
-    chain = RefitChain(cfg, seg.t_air_default)
+    cutter = WindowCutter(cfg, seg.t_air_default, seg.description)
+    chain = RefitChain(cfg, seg.t_air_default, seg.description)
     window_ns = int(round(cfg.window_s * 1e9))
     read_from = None if seg.after_ns is None else seg.after_ns - window_ns
     rows: list[dict] = []
@@ -145,7 +151,7 @@ def refit_segment(seg: Segment) -> dict:
         if seg.until_ns is not None and window.end_ns > seg.until_ns:
             return False
         msg, evs = chain.process(window)
-        rows.append(parameter_row(seg.furnace, seg.index, msg))
+        rows.append(parameter_row(seg.furnace, seg.index, msg, seg.description))
         events.extend(event_row(seg.furnace, seg.index, e) for e in evs)
         return True
 
@@ -162,19 +168,20 @@ def refit_segment(seg: Segment) -> dict:
     return {"rows": rows, "events": events, "cpu_s": time.process_time() - cpu0}
 
 
-def parameter_row(furnace: str, segment: int, msg: dict) -> dict:
-    """A /model/parameters message as a flat row: parameters, 95% bounds, RMSE per zone."""
+def parameter_row(furnace: str, segment: int, msg: dict, description: Furnace = PAPER) -> dict:
+    """A /model/parameters message as a flat row: the furnace's parameters, their 95% bounds,
+    RMSE per zone."""
     row = {"furnace": furnace, "segment": segment, "window_start": msg["window_start"],
            "window_end": msg["window_end"], "status": msg["status"],
            "detail": msg.get("detail", ""), "n_samples": msg.get("n_samples", 0)}
     ci = msg.get("ci95") or {}
     rmse = msg.get("rmse_c") or {}
     fitted = msg["status"] == "ok"
-    for p in PARAM_NAMES:
+    for p in param_names(description):
         row[p] = _num(msg.get(p))
         lo, hi = ci.get(p, (None, None))
         row[f"{p}_ci95_lo"], row[f"{p}_ci95_hi"] = _num(lo), _num(hi)
-    for z in ZONES:
+    for z in description.zones:
         row[f"rmse_{z}_c"] = _num(rmse.get(z))
     # False when the window kept the model in force: its parameters are that model's.
     row["fitted"] = fitted
@@ -212,6 +219,7 @@ class Pair:
     period_s: float
     seed: int
     effects_from: tuple[str, ...] = ()
+    description: Furnace = PAPER
 
 
 def diagnose_pair(pair: Pair) -> dict:
@@ -227,7 +235,8 @@ def diagnose_pair(pair: Pair) -> dict:
     def load(files, span):
         _, lo, hi = span
         return load_experiments(files, pair.t_air_default, start=pd.Timestamp(lo, tz="UTC"),
-                                end=pd.Timestamp(hi, tz="UTC"), period_s=pair.period_s)
+                                end=pd.Timestamp(hi, tz="UTC"), period_s=pair.period_s,
+                                furnace=pair.description)
 
     d = diagnose(load(pair.fit_files, pair.fit), load(pair.holdout_files, pair.holdout),
                  effects=pair.effects, seed=pair.seed)
@@ -238,7 +247,7 @@ def diagnose_pair(pair: Pair) -> dict:
            "gap_closed_pct": _num(getattr(v, "gap_closed_pct", math.nan)),
            "gap_zones": ",".join(d.gap_zones), "sentence": v.sentence,
            "elapsed_s": _num(d.elapsed_s)}
-    for z in ZONES:
+    for z in pair.description.zones:
         row[f"rmse_holdout_{z}_c"] = _num(d.baseline.rmse_holdout_c[z])
         row[f"noise_floor_{z}_c"] = _num(d.noise_floor_c[z])
     row["cpu_s"] = time.process_time() - cpu0

@@ -247,9 +247,10 @@ def assert_recovers(params: dict, ci95: dict, truth: dict) -> None:
         assert lo <= want <= hi, (name, lo, want, hi)
 
 
-def test_the_log_validates_and_exports_the_furnace_columns(heatup):
-    counts, problems = check_files(heatup["files"])
-    assert problems == [] and counts[THERMOCOUPLES] == heatup["run"].t_min.size
+def test_the_log_exports_the_furnace_columns(heatup):
+    """(Every message of a daemon's six-zone log is validated strictly on loopback above.)"""
+    n = sum(1 for _ in read_messages(heatup["files"], (THERMOCOUPLES,)))
+    assert n == heatup["run"].t_min.size
     head = heatup["export"].read_text().splitlines()[0].split(",")
     assert head == ["timestamp", *SIX.tc_columns, *SIX.burner_columns, "t_air"]
 

@@ -548,7 +548,9 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
 
     sensors = furnace.sensors
     tc_node = _exact_keys(root.child("thermocouples"), sensors, "thermocouple", furnace)
-    clash = {"t_air", "clock", "heartbeat"} & {*furnace.zones, *sensors}
+    # the map names its points by these: two of one name would read as one
+    clash = ({"t_air", "clock", "heartbeat"} & {*furnace.zones, *sensors}) \
+        | (set(furnace.zones) & set(sensors))
     if clash:
         raise root.child("furnace", "").error(
             f"furnace '{furnace.name}' names a zone or thermocouple {', '.join(sorted(clash))}, "

@@ -25,9 +25,10 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
-from .furnace import PAPER, Furnace
-from .network import parameter_names
+if TYPE_CHECKING:  # the furnace loads numpy: not for a command's --help (test_cli_surface)
+    from .furnace import Furnace
 
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
@@ -42,9 +43,24 @@ PARAM_NAMES: tuple[str, ...] = ("a", "b", "c", "d", "e", "f")
 """The paper's furnace's parameters; another furnace's are `param_names(furnace)`."""
 
 
-def param_names(furnace: Furnace = PAPER) -> tuple[str, ...]:
-    """The names /model/parameters carries for `furnace`: a..f for the paper's."""
-    return PARAM_NAMES if furnace.paper_structure else tuple(parameter_names(furnace))
+def _furnace(furnace: Furnace | None) -> Furnace:
+    """`furnace`, or the paper's when None."""
+    if furnace is not None:
+        return furnace
+    from .furnace import PAPER
+
+    return PAPER
+
+
+def param_names(furnace: Furnace | None = None) -> tuple[str, ...]:
+    """The names /model/parameters carries for `furnace` (default the paper's): a..f for
+    the paper's."""
+    furnace = _furnace(furnace)
+    if furnace.paper_structure:
+        return PARAM_NAMES
+    from .network import parameter_names
+
+    return tuple(parameter_names(furnace))
 
 THERMOCOUPLES = "/furnace/thermocouples"
 BURNERS = "/furnace/burners"
@@ -381,12 +397,16 @@ _LOG = {
 }
 
 
-@lru_cache(maxsize=16)
-def topics(furnace: Furnace = PAPER) -> dict[str, Topic]:
+def topics(furnace: Furnace | None = None) -> dict[str, Topic]:
     """Every topic of the contract for `furnace`, in the order the writer registers them:
     the furnace topics' fields are its thermocouples and zones, /model/parameters its
     network's parameters (CONTRACTS.md section 2). Same names and schema names for every
-    furnace, so a reader finds the topics of any log."""
+    furnace, so a reader finds the topics of any log. Default: the paper's furnace."""
+    return _topics(_furnace(furnace))
+
+
+@lru_cache(maxsize=16)
+def _topics(furnace: Furnace) -> dict[str, Topic]:
     return {t.name: t for t in (
         Topic(THERMOCOUPLES, "furnace.Thermocouples", _thermocouples(furnace)),
         Topic(BURNERS, "furnace.Burners", _burners(furnace)),
@@ -399,11 +419,16 @@ def topics(furnace: Furnace = PAPER) -> dict[str, Topic]:
     )}
 
 
-TOPICS: dict[str, Topic] = topics(PAPER)
-"""The paper's furnace's topics."""
+def __getattr__(name: str) -> object:
+    """`TOPICS`, the paper's furnace's topics, built when first asked for (module-level
+    `__getattr__`, PEP 562): building them loads the furnace description, and with it
+    numpy, which a command's --help must not pay for."""
+    if name == "TOPICS":
+        return topics()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def topic(name: str, furnace: Furnace = PAPER) -> Topic:
+def topic(name: str, furnace: Furnace | None = None) -> Topic:
     """The contract's topic, or an open object schema for a topic the contract does not name
     yet (logged rather than lost; Foxglove shows its fields without autocompletion)."""
     known = topics(furnace).get(name)

@@ -125,6 +125,7 @@ OUTPUT_OPTIONS = [
     ("furnace_daq.cli", ["logs", "export", "{data}", "--out", "{out}"]),
     ("furnace_daq.cli", ["logs", "recover", "{data}", "--out", "{out}"]),
     ("furnace_daq.cli", ["replay", "{data}", "--out", "{out}"]),
+    ("furnace_daq.cli", ["config", "--furnace", "{data}", "--out", "{out}"]),
 ]
 
 

@@ -247,9 +247,10 @@ def assert_recovers(params: dict, ci95: dict, truth: dict) -> None:
         assert lo <= want <= hi, (name, lo, want, hi)
 
 
-def test_the_log_validates_and_exports_the_furnace_columns(heatup):
-    counts, problems = check_files(heatup["files"])
-    assert problems == [] and counts[THERMOCOUPLES] == heatup["run"].t_min.size
+def test_the_log_exports_the_furnace_columns(heatup):
+    """(Every message of a daemon's six-zone log is validated strictly on loopback above.)"""
+    n = sum(1 for _ in read_messages(heatup["files"], (THERMOCOUPLES,)))
+    assert n == heatup["run"].t_min.size
     head = heatup["export"].read_text().splitlines()[0].split(",")
     assert head == ["timestamp", *SIX.tc_columns, *SIX.burner_columns, "t_air"]
 
@@ -373,3 +374,29 @@ def test_mbpoll_reads_the_six_zone_map(tmp_path):
     # preheat_bottom 1 (of 6/4/8/6/4/2), the first burners of each zone firing
     assert burners == [1, 1, 0, 0, 0, 0] + [1, 1, 0, 0] + [1] * 4 + [0] * 4 + [0] * 6 \
         + [0] * 4 + [1, 0]
+
+
+@pytest.mark.slow
+def test_make_demo_with_the_six_zone_furnace(tmp_path):
+    """`make demo FURNACE=config/furnaces/six-zone.yaml`: the whole chain on the other
+    furnace; the closing table has every network parameter, the whole run's fit within 2.5%
+    of the truth and the last online refit's within 5%."""
+    import re
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "furnace_daq.demo", "--out", str(tmp_path),
+                           "--furnace", "config/furnaces/six-zone.yaml"],
+                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr
+    logs = sorted((tmp_path / "logs").glob("*.mcap"))
+    counts, problems = check_files(logs)
+    assert problems == [] and counts[MODEL_PARAMETERS] > 0
+    assert log_furnace(logs) == SIX
+    cell = r"([-+.\deE]+)\s+([-+][\d.]+)% \(±[\d.e+]+%\)"
+    rows = {m.group(1): (float(m.group(4)), float(m.group(6)))
+            for m in re.finditer(rf"^\s+(\S+)\s+([-+.\deE]+)\s+{cell}\s+{cell}", done.stdout,
+                                 re.M)}
+    assert set(rows) == set(param_names(SIX)), done.stdout[-3000:]
+    assert all(abs(online) < 5 and abs(whole) < 2.5 for online, whole in rows.values()), rows

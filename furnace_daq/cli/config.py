@@ -8,6 +8,7 @@ import argparse
 import os
 from pathlib import Path
 
+from furnace_model.cli.arguments import output_file
 from furnace_model.errors import FurnaceError
 
 
@@ -16,7 +17,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=__doc__)
     p.add_argument("--furnace", required=True, type=Path, metavar="FURNACE.yaml",
                    help="furnace description (config/furnaces/)")
-    p.add_argument("--out", type=Path, help="write the config here (default: print it)")
+    p.add_argument("--out", type=output_file,
+                   help="write the config here (default: print it)")
     p.add_argument("--port", type=int, default=5020, help="plc.port (default 5020)")
     p.set_defaults(run=run)
 

@@ -202,19 +202,23 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
         if seen_as != furnace:
             exp = dataclasses.replace(exp, furnace=seen_as)
         exps.append(exp)
-    description = (", ".join(f"{n}({_short(truth[n])})" for n in names) or "no effect") + \
+    description = (", ".join(f"{n}({_short(truth[n], furnace != PAPER)})" for n in names)
+                   or "no effect") + \
         f"; form {form}; durations {durations[0]:g} and {durations[1]:g} min"
     return Case(fit=[exps[0]], holdout=[exps[1]], truth=truth, description=description,
                 form=form, effects=names)
 
 
-def _short(info: dict) -> str:
+def _short(info: dict, lists: bool = False) -> str:
+    """`lists`: say list options too (which zones, on a furnace of many)."""
     parts = []
     for k, v in info.items():
         if isinstance(v, float):
             parts.append(f"{k}={v:.4g}")
         elif isinstance(v, (str, int)):
             parts.append(f"{k}={v}")
+        elif lists and isinstance(v, (list, tuple)) and all(isinstance(x, str) for x in v):
+            parts.append(f"{k}={','.join(v)}")
     return " ".join(parts)
 
 

@@ -158,3 +158,38 @@ def test_diagnose_refuses_an_effect_that_cannot_apply_by_name():
     case = draw_case(None, case_rng(0, "none", 0), furnace=SIX)
     with pytest.raises(FurnaceError, match="zone_burners does not apply to furnace 'six-zone'"):
         diagnose(case.fit, case.holdout, effects=("zone_burners",))
+
+
+def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_a_zone_of_one():
+    """Known truth: preheat_bottom_1, the only thermocouple of its zone, drifts 0.021 °C/min
+    from minute 1675 of each heat-up. No partner shows it; the baseline bends and leaves a
+    gap in every zone; the drift fitted on that thermocouple closes it, and the JSON names
+    the furnace's zones."""
+    from furnace_model.diagnosis import diagnose
+    from furnace_model.selfcheck import case_rng, draw_case, judge_case
+
+    case = draw_case("sensor_drift", case_rng(0, "sensor_drift", 4), furnace=SIX)
+    assert case.truth["sensor_drift"]["sensor"] == "preheat_bottom_1"
+    d = diagnose(case.fit, case.holdout, effects=("sensor_drift",))
+    assert judge_case(case, d)[0], d.verdict.sentence
+    best = d.best()
+    assert best.options["sensor_drift"]["sensor"] == "preheat_bottom_1"
+    assert best.params["drift_rate"] == pytest.approx(case.truth["sensor_drift"]["drift_rate"],
+                                                      rel=0.1)
+    doc = d.to_json()
+    assert list(doc["baseline"]["rmse_holdout_c"]) == list(SIX.zones)
+    assert set(doc["noise_floors"][0]["zones"]) == set(SIX.zones)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("label", ["none", "wall_storage", "zone_losses", "zone_burners",
+                                   "sensor_lag", "sensor_drift"])
+def test_six_zone_selfcheck_rows(label):
+    """Issue 19's acceptance on the six-zone furnace, two draws a row (docs/diagnosis.md
+    has ten): controls no_gap, a wall in one zone, losses in one zone, own-zone burners, a
+    lagging and a drifting thermocouple named."""
+    from furnace_model.selfcheck import check
+
+    outcomes = check([label], 2, furnace=SIX)
+    wrong = [f"{o.draw}: {o.reason}; {o.description}" for o in outcomes if not o.correct]
+    assert not wrong, wrong

@@ -160,7 +160,7 @@ def test_diagnose_refuses_an_effect_that_cannot_apply_by_name():
         diagnose(case.fit, case.holdout, effects=("zone_burners",))
 
 
-def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_a_zone_of_one():
+def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_a_zone_of_one(tmp_path):
     """Known truth: preheat_bottom_1, the only thermocouple of its zone, drifts 0.021 °C/min
     from minute 1675 of each heat-up. No partner shows it; the baseline bends and leaves a
     gap in every zone; the drift fitted on that thermocouple closes it, and the JSON names
@@ -179,6 +179,11 @@ def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_a_zone_of_one():
     doc = d.to_json()
     assert list(doc["baseline"]["rmse_holdout_c"]) == list(SIX.zones)
     assert set(doc["noise_floors"][0]["zones"]) == set(SIX.zones)
+    from furnace_model.report import write_report
+
+    write_report(d, tmp_path / "r.html")
+    html = (tmp_path / "r.html").read_text()
+    assert "preheat bottom" in html and "sensor_drift" in html
 
 
 @pytest.mark.slow
@@ -193,3 +198,30 @@ def test_six_zone_selfcheck_rows(label):
     outcomes = check([label], 2, furnace=SIX)
     wrong = [f"{o.draw}: {o.reason}; {o.description}" for o in outcomes if not o.correct]
     assert not wrong, wrong
+
+
+def test_diagnose_cli_reads_the_records_as_the_furnace_named(tmp_path):
+    """`simulate` then `diagnose --furnace`: the six-zone heat-up without effects has no
+    gap; without --furnace its columns are refused as not the paper's."""
+    import json
+    import subprocess
+    import sys
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "furnace_model.cli", *args],
+                              capture_output=True, text=True, timeout=240)
+
+    csv = tmp_path / "six.csv"
+    r = cli("simulate", "--scenario", str(ROOT / "config/scenarios/six_zone_heatup.yaml"),
+            "--out", str(csv))
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "d.json"
+    r = cli("diagnose", str(csv), "--furnace", str(ROOT / "config/furnaces/six-zone.yaml"),
+            "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    assert doc["verdict"]["status"] == "no_gap" and list(doc["baseline"]["gap_limit_c"]) == \
+        list(SIX.zones)
+    assert "thermal network of furnace 'six-zone'" in r.stdout
+    r = cli("diagnose", str(csv))
+    assert r.returncode != 0 and "Traceback" not in r.stderr and "soak" in r.stderr

@@ -267,7 +267,7 @@ def _draw_schedule(rng: np.random.Generator, structure: ModelStructure, values: 
             else:
                 c = _fill_soak_first(total, furnace)
             counts[i] = c
-        if spread and not _others_fire(counts):
+        if spread and not _others_fire(counts, furnace):
             continue
         inputs = Inputs(times, counts, np.full(k, t_air))
         y = structure.simulate(values, inputs, t, x0).zones[0]
@@ -276,12 +276,14 @@ def _draw_schedule(rng: np.random.Generator, structure: ModelStructure, values: 
     raise RuntimeError("no burner schedule below the temperature limit was found")
 
 
-def _others_fire(counts: np.ndarray) -> bool:
+def _others_fire(counts: np.ndarray, furnace: Furnace) -> bool:
     """The paper's: heating- and preheating-zone burners fire together in some step. On a
-    furnace of more zones: every zone after the first with burners fires in some step."""
+    furnace of more zones: every zone after the first with burners fires in some step (a
+    zone whose burners never fire in the fitted run leaves its heat per burner unseen)."""
     if counts.shape[1] == 3:
         return bool(np.any((counts[:, 1] > 0) & (counts[:, 2] > 0)))
-    return bool(np.all((counts[:, 1:] > 0).any(axis=0) | (counts.max(axis=0)[1:] == 0)))
+    has = np.array(furnace.burners[1:]) > 0
+    return bool(np.all((counts[:, 1:] > 0).any(axis=0) | ~has))
 
 
 def _fill_soak_first(total: int, furnace: Furnace = PAPER) -> np.ndarray:

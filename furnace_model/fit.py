@@ -615,10 +615,10 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     generations = int(generations if generations is not None else gen_default)
     deadline = None if time_budget_s is None else t_start + float(time_budget_s)
     start, spread = None, None
-    if not init and method == "fast" and not structure.effects \
-            and not structure.furnace.paper_structure:
+    if not init and method == "fast" and not structure.furnace.paper_structure:
         # a network of many zones: the search starts where the equations' least squares put
-        # it, and a warm-started polish takes it from there
+        # it, and a warm-started polish takes it from there (an effect's own parameters from
+        # their defaults, searched over half their box)
         from .network import equation_error
 
         init = {n: v for n, v in equation_error(structure.furnace, experiments).items()

@@ -118,8 +118,10 @@ class Response:
         # costs it the memory it would reuse
         off = (self._sensor_offsets if self._sensor_offsets is not None
                else self.structure.sensor_offsets(self.values, self.t)) * weight
-        pair = off.reshape(off.shape[0], -1, 3, 2)
-        return self.zones + (pair[..., 0] + pair[..., 1])  # a pair's sum without a slow reduce
+        if furnace.thermocouples == (2,) * furnace.n_zones:
+            pair = off.reshape(off.shape[0], -1, furnace.n_zones, 2)
+            return self.zones + (pair[..., 0] + pair[..., 1])  # a pair's sum, no slow reduce
+        return self.zones + furnace.zone_sums(off)
 
     def __getitem__(self, p: int | slice | np.ndarray) -> Response:
         """The response of some parameter sets only (a P axis kept)."""

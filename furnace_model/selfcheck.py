@@ -202,19 +202,23 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
         if seen_as != furnace:
             exp = dataclasses.replace(exp, furnace=seen_as)
         exps.append(exp)
-    description = (", ".join(f"{n}({_short(truth[n])})" for n in names) or "no effect") + \
+    description = (", ".join(f"{n}({_short(truth[n], furnace != PAPER)})" for n in names)
+                   or "no effect") + \
         f"; form {form}; durations {durations[0]:g} and {durations[1]:g} min"
     return Case(fit=[exps[0]], holdout=[exps[1]], truth=truth, description=description,
                 form=form, effects=names)
 
 
-def _short(info: dict) -> str:
+def _short(info: dict, lists: bool = False) -> str:
+    """`lists`: say list options too (which zones, on a furnace of many)."""
     parts = []
     for k, v in info.items():
         if isinstance(v, float):
             parts.append(f"{k}={v:.4g}")
         elif isinstance(v, (str, int)):
             parts.append(f"{k}={v}")
+        elif lists and isinstance(v, (list, tuple)) and all(isinstance(x, str) for x in v):
+            parts.append(f"{k}={','.join(v)}")
     return " ".join(parts)
 
 
@@ -263,7 +267,7 @@ def _draw_schedule(rng: np.random.Generator, structure: ModelStructure, values: 
             else:
                 c = _fill_soak_first(total, furnace)
             counts[i] = c
-        if spread and not _others_fire(counts):
+        if spread and not _others_fire(counts, furnace):
             continue
         inputs = Inputs(times, counts, np.full(k, t_air))
         y = structure.simulate(values, inputs, t, x0).zones[0]
@@ -272,12 +276,14 @@ def _draw_schedule(rng: np.random.Generator, structure: ModelStructure, values: 
     raise RuntimeError("no burner schedule below the temperature limit was found")
 
 
-def _others_fire(counts: np.ndarray) -> bool:
+def _others_fire(counts: np.ndarray, furnace: Furnace) -> bool:
     """The paper's: heating- and preheating-zone burners fire together in some step. On a
-    furnace of more zones: every zone after the first with burners fires in some step."""
+    furnace of more zones: every zone after the first with burners fires in some step (a
+    zone whose burners never fire in the fitted run leaves its heat per burner unseen)."""
     if counts.shape[1] == 3:
         return bool(np.any((counts[:, 1] > 0) & (counts[:, 2] > 0)))
-    return bool(np.all((counts[:, 1:] > 0).any(axis=0) | (counts.max(axis=0)[1:] == 0)))
+    has = np.array(furnace.burners[1:]) > 0
+    return bool(np.all((counts[:, 1:] > 0).any(axis=0) | ~has))
 
 
 def _fill_soak_first(total: int, furnace: Furnace = PAPER) -> np.ndarray:

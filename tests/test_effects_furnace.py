@@ -158,3 +158,88 @@ def test_diagnose_refuses_an_effect_that_cannot_apply_by_name():
     case = draw_case(None, case_rng(0, "none", 0), furnace=SIX)
     with pytest.raises(FurnaceError, match="zone_burners does not apply to furnace 'six-zone'"):
         diagnose(case.fit, case.holdout, effects=("zone_burners",))
+
+
+def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_three(tmp_path):
+    """Known truth: heat_top_3, one of the three thermocouples of its zone, drifts
+    -0.0126 °C/min from minute 1562 of each heat-up; its pairs show it, the diagnosis names
+    it, the report and the JSON name the furnace's zones."""
+    from furnace_model.diagnosis import diagnose
+    from furnace_model.report import write_report
+    from furnace_model.selfcheck import case_rng, draw_case, judge_case
+
+    case = draw_case("sensor_drift", case_rng(0, "sensor_drift", 0), furnace=SIX)
+    assert case.truth["sensor_drift"]["sensor"] == "heat_top_3"
+    d = diagnose(case.fit, case.holdout, effects=("sensor_drift",))
+    assert judge_case(case, d)[0], d.verdict.sentence
+    assert any(w.sensor == "heat_top_3" and w.kind == "sensor" for w in d.where)
+    best = d.best()
+    assert best.params["drift_rate"] == pytest.approx(case.truth["sensor_drift"]["drift_rate"],
+                                                      rel=0.1)
+    doc = d.to_json()
+    assert list(doc["baseline"]["rmse_holdout_c"]) == list(SIX.zones)
+    assert set(doc["noise_floors"][0]["zones"]) == set(SIX.zones)
+    write_report(d, tmp_path / "r.html")
+    html = (tmp_path / "r.html").read_text()
+    assert "heat top" in html and "heat_top_3" in html
+
+
+@pytest.mark.slow
+def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_a_zone_of_one():
+    """Known truth: preheat_bottom_1, the only thermocouple of its zone, drifts 0.021 °C/min
+    from minute 1675 of each heat-up. No partner shows it; the baseline bends and leaves a
+    gap in every zone; the drift fitted on that thermocouple closes it, and the JSON names
+    the furnace's zones."""
+    from furnace_model.diagnosis import diagnose
+    from furnace_model.selfcheck import case_rng, draw_case, judge_case
+
+    case = draw_case("sensor_drift", case_rng(0, "sensor_drift", 4), furnace=SIX)
+    assert case.truth["sensor_drift"]["sensor"] == "preheat_bottom_1"
+    d = diagnose(case.fit, case.holdout, effects=("sensor_drift",))
+    assert judge_case(case, d)[0], d.verdict.sentence
+    best = d.best()
+    assert best.options["sensor_drift"]["sensor"] == "preheat_bottom_1"
+    assert best.params["drift_rate"] == pytest.approx(case.truth["sensor_drift"]["drift_rate"],
+                                                      rel=0.1)
+    assert d.to_json()["verdict"]["effects"] == ["sensor_drift"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("label", ["none", "wall_storage", "zone_losses", "zone_burners",
+                                   "sensor_lag", "sensor_drift"])
+def test_six_zone_selfcheck_rows(label):
+    """Issue 19's acceptance on the six-zone furnace, two draws a row (docs/diagnosis.md
+    has ten): controls no_gap, a wall in one zone, losses in one zone, own-zone burners, a
+    lagging and a drifting thermocouple named."""
+    from furnace_model.selfcheck import check
+
+    outcomes = check([label], 2, furnace=SIX)
+    wrong = [f"{o.draw}: {o.reason}; {o.description}" for o in outcomes if not o.correct]
+    assert not wrong, wrong
+
+
+def test_diagnose_cli_reads_the_records_as_the_furnace_named(tmp_path):
+    """`simulate` then `diagnose --furnace`: the six-zone heat-up without effects has no
+    gap; without --furnace its columns are refused as not the paper's."""
+    import json
+    import subprocess
+    import sys
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "furnace_model.cli", *args],
+                              capture_output=True, text=True, timeout=240)
+
+    csv = tmp_path / "six.csv"
+    r = cli("simulate", "--scenario", str(ROOT / "config/scenarios/six_zone_heatup.yaml"),
+            "--out", str(csv))
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "d.json"
+    r = cli("diagnose", str(csv), "--furnace", str(ROOT / "config/furnaces/six-zone.yaml"),
+            "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    assert doc["verdict"]["status"] == "no_gap" and list(doc["baseline"]["gap_limit_c"]) == \
+        list(SIX.zones)
+    assert "thermal network of furnace 'six-zone'" in r.stdout
+    r = cli("diagnose", str(csv))
+    assert r.returncode != 0 and "Traceback" not in r.stderr and "soak" in r.stderr

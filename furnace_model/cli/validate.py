@@ -77,7 +77,7 @@ def load_params(path: Path, furnace=None) -> tuple[dict[str, float], ModelStruct
             raise FurnaceError(f"{path}: effects[{i}]: unknown effect {name!r}")
         opts = {k: tuple(v) if isinstance(v, list) else v for k, v in (e.get("options") or {}).items()}
         try:
-            effects.append(EFFECTS[name](**opts))
+            effects.append(EFFECTS[name](**opts, furnace=furnace))
         except (TypeError, ValueError) as exc:
             raise FurnaceError(f"{path}: effects[{i}]: {exc}") from None
     fitted_on = doc.get("furnace", PAPER.name)

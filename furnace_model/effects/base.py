@@ -119,6 +119,9 @@ class Effect:
     """The diagnosis's own formulation (its first law)."""
     further_laws: ClassVar[tuple[dict[str, Any], ...]] = ()
     """Other forms the diagnosis fits when the first law removes part of the gap."""
+    laws_always: ClassVar[bool] = False
+    """The further laws are fitted even when the first does not help: each puts the effect
+    somewhere else (another thermocouple), not in another form."""
     blends: ClassVar[bool] = False
     """The further laws lie on one scale, so that a blend of two stands for a law between."""
     drive_stage: ClassVar[int] = 0

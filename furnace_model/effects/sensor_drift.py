@@ -40,6 +40,16 @@ class SensorDrift(Effect):
         return ("one thermocouple drifts away from the gas temperature it reads (from its "
                 "zone's other thermocouples, where the zone has more than one)")
 
+    laws_always = True
+
+    @classmethod
+    def laws_for(cls, furnace):
+        """Each thermocouple of a zone of one: with no partner to show it, a drift of one is
+        found only by fitting it there (a baseline bent to absorb it spreads its error over
+        every zone). None on the paper's furnace, whose pairs show a drift."""
+        return tuple({"sensor": f"{z}_1"}
+                     for z, k in zip(furnace.zones, furnace.thermocouples, strict=True) if k == 1)
+
     def _params(self):
         return (
             Param("drift_rate", 0.01, -1.0, 1.0, log=False, unit="°C/min",

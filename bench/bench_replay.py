@@ -1,6 +1,6 @@
 """Replay of a week of 1 Hz logs through the online refit (refits every 15 min over 24-h
 windows): wall time, refits per second, and where the time goes (reading and binning the
-log alone, and the fits alone). Aim: the whole replay under 60 s on 2 cores.
+log alone, and the fits alone). Aim: the whole replay under 30 s on 2 cores.
 
 The logs are written directly from a plant run (config/scenarios/week_steps.yaml at 1 Hz)
 with the daemon's LogWriter, hourly files as the daemon rotates them, no Modbus; they are

@@ -63,7 +63,7 @@ import numpy as np
 import pandas as pd
 
 from furnace_model.experiment import Experiment
-from furnace_model.fit import FitResult, fit
+from furnace_model.fit import FitResult, WarmStart, fit
 from furnace_model.furnace import PAPER, Furnace
 from furnace_model.logread import iso_time
 from furnace_model.logresample import Resampler
@@ -132,6 +132,8 @@ class FitJob:
     method: str = "polish"
     population: int = 20
     generations: int = 2000
+    warm: WarmStart | None = None
+    """The previous window's offsets and intervals, with `init` its parameters."""
 
 
 def run_fit(job: FitJob) -> dict:
@@ -151,7 +153,7 @@ def run_fit(job: FitJob) -> dict:
                   generations=job.generations, seed=FITTING_SEED, time_budget_s=job.budget_s)
     else:
         res = fit([job.experiment], structure, init=job.init, seed=FITTING_SEED,
-                  zone_offsets=True, time_budget_s=job.budget_s)
+                  zone_offsets=True, time_budget_s=job.budget_s, warm=job.warm)
     over = any(w.startswith("time budget") for w in res.warnings)
     search = {"method": job.method, "warm_start": job.init is not None}
     if job.method == "ga":
@@ -291,8 +293,12 @@ class RefitChain:
         recent_ns = window.end_ns - int(round(RECENT_PERIODS * cfg.period_s * 1e9))
         t0 = exp.start_time.value if exp.start_time is not None else window.start_ns
         recent = (recent_ns - t0) / 60e9 if recent_ns > window.start_ns else None
+        warm = None
+        if init is not None and self.model is not None:
+            warm = WarmStart([self.model.get("zone_offsets_c")],
+                             {p: tuple(v) for p, v in self.model["ci95"].items()})
         return FitJob(exp, init, cfg.budget_s, recent, cfg.method, cfg.population,
-                      cfg.generations)
+                      cfg.generations, warm)
 
     def process(self, window: Window, fitter: Callable[[FitJob], dict] = run_fit
                 ) -> tuple[dict, list[dict]]:

@@ -13,7 +13,7 @@ every file), else the defaults: a log alone replays as it was fitted live. The o
 carries a metadata record too, with the settings it was fitted with.
 
 Reading and fitting overlap: the worker fits window k while this process reads and bins the
-data of window k + 1, which is what makes a week of 1 Hz data replay in under a minute on
+data of window k + 1, which is what makes a week of 1 Hz data replay in about half a minute on
 two cores. Replay never drops a window: when the worker falls behind, reading waits.
 """
 

@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import copy
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -45,6 +46,12 @@ a 1-minute heat-up, +-8%, held the truth in 57-59 of 60 draws linearised)."""
 PROFILE_GAIN_TOL = 1e-7
 """A profile's refit is converged to this share of the criterion: its rise is wanted to a
 few percent, and it is thousands of times smaller than the criterion."""
+WARM_DAMPING = 1e-7
+"""The first Levenberg-Marquardt damping of a sliding window's refit (`WarmStart`): the
+previous window's optimum is next to this one's, where Gauss-Newton steps converge in two or
+three; the general warm start's 1e-3 took eight or nine to walk the last millionths of the
+criterion down the d/e valley (the same optimum, to a few millionths of d and e)."""
+_T = TypeVar("_T")
 _FD_STEP = 1e-6
 _CELLS = 4_000_000
 """Model values (sets x samples x zones) per simulator call in the GA: about 32 MB each."""
@@ -132,6 +139,7 @@ class _Problem:
         self.block = 2 * nz if zone_offsets else nz  # per experiment: x0, then offsets
         self.n = self.k + self.block * len(self.records)
         self.n_obs = int(sum(r.mask.sum() for r in self.records))
+        self._memo: dict[str, tuple[bytes, Any]] = {}
 
     def holding(self, i: int, z_i: float) -> _Problem:
         """The same problem with free parameter i held at z_i (search scale): what a
@@ -145,6 +153,7 @@ class _Problem:
         sub.log, sub.lo, sub.hi = self.log[keep], self.lo[keep], self.hi[keep]
         sub.lo_val, sub.hi_val = self.lo_val[keep], self.hi_val[keep]
         sub.k, sub.n = self.k - 1, self.n - 1
+        sub._memo = {}
         return sub
 
     def series(self) -> list[np.ndarray]:
@@ -258,13 +267,33 @@ class _Problem:
                 out[name] = "upper"
         return out
 
-    def start(self, zp: np.ndarray) -> np.ndarray:
-        per = [np.concatenate([r.x0_guess, np.zeros(self.block - self.nz)])
-               for r in self.records]
+    def start(self, zp: np.ndarray, offsets: Sequence[np.ndarray] | None = None) -> np.ndarray:
+        """The unknown vector from parameters zp: each record's initial state at its first
+        readings, its zone offsets at zero, or at `offsets` (per record) when fitted and given,
+        and then the first readings less them (a thermocouple's bias is in its reading)."""
+        per = []
+        for j, r in enumerate(self.records):
+            if offsets is None or not self.offsets_fitted:
+                per.append(np.concatenate([r.x0_guess, np.zeros(self.block - self.nz)]))
+            else:
+                off = np.asarray(offsets[j], dtype=float)
+                per.append(np.concatenate([r.x0_guess - off, off]))
         return np.concatenate([zp, *per])
 
+    def remembered(self, what: str, z: np.ndarray, compute: Callable[[], _T]) -> _T:
+        """compute() for unknowns z, or what it gave last time for the same z: a fit asks
+        for the residuals, Jacobian and zone series at its optimum several times over (the
+        scores of each run, the intervals, the criteria), and each is a simulation."""
+        key = np.asarray(z, dtype=float).tobytes()
+        hit = self._memo.get(what)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        value = compute()
+        self._memo[what] = (key, value)
+        return value
+
     def fun(self, z: np.ndarray) -> np.ndarray:
-        return self.fun_many(z[None])[0]
+        return self.remembered("fun", z, lambda: self.fun_many(z[None])[0])
 
     def fun_many(self, Z: np.ndarray) -> np.ndarray:
         """Residuals (P, m) of unknown vectors (P, n), each experiment in one batched call."""
@@ -278,6 +307,9 @@ class _Problem:
         return np.concatenate(out, axis=1)
 
     def jac(self, z: np.ndarray) -> np.ndarray:
+        return self.remembered("jac", z, lambda: self._jac(z))
+
+    def _jac(self, z: np.ndarray) -> np.ndarray:
         """Forward differences, all perturbed sets of an experiment in one batched call.
 
         Where the nonlinear terms vanish at z (radiation's share at zero: a fit that drives
@@ -381,6 +413,8 @@ class _Problem:
             if gain < gain_tol or moved < 1e-9:
                 reason = "converged"
                 break
+        if trials == 1:  # r came from a call of z alone: what fun(z) would compute
+            self._memo["fun"] = (np.asarray(z, dtype=float).tobytes(), r)
         return _Polished(z, r, J, reason, done)
 
 
@@ -588,7 +622,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         bounds: dict[str, tuple[float, float]] | None = None,
         progress: Callable[[float], None] | None = None,
         time_budget_s: float | None = None, zone_offsets: bool = False,
-        profile: bool = True) -> FitResult:
+        profile: bool = True, warm: WarmStart | None = None) -> FitResult:
     """Fit the structure's parameters to the experiments (jointly; own initial state each).
 
     Run r uses seed + r. With `init` the global search is skipped: a warm-started polish,
@@ -600,6 +634,10 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     intervals of parameters the data leave wide follow the criterion (furnace_model.profile)
     instead of its quadratic approximation; a refit per trial value, so callers that only
     rank fits may leave it off.
+
+    `warm` (with `init`): a sliding window's refit, which starts from the window before
+    (see `WarmStart`); the same optimum and intervals, to the optimiser's and the profile's
+    tolerances, for less work.
     """
     t_start = time.perf_counter()
     if method not in METHODS:
@@ -630,6 +668,14 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         # on top of a baseline fit) over half their box around their defaults.
         spread = np.array([0.02 if n in init else 0.5 for n in prob.names])
 
+    offsets = None
+    if warm is not None and zone_offsets and warm.offsets is not None:
+        if len(warm.offsets) != len(experiments):
+            raise FurnaceError(f"warm start: offsets of {len(warm.offsets)} experiment(s) "
+                               f"given for {len(experiments)}")
+        offsets = [np.nan_to_num([float((o or {}).get(zone, 0.0))
+                                  for zone in structure.furnace.zones])
+                   for o in warm.offsets]
     results = []
     for r in range(runs):
         t_run = time.perf_counter()
@@ -640,7 +686,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
                 progress(min((r + frac) / runs, 1.0))
 
         run = _one_run(prob, method, population, generations, rng, start, spread, deadline,
-                       report)
+                       report, offsets, 1e-3 if warm is None else WARM_DAMPING)
         results.append((run, seed + r, time.perf_counter() - t_run))
     report_done = progress or (lambda _f: None)
     report_done(1.0)
@@ -667,7 +713,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     if profile:
         wide = [n for i, n in enumerate(prob.names)
                 if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE]
-        profiled = _profiled(prob, z, float(res @ res), unc, wide, deadline)
+        profiled = _profiled(prob, z, float(res @ res), unc, wide, deadline,
+                             None if warm is None else warm.intervals)
         ci.update(profiled)
     named = unc.determined_combinations(undetermined)
     combos = [name for name, _ in named]
@@ -713,6 +760,21 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         criteria=criteria(_residual_matrix(prob, z), n_estimated), data=list(experiments))
 
 
+@dataclass(frozen=True)
+class WarmStart:
+    """What a sliding window's refit takes from the window before it, besides its parameter
+    values (`fit`'s init): windows that overlap nearly wholly have their optimum, and their
+    intervals' ends, next to each other's."""
+
+    offsets: Sequence[Mapping[str, float] | None] | None = None
+    """Per experiment, {zone: offset in °C}: where the zone offsets start, and the initial
+    states at the first readings less them (a thermocouple's bias is in its reading). From
+    zero and the readings the polish took eight or nine steps instead of two or three."""
+    intervals: Mapping[str, tuple[float, float]] | None = None
+    """{name: (low, high)}, own units: where each profile's search starts
+    (`furnace_model.profile.profile_interval`'s `start`)."""
+
+
 @dataclass
 class _Run:
     """One run's end point, why its search stopped, and how far it went."""
@@ -725,9 +787,12 @@ class _Run:
 
 
 def _profiled(prob: _Problem, z: np.ndarray, sse: float, unc: Uncertainty,
-              names: list[str], deadline: float | None) -> dict[str, tuple[float, float]]:
+              names: list[str], deadline: float | None,
+              starts: Mapping[str, tuple[float, float]] | None = None
+              ) -> dict[str, tuple[float, float]]:
     """Profile-likelihood intervals of the named (wide) parameters, in their own units; the
-    criterion's rise at the ends is the linearised interval's, with the residual's colour."""
+    criterion's rise at the ends is the linearised interval's, with the residual's colour.
+    `starts` (own units): where each search starts (a neighbouring window's ends)."""
     out = {}
     white = unc.cov_white if unc.cov_white is not None else unc.cov
     for name in names:
@@ -748,8 +813,14 @@ def _profiled(prob: _Problem, z: np.ndarray, sse: float, unc: Uncertainty,
             r = prob.holding(i, z_i).polish(start, deadline, 30, PROFILE_GAIN_TOL, 1e-7).r
             return float(r @ r)
 
+        start = None
+        if starts is not None and name in starts:  # on the search scale; NaN: no guide
+            ends = np.asarray(starts[name], dtype=float)
+            if prob.log[i]:
+                ends = np.log(np.where(ends > 0, ends, np.nan))
+            start = (float(ends[0]), float(ends[1]))
         lo, hi = profile_interval(sse_at, float(z[i]), Z95 * float(np.sqrt(unc.cov[i, i])),
-                                  sse, rise, float(prob.lo[i]), float(prob.hi[i]))
+                                  sse, rise, float(prob.lo[i]), float(prob.hi[i]), start)
         if prob.log[i]:
             out[name] = (float(np.exp(lo)), float(np.exp(hi)))
         else:
@@ -759,12 +830,14 @@ def _profiled(prob: _Problem, z: np.ndarray, sse: float, unc: Uncertainty,
 
 def _one_run(prob: _Problem, method: str, population: int, generations: int,
              rng: np.random.Generator, start: np.ndarray | None, spread: np.ndarray | None,
-             deadline: float | None, report: Callable[[float], None]) -> _Run:
+             deadline: float | None, report: Callable[[float], None],
+             offsets: list[np.ndarray] | None = None, damping: float = 1e-3) -> _Run:
     if prob.k == 0:
         p = prob.polish(prob.start(np.zeros(0)), deadline)
         return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget")
     if method == "fast" and start is not None and np.all(spread < 0.1):
-        p = prob.polish(prob.start(start), deadline)  # every value given: polish
+        # every value given: polish
+        p = prob.polish(prob.start(start, offsets), deadline, damping=damping)
         report(1.0)
         return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget")
     ga_deadline = deadline
@@ -790,7 +863,7 @@ def _one_run(prob: _Problem, method: str, population: int, generations: int,
         if any(np.max(np.abs(cand - p)) < 0.3 for p in picked):
             continue
         picked.append(cand)
-        polished.append(prob.polish(prob.start(cand), deadline))
+        polished.append(prob.polish(prob.start(cand, offsets), deadline))
     report(1.0)
     best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
     cut = ga_cut or any(p.reason == "time_budget" for p in polished)
@@ -809,6 +882,10 @@ def _sse(prob: _Problem, z: np.ndarray) -> float:
 
 def _measured_and_model(prob: _Problem, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Measured (NaN where missing) and modelled readings of all records, stacked (N, 3)."""
+    return prob.remembered("readings", z, lambda: _readings(prob, z))
+
+
+def _readings(prob: _Problem, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     vals = prob.values(z[:prob.k][None])
     meas, model = [], []
     for j, r in enumerate(prob.records):

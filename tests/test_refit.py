@@ -20,7 +20,7 @@ from furnace_daq.refitworker import RefitRunner
 from furnace_daq.statefile import write_json_atomic
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
-from furnace_model.fit import fit
+from furnace_model.fit import WarmStart, fit
 from furnace_model.logschema import MODEL_PARAMETERS, PARAM_NAMES
 
 HOUR = 3600.0
@@ -189,7 +189,8 @@ def test_state_file_is_replaced_whole_and_kept_on_failure(tmp_path):
 
 
 def test_chain_warm_starts_from_the_previous_window():
-    """Window k's fit starts at window k-1's result: the same as fitting it by hand so."""
+    """Window k's fit starts at window k-1's result (its parameters, and as `WarmStart` its
+    zone offsets and intervals): the same as fitting it by hand so."""
     s = scenario("week_steps", duration_min=12 * 60)
     cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR)
     cutter, chain = WindowCutter(cfg), RefitChain(cfg)
@@ -200,8 +201,11 @@ def test_chain_warm_starts_from_the_previous_window():
             out.append(chain.process(w)[0])
     i = next(k for k in range(1, len(out)) if out[k]["status"] == "ok"
              and out[k - 1]["status"] == "ok")
-    by_hand = fit([windows[i].experiment], init={p: out[i - 1][p] for p in PARAM_NAMES},
-                  zone_offsets=True, seed=0)
+    prev = out[i - 1]
+    by_hand = fit([windows[i].experiment], init={p: prev[p] for p in PARAM_NAMES},
+                  zone_offsets=True, seed=0,
+                  warm=WarmStart([prev["zone_offsets_c"]],
+                                 {p: tuple(v) for p, v in prev["ci95"].items()}))
     assert all(by_hand.params[p] == out[i][p] for p in PARAM_NAMES)
     assert out[i]["search"] == {"method": "polish", "warm_start": True}
     first = next(m for m in out if m["status"] == "ok")

@@ -263,7 +263,7 @@ BAD = [
     ({"furnaces": [{"logs": ["a"]}]}, "furnaces[0].name: required key is missing"),
     ({"furnaces": [{"name": "a b", "logs": ["a"]}]}, "furnaces[0].name: 'a b' is not"),
     ({"furnaces": [{"name": "a", "logs": ["a"], "furnace": "tunnel"}]},
-     "furnaces[0].furnace: must be one of paper"),
+     "furnaces[0].furnace: no furnace description 'tunnel'"),
     ({"furnaces": [{"name": "a", "logs": ["a"]}, {"name": "a", "logs": ["b"]}]},
      "furnaces[1].name: 'a' is already the name of furnaces[0]"),
     ({"furnaces": [{"name": "a", "logs": ["a"], "campaigns": [

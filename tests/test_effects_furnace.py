@@ -130,6 +130,9 @@ def test_a_six_zone_scenario_switches_effects_on_by_the_furnaces_names(tmp_path)
     assert np.all(np.isfinite(y.sensors))
     k = SIX.sensors.index("soak_bottom_1")
     assert y.sensor_offsets[0, -1, k] == pytest.approx(0.05 * 400)
+    shipped = load_scenario(ROOT / "config/scenarios/six_zone_effects.yaml")
+    assert [e.name for e in shipped.effects] == ["wall_storage", "sensor_drift"]
+    assert shipped.structure().n_states == 7
 
 
 @pytest.mark.parametrize(("effects", "path", "words"), [

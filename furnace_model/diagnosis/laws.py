@@ -9,7 +9,7 @@ from ..effects import EFFECTS
 from ..experiment import Experiment
 from ..furnace import PAPER, Furnace
 from .candidate import CandidateResult
-from .credit import credited, helps
+from .credit import helps
 from .fitting import rmse_per_zone
 
 
@@ -20,13 +20,13 @@ def further_laws(fitted: list[CandidateResult], furnace: Furnace = PAPER
     slow. A furnace's radiation exponent, burner curve or storing walls are its own: the
     laws are fitted warm from the effect's first law (and from scratch on a bent baseline,
     see `diagnose`), and the best kept, or a blend of two (`between_laws`). An effect whose
-    laws put it elsewhere, not in another form (`Effect.laws_always`: a drifting
-    thermocouple), has them fitted whenever its first law earns no credit."""
+    laws put it elsewhere, not in another form (`Effect.laws_always`: one zone's wall or lag
+    on a furnace of many zones, a drifting thermocouple of a zone of one), has them fitted
+    whatever its first law does."""
     out = []
     for c in fitted:
         cls = EFFECTS[c.effects[0]]
-        if (not credited(c) and not c.note.startswith("fit failed")) if cls.laws_always \
-                else helps(c):
+        if helps(c) or (cls.laws_always(furnace) and not c.note.startswith("fit failed")):
             out += [(c, dict(opts)) for opts in cls.laws_for(furnace)
                     if dict(opts) != c.options.get(c.effects[0])]
     return out

@@ -119,9 +119,6 @@ class Effect:
     """The diagnosis's own formulation (its first law)."""
     further_laws: ClassVar[tuple[dict[str, Any], ...]] = ()
     """Other forms the diagnosis fits when the first law removes part of the gap."""
-    laws_always: ClassVar[bool] = False
-    """The further laws are fitted even when the first does not help: each puts the effect
-    somewhere else (another thermocouple), not in another form."""
     blends: ClassVar[bool] = False
     """The further laws lie on one scale, so that a blend of two stands for a law between."""
     drive_stage: ClassVar[int] = 0
@@ -162,6 +159,13 @@ class Effect:
     def laws_for(cls, furnace: Furnace) -> tuple[dict[str, Any], ...]:
         """The further laws on this furnace (`further_laws`)."""
         return cls.further_laws
+
+    @classmethod
+    def laws_always(cls, furnace: Furnace) -> bool:
+        """Whether the further laws are fitted even when the first law does not help: where
+        each puts the effect somewhere else (one zone's wall, one thermocouple), not in
+        another form, the first law need not show it at all."""
+        return False
 
     @classmethod
     def physics_for(cls, furnace: Furnace) -> str:

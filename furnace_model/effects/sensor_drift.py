@@ -40,7 +40,9 @@ class SensorDrift(Effect):
         return ("one thermocouple drifts away from the gas temperature it reads (from its "
                 "zone's other thermocouples, where the zone has more than one)")
 
-    laws_always = True
+    @classmethod
+    def laws_always(cls, furnace):
+        return furnace != PAPER
 
     @classmethod
     def laws_for(cls, furnace):

@@ -42,6 +42,13 @@ class WallStorage(Effect):
         return {"zones": furnace.zones}
 
     @classmethod
+    def laws_always(cls, furnace):
+        """On a furnace of more than the paper's zones, one zone's wall may leave the
+        candidate in every zone no better than the baseline: each zone alone is fitted
+        whatever that does."""
+        return furnace != PAPER
+
+    @classmethod
     def laws_for(cls, furnace):
         return cls.further_laws if furnace == PAPER else tuple(
             {"zones": (z,)} for z in furnace.zones)

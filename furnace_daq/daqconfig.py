@@ -14,7 +14,7 @@ import pandas as pd
 
 from furnace_model.config import Node, load_yaml
 from furnace_model.errors import ConfigError
-from furnace_model.furnace import FURNACES_DIR, PAPER, Furnace, load_furnace
+from furnace_model.furnace import PAPER, Furnace, named_furnace
 from furnace_model.network import parameter_names
 
 from .liveview import LiveViewConfig
@@ -440,21 +440,12 @@ def load_config(path: str | Path) -> DaqConfig:
 
 
 def config_furnace(root: Node) -> Furnace:
-    """The furnace a config's `furnace:` key names: a description file relative to the
-    config's directory, then to the working directory, then a name in config/furnaces/
-    (`six-zone`); the paper's when the key is absent."""
+    """The furnace a config's `furnace:` key names (`named_furnace`); the paper's when the
+    key is absent."""
     if not root.has("furnace"):
         return PAPER
-    node = root.child("furnace")
-    text = node.string()
     here = Path(root.file).parent if root.file and not root.file.startswith("<") else None
-    candidates = [here / text] if here is not None else []
-    candidates += [Path(text), FURNACES_DIR / text, FURNACES_DIR / f"{text}.yaml"]
-    for candidate in candidates:
-        if candidate.is_file():
-            return load_furnace(candidate)
-    raise node.error(f"no furnace description '{text}' (a YAML file relative to the config's "
-                     f"directory or the working directory, or a name in {FURNACES_DIR})")
+    return named_furnace(root.child("furnace"), here, "the config")
 
 
 PLC_KEYS = {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",

@@ -18,7 +18,7 @@ import pandas as pd
 from .config import Node, load_yaml
 from .effects import EFFECTS, Effect, Option
 from .errors import ConfigError
-from .furnace import FURNACES_DIR, PAPER, Furnace, load_furnace
+from .furnace import PAPER, Furnace, named_furnace
 from .network import parameters
 from .structure import Inputs, ModelStructure
 
@@ -93,25 +93,14 @@ def split_total(total: int, fill_order: tuple[str, ...],
     return counts
 
 
-def scenario_furnace(node: Node, scenario_file: str | Path) -> Furnace:
-    """The furnace a scenario's `furnace` key names: a YAML path relative to the scenario,
-    or the name of a description in config/furnaces/."""
-    text = node.string()
-    here = Path(scenario_file).parent / text
-    for candidate in (here, FURNACES_DIR / text, FURNACES_DIR / f"{text}.yaml"):
-        if candidate.is_file():
-            return load_furnace(candidate)
-    raise node.error(f"no furnace description '{text}' (a path relative to the scenario, or "
-                     f"a name in {FURNACES_DIR})")
-
-
 def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
     """A scenario, checked. `furnace`: the description the caller works with (--furnace);
     a scenario of another furnace is an error on its `furnace` key."""
     root = load_yaml(path).mapping({
         "name", "description", "duration_min", "sample_min", "start_time", "t_air_c",
         "initial_c", "model", "burners", "sensors", "effects", "furnace"})
-    own = scenario_furnace(root.child("furnace"), path) if root.has("furnace") else PAPER
+    own = (named_furnace(root.child("furnace"), Path(path).parent, "the scenario")
+           if root.has("furnace") else PAPER)
     if furnace is not None and furnace != own:
         where = ("is of furnace" if root.has("furnace")
                  else "names no furnace, so it is of the paper's furnace")

@@ -143,6 +143,23 @@ def test_selfcheck_draws_as_tasks_give_the_selfchecks_cases(local, tmp_path):
         (want.label, want.draw, want.status, want.named, want.correct)
 
 
+@pytest.mark.slow
+def test_selfcheck_draws_of_another_furnace_are_that_furnaces_cases(local, tmp_path):
+    """`fleet selfcheck --furnace`: the draws are heat-ups of that description, the same
+    cases as `furnace-model selfcheck --furnace` draws."""
+    from furnace_model.furnace import load_furnace
+    from furnace_model.selfcheck import check
+
+    six = load_furnace(ROOT / "config" / "furnaces" / "six-zone.yaml")
+    got, result = run_selfcheck(local["client"], ["sensor_lag"], 1, tmp_path, quiet=True,
+                                furnace=six)
+    (want,) = check(["sensor_lag"], 1, 0, furnace=six)
+    assert not result.failures and len(got) == 1
+    assert "soak_top" in want.description or "heat_" in want.description
+    assert (got[0].description, got[0].status, got[0].named, got[0].correct) == \
+        (want.description, want.status, want.named, want.correct)
+
+
 # -- a cluster started apart, a worker killed mid-run ----------------------------------------
 
 def _dask(*args: str) -> subprocess.Popen:

@@ -16,6 +16,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from furnace_model.furnace import PAPER
+from furnace_model.furnace import Furnace as Description
+
 from .description import Fleet, Furnace
 from .progress import Progress
 from .report import write_report
@@ -346,8 +349,8 @@ def _nan_none(x):
 def run_selfcheck(client, labels: list[str], draws: int, out_dir: Path, *, seed: int = 0,
                   first: int = 0, form: str = "candidate",
                   candidates: tuple[str, ...] | None = None, noise: str = "white",
-                  effects_from: tuple[str, ...] = (), quiet: bool = False
-                  ) -> tuple[list, JobResult]:
+                  effects_from: tuple[str, ...] = (), quiet: bool = False,
+                  furnace: Description = PAPER) -> tuple[list, JobResult]:
     """Every (label, draw) of the selfcheck as a task; the Outcomes in the order
     `furnace-model selfcheck` reports them."""
     from furnace_model.selfcheck import Outcome
@@ -355,7 +358,7 @@ def run_selfcheck(client, labels: list[str], draws: int, out_dir: Path, *, seed:
     specs = []
     for label in labels:
         for k in range(first, first + draws):
-            d = Draw(label, k, seed, form, candidates, noise, effects_from)
+            d = Draw(label, k, seed, form, candidates, noise, effects_from, furnace)
             key = task_key("selfcheck", label, [_file_id(p) for p in effects_from], d)
             specs.append(TaskSpec("selfcheck", label, f"draw {k}", selfcheck_draw, d, key))
     result = JobResult()

@@ -265,6 +265,8 @@ class Draw:
     candidates: tuple[str, ...] | None
     noise: str
     effects_from: tuple[str, ...] = ()
+    furnace: Furnace = PAPER
+    """The description the cases are heat-ups of (`selfcheck --furnace`)."""
 
 
 def selfcheck_draw(d: Draw) -> dict:
@@ -274,5 +276,5 @@ def selfcheck_draw(d: Draw) -> dict:
 
     prepare_worker(d.effects_from)
     (outcome,) = check([d.label], 1, d.seed, form=d.form, candidates=d.candidates,
-                       noise=d.noise, first=d.draw)
+                       noise=d.noise, first=d.draw, furnace=d.furnace)
     return {"rows": [outcome.to_json()]}

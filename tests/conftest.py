@@ -18,3 +18,13 @@ def root() -> Path:
 @pytest.fixture
 def scenarios() -> Path:
     return SCENARIOS
+
+
+FIRST = ("test_coverage.py",)
+"""Modules that take minutes on one worker: collected first, so that pytest-xdist
+(`--dist loadfile`, which hands out modules in collection order) starts them at once and
+the rest of the suite runs beside them, not after them on an otherwise idle core."""
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    items.sort(key=lambda item: item.path.name not in FIRST)

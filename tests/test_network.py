@@ -252,6 +252,7 @@ def test_simulate_fit_validate_with_furnace_end_to_end(tmp_path, capsys, monkeyp
     assert code == 2 and ": furnace: the scenario is of furnace 'six-zone'" in err
 
 
+@pytest.mark.slow
 def test_six_zone_intervals_hold_the_truth_as_often_as_they_say():
     """Over 100 noise draws of the six-zone heat-up, each of the 22 parameters' 95%
     intervals holds the truth in 90-99% of them (a 100-draw binomial at 95% falls outside

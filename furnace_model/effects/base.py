@@ -119,6 +119,15 @@ class Effect:
     """The diagnosis's own formulation (its first law)."""
     further_laws: ClassVar[tuple[dict[str, Any], ...]] = ()
     """Other forms the diagnosis fits when the first law removes part of the gap."""
+    zone_affine: ClassVar[bool] = False
+    """Its parameters enter the zones' equations linearly and it adds no state, no input
+    change and no sensor error: the integrated equations' least squares (equationerror)
+    estimate them with the network's."""
+    one_place_at_a_time: ClassVar[bool] = False
+    """On any furnace but the paper's, the further laws put the effect in one place at a time
+    (one zone of its `zones` option, unless `laws_for` says otherwise) and are fitted even
+    when the first law, the effect everywhere at once, does not help: on a network of many
+    zones an effect in one of them may leave the candidate no better than the baseline."""
     blends: ClassVar[bool] = False
     """The further laws lie on one scale, so that a blend of two stands for a law between."""
     drive_stage: ClassVar[int] = 0
@@ -157,15 +166,18 @@ class Effect:
 
     @classmethod
     def laws_for(cls, furnace: Furnace) -> tuple[dict[str, Any], ...]:
-        """The further laws on this furnace (`further_laws`)."""
-        return cls.further_laws
+        """The further laws on this furnace: `further_laws`, or with `one_place_at_a_time`
+        on a furnace other than the paper's, each zone of the `zones` option's default."""
+        if furnace == PAPER or not cls.one_place_at_a_time:
+            return cls.further_laws
+        return tuple({"zones": (z,)} for z in cls.specs(furnace)["zones"].default)
 
     @classmethod
     def laws_always(cls, furnace: Furnace) -> bool:
         """Whether the further laws are fitted even when the first law does not help: where
         each puts the effect somewhere else (one zone's wall, one thermocouple), not in
         another form, the first law need not show it at all."""
-        return False
+        return cls.one_place_at_a_time and furnace != PAPER
 
     @classmethod
     def physics_for(cls, furnace: Furnace) -> str:

@@ -25,6 +25,7 @@ class SensorDrift(Effect):
                                          doc="the drifting thermocouple")}
     null = {"drift_rate": 0.0}
     ranges = {"drift_rate": (0.005, 0.03), "t_drift_frac": (0.15, 0.6)}
+    one_place_at_a_time = True
 
     @classmethod
     def specs(cls, furnace):
@@ -39,10 +40,6 @@ class SensorDrift(Effect):
             return cls.physics
         return ("one thermocouple drifts away from the gas temperature it reads (from its "
                 "zone's other thermocouples, where the zone has more than one)")
-
-    @classmethod
-    def laws_always(cls, furnace):
-        return furnace != PAPER
 
     @classmethod
     def laws_for(cls, furnace):

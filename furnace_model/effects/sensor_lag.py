@@ -21,6 +21,9 @@ class SensorLag(Effect):
     option_specs = {"order": Option(1, "integer", lo=1, hi=4, doc="cascaded stages")}
     null = {"tau_lag": 0.0}
     ranges = {"tau_lag": (4.0, 20.0)}
+    one_place_at_a_time = True
+    """A lag shared by the zones of a larger furnace does not fit one lagging zone (one time
+    constant for six zones that mostly have none)."""
 
     @classmethod
     def specs(cls, furnace):
@@ -35,22 +38,6 @@ class SensorLag(Effect):
     @classmethod
     def candidate_for(cls, furnace):
         return {} if furnace == PAPER else {"zones": furnace.zones}
-
-    @classmethod
-    def laws_always(cls, furnace):
-        """On a furnace of more than the paper's zones, one zone's lag may leave the
-        candidate in every zone no better than the baseline: each zone alone is fitted
-        whatever that does."""
-        return furnace != PAPER
-
-    @classmethod
-    def laws_for(cls, furnace):
-        """On a furnace of more than the paper's zones, one zone's thermocouples lagging: a
-        lag shared by all zones does not fit one lagging zone (one time constant for six
-        zones that mostly have none)."""
-        if furnace == PAPER:
-            return ()
-        return tuple({"zones": (z,)} for z in furnace.zones)
 
     @classmethod
     def physics_for(cls, furnace):

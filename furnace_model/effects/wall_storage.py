@@ -26,6 +26,7 @@ class WallStorage(Effect):
     """A wall that stores much heat in one zone only cannot be fitted by one exchange rate
     shared by the three (seen: a preheating-zone wall left 1.8 °C held out against a floor
     of 1.1 with walls in all zones)."""
+    one_place_at_a_time = True
     ranges = {"k_gw": (0.02, 0.2), "k_wg": (0.001, 0.01), "k_wb": (0.002, 0.02),
               "k_bw": (0.0003, 0.003)}
 
@@ -40,18 +41,6 @@ class WallStorage(Effect):
     @classmethod
     def candidate_for(cls, furnace):
         return {"zones": furnace.zones}
-
-    @classmethod
-    def laws_always(cls, furnace):
-        """On a furnace of more than the paper's zones, one zone's wall may leave the
-        candidate in every zone no better than the baseline: each zone alone is fitted
-        whatever that does."""
-        return furnace != PAPER
-
-    @classmethod
-    def laws_for(cls, furnace):
-        return cls.further_laws if furnace == PAPER else tuple(
-            {"zones": (z,)} for z in furnace.zones)
 
     def _params(self):
         face = (Param("k_gw", 0.05, 1e-5, 10.0, doc="gas-to-wall exchange rate, seen from the gas"),

@@ -655,11 +655,11 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     start, spread = None, None
     if not init and method == "fast" and not structure.furnace.paper_structure:
         # a network of many zones: the search starts where the equations' least squares put
-        # it, and a warm-started polish takes it from there (an effect's own parameters from
-        # their defaults, searched over half their box)
-        from .network import equation_error
+        # it, and a warm-started polish takes it from there (the parameters of an effect
+        # that is not zone-affine from their defaults, searched over half their box)
+        from .equationerror import equation_error
 
-        init = {n: v for n, v in equation_error(structure.furnace, experiments).items()
+        init = {n: v for n, v in equation_error(structure, experiments).items()
                 if n not in (fixed or {})}
     if init:
         start_vals = {**structure.defaults(), **init}

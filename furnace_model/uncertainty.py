@@ -98,11 +98,13 @@ class Uncertainty:
         question of the records' excitation, not of the residual's colour."""
         if self.eigvals.size == 0:
             return []
-        if self.cov_white is not None:
-            wc, Vc = np.linalg.eigh(self.cov_white)
-            info = (Vc ** 2) @ (1.0 / np.maximum(wc, 1e-300))
-        else:
-            info = (self.eigvecs ** 2) @ self.eigvals  # the Fisher information's diagonal
+        # The Fisher information's diagonal, from the covariance's eigen-decomposition. That
+        # resolves eigenvalues only to about 1e-16 of the largest, which for a parameter the
+        # data do not see is huge: below that a direction is as good as exact, and the
+        # reciprocal of rounding noise would swamp every parameter's information (seen: a
+        # heat per burner of a zone that never fired, called seen with a half-width of 1e-133).
+        wc, Vc = np.linalg.eigh(self.cov_white if self.cov_white is not None else self.cov)
+        info = (Vc ** 2) @ (1.0 / np.maximum(wc, 1e-14 * max(float(wc.max()), 1e-300)))
         half = Z95 / np.sqrt(np.maximum(info, 1e-300))
         zlo = np.where(self.log, np.log(np.maximum(lo, 1e-300)), lo)
         zhi = np.where(self.log, np.log(np.maximum(hi, 1e-300)), hi)

@@ -93,6 +93,25 @@ def test_zone_options_range_over_the_furnace():
     assert EFFECTS["sensor_lag"]().options == {"order": 1}
     assert EFFECTS["zone_losses"]().options == {"zones": ("soak", "heat")}
     assert EFFECTS["sensor_drift"]().options == {"sensor": "heat_2"}
+
+
+def test_on_a_network_the_further_laws_place_an_effect_in_one_place_at_a_time():
+    """A zone's wall, loss or lag, or a lone thermocouple's drift: each place alone is a law
+    of its own, fitted whatever the effect everywhere at once does; the paper's furnace keeps
+    its laws."""
+    def places(name, furnace):
+        cls = EFFECTS[name]
+        return cls.laws_always(furnace), [next(iter(o.values())) for o in cls.laws_for(furnace)]
+
+    every = [(z,) for z in SIX.zones]
+    assert places("wall_storage", SIX) == (True, every)
+    assert places("sensor_lag", SIX) == (True, every)
+    assert places("zone_losses", SIX) == (True, [(z,) for z in SIX.zones[:4]])
+    assert places("sensor_drift", SIX) == (True, ["soak_bottom_1", "preheat_bottom_1"])
+    assert places("dead_time", SIX) == (False, [])
+    assert places("wall_storage", PAPER) == (False, [(z,) for z in PAPER.zones])
+    for name in ("sensor_lag", "zone_losses", "sensor_drift"):
+        assert places(name, PAPER) == (False, [])
     assert EFFECTS["wall_storage"]().options["zones"] == PAPER.zones
 
 
@@ -163,6 +182,27 @@ def test_diagnose_refuses_an_effect_that_cannot_apply_by_name():
         diagnose(case.fit, case.holdout, effects=("zone_burners",))
 
 
+def test_the_equations_least_squares_find_a_zone_affine_effect_with_the_network():
+    """A loss from one zone of six: the integrated equations put the loss in that zone,
+    with the network's parameters, where the fit of a candidate from scratch starts; an
+    effect that adds states keeps its defaults."""
+    from furnace_model.diagnosis.fitting import structure_of
+    from furnace_model.equationerror import equation_error
+    from furnace_model.selfcheck import case_rng, draw_case, network_truth
+
+    case = draw_case("zone_losses", case_rng(0, "zone_losses", 0), furnace=SIX)
+    g = case.truth["zone_losses"]["g_heat_bottom"]
+    start = equation_error(structure_of(("zone_losses",), {}, SIX), case.fit)
+    assert start["g_heat_bottom"] == pytest.approx(g, rel=0.05)
+    assert max(start[f"g_{z}"] for z in ("soak_top", "soak_bottom", "heat_top")) < 0.2 * g
+    truth = network_truth(SIX)
+    assert all(start[k] == pytest.approx(v, rel=0.1) for k, v in truth.items()
+               if k.startswith("gain_"))
+    wall = structure_of(("wall_storage",), {}, SIX)
+    assert {k: v for k, v in equation_error(wall, case.fit).items()
+            if k not in truth} == {}
+
+
 def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_three(tmp_path):
     """Known truth: heat_top_3, one of the three thermocouples of its zone, drifts
     -0.0126 °C/min from minute 1562 of each heat-up; its pairs show it, the diagnosis names
@@ -211,7 +251,8 @@ def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_a_zone_of_one():
 @pytest.mark.parametrize("label", [
     "none", "wall_storage",
     pytest.param("zone_losses", marks=pytest.mark.xfail(
-        reason="draw 0 (a loss from heat_bottom) is unexplained: docs/diagnosis.md, "
+        reason="draw 0 (a loss from heat_bottom): the heat_bottom law closes the gap to "
+               "1.7 °C but not within the near-floor limits: docs/diagnosis.md, "
                "'Measured on the six-zone furnace'")),
     "zone_burners", "sensor_lag", "sensor_drift"])
 def test_six_zone_selfcheck_rows(label):

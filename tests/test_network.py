@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
+from furnace_model.equationerror import equation_error
 from furnace_model.errors import ConfigError, DataError, FurnaceError
 from furnace_model.experiment import load_experiment
 from furnace_model.fit import fit
 from furnace_model.furnace import PAPER, load_furnace, parse_furnace
 from furnace_model.lti import Drive, response
-from furnace_model.network import equation_error, parameter_names
+from furnace_model.network import parameter_names
 from furnace_model.plant import Plant
 from furnace_model.scenario import load_scenario
 from furnace_model.structure import ModelStructure
@@ -199,7 +200,7 @@ def test_six_zone_fit_recovers_the_parameters(six_run):
     claim (below), over many draws, not this one's."""
     sc, path = six_run
     exp = load_experiment(path, furnace=sc.furnace)
-    start = equation_error(sc.furnace, [exp])
+    start = equation_error(sc.structure(), [exp])
     assert all(abs(start[k] / v - 1) < 0.2 for k, v in sc.params.items())
     res = fit([exp], sc.structure(), zone_offsets=True)
     assert res.undetermined == [] and res.stop_reason == "converged"
@@ -212,6 +213,28 @@ def test_six_zone_fit_recovers_the_parameters(six_run):
     assert doc["model"] == "network-six-zone" and doc["furnace"] == "six-zone"
     json.dumps(doc, allow_nan=False)
 
+
+
+def test_a_zone_whose_burners_never_fire_leaves_its_heat_per_burner_unseen():
+    """A campaign with one zone's burners off throughout: that zone's heat per burner is
+    unseen by the data (named undetermined, its interval the whole search box), not an
+    estimate; the diagnosis then estimates it on held-out data that do fire them."""
+    from dataclasses import replace
+
+    from furnace_model.diagnosis.fitting import unseen_by_fit
+
+    sc = load_scenario(SIX_SCENARIO)
+    off = sc.furnace.zones.index("preheat_bottom")
+    steps = sc.steps_burners.copy()
+    steps[:, off] = 0.0
+    sc = replace(sc, steps_burners=steps)
+    exp = Plant.from_scenario(sc, seed=1).run_scenario(sc).to_experiment()
+    res = fit([exp], sc.structure(), zone_offsets=True, profile=False)
+    assert "gain_preheat_bottom" in res.undetermined
+    box = next(p for p in sc.structure().params if p.name == "gain_preheat_bottom")
+    assert res.ci95["gain_preheat_bottom"] == pytest.approx((box.lo, box.hi), rel=1e-6)
+    assert unseen_by_fit(res, {}) == ("gain_preheat_bottom",)
+    assert any("do not determine gain_preheat_bottom" in w for w in res.warnings)
 
 def test_a_record_of_another_furnace_is_refused_by_the_fit(six_run):
     sc, path = six_run

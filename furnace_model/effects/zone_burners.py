@@ -32,6 +32,7 @@ class ZoneBurners(Effect):
                "per burner, instead of counting as zone-1 input")
     null = {"f_heat": float("nan"), "f_preheat": float("nan")}
     ranges = {"f_heat": (0.5, 5.0), "f_preheat": (0.5, 5.0)}
+    zone_affine = True
 
     @classmethod
     def refusal(cls, furnace):

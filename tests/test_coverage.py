@@ -3,10 +3,11 @@ Table V furnace) with thermocouple bias and white or low-pass noise, fitted as `
 by default (zone offsets on) and as the daemon's online refit does; over many noise draws
 each parameter's interval must hold the truth in 90-99% of them.
 
-Draws are seeded, so a run is repeatable. The quick tests take the hardest thermocouples
-(low-pass with white noise on top) and start the fit near the truth, as the online refit
-starts from the last window's model (the same optimum the search finds, much sooner); the
-slow ones take every kind, the daemon's windows, and the whole default search.
+Draws are seeded, so a run is repeatable. The quick test takes the hardest thermocouples
+(low-pass with white noise on top) on the daemon's own call and windows, starting near the
+truth as the online refit starts from the last window's model; the slow ones take every
+kind, whole heat-ups (whose wide intervals are profiled: about 2 s a fit) and the whole
+default search.
 Under 100 draws a 99% upper bound cannot be checked (all draws covered is 100%), so every
 check has at least 100."""
 
@@ -52,9 +53,11 @@ HARDEST = "low-pass and white"
 pytestmark = pytest.mark.timeout(1200)  # a hundred fits each, on a shared machine
 
 
-@pytest.mark.parametrize("noise", [
-    pytest.param(n, marks=() if n == HARDEST else pytest.mark.slow) for n in NOISE])
+@pytest.mark.slow
+@pytest.mark.parametrize("noise", list(NOISE))
 def test_fit_intervals_hold_the_truth(scenarios, noise):
+    """Heat-ups fitted as `fit` does by default, started near the truth (the same optimum
+    the search finds, much sooner)."""
     intervals = [fit([exp], init=START, zone_offsets=True).ci95
                  for exp in _heat_ups(scenarios, noise, 100, 5000)]
     _assert_holds(_coverage(intervals), f"fit, {noise} noise")
@@ -78,11 +81,10 @@ def _windows(scenarios, noise: str, draws: int, seed0: int):
         yield exp.between(t0, t0 + 1440.0)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("noise", list(NOISE))
+@pytest.mark.parametrize("noise", [
+    pytest.param(n, marks=() if n == HARDEST else pytest.mark.slow) for n in NOISE])
 def test_online_refit_intervals_hold_the_truth(scenarios, noise):
-    """The daemon's own call on its own windows. The quick fit check above runs the same
-    path (a polish from a given start, zone offsets on); this one adds the windows."""
+    """The daemon's own call on its own windows."""
     intervals = []
     for window in _windows(scenarios, noise, 100, 7000):
         out = run_fit(FitJob(window, START, budget_s=600.0))

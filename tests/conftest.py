@@ -21,7 +21,7 @@ def scenarios() -> Path:
 
 
 FIRST = ("test_coverage.py",)
-"""Modules that take minutes on one worker: collected first, so that pytest-xdist
+"""Modules that take a minute or more on one worker: collected first, so that pytest-xdist
 (`--dist loadfile`, which hands out modules in collection order) starts them at once and
 the rest of the suite runs beside them, not after them on an otherwise idle core."""
 

@@ -129,13 +129,25 @@ def shipped_cost(root: Path, days: float = 2.0) -> str:
             f"{r['cpu_s'] / len(fitted):.3f} s CPU per fitted window")
 
 
+def task_cpus(result) -> list[float]:
+    """Process time each of the job's tasks spent: a refit segment's result carries it, a
+    diagnosis carries it in its row."""
+    return [v.get("cpu_s", 0.0) + sum(r.get("cpu_s", 0.0) for r in v["rows"]
+                                      if "cpu_s" in r and "status" in r and "furnace" in r
+                                      and "fit_campaign" in r)
+            for _, v in result.results]
+
+
 def cpu(result) -> float:
-    """Process time the job's tasks spent: a refit segment's result carries it, a diagnosis
-    carries it in its row."""
-    return sum(v.get("cpu_s", 0.0) + sum(r.get("cpu_s", 0.0) for r in v["rows"]
-                                         if "cpu_s" in r and "status" in r and "furnace" in r
-                                         and "fit_campaign" in r)
-               for _, v in result.results)
+    return sum(task_cpus(result))
+
+
+def best_ratio(tasks: list[float], workers: int = 2) -> float:
+    """The wall time on `workers` over that on one, at best, for tasks of these costs: the
+    largest task, or the work shared out evenly, whichever is longer (a lower bound that no
+    scheduler beats, whatever the engine)."""
+    total = sum(tasks)
+    return max(max(tasks), total / workers) / total if total else 1.0
 
 
 def main() -> None:
@@ -152,6 +164,7 @@ def main() -> None:
     fleet = load_fleet(make_fleet(root, days, args.furnaces))
     walls: dict[str, list[float]] = {}
     cpus: dict[str, list[float]] = {}
+    tasks: dict[str, list[float]] = {}
     tables: dict[str, pd.DataFrame] = {}
     diag_rows = None
     runs = [("refit uncut", 1, run_refit, {}), ("refit uncut", 2, run_refit, {}),
@@ -167,6 +180,7 @@ def main() -> None:
             assert not result.failures, result.failures
             walls.setdefault(f"{name}, {workers} worker(s)", []).append(wall)
             cpus.setdefault(f"{name}, {workers} worker(s)", []).append(cpu(result))
+            tasks[name] = task_cpus(result)
             if job is run_refit:
                 tables[name] = pd.read_parquet(out / "refit.parquet")
             else:
@@ -190,7 +204,10 @@ def main() -> None:
         one, two = walls.get(f"{job}, 1 worker(s)"), walls.get(f"{job}, 2 worker(s)")
         if one and two:
             print(f"\n{job}: wall time on 2 workers / on 1 worker = "
-                  f"{statistics.median(two) / statistics.median(one):.2f}")
+                  f"{statistics.median(two) / statistics.median(one):.2f}; at best "
+                  f"{best_ratio(tasks[job]):.2f} for its tasks of "
+                  + ", ".join(f"{c:.1f}" for c in sorted(tasks[job], reverse=True))
+                  + " s of CPU")
     print(f"\nCPU per fitted refit window: {cpu_window:.3f} s")
     if diag_rows is not None:
         print("diagnoses: " + "; ".join(f"{r.furnace} {r.fit_campaign}->{r.holdout_campaign} "

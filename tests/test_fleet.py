@@ -321,10 +321,10 @@ def test_the_cli_refuses_a_bad_fleet_file_before_starting_a_cluster(tmp_path, ca
 
 
 def test_rolling_pairs_each_calendar_period_with_the_next():
-    from furnace_daq.fleet.description import Furnace
+    from furnace_daq.fleet.description import FleetFurnace
     from furnace_daq.fleet.jobs import campaign_pairs
 
-    f = Furnace("x", "paper", (Path("x"),))
+    f = FleetFurnace("x", PAPER, (Path("x"),))
     scan = {"files": [{"start_ns": int(pd.Timestamp("2026-01-30T05:00Z").value),
                        "end_ns": int(pd.Timestamp("2026-03-02T01:00Z").value)}]}
     pairs, _ = campaign_pairs(f, scan, None, "month")
@@ -390,20 +390,20 @@ def test_progress_rewrites_one_line_on_a_terminal_and_prints_tenths_otherwise():
 
 
 def test_campaign_pairs_in_time_order_or_as_asked():
-    from furnace_daq.fleet.description import Campaign, Furnace
+    from furnace_daq.fleet.description import Campaign, FleetFurnace
     from furnace_daq.fleet.jobs import campaign_pairs
 
     def c(name, day):
         return Campaign(name, pd.Timestamp(f"2026-03-0{day}T00:00Z"),
                         pd.Timestamp(f"2026-03-0{day + 1}T00:00Z"))
 
-    f = Furnace("x", "paper", (Path("x"),), campaigns=(c("late", 5), c("early", 1), c("mid", 3)))
+    f = FleetFurnace("x", PAPER, (Path("x"),), campaigns=(c("late", 5), c("early", 1), c("mid", 3)))
     pairs, notes = campaign_pairs(f, {}, None, None)
     assert [(a[0], b[0]) for a, b in pairs] == [("early", "mid"), ("mid", "late")] and not notes
     pairs, notes = campaign_pairs(f, {}, [("late", "early"), ("early", "nope")], None)
     assert [(a[0], b[0]) for a, b in pairs] == [("late", "early")]
     assert notes == ["x: no campaign nope; pair early:nope left out"]
-    lone = Furnace("y", "paper", (Path("y"),), campaigns=(c("only", 1),))
+    lone = FleetFurnace("y", PAPER, (Path("y"),), campaigns=(c("only", 1),))
     assert campaign_pairs(lone, {}, None, None) == \
         ([], ["y: fewer than two campaigns; nothing to diagnose"])
 

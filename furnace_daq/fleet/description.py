@@ -30,8 +30,7 @@ from pathlib import Path
 import pandas as pd
 
 from furnace_model.config import Node, load_yaml
-from furnace_model.furnace import PAPER, named_furnace
-from furnace_model.furnace import Furnace as Description
+from furnace_model.furnace import PAPER, Furnace, named_furnace
 
 from ..daqconfig import RefitConfig, parse_refit
 
@@ -55,9 +54,9 @@ class Campaign:
 
 
 @dataclass(frozen=True)
-class Furnace:
+class FleetFurnace:
     name: str
-    description: Description
+    description: Furnace
     """Which furnace it is (zones, burners, thermocouples, links): what its logs must record
     and what its refits and diagnoses model."""
     logs: tuple[Path, ...]
@@ -77,12 +76,12 @@ class DiagnoseSettings:
 
 @dataclass(frozen=True)
 class Fleet:
-    furnaces: tuple[Furnace, ...]
+    furnaces: tuple[FleetFurnace, ...]
     refit: RefitConfig = field(default_factory=RefitConfig)
     diagnose: DiagnoseSettings = field(default_factory=DiagnoseSettings)
     file: str = ""
 
-    def furnace(self, name: str) -> Furnace:
+    def furnace(self, name: str) -> FleetFurnace:
         return next(f for f in self.furnaces if f.name == name)
 
 
@@ -94,7 +93,7 @@ def load_fleet(path: str | Path) -> Fleet:
 
 def parse_fleet(root: Node, base: Path = Path(".")) -> Fleet:
     root.mapping({"furnaces", "refit", "diagnose"})
-    furnaces: list[Furnace] = []
+    furnaces: list[FleetFurnace] = []
     seen: dict[str, str] = {}
     for node in root.child("furnaces").elements(min_len=1):
         f = _furnace(node, base)
@@ -117,7 +116,7 @@ def _name(node: Node) -> str:
     return name
 
 
-def _furnace(node: Node, base: Path) -> Furnace:
+def _furnace(node: Node, base: Path) -> FleetFurnace:
     node.mapping({"name", "furnace", "logs", "ambient_default_c", "campaigns"})
     name = _name(node.child("name"))
     description = (named_furnace(node.child("furnace"), base, "the fleet file")
@@ -139,7 +138,7 @@ def _furnace(node: Node, base: Path) -> Furnace:
         if any(o.name == c.name for o in campaigns):
             raise cn.child("name").error(f"campaign '{c.name}' is named twice for {name}")
         campaigns.append(c)
-    return Furnace(name, description, tuple(logs),
+    return FleetFurnace(name, description, tuple(logs),
                    node.get_number("ambient_default_c", 30.0, lo=-60.0, hi=200.0),
                    tuple(campaigns), node.path)
 

@@ -16,10 +16,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from furnace_model.furnace import PAPER
-from furnace_model.furnace import Furnace as Description
+from furnace_model.furnace import PAPER, Furnace
 
-from .description import Fleet, Furnace
+from .description import Fleet, FleetFurnace
 from .progress import Progress
 from .report import write_report
 from .store import Store, task_key
@@ -232,7 +231,7 @@ def write_table(frame: pd.DataFrame, path: Path) -> None:
 
 # -- diagnose -------------------------------------------------------------------------------
 
-def campaign_pairs(f: Furnace, scan_: dict, pairs: list[tuple[str, str]] | None,
+def campaign_pairs(f: FleetFurnace, scan_: dict, pairs: list[tuple[str, str]] | None,
                    rolling: str | None) -> tuple[list[tuple[tuple[str, int, int],
                                                             tuple[str, int, int]]], list[str]]:
     """The (fit, holdout) campaigns of one furnace, and notes on pairs it cannot have."""
@@ -350,7 +349,7 @@ def run_selfcheck(client, labels: list[str], draws: int, out_dir: Path, *, seed:
                   first: int = 0, form: str = "candidate",
                   candidates: tuple[str, ...] | None = None, noise: str = "white",
                   effects_from: tuple[str, ...] = (), quiet: bool = False,
-                  furnace: Description = PAPER) -> tuple[list, JobResult]:
+                  furnace: Furnace = PAPER) -> tuple[list, JobResult]:
     """Every (label, draw) of the selfcheck as a task; the Outcomes in the order
     `furnace-model selfcheck` reports them."""
     from furnace_model.selfcheck import Outcome

@@ -53,11 +53,16 @@ def criteria(residuals: np.ndarray, n_params: int) -> Criteria:
         nan = float("nan")
         return Criteria(nan, nan, nan, nan, nan, n_params, n, nan)
     m2ll = 0.0  # -2 log L
-    patterns, which = np.unique(present, axis=0, return_inverse=True)
-    for p, pattern in enumerate(patterns):
+    # The patterns of present readings, each row's as one integer: np.unique over rows
+    # (axis=0) sorts them as records, a few ms a call on a refit window.
+    codes = present.astype(np.int64) @ (1 << np.arange(ny, dtype=np.int64)) if ny < 63 \
+        else np.unique(present, axis=0, return_inverse=True)[1].ravel()
+    kinds, first, which = np.unique(codes, return_index=True, return_inverse=True)
+    for p in range(kinds.size):
+        pattern = present[first[p]]
         if not pattern.any():
             continue
-        rows = e[which.ravel() == p][:, pattern]
+        rows = e[which == p][:, pattern]
         block = cov[np.ix_(pattern, pattern)]
         _, ld = np.linalg.slogdet(block)
         quad = np.einsum("ti,ij,tj->", rows, np.linalg.inv(block), rows)

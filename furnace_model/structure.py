@@ -127,7 +127,8 @@ class ModelStructure:
             raise KeyError(f"{self.label}: missing parameter(s) {missing}")
         arrays = [np.atleast_1d(np.asarray(values[n], dtype=float)) for n in self.names]
         P = max(a.size for a in arrays)
-        return {n: np.broadcast_to(a, (P,)) for n, a in zip(self.names, arrays, strict=True)}
+        return {n: a if a.shape == (P,) else np.broadcast_to(a, (P,))
+                for n, a in zip(self.names, arrays, strict=True)}
 
     def system(self, theta: Theta) -> System:
         P, n, nz = next(iter(theta.values())).shape[0], self.n_states, self.n_zones

@@ -17,6 +17,7 @@ exchange rates at hundreds of times the truth)."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.integrate import cumulative_trapezoid
 
 from .experiment import Experiment
 from .network import parameter_names
@@ -39,10 +40,11 @@ def equation_error(structure: ModelStructure, records: list[Experiment]) -> dict
         t = np.asarray(r.t_min, dtype=float)
         y = _filled(r.zone_temp, t)
         dt = np.diff(t)
-        state = _integral(y, dt)  # (N, zones)
+        state = cumulative_trapezoid(y, t, axis=0, initial=0.0)  # (N, zones)
         heat = np.concatenate([np.zeros((1, nz)),
                                np.cumsum(r.burners[:-1].astype(float) * dt[:, None], axis=0)])
-        air = _integral(np.asarray(r.t_air, dtype=float)[:, None], dt)
+        air = cumulative_trapezoid(np.asarray(r.t_air, dtype=float)[:, None], t, axis=0,
+                                   initial=0.0)
         u = np.concatenate([heat, air], axis=1)  # burners hold between samples; ambient moves
         X = np.einsum("pij,nj->inp", rows[0], state) + np.einsum("pij,nj->inp", rows[1], u)
         blocks.append((X, t - t[0], y))
@@ -85,12 +87,6 @@ def _rows(structure: ModelStructure, names: list[str]) -> tuple[np.ndarray, np.n
         dA.append(moved.A[0, :nz, :nz] - ref.A[0, :nz, :nz])
         dB.append(moved.B[0, :nz] - ref.B[0, :nz])
     return np.array(dA).reshape(len(names), nz, nz), np.array(dB).reshape(len(names), nz, -1)
-
-
-def _integral(v: np.ndarray, dt: np.ndarray) -> np.ndarray:
-    """Trapezoid integral from the first sample, per column."""
-    return np.concatenate([np.zeros((1, v.shape[1])),
-                           np.cumsum(0.5 * (v[1:] + v[:-1]) * dt[:, None], axis=0)])
 
 
 def _filled(y: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -32,12 +32,19 @@ class CandidateResult:
     evidence: float = 0.0  # lower is better: delta_bic plus the held-out log-likelihood ratio
     gap_closed_pct: float = 0.0
     held_out_fitted: tuple[str, ...] = ()  # parameters estimated on the held-out data too
+    carried_c: dict[str, float] = field(default_factory=dict)
+    """Per zone, the held-out RMSE its own parameters' uncertainty may reach (`carried`)."""
     elapsed_s: float = 0.0
     warnings: list[str] = field(default_factory=list)
 
     @property
     def label(self) -> str:
         return "+".join(self.effects) or "baseline"
+
+    def allowed(self, limit: dict[str, float]) -> dict[str, float]:
+        """A noise limit per zone widened by what this fit's parameters carry: the two
+        errors are independent, so their squares add."""
+        return {z: float(np.hypot(v, self.carried_c.get(z, 0.0))) for z, v in limit.items()}
 
     def rmse_holdout_pooled(self) -> float:
         return pooled(self.rmse_holdout_c)

@@ -32,6 +32,9 @@ GAP_RATIO = 1.25
 the held-out records hold few independent samples: `GAP_Z`)."""
 GAP_Z = 3.0
 """Standard errors of the RMSE-to-floor ratio a gap must also exceed (noisefloor.limits)."""
+CARRIED_Z = GAP_Z
+"""The level at which a fit's parameter uncertainty is carried onto the held-out records
+(`carried.carried_error`): the quantile norm.cdf of this many standard deviations."""
 NEAR_RATIO = 1.5
 """An extension whose held-out RMSE is within this multiple of the floor in every zone
 explains the gap (or within `NEAR_Z` standard errors of the ratio, if that is further)."""
@@ -149,8 +152,10 @@ def rank(c: CandidateResult) -> tuple:
 
 
 def near_floor(c: CandidateResult, near: dict[str, float]) -> bool:
-    """Held out within `near` (noisefloor.limits at NEAR_RATIO) in every zone."""
-    return all(c.rmse_holdout_c[z] <= near[z] for z in near)
+    """Held out within `near` (noisefloor.limits at NEAR_RATIO), widened by what its own
+    parameters carry, in every zone."""
+    allowed = c.allowed(near)
+    return all(c.rmse_holdout_c[z] <= allowed[z] for z in near)
 
 
 def closes(c: CandidateResult, kept: CandidateResult, floor: dict[str, float]) -> bool:

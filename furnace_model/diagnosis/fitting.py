@@ -8,14 +8,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..carried import carried_error
 from ..effects import EFFECTS, Effect
 from ..experiment import Experiment
-from ..fit import FitResult, fit
+from ..fit import FitResult, Refinement, fit
 from ..furnace import PAPER, Furnace
+from ..noisefloor import pooled_floor, record_floor
 from ..residuals import lag1
 from ..structure import ModelStructure
 from .candidate import CandidateResult
-from .credit import identifiable
+from .credit import CARRIED_Z, identifiable
 
 
 @dataclass
@@ -99,7 +101,8 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
             fr = cold
     fit_pred = fitted_predictions(fr, task.fit_data)
     unseen = unseen_by_fit(fr, bounds) if any(j is None for j in task.tail_of) else ()
-    hold_pred = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of, unseen)
+    hold_pred, refined = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of,
+                                             unseen)
     res = [e.zone_temp - p for e, p in zip(task.fit_data, fit_pred, strict=True)]
     hold_res = [e.zone_temp - p for e, p in zip(task.holdout, hold_pred, strict=True)]
     n_hold = int(sum(np.isfinite(r).sum() for r in hold_res))
@@ -117,7 +120,26 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         sse_fit=fr.sse, n_obs=fr.n_obs,
         n_params=len(structure.names) + 2 * len(zones) * len(task.fit_data),
         rho1=lag1(res), rho1_holdout=lag1(hold_res), n_holdout=n_hold,
-        held_out_fitted=unseen, elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
+        held_out_fitted=unseen, carried_c=_carried(fr, task, refined),
+        elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
+
+
+def _carried(fr: FitResult, task: Task, refined: Refinement | None) -> dict[str, float]:
+    """What the fit's parameter uncertainty carries onto the whole held-out records
+    (`carried.carried_error`), at the gap's level of evidence. A tail of a fitted record
+    continues the fitted run and is given none: its start was estimated with the
+    parameters, and the linearisation would have to carry that too."""
+    if refined is None:
+        return dict.fromkeys(task.furnace.zones, 0.0)
+    whole = [task.holdout[i] for i, j in enumerate(task.tail_of) if j is None]
+    floors = pooled_floor([record_floor(e) for e in task.fit_data])
+    counts = {z: sum(int(np.isfinite(e.zone_temp[:, w]).sum()) for e in task.fit_data)
+              for w, z in enumerate(task.furnace.zones)}
+    noise = float(np.sqrt(sum(counts[z] * floors[z] ** 2 for z in counts if np.isfinite(floors[z]))
+                          / max(sum(counts[z] for z in counts if np.isfinite(floors[z])), 1)))
+    offsets = [np.array([o[z] for z in task.furnace.zones]) if o else np.zeros(len(counts))
+               for o in (refined.zone_offsets_c or [None] * len(whole))]
+    return carried_error(fr, whole, refined.x0, offsets, noise, CARRIED_Z)
 
 
 def unseen_by_fit(fr: FitResult, bounds: dict[str, tuple[float, float]]) -> tuple[str, ...]:
@@ -142,14 +164,16 @@ def fitted_predictions(fr: FitResult, data: list[Experiment]) -> list[np.ndarray
 
 def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Experiment],
                         tail_of: list[int | None], unseen: tuple[str, ...] = ()
-                        ) -> list[np.ndarray]:
-    """Held-out predictions with the parameters fixed. A whole held-out experiment gets
-    its own initial state and offsets from its data, and the parameters in `unseen` (by
-    the fitted data) are estimated on the whole held-out experiments together; a
-    tail cut from a fitted experiment continues the fitted run (same start, same
-    thermocouples): nothing is estimated on it."""
+                        ) -> tuple[list[np.ndarray], Refinement | None]:
+    """Held-out predictions with the parameters fixed, and what was estimated on the whole
+    held-out experiments (None without one). A whole held-out experiment gets its own
+    initial state and offsets from its data, and the parameters in `unseen` (by the fitted
+    data) are estimated on the whole held-out experiments together; a tail cut from a
+    fitted experiment continues the fitted run (same start, same thermocouples): nothing
+    is estimated on it."""
     out: list[np.ndarray | None] = [None] * len(holdout)
     whole = [i for i, j in enumerate(tail_of) if j is None]
+    refined = None
     if whole:
         refined = fr.refine([holdout[i] for i in whole], free=unseen)
         for k, i in enumerate(whole):
@@ -159,7 +183,7 @@ def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Exp
             continue
         joined = join(data[j], holdout[i])
         out[i] = fr.predict(joined, fr.x0[j], fr.offsets(j))[len(data[j]):]
-    return [p for p in out if p is not None]
+    return [p for p in out if p is not None], refined
 
 
 def join(head: Experiment, tail: Experiment) -> Experiment:

@@ -84,7 +84,8 @@ def _blend(p: CandidateResult, q: CandidateResult, w: float, fit_data: list[Expe
         # the blend's fit error is at most the weighted one (the squared error is convex)
         sse_fit=(1 - w) * p.sse_fit + w * q.sse_fit, n_obs=major.n_obs,
         n_params=major.n_params + 1, rho1=major.rho1, rho1_holdout=major.rho1_holdout,
-        n_holdout=major.n_holdout, elapsed_s=p.elapsed_s + q.elapsed_s)
+        n_holdout=major.n_holdout, carried_c=dict(major.carried_c),
+        elapsed_s=p.elapsed_s + q.elapsed_s)
 
 
 def opts_text(opts: dict) -> str:

@@ -54,6 +54,7 @@ class Diagnosis:
                     "delta_bic": _r(c.delta_bic), "evidence": _r(c.evidence),
                     "identifiable": c.identifiable, "credit": credited(c),
                     "held_out_fitted": list(c.held_out_fitted),
+                    "carried_c": _round(c.carried_c),
                     "note": c.note, "elapsed_s": _r(c.elapsed_s)}
 
         b = self.baseline
@@ -63,6 +64,7 @@ class Diagnosis:
                          "noise_floor_c": _round(self.noise_floor_c),
                          "noise_floor_fit_c": _round(self.noise_floor_fit_c or {}),
                          "gap_limit_c": _round(self.gap_limit_c or {}),
+                         "carried_c": _round(b.carried_c),
                          "params": _round(b.params),
                          "ci95": {k: [_r(v[0]), _r(v[1])] for k, v in b.ci95.items()},
                          "gap_zones": list(self.gap_zones)},

@@ -81,9 +81,11 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     where = locate(every, base_res, floors, faults)
     tests = residual_tests(hold, [e.zone_temp - p for e, p in
                                   zip(hold, base.holdout_pred, strict=True)])
-    gap = tuple(z for z in zones if base.rmse_holdout_c[z] > gap_limit[z])
+    # A gap stands clear of the noise and of what the baseline's own parameter uncertainty
+    # carries onto the held-out records (`carried`).
+    gap = tuple(z for z in zones if base.rmse_holdout_c[z] > base.allowed(gap_limit)[z])
     noise = {"record_floors": floors, "noise_floor_fit_c": pooled_floor(fit_floors),
-             "gap_limit_c": gap_limit, "sensor_noise_c": _pooled_tc(floors)}
+             "gap_limit_c": base.allowed(gap_limit), "sensor_noise_c": _pooled_tc(floors)}
 
     clues = Clues(fit_data, every, faults, baseline_on=lambda heads: _determined(heads, seed),
                   residuals=base_res, furnace=furnace)
@@ -191,7 +193,7 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
     kept = singles[0]
     tried: list[CandidateResult] = []
     for _step in range(MAX_EFFECTS - 1):
-        if all(kept.rmse_holdout_c[z] <= gap_limit[z] for z in gap_limit):
+        if all(kept.rmse_holdout_c[z] <= kept.allowed(gap_limit)[z] for z in gap_limit):
             break
         others = [c.effects[0] for c in singles if c.effects[0] not in kept.effects][:STEP_TRIES]
         tasks = []

@@ -39,10 +39,13 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
     rb = ", ".join(f"{z} {base.rmse_holdout_c[z]:.1f}" for z in zones)
     model = "The paper's model" if furnace == PAPER else f"The model of furnace '{furnace.name}'"
     if not gap:
+        carried = max(base.carried_c.values(), default=0.0)
+        also = (f", and up to {carried:.1f} °C that the fitted parameters' own uncertainty "
+                f"carries onto the held-out data" if carried >= 0.05 else "")
         return Verdict("no_gap", [], 0.0,
                        f"{model} already predicts the held-out data as well as the "
                        f"thermocouples allow (held-out RMSE {rb} °C against a noise floor of "
-                       f"{fl} °C): there is no model error to explain, and no candidate "
+                       f"{fl} °C{also}): there is no model error to explain, and no candidate "
                        f"effect was tried.")
     if kept is not None and near_floor(kept, near):
         best = kept

@@ -80,7 +80,8 @@ def render(d: Diagnosis) -> str:
                  "data themselves, record by record (the two thermocouples of a zone); an "
                  "RMSE near it is as good as the sensors allow, and a zone has a gap when "
                  "its held-out RMSE passes the limit shown (1.25 floors, or more where the "
-                 "record holds few independent samples)."),
+                 "record holds few independent samples, and beyond what the fitted "
+                 "parameters' own uncertainty carries onto the held-out data)."),
         _section("Measured and modelled temperatures", "",
                  _figure(_fig_traces(d, best), "traces",
                          "Zone temperature measured (grey), the paper's model (red) and "

@@ -113,6 +113,11 @@ def summary(d: Diagnosis) -> str:
         lines.append(f"| {z} | {b.rmse_fit_c[z]:.2f} | {b.rmse_holdout_c[z]:.2f} | "
                      f"{d.noise_floor_c[z]:.2f} | {limit.get(z, float('nan')):.2f} | "
                      f"{'yes' if z in d.gap_zones else 'no'} |")
+    carried = b.carried_c or {}
+    if max(carried.values(), default=0.0) >= 0.05:
+        lines += ["", "The limit includes what the fitted parameters' own uncertainty carries "
+                  "onto the held-out data (°C per zone, " + per_zone + "): "
+                  + "/".join(f"{carried.get(z, 0.0):.2f}" for z in zone_names)]
     if d.record_floors:
         lines += ["", f"Noise floor per record (°C per zone, {per_zone}; the held-out "
                   "RMSE is judged against the held-out records'):"]

@@ -477,6 +477,15 @@ def _where(w) -> str:
     return f"thermocouple {w.sensor}" if w.sensor else f"the {w.zone} zone"
 
 
+def selfcheck_case(label: str, k: int, seed: int = 0, *, form: str = "candidate",
+                   noise: str = "white", furnace: Furnace = PAPER) -> Case:
+    """Draw `k` of the selfcheck's row `label`: the same case `check` diagnoses."""
+    sensors = draw_sensors(noise, np.random.default_rng(
+        [seed, zlib.crc32(label.encode()), k, zlib.crc32(noise.encode())]))
+    return draw_case(parse_label(label), case_rng(seed, label, k), form=form, sensors=sensors,
+                     furnace=furnace)
+
+
 def check(labels: list[str], draws: int, seed: int = 0, *, form: str = "candidate",
           candidates: tuple[str, ...] | None = None, noise: str = "white",
           report: Callable[[Outcome], None] | None = None, first: int = 0,
@@ -491,12 +500,8 @@ def check(labels: list[str], draws: int, seed: int = 0, *, form: str = "candidat
 
     out = []
     for label in labels:
-        effect = parse_label(label)
         for k in range(first, first + draws):
-            sensors = draw_sensors(noise, np.random.default_rng(
-                [seed, zlib.crc32(label.encode()), k, zlib.crc32(noise.encode())]))
-            case = draw_case(effect, case_rng(seed, label, k), form=form, sensors=sensors,
-                             furnace=furnace)
+            case = selfcheck_case(label, k, seed, form=form, noise=noise, furnace=furnace)
             t0 = time.perf_counter()
             d = diagnose(case.fit, case.holdout, effects=candidates, seed=seed)
             correct, absorbed, reason = judge_case(case, d)

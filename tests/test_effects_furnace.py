@@ -227,6 +227,30 @@ def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_three(tmp_path):
     assert "heat top" in html and "heat_top_3" in html
 
 
+def test_a_lone_thermocouples_drift_is_started_across_the_record():
+    """Known truth (the six-zone selfcheck's drift row, draw 9): soak_bottom_1, alone in its
+    zone, drifts +0.0094 °C/min from minute 1115. The baseline bends to absorb it; from the
+    baseline the drift's fit found a side valley (onset at minute 2576, a tenth of the
+    held-out gap closed). Started across the record, it finds the drift."""
+    from furnace_model.diagnosis.fitting import Task, run_task
+    from furnace_model.diagnosis.holdout import split
+    from furnace_model.selfcheck import selfcheck_case
+
+    case = selfcheck_case("sensor_drift", 9, furnace=SIX)
+    truth = case.truth["sensor_drift"]
+    assert truth["sensor"] == "soak_bottom_1"
+    assert EFFECTS["sensor_drift"](sensor="soak_bottom_1", furnace=SIX).unplaced == ("t_drift",)
+    assert EFFECTS["sensor_drift"](sensor="soak_top_1", furnace=SIX).unplaced == ()
+    fit_data, hold, tail_of, _ = split(case.fit, case.holdout)
+    base = run_task(Task((), {}, fit_data, hold, tail_of, None, 0))
+    drift = run_task(Task(("sensor_drift",), {"sensor_drift": {"sensor": "soak_bottom_1"}},
+                          fit_data, hold, tail_of, dict(base.params), 0,
+                          bounds=EFFECTS["sensor_drift"].search_bounds(fit_data)))
+    assert drift.params["t_drift"] == pytest.approx(truth["t_drift"], abs=60)
+    assert drift.params["drift_rate"] == pytest.approx(truth["drift_rate"], rel=0.1)
+    assert drift.rmse_holdout_c["soak_bottom"] < 0.2 * base.rmse_holdout_c["soak_bottom"]
+
+
 @pytest.mark.slow
 def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_a_zone_of_one():
     """Known truth: preheat_bottom_1, the only thermocouple of its zone, drifts 0.021 °C/min

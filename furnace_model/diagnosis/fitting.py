@@ -19,6 +19,11 @@ from ..structure import ModelStructure
 from .candidate import CandidateResult
 from .credit import CARRIED_Z, identifiable
 
+ONSET_STARTS = 8
+"""Starts of an unplaced onset, evenly over the fitted records. On the six-zone selfcheck's
+drift on a lone thermocouple (the drift row's draw 9), two of eight reached the true onset's
+valley; the start from the baseline reached a side valley that closed a tenth of the gap."""
+
 
 @dataclass
 class Task:
@@ -92,6 +97,9 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     runs = 3 if not task.effects else 1
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
              runs=runs, bounds=bounds, generations=task.generations, profile=False)
+    onsets = [n for e in structure.effects for n in e.unplaced if n in bounds]
+    if init is not None and onsets:
+        fr = _from_onsets(fr, task, structure, init, bounds, onsets)
     off_floor = task.cold_above is None or any(
         fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in zones)
     if init is not None and structure.linear and task.cold_too and off_floor:
@@ -122,6 +130,22 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         rho1=lag1(res), rho1_holdout=lag1(hold_res), n_holdout=n_hold,
         held_out_fitted=unseen, carried_c=_carried(fr, task, refined),
         elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
+
+
+def _from_onsets(fr: FitResult, task: Task, structure: ModelStructure, init: dict[str, float],
+                 bounds: dict[str, tuple[float, float]], onsets: list[str]) -> FitResult:
+    """The fit polished again from onsets spread over their search box (`Effect.unplaced`),
+    the best kept: an onset started where it happens to be falls into the nearest side
+    valley, and the effect's strength with it."""
+    start = {**structure.defaults(), **init}
+    for i in range(ONSET_STARTS):
+        frac = (i + 0.5) / ONSET_STARTS
+        placed = {n: bounds[n][0] + frac * (bounds[n][1] - bounds[n][0]) for n in onsets}
+        other = fit(task.fit_data, structure, init={**start, **placed}, seed=task.seed,
+                    zone_offsets=True, bounds=bounds, profile=False)
+        if other.sse < fr.sse:
+            fr = other
+    return fr
 
 
 def _carried(fr: FitResult, task: Task, refined: Refinement | None) -> dict[str, float]:

@@ -185,6 +185,13 @@ class Effect:
         return cls.physics
 
     @property
+    def unplaced(self) -> tuple[str, ...]:
+        """Parameters placing an event in time that nothing in the data places for this form
+        of the effect: the fit's criterion has a side valley wherever such an onset meets a
+        step of the record, so the diagnosis also starts it across the fitted records."""
+        return ()
+
+    @property
     def nulls(self) -> dict[str, float]:
         """`null` for this effect's own parameters (their names may follow its zones)."""
         return type(self).null

@@ -56,6 +56,13 @@ class SensorDrift(Effect):
             Param("t_drift", 0.0, 0.0, 1e6, log=False, unit="min", doc="when the drift starts"),
         )
 
+    @property
+    def unplaced(self):
+        """A thermocouple alone in its zone: no partner's difference shows where its drift
+        starts (`trial`), and a baseline bent to absorb the drift hides it from the residual."""
+        zone = self.furnace.sensor_zone[self.furnace.sensors.index(self.options["sensor"])]
+        return ("t_drift",) if self.furnace.thermocouples[zone] == 1 else ()
+
     def sensor_offsets(self, theta, t):
         P = theta["drift_rate"].shape[0]
         sensors = self.furnace.sensors

@@ -3,6 +3,7 @@ the baseline, and predicted on held-out data with its parameters fixed."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -10,6 +11,7 @@ import numpy as np
 
 from ..carried import carried_error
 from ..effects import EFFECTS, Effect
+from ..equationerror import equation_error
 from ..experiment import Experiment
 from ..fit import FitResult, Refinement, fit
 from ..furnace import PAPER, Furnace
@@ -18,11 +20,6 @@ from ..residuals import lag1
 from ..structure import ModelStructure
 from .candidate import CandidateResult
 from .credit import CARRIED_Z, identifiable
-
-ONSET_STARTS = 8
-"""Starts of an unplaced onset, evenly over the fitted records. On the six-zone selfcheck's
-drift on a lone thermocouple (the drift row's draw 9), two of eight reached the true onset's
-valley; the start from the baseline reached a side valley that closed a tenth of the gap."""
 
 
 @dataclass
@@ -97,9 +94,8 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     runs = 3 if not task.effects else 1
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
              runs=runs, bounds=bounds, generations=task.generations, profile=False)
-    onsets = [n for e in structure.effects for n in e.unplaced if n in bounds]
-    if init is not None and onsets:
-        fr = _from_onsets(fr, task, structure, init, bounds, onsets)
+    if init is not None:
+        fr = _restarted(fr, task, structure, init, bounds)
     off_floor = task.cold_above is None or any(
         fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in zones)
     if init is not None and structure.linear and task.cold_too and off_floor:
@@ -132,20 +128,34 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
 
 
-def _from_onsets(fr: FitResult, task: Task, structure: ModelStructure, init: dict[str, float],
-                 bounds: dict[str, tuple[float, float]], onsets: list[str]) -> FitResult:
-    """The fit polished again from onsets spread over their search box (`Effect.unplaced`),
-    the best kept: an onset started where it happens to be falls into the nearest side
-    valley, and the effect's strength with it."""
-    start = {**structure.defaults(), **init}
-    for i in range(ONSET_STARTS):
-        frac = (i + 0.5) / ONSET_STARTS
-        placed = {n: bounds[n][0] + frac * (bounds[n][1] - bounds[n][0]) for n in onsets}
-        other = fit(task.fit_data, structure, init={**start, **placed}, seed=task.seed,
-                    zone_offsets=True, bounds=bounds, profile=False)
+def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[str, float],
+               bounds: dict[str, tuple[float, float]]) -> FitResult:
+    """The fit polished again from the effects' further starts (`Effect.starts`), the best
+    kept. On a network, a thermocouple's error from a start is also taken off the readings
+    and the network started where the equations' least squares fit what is left: a large
+    drift bends the baseline so far that from its rates the drift's fit finds only side
+    valleys (six-zone selfcheck drift row, draw 7: 57 °C on one of a pair, the baseline's
+    fitted error 6-17 °C in every zone)."""
+    given = {**structure.defaults(), **init}
+    tried = [{**given, **s} for e in structure.effects for s in e.starts(given, bounds)]
+    if structure.has_sensor_offsets and not structure.furnace.paper_structure:
+        tried += [{**v, **_network_without_sensor_error(structure, v, task.fit_data)}
+                  for v in [given, *tried]]
+    for values in tried:
+        other = fit(task.fit_data, structure, init=values, seed=task.seed, zone_offsets=True,
+                    bounds=bounds, profile=False)
         if other.sse < fr.sse:
             fr = other
     return fr
+
+
+def _network_without_sensor_error(structure: ModelStructure, values: dict[str, float],
+                                  records: list[Experiment]) -> dict[str, float]:
+    """The network's rates the equations' least squares put on `records` with the sensor
+    error of `values` taken off their readings."""
+    clean = [dataclasses.replace(e, tc=e.tc - structure.sensor_offsets(
+        values, np.asarray(e.t_min, dtype=float))[0]) for e in records]
+    return equation_error(ModelStructure(furnace=structure.furnace), clean)
 
 
 def _carried(fr: FitResult, task: Task, refined: Refinement | None) -> dict[str, float]:

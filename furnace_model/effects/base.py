@@ -184,12 +184,13 @@ class Effect:
         """`physics` in this furnace's words."""
         return cls.physics
 
-    @property
-    def unplaced(self) -> tuple[str, ...]:
-        """Parameters placing an event in time that nothing in the data places for this form
-        of the effect: the fit's criterion has a side valley wherever such an onset meets a
-        step of the record, so the diagnosis also starts it across the fitted records."""
-        return ()
+    def starts(self, given: dict[str, float], bounds: dict[str, tuple[float, float]]
+               ) -> list[dict[str, float]]:
+        """Further starts of this form's own parameters where the data leave them ambiguous
+        (an onset nothing places has a side valley wherever it meets a step of the record);
+        `given`: the start the diagnosis has, `bounds`: the search box. The candidate is
+        polished from each too and the best fit kept."""
+        return []
 
     @property
     def nulls(self) -> dict[str, float]:

@@ -17,6 +17,11 @@ if TYPE_CHECKING:
 MAX_RATE = 0.2
 """°C/min: a drift faster than 12 °C an hour is a broken thermocouple, not a drift."""
 
+ONSET_STARTS = 8
+"""Onsets a lone thermocouple's drift is started from, evenly over the fitted records. On the
+six-zone selfcheck's drift row, draw 9, two of eight reached the true onset's valley; the
+start from the baseline reached a side valley that closed a tenth of the gap."""
+
 
 class SensorDrift(Effect):
     name = "sensor_drift"
@@ -56,12 +61,21 @@ class SensorDrift(Effect):
             Param("t_drift", 0.0, 0.0, 1e6, log=False, unit="min", doc="when the drift starts"),
         )
 
-    @property
-    def unplaced(self):
+    def starts(self, given, bounds):
         """A thermocouple alone in its zone: no partner's difference shows where its drift
-        starts (`trial`), and a baseline bent to absorb the drift hides it from the residual."""
+        starts, and a baseline bent to absorb the drift hides it from the residual, so the
+        onset is started across the fitted records. One of a pair whose difference placed
+        the drift (`trial`): the difference cannot say which of the two drifts, and on the
+        zone's mean the other drifting the other way is the same drift with the opposite
+        sign, so that sign is started too."""
         zone = self.furnace.sensor_zone[self.furnace.sensors.index(self.options["sensor"])]
-        return ("t_drift",) if self.furnace.thermocouples[zone] == 1 else ()
+        if self.furnace.thermocouples[zone] == 1 and "t_drift" in bounds:
+            lo, hi = bounds["t_drift"]
+            return [{"t_drift": lo + (i + 0.5) / ONSET_STARTS * (hi - lo)}
+                    for i in range(ONSET_STARTS)]
+        if "t_drift" in given and given.get("drift_rate"):
+            return [{"drift_rate": -given["drift_rate"]}]
+        return []
 
     def sensor_offsets(self, theta, t):
         P = theta["drift_rate"].shape[0]

@@ -301,13 +301,7 @@ def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_a_zone_of_one():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("label", [
-    "none", "wall_storage",
-    pytest.param("zone_losses", marks=pytest.mark.xfail(
-        reason="draw 1 (a loss from heat_top): the heat_top law closes 95% of the gap, "
-               "but the fitted heat-up leaves heat_top's rates undetermined and the held-out "
-               "error stays above the near-floor limit: docs/diagnosis.md, "
-               "'Measured on the six-zone furnace'")),
-    "zone_burners", "sensor_lag", "sensor_drift"])
+    "none", "wall_storage", "zone_losses", "zone_burners", "sensor_lag", "sensor_drift"])
 def test_six_zone_selfcheck_rows(label):
     """Issue 19's acceptance on the six-zone furnace, two draws a row (docs/diagnosis.md
     has ten): controls no_gap, a wall in one zone, losses in one zone, own-zone burners, a

@@ -137,10 +137,16 @@ def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
     valleys (six-zone selfcheck drift row, draw 7: 57 °C on one of a pair, the baseline's
     fitted error 6-17 °C in every zone)."""
     given = {**structure.defaults(), **init}
-    tried = [{**given, **s} for e in structure.effects for s in e.starts(given, bounds)]
+    tried, placed = [], [given]
+    for e in structure.effects:
+        for s in e.starts(init, bounds):
+            tried.append({**given, **s})
+            if set(s) <= set(e.nulls):  # a strength alone (a drift's sign): still placed
+                placed.append(tried[-1])
     if structure.has_sensor_offsets and not structure.furnace.paper_structure:
+        # not for a spread of onsets: an error not placed would be taken off at random
         tried += [{**v, **_network_without_sensor_error(structure, v, task.fit_data)}
-                  for v in [given, *tried]]
+                  for v in placed]
     for values in tried:
         other = fit(task.fit_data, structure, init=values, seed=task.seed, zone_offsets=True,
                     bounds=bounds, profile=False)

@@ -188,8 +188,9 @@ class Effect:
                ) -> list[dict[str, float]]:
         """Further starts of this form's own parameters where the data leave them ambiguous
         (an onset nothing places has a side valley wherever it meets a step of the record);
-        `given`: the start the diagnosis has, `bounds`: the search box. The candidate is
-        polished from each too and the best fit kept."""
+        `given`: the start the diagnosis has (what the data placed, or a fit's values),
+        `bounds`: the search box. The candidate is polished from each too and the best fit
+        kept."""
         return []
 
     @property

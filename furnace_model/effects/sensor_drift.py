@@ -130,7 +130,7 @@ def most_changed_pair(records: Sequence[Experiment], furnace: Furnace = PAPER,
                       residuals: Sequence[np.ndarray] = ()) -> str:
     """The thermocouple whose difference from its zone's first one changes most from a
     record's start to its end (for the zone mean any thermocouple of a zone is the same
-    candidate, with the sign of the rate flipped); in a zone of one thermocouple, the change
+    candidate at the same rate); in a zone of one thermocouple, the change
     of the zone's residual against the baseline (`residuals`, when given)."""
     best, name = -1.0, default_sensor(furnace)
     first = 0

@@ -169,6 +169,7 @@ def run_fit(job: FitJob) -> dict:
         "determined_combinations": list(res.determined_combinations),
         "undetermined": list(res.undetermined),
         "zone_offsets_c": (res.zone_offsets_c or [None])[0],
+        "flags": [f.to_json() for f in res.flags],
         "sigma_c": float(res.sigma_c),
         "recent": None if over or job.recent_from_min is None or not furnace.paper_structure
         else recent_f(res, job.experiment, job.recent_from_min),
@@ -350,8 +351,8 @@ class RefitChain:
         msg.update({p: outcome["params"][p] for p in self.names})
         msg.update(absent({k: outcome[k] for k in ("ci95", "rmse_c", "combinations",
                                                    "determined_combinations", "undetermined",
-                                                   "zone_offsets_c", "sigma_c", "elapsed_s",
-                                                   "search")}))
+                                                   "zone_offsets_c", "flags", "sigma_c",
+                                                   "elapsed_s", "search")}))
         msg["model_window_start"] = msg["window_start"]
         msg["model_window_end"] = msg["window_end"]
         recent = outcome.get("recent")

@@ -37,6 +37,9 @@ class Furnace:
     links: tuple[tuple[int, int], ...]
     ambient: tuple[int, ...]
     burner_heat: str = "first_zone"
+    max_bias_c: tuple[float | None, ...] = ()
+    """Per thermocouple (`sensors` order), the largest bias it can have, °C; None (or an
+    empty tuple: every one) takes the default of `furnace_model.plausible`."""
 
     @property
     def n_zones(self) -> int:
@@ -114,7 +117,9 @@ class Furnace:
                                              strict=True)],
                 "links": [[self.zones[i], self.zones[j]] for i, j in self.links],
                 "ambient": [self.zones[i] for i in self.ambient],
-                "burner_heat": self.burner_heat}
+                "burner_heat": self.burner_heat,
+                **({"max_bias_c": list(self.max_bias_c)} if any(
+                    b is not None for b in self.max_bias_c) else {})}
 
 
 def load_furnace(path: str | Path) -> Furnace:
@@ -127,13 +132,17 @@ def parse_furnace(text: str, file: str = "<string>", name: str = "furnace") -> F
 
 
 def furnace_from_node(node: Node, default_name: str) -> Furnace:
-    """`zones` (name, burners, thermocouples), `links` (`chain`, the default, or a list of
-    pairs of zone names), `ambient` (zone names; default the last zone), `burner_heat`."""
-    root = node.mapping({"name", "description", "zones", "links", "ambient", "burner_heat"})
+    """`zones` (name, burners, thermocouples, max_bias_c), `links` (`chain`, the default, or
+    a list of pairs of zone names), `ambient` (zone names; default the last zone),
+    `burner_heat`, `max_bias_c` (every thermocouple's, unless its zone gives its own)."""
+    root = node.mapping({"name", "description", "zones", "links", "ambient", "burner_heat",
+                         "max_bias_c"})
     name = root.get_string("name", default_name)
-    zones, burners, tcs = [], [], []
+    every = (root.child("max_bias_c").number(lo=0.0, hi=500.0) if root.has("max_bias_c")
+             else None)
+    zones, burners, tcs, bias = [], [], [], []
     for z in root.child("zones").elements(min_len=1, max_len=64):
-        z.mapping({"name", "burners", "thermocouples"})
+        z.mapping({"name", "burners", "thermocouples", "max_bias_c"})
         zname = z.child("name").string()
         if not _ZONE_NAME.match(zname):
             raise z.child("name").error(f"'{zname}' is not a zone name: lower-case letters, "
@@ -143,6 +152,7 @@ def furnace_from_node(node: Node, default_name: str) -> Furnace:
         zones.append(zname)
         burners.append(z.get_integer("burners", lo=0, hi=1000))
         tcs.append(z.get_integer("thermocouples", 2, lo=1, hi=64))
+        bias += _max_bias(z, tcs[-1], every)
     n = len(zones)
 
     def index(node: Node) -> int:
@@ -173,7 +183,8 @@ def furnace_from_node(node: Node, default_name: str) -> Furnace:
     if sum(burners) == 0:
         raise root.child("zones").error("no zone has burners: nothing heats the furnace")
     furnace = Furnace(name, tuple(zones), tuple(burners), tuple(tcs), tuple(links),
-                      tuple(sorted(ambient)), heat)
+                      tuple(sorted(ambient)), heat,
+                      tuple(bias) if any(b is not None for b in bias) else ())
     _check_connected(furnace, links_node)
     from .network import parameter_names  # names must not collide (zone names with _)
 
@@ -183,6 +194,16 @@ def furnace_from_node(node: Node, default_name: str) -> Furnace:
         raise root.child("zones").error(f"zone names make parameter names collide: "
                                         f"{', '.join(dup)}; rename a zone")
     return furnace
+
+
+def _max_bias(zone: Node, n_tc: int, every: float | None) -> list[float | None]:
+    """A zone's `max_bias_c`: one number for its thermocouples, or one per thermocouple."""
+    if not zone.has("max_bias_c"):
+        return [every] * n_tc
+    node = zone.child("max_bias_c")
+    if isinstance(node.value, list):
+        return [b.number(lo=0.0, hi=500.0) for b in node.elements(n_tc, n_tc)]
+    return [node.number(lo=0.0, hi=500.0)] * n_tc
 
 
 def _check_connected(furnace: Furnace, node: Node) -> None:

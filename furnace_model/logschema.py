@@ -330,6 +330,19 @@ def _model_parameters(furnace: Furnace) -> dict:
             "combinations": _combinations(furnace),
             "zone_offsets_c": _object({z: _number(f"fitted thermocouple offset of the {z} zone")
                                        for z in zones}, "fitted thermocouple bias per zone"),
+            "flags": {"type": "array", "description":
+                      "the window's zone offsets and initial temperatures that ended on their "
+                      "physical bound (a thermocouple's bias, what the first readings allow): "
+                      "the model's error, not a sensor's",
+                      "items": _object({
+                          "kind": _string("what ended on its bound",
+                                          ("offset", "initial_state")),
+                          "record": _string("the window"),
+                          "zone": _string("the zone", zones),
+                          "value_c": _number("the fitted value in °C"),
+                          "bound_c": {"type": "array", "items": {"type": ["number", "null"]},
+                                      "description": "lowest and highest plausible, °C"},
+                      }, "one flagged value")},
             "recent_f": _object({
                 "f": _number("f on the recent span alone, a..e of the window held"),
                 "se": _number("standard error of that f"),

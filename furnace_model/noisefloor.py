@@ -118,7 +118,7 @@ def record_floor(exp: Experiment) -> RecordFloor:
             lag1 = float(np.average([p[1] for p in pairs.values()], weights=w_eff))
             n_eff, how = float(w_eff.sum()), "borrowed"
         else:
-            tc_sd, lag1 = _second_difference_sd(exp.zone_temp[:, w])
+            tc_sd, lag1 = second_difference_sd(exp.zone_temp[:, w])
             var_d, n_eff, how = 2.0 * tc_sd * tc_sd, np.nan, "second_difference"
         tc_sd = float(np.sqrt(var_d / 2.0))
         rel = 1.0 / np.sqrt(2.0 * n_eff) if np.isfinite(n_eff) and n_eff > 0 else np.nan
@@ -203,7 +203,7 @@ def _robust_sd(x: np.ndarray) -> float:
     return float(MAD_TO_SD * np.median(np.abs(x - np.median(x))))
 
 
-def _second_difference_sd(y: np.ndarray) -> tuple[float, float]:
+def second_difference_sd(y: np.ndarray) -> tuple[float, float]:
     """A lone thermocouple's noise sd from its second differences (sd sqrt(6) s for white
     noise on a signal smooth at the sample rate), and nan for its colour, which this cannot
     see."""

@@ -82,12 +82,13 @@ def _by_windows(values, exp, k, structure, simulated, states, miss) -> np.ndarra
 
 
 def score_ahead(params: dict[str, float], experiments: list[Experiment], horizon: int,
-                structure: ModelStructure | None = None, zone_offsets: bool = False
-                ) -> tuple[dict[str, dict], dict]:
+                structure: ModelStructure | None = None, zone_offsets: bool = False,
+                offsets: np.ndarray | None = None) -> tuple[dict[str, dict], dict]:
     """Per-zone MAE, RMSE and fit % of the `horizon`-step-ahead prediction, per experiment
     (by name) and pooled; each experiment's initial state (and with `zone_offsets` its
-    offsets) estimated from its data as `score` does for the simulation."""
-    model = Model(structure or ModelStructure(), params, zone_offsets)
+    offsets, from the carried `offsets`) estimated from its data as `score` does for the
+    simulation."""
+    model = Model(structure or ModelStructure(), params, zone_offsets, offsets)
     per_exp, measured, predicted = {}, [], []
     for exp in experiments:
         start = model.refine([exp])

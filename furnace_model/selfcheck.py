@@ -447,6 +447,13 @@ def judge_case(case: Case, diagnosis) -> tuple[bool, bool, str]:
     if not case.effects:
         ok = v.status == "no_gap"
         return ok, False, "" if ok else f"verdict {v.status} {v.effects} on a furnace with no effect"
+    held = diagnosis.baseline.rmse_holdout_carried_c or {}
+    limit = diagnosis.gap_limit_c or {}
+    hidden = [z for z in held if z in limit and held[z] > limit[z]]
+    if v.status == "no_gap" and hidden:
+        over = ", ".join(f"{z} {held[z]:.2f} > {limit[z]:.2f}" for z in hidden)
+        return False, False, (f"no_gap, but with the offsets the fit carries the held-out "
+                              f"error is above the gap limit ({over} °C)")
     if v.status == "no_gap" and case.expected_status == "explained":
         b, fl = diagnosis.baseline.rmse_holdout_c, diagnosis.noise_floor_c
         rmse = "/".join(f"{b[z]:.2f}" for z in fl)

@@ -40,6 +40,9 @@ class Uncertainty:
     model's own noise, the question a candidate effect's 'determined' asks."""
     correlation_time: float = 1.0
     """Samples per independent sample of the residual, the worst series'."""
+    nuisance_sd: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """Standard deviations of the other unknowns (initial states, offsets), in order, with
+    the residual's colour as `cov`."""
 
     @property
     def sd(self) -> np.ndarray:
@@ -263,4 +266,5 @@ def from_jacobian(J: np.ndarray, residual: np.ndarray, names: list[str], log: np
     order = np.argsort(fisher_w)
     return Uncertainty(list(names), np.asarray(log, dtype=bool), np.asarray(z, dtype=float),
                        cov_p, float(np.sqrt(sigma2)), fisher_w[order], Vc[:, order],
-                       (white[:k, :k] + white[:k, :k].T) / 2, tau)
+                       (white[:k, :k] + white[:k, :k].T) / 2, tau,
+                       np.sqrt(np.maximum(np.diag(cov)[k:], 0.0)))

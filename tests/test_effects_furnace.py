@@ -279,12 +279,12 @@ def test_a_large_drift_of_one_of_a_pair_is_found_whichever_its_partner_blamed():
     assert max(drift.rmse_holdout_c.values()) < 2.0
 
 
-def test_a_kept_effect_is_refitted_from_a_combination_that_fits_better():
+def test_a_lag_whose_fit_has_side_valleys_is_named():
     """Known truth (the six-zone selfcheck's lag row, draw 2): soak_top's thermocouples lag
-    14.4 minutes. The lag fitted in soak_top alone stops in a side valley (held-out error
-    8-9 °C in every zone); beside a dead time that the data leave at nothing it reaches the
-    floor. No further effect earns its place, so the lag is refitted from that combination's
-    optimum, which fits the fitted heat-up better, and the gap is explained by the lag."""
+    14.4 minutes. Fitted with its offsets boxed from the start, the lag stopped in a side
+    valley (held-out error 15-20 °C in every zone, its offsets on their bounds); from the
+    free optimum, which is physical here, it reaches the floor, and the gap is explained by
+    the lag at its true time constant."""
     from furnace_model.diagnosis import diagnose
     from furnace_model.selfcheck import judge_case, selfcheck_case
 
@@ -292,10 +292,9 @@ def test_a_kept_effect_is_refitted_from_a_combination_that_fits_better():
     d = diagnose(case.fit, case.holdout, effects=("sensor_lag", "dead_time"))
     assert judge_case(case, d)[0], d.verdict.sentence
     kept = d.best()
-    assert kept.effects == ("sensor_lag",) and "refitted from a combination" in kept.note
-    lone = [c for c in d.candidates if c.effects == ("sensor_lag",) and c is not kept]
-    assert lone and kept.sse_fit < lone[0].sse_fit
+    assert kept.effects == ("sensor_lag",)
     assert kept.params["tau_lag"] == pytest.approx(14.4, rel=0.05)
+    assert not [f for f in kept.flags if "offset" in f]
 
 
 @pytest.mark.slow

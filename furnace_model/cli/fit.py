@@ -269,11 +269,25 @@ def render(result: FitResult, experiments) -> str:
         f"{e.name} [{', '.join(f'{v:.1f}' for v in x)}]"
         for e, x in zip(experiments, result.x0, strict=True)))
     if result.zone_offsets_c:
-        out.append("Zone offsets (measured minus model): " + "; ".join(
-            f"{e.name} [" + ", ".join(f"{v:+.2f}" for v in off.values()) + "] °C"
-            for e, off in zip(experiments, result.zone_offsets_c, strict=True)))
+        out.append("Zone offsets (measured minus model, 95% interval; a thermocouple's bias, "
+                   "held within its bound): " + "; ".join(
+                       f"{e.name} [" + ", ".join(_offset_text(result, j, z)
+                                                 for z in zones) + "] °C"
+                       for j, e in enumerate(experiments)))
+    if result.flags:
+        out.append("Flagged (on a physical bound, so the model's error, not a sensor's bias "
+                   "or the record's start): " + "; ".join(
+                       f"{f.record} {f.zone} {f.kind.replace('_', ' ')}" for f in result.flags))
     out.append(f"Status: {result.status}; residual sd {result.sigma_c:.3f} °C")
     return "\n".join(out)
+
+
+def _offset_text(result: FitResult, j: int, zone: str) -> str:
+    v = result.zone_offsets_c[j][zone]
+    ci = (result.zone_offsets_ci95_c or [{}] * (j + 1))[j].get(zone)
+    bound = result.bounds_c[j]["offset"][zone][1] if result.bounds_c else float("nan")
+    interval = "on the bound" if ci is None else f"{ci[0]:+.2f} to {ci[1]:+.2f}"
+    return f"{v:+.2f} ({interval}; bound ±{bound:.1f})"
 
 
 def _criteria_line(result: FitResult) -> str:

@@ -36,6 +36,17 @@ class CandidateResult:
     """Per zone, the held-out RMSE its own parameters' uncertainty may reach (`carried`)."""
     elapsed_s: float = 0.0
     warnings: list[str] = field(default_factory=list)
+    offsets_c: dict[str, float] | None = None
+    """The zone offsets the fit carries to other records (its thermocouples' biases)."""
+    holdout_offsets_c: list[dict[str, float]] | None = None
+    """Per whole held-out record, its offsets: the carried ones corrected within a
+    thermocouple's bias."""
+    rmse_holdout_carried_c: dict[str, float] | None = None
+    """The held-out RMSE with the carried offsets held, nothing corrected (the baseline's):
+    what the selfcheck holds a `no_gap` to."""
+    flags: list[str] = field(default_factory=list)
+    """Offsets and initial temperatures of the fitted and held-out records on their
+    physical bounds (`furnace_model.plausible`)."""
 
     @property
     def label(self) -> str:

@@ -107,6 +107,7 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     unseen = unseen_by_fit(fr, bounds) if any(j is None for j in task.tail_of) else ()
     hold_pred, refined = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of,
                                              unseen)
+    carried = fr.carried_offsets()
     res = [e.zone_temp - p for e, p in zip(task.fit_data, fit_pred, strict=True)]
     hold_res = [e.zone_temp - p for e, p in zip(task.holdout, hold_pred, strict=True)]
     n_hold = int(sum(np.isfinite(r).sum() for r in hold_res))
@@ -125,7 +126,28 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         n_params=len(structure.names) + 2 * len(zones) * len(task.fit_data),
         rho1=lag1(res), rho1_holdout=lag1(hold_res), n_holdout=n_hold,
         held_out_fitted=unseen, carried_c=_carried(fr, task, refined),
-        elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings))
+        elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings),
+        offsets_c=None if carried is None else dict(zip(zones, map(float, carried), strict=True)),
+        holdout_offsets_c=None if refined is None else refined.zone_offsets_c,
+        rmse_holdout_carried_c=(None if task.effects else
+                                _with_carried_offsets(fr, task, hold_pred, unseen)),
+        flags=[f.words() for f in [*fr.flags, *(refined.flags if refined else [])]])
+
+
+def _with_carried_offsets(fr: FitResult, task: Task, hold_pred: list[np.ndarray],
+                          unseen: tuple[str, ...]) -> dict[str, float]:
+    """The held-out RMSE per zone with the offsets the fit carries held on every whole
+    held-out record (its initial state still its own): a model that misses the held-out
+    data cannot hide behind offsets there. A tail continues the fitted run as it is."""
+    carried = fr.carried_offsets()
+    whole = [i for i, j in enumerate(task.tail_of) if j is None]
+    preds = list(hold_pred)
+    if whole and carried is not None:
+        held = fr.refine([task.holdout[i] for i in whole], free=unseen,
+                         offsets=[carried] * len(whole))
+        for k, i in enumerate(whole):
+            preds[i] = held.predict(k)
+    return rmse_per_zone(task.holdout, preds, task.furnace.zones)
 
 
 def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[str, float],

@@ -65,6 +65,13 @@ class Diagnosis:
                          "noise_floor_fit_c": _round(self.noise_floor_fit_c or {}),
                          "gap_limit_c": _round(self.gap_limit_c or {}),
                          "carried_c": _round(b.carried_c),
+                         "offsets_c": None if b.offsets_c is None else _round(b.offsets_c),
+                         "holdout_offsets_c": (None if b.holdout_offsets_c is None else
+                                               [_round(o) for o in b.holdout_offsets_c]),
+                         "rmse_holdout_carried_offsets_c": (
+                             None if b.rmse_holdout_carried_c is None
+                             else _round(b.rmse_holdout_carried_c)),
+                         "flags": list(b.flags),
                          "params": _round(b.params),
                          "ci95": {k: [_r(v[0]), _r(v[1])] for k, v in b.ci95.items()},
                          "gap_zones": list(self.gap_zones)},

@@ -148,12 +148,15 @@ class _Problem:
         self.block = 2 * nz if zone_offsets else nz  # per experiment: x0, then offsets
         self.n = self.k + self.block * len(self.records)
         self.n_obs = int(sum(r.mask.sum() for r in self.records))
+        # A held offset is in the readings: the start they allow is theirs less it.
+        shift = [np.zeros(nz) if self.held is None else self.held[j]
+                 for j in range(len(self.records))]
         self.nuisance_lo = np.concatenate(
-            [np.concatenate([r.x0_lo, -r.bias] if zone_offsets else [r.x0_lo])
-             for r in self.records]) if self.records else np.zeros(0)
+            [np.concatenate([r.x0_lo - s, -r.bias] if zone_offsets else [r.x0_lo - s])
+             for r, s in zip(self.records, shift, strict=True)]) if self.records else np.zeros(0)
         self.nuisance_hi = np.concatenate(
-            [np.concatenate([r.x0_hi, r.bias] if zone_offsets else [r.x0_hi])
-             for r in self.records]) if self.records else np.zeros(0)
+            [np.concatenate([r.x0_hi - s, r.bias] if zone_offsets else [r.x0_hi - s])
+             for r, s in zip(self.records, shift, strict=True)]) if self.records else np.zeros(0)
         self._memo: dict[str, tuple[bytes, Any]] = {}
 
     def holding(self, i: int, z_i: float) -> _Problem:

@@ -340,8 +340,8 @@ def _model_parameters(furnace: Furnace) -> dict:
                           "record": _string("the window"),
                           "zone": _string("the zone", zones),
                           "value_c": _number("the fitted value in °C"),
-                          "bound_c": {"type": "array", "items": {"type": ["number", "null"]},
-                                      "description": "lowest and highest plausible, °C"},
+                          "low_c": _number("lowest plausible value in °C (absent: none)"),
+                          "high_c": _number("highest plausible value in °C (absent: none)"),
                       }, "one flagged value")},
             "recent_f": _object({
                 "f": _number("f on the recent span alone, a..e of the window held"),

@@ -105,6 +105,9 @@ class Flag:
                 "ambient): the model misses something at the record's start; run diagnose")
 
     def to_json(self) -> dict:
+        """The edges as `low_c` and `high_c`, each absent where unbounded (a log's schema
+        keeps a number a number)."""
         return {"kind": self.kind, "record": self.record, "zone": self.zone,
                 "value_c": self.value_c,
-                "bound_c": [v if np.isfinite(v) else None for v in (self.lo_c, self.hi_c)]}
+                **{k: v for k, v in (("low_c", self.lo_c), ("high_c", self.hi_c))
+                   if np.isfinite(v)}}

@@ -162,11 +162,11 @@ def test_the_experiment_held_out_is_one_whose_burners_the_others_fire():
 
 def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
     # A draw (selfcheck seed 0, draw 3) where the baseline bends to absorb the heating- and
-    # preheating-zone burners (f at its lower bound) and a zone-burner fit warm-started from
-    # it stays in a side valley, off the noise floor.
+    # preheating-zone burners (f tens of times off the truth) and a zone-burner fit
+    # warm-started from it stays in a side valley, off the noise floor.
     case = draw_case("zone_burners", case_rng(0, "zone_burners", 3))
     base = run_task(Task((), {}, case.fit, case.holdout, [None], None, 0))
-    assert base.params["f"] < 0.1 * PAPER_TABLE_V["f"]
+    assert abs(np.log(base.params["f"] / PAPER_TABLE_V["f"])) > np.log(10.0), base.params
     trial = ZoneBurners.trial(Clues(case.fit, case.fit + case.holdout, bent=True,
                                     baseline_on=lambda heads: _determined(heads, 0)))
     start = trial.start
@@ -377,7 +377,9 @@ def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_dat
     floor = pooled_floor([record_floor(soak_steps)])
     for z in ZONES:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
-    fixed = Model(structure, c.params, zone_offsets=True).refine([soak_steps]).predict(0)
+    # an f the fitted data leave anywhere, held where a start put it, misses the held-out data
+    fixed = Model(structure, {**c.params, "f": start["f"]},
+                  zone_offsets=True).refine([soak_steps]).predict(0)
     rmse_fixed = np.sqrt(np.nanmean((soak_steps.zone_temp - fixed) ** 2, axis=0))
     assert rmse_fixed.max() > 2 * NEAR_RATIO * max(floor.values()), rmse_fixed
     # the same fit on a record whose soaking burners step sees every parameter

@@ -24,12 +24,13 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
+from scipy.stats import chi2
 
 from .criteria import Criteria, criteria
 from .errors import FurnaceError
 from .experiment import Experiment
 from .ga import genetic_search
-from .plausible import Flag, start_band, zone_bias_bounds
+from .plausible import FLAG_LEVEL, Flag, start_band, zone_bias_bounds
 from .profile import profile_interval
 from .response import Response
 from .scores import zone_metrics
@@ -300,13 +301,28 @@ class _Problem:
         own = np.clip(np.concatenate(per), self.nuisance_lo, self.nuisance_hi) if per else []
         return np.concatenate([zp, own])
 
-    def flags(self, z: np.ndarray) -> list[Flag]:
-        """The records' own unknowns that ended on their physical bounds (the polish clips
-        onto a bound exactly)."""
+    def held_by_bounds(self, polished: _Polished) -> np.ndarray:
+        """Which of the records' own unknowns (n - k,) the data push against their physical
+        bounds: those on a bound, where the bounds cost the fit more than noise could
+        (a likelihood-ratio test at `FLAG_LEVEL` against the free optimum, its residual's
+        correlation time allowed for). A short window of a furnace at rest cannot tell an
+        offset from the start, and the free optimum wanders out of the box at no cost: its
+        bound is no evidence of a missing effect, and nothing is flagged."""
+        on = self._on_bound(polished.z)
+        if polished.free_cost is None or not on.any():
+            return np.zeros(on.size, dtype=bool)
+        r = polished.r
+        sigma2 = polished.free_cost / max(r.size - self.n, 1)
+        tau = max([_correlation_time(r[idx]) for idx in self.series()], default=1.0)
+        rise = (float(r @ r) - polished.free_cost) / (sigma2 * tau)
+        return on if rise > chi2.ppf(FLAG_LEVEL, int(on.sum())) else np.zeros(on.size, dtype=bool)
+
+    def flags(self, z: np.ndarray, held: np.ndarray) -> list[Flag]:
+        """The records' own unknowns marked in `held` (`held_by_bounds`), as flags."""
         out = []
         zones = self.structure.furnace.zones
         at = z[self.k:]
-        for i in np.nonzero(self._on_bound(z))[0]:
+        for i in np.nonzero(held)[0]:
             j, q = divmod(int(i), self.block)
             kind = "offset" if q >= self.nz else "initial_state"
             out.append(Flag(kind, self.records[j].name, zones[q % self.nz], float(at[i]),
@@ -318,15 +334,14 @@ class _Problem:
         tol = 1e-6 * np.maximum(1.0, np.abs(at))
         return (at <= self.nuisance_lo + tol) | (at >= self.nuisance_hi - tol)
 
-    def unflagged(self, J: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """J with the columns of the records' unknowns held on a bound zeroed: held, they
-        take nothing from the parameters' uncertainty (a zero column is a direction the
-        covariance leaves apart)."""
-        on = self._on_bound(z)
-        if not on.any():
+    def unflagged(self, J: np.ndarray, held: np.ndarray) -> np.ndarray:
+        """J with the columns of the records' unknowns held on a bound (`held_by_bounds`)
+        zeroed: held, they take nothing from the parameters' uncertainty (a zero column is a
+        direction the covariance leaves apart)."""
+        if not held.any():
             return J
         J = J.copy()
-        J[:, self.k + np.nonzero(on)[0]] = 0.0
+        J[:, self.k + np.nonzero(held)[0]] = 0.0
         return J
 
     def remembered(self, what: str, z: np.ndarray, compute: Callable[[], _T]) -> _T:
@@ -419,7 +434,9 @@ class _Problem:
         if free.reason == "not_finite" or np.all(
                 (own >= self.nuisance_lo) & (own <= self.nuisance_hi)):
             return free
-        return self._polish(free.z, deadline, max_iter, gain_tol, damping, boxed=True)
+        boxed = self._polish(free.z, deadline, max_iter, gain_tol, damping, boxed=True)
+        boxed.free_cost = float(free.r @ free.r)
+        return boxed
 
     def _polish(self, z0: np.ndarray, deadline: float | None, max_iter: int,
                 gain_tol: float, damping: float, boxed: bool) -> _Polished:
@@ -498,6 +515,19 @@ class _Polished:
     J: np.ndarray
     reason: str
     iterations: int
+    free_cost: float | None = None
+    """The cost at the optimum with the records' own unknowns free, where that optimum was
+    not physical and the polish went on inside their box."""
+
+
+def _correlation_time(e: np.ndarray) -> float:
+    """Samples per independent one of a residual series, by its lag-1 autocorrelation."""
+    if e.size < 10:
+        return 1.0
+    e = e - e.mean()
+    den = float(e @ e)
+    rho = float(np.clip(e[1:] @ e[:-1] / den, 0.0, 0.999)) if den > 0 else 0.0
+    return (1.0 + rho) / (1.0 - rho)
 
 
 def _step(H: np.ndarray, g: np.ndarray, damping: np.ndarray, move: np.ndarray) -> np.ndarray:
@@ -808,9 +838,10 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     z = best_run.z
     res = prob.fun(z)
     J = prob.jac(z)
-    unc = from_jacobian(prob.unflagged(J, z), res, prob.names, prob.log, z[:prob.k],
+    held = prob.held_by_bounds(_Polished(z, res, J, best_run.stop_reason, 0, best_run.free_cost))
+    unc = from_jacobian(prob.unflagged(J, held), res, prob.names, prob.log, z[:prob.k],
                         prob.series(), prob.blocked)
-    flags = prob.flags(z) if method == "fast" else []
+    flags = prob.flags(z, held)
     params = _param_dict(prob, z)
     ci = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val), strict=True))
     ci_white = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val, white=True), strict=True))
@@ -926,6 +957,7 @@ class _Run:
     iterations: int  # accepted polish steps of the result's polish
     generations: int  # GA generations run
     truncated: bool  # some stage (GA or polish) stopped on the time budget
+    free_cost: float | None = None  # the polish's: see _Polished
 
 
 def _profiled(prob: _Problem, z: np.ndarray, sse: float, unc: Uncertainty,
@@ -976,12 +1008,12 @@ def _one_run(prob: _Problem, method: str, population: int, generations: int,
              offsets: list[np.ndarray] | None = None, damping: float = 1e-3) -> _Run:
     if prob.k == 0:
         p = prob.polish(prob.start(np.zeros(0)), deadline)
-        return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget")
+        return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget", p.free_cost)
     if method == "fast" and start is not None and np.all(spread < 0.1):
         # every value given: polish
         p = prob.polish(prob.start(start, offsets), deadline, damping=damping)
         report(1.0)
-        return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget")
+        return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget", p.free_cost)
     ga_deadline = deadline
     if deadline is not None and method == "fast":
         ga_deadline = time.perf_counter() + 0.5 * (deadline - time.perf_counter())
@@ -1009,7 +1041,7 @@ def _one_run(prob: _Problem, method: str, population: int, generations: int,
     report(1.0)
     best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
     cut = ga_cut or any(p.reason == "time_budget" for p in polished)
-    return _Run(best.z, best.reason, best.iterations, found.generations, cut)
+    return _Run(best.z, best.reason, best.iterations, found.generations, cut, best.free_cost)
 
 
 def _param_dict(prob: _Problem, z: np.ndarray) -> dict[str, float]:
@@ -1183,7 +1215,7 @@ class Model:
                     at = prob.k + prob.block * i
                     start[at:at + nz] = np.asarray(x0[j], dtype=float)[:nz]
             p = prob.polish(start, None)
-            flags += prob.flags(p.z)
+            flags += prob.flags(p.z, prob.held_by_bounds(p))
             for i, j in enumerate(group):
                 x0s[j] = prob.x0_of(p.z, i).copy()
                 offs[j] = (prob.offsets_of(p.z, i).copy() if offsets is None

@@ -20,8 +20,10 @@ error a fit is asked to show. So each is held to what it can physically be:
   `AMBIENT_MARGIN_C`: nothing in a furnace cools it below its surroundings. A zone whose
   first reading comes after the record's first sample is bounded by ambient alone.
 
-A value that ends on its bound is not an estimate of a bias or a start: it is the model's
-error pushing against a physical limit, and the fit says so (`flags`).
+A value that the data push onto its bound is not an estimate of a bias or a start: it is the
+model's error pushing against a physical limit, and the fit says so (`flags`). One that
+merely wanders there, because the record cannot tell it from the start or the parameters (a
+short window of a furnace at rest), is held there at no cost and not flagged.
 """
 
 from __future__ import annotations
@@ -41,6 +43,11 @@ AMBIENT_MARGIN_C = 10.0
 error and a draught."""
 START_NOISE_SD = 5.0
 """Noise sds of a zone's first reading that its initial temperature may lie from it."""
+FLAG_LEVEL = 0.999
+"""A value on its bound is flagged when holding it there costs the fit more than noise
+would with this probability: a flag is evidence, not one window in twenty of a furnace the
+model describes (a record whose model misses by degrees passes it by orders of
+magnitude)."""
 
 
 def sensor_bias_bounds(furnace: Furnace, tc: np.ndarray) -> np.ndarray:

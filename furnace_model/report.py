@@ -71,7 +71,8 @@ def render(d: Diagnosis) -> str:
         f"</span>{_e(v.sentence)}</p>",
         f'<p class="meta">Fitted: {_e(", ".join(e.name for e in d.fit_data))}; held out: '
         f"{_e(d.holdout_how)}. Diagnosed in {d.elapsed_s:.1f} s.</p>",
-        _section("Error per zone, before and after", _rmse_table(d, best) + _floor_table(d),
+        _section("Error per zone, before and after", _rmse_table(d, best) + _floor_table(d)
+                 + "".join(f"<p>{_e(line)}</p>" for line in d.offset_lines()),
                  _figure(_fig_noise(d, best), "noise",
                          "Held-out RMSE per zone against the noise floor the thermocouple pairs "
                          "allow: the baseline (paper's model), the best extension, and the floor."),

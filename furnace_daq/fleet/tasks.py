@@ -170,7 +170,7 @@ def refit_segment(seg: Segment) -> dict:
 
 def parameter_row(furnace: str, segment: int, msg: dict, description: Furnace = PAPER) -> dict:
     """A /model/parameters message as a flat row: the furnace's parameters, their 95% bounds,
-    RMSE per zone."""
+    RMSE and zone offset per zone, and what the fit flagged."""
     row = {"furnace": furnace, "segment": segment, "window_start": msg["window_start"],
            "window_end": msg["window_end"], "status": msg["status"],
            "detail": msg.get("detail", ""), "n_samples": msg.get("n_samples", 0)}
@@ -181,8 +181,12 @@ def parameter_row(furnace: str, segment: int, msg: dict, description: Furnace = 
         row[p] = _num(msg.get(p))
         lo, hi = ci.get(p, (None, None))
         row[f"{p}_ci95_lo"], row[f"{p}_ci95_hi"] = _num(lo), _num(hi)
+    offsets = (msg.get("zone_offsets_c") or {}) if fitted else {}
     for z in description.zones:
         row[f"rmse_{z}_c"] = _num(rmse.get(z))
+        row[f"offset_{z}_c"] = _num(offsets.get(z))
+    row["flagged"] = ",".join(f"{f['kind']}:{f['zone']}" for f in msg.get("flags", [])) \
+        if fitted else ""
     # False when the window kept the model in force: its parameters are that model's.
     row["fitted"] = fitted
     row["undetermined"] = ",".join(msg.get("undetermined", [])) if fitted else ""
@@ -247,9 +251,12 @@ def diagnose_pair(pair: Pair) -> dict:
            "gap_closed_pct": _num(getattr(v, "gap_closed_pct", math.nan)),
            "gap_zones": ",".join(d.gap_zones), "sentence": v.sentence,
            "elapsed_s": _num(d.elapsed_s)}
+    held = d.baseline.rmse_holdout_carried_c or {}
     for z in pair.description.zones:
         row[f"rmse_holdout_{z}_c"] = _num(d.baseline.rmse_holdout_c[z])
+        row[f"rmse_holdout_carried_offsets_{z}_c"] = _num(held.get(z))
         row[f"noise_floor_{z}_c"] = _num(d.noise_floor_c[z])
+    row["flags"] = len(d.baseline.flags)
     row["cpu_s"] = time.process_time() - cpu0
     return {"rows": [row], "diagnosis": d.to_json()}
 

@@ -118,6 +118,9 @@ def summary(d: Diagnosis) -> str:
         lines += ["", "The limit includes what the fitted parameters' own uncertainty carries "
                   "onto the held-out data (°C per zone, " + per_zone + "): "
                   + "/".join(f"{carried.get(z, 0.0):.2f}" for z in zone_names)]
+    offsets = d.offset_lines()
+    if offsets:
+        lines += ["", *offsets]
     if d.record_floors:
         lines += ["", f"Noise floor per record (°C per zone, {per_zone}; the held-out "
                   "RMSE is judged against the held-out records'):"]

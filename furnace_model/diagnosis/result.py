@@ -35,6 +35,27 @@ class Diagnosis:
     gap_limit_c: dict[str, float] | None = None
     """Held-out RMSE per zone above which the zone has a gap."""
 
+    def offset_lines(self) -> list[str]:
+        """The baseline's thermocouple offsets, fitted and carried to the held-out records,
+        and every offset or start on its physical bound, in words."""
+        b = self.baseline
+        if b.offsets_c is None:
+            return []
+        zones = list(b.offsets_c)
+
+        def values(d: dict[str, float]) -> str:
+            return "/".join(f"{d[z]:+.2f}" for z in zones)
+
+        out = [f"Zone offsets the baseline carries ({'/'.join(zones)}): {values(b.offsets_c)} "
+               "°C, a thermocouple's bias at most"]
+        for e, o in zip(self.holdout, b.holdout_offsets_c or [], strict=False):  # whole records
+            out.append(f"- {e.name} (held out): {values(o)} °C")
+        if b.rmse_holdout_carried_c is not None:
+            out.append("Held-out RMSE with the carried offsets held: "
+                       + "/".join(f"{b.rmse_holdout_carried_c[z]:.2f}" for z in zones) + " °C")
+        out += [f"- flagged: {f}" for f in b.flags]
+        return out
+
     def best(self) -> CandidateResult | None:
         if self.verdict.status == "explained":
             for c in self.candidates:

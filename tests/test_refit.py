@@ -300,7 +300,6 @@ def _recent_f_one_step(res, exp, from_min):
     """The recent span's f as one least-squares step of f and the span's starting
     temperatures, the window's offsets held: the model is affine in both, so this is the
     exact minimum the refinement has to reach."""
-    from furnace_model import ZONES
     from furnace_model.structure import ModelStructure
 
     span = exp.between(from_min, np.inf)

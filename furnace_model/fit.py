@@ -426,9 +426,9 @@ class _Problem:
 
         The records' own unknowns are first left free: where that optimum is physical it is
         the answer, reached by the path the parameters would take anyway; where it is not,
-        the polish goes on from it inside their box. Boxed from the start, a large effect's
-        fit was seen to stop in a side valley that the free path passes by (a six-zone
-        sensor lag, its held-out error 15-20 °C against 1 °C at the truth)."""
+        the polish goes on from it inside their box. Boxed from the start, a bound that the
+        optimum does not touch can still block the path to it and leave the fit in a side
+        valley (docs/identification.md)."""
         free = self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=False)
         own = free.z[self.k:]
         if free.reason == "not_finite" or np.all(

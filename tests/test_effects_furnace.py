@@ -281,10 +281,9 @@ def test_a_large_drift_of_one_of_a_pair_is_found_whichever_its_partner_blamed():
 
 def test_a_lag_whose_fit_has_side_valleys_is_named():
     """Known truth (the six-zone selfcheck's lag row, draw 2): soak_top's thermocouples lag
-    14.4 minutes. Fitted with its offsets boxed from the start, the lag stopped in a side
-    valley (held-out error 15-20 °C in every zone, its offsets on their bounds); from the
-    free optimum, which is physical here, it reaches the floor, and the gap is explained by
-    the lag at its true time constant."""
+    14.4 minutes. With its offsets boxed from the start the lag's fit can stop in a side
+    valley with its offsets on their bounds; from the free optimum, which is physical here,
+    it reaches the floor, and the gap is explained by the lag at its true time constant."""
     from furnace_model.diagnosis import diagnose
     from furnace_model.selfcheck import judge_case, selfcheck_case
 

@@ -6,7 +6,7 @@ docs/performance.md.
 
 The headline case is the worked example of docs/diagnosis.md: the paper's two heat-ups
 (3310 and 3800 minutes) on a furnace with zone burners, given together so that the
-diagnosis picks the holdout. The others come from furnace_model.selfcheck.draw_case (the
+diagnosis picks the holdout. The others come from furnace_model.diagnosis.cases.draw_case (the
 plant simulator with one effect, random strengths and schedules): a control (no gap: only
 the baseline is fitted), a case the baseline absorbs badly (zone burners: every candidate
 fitted, warm and cold), a lag, and a nonlinear effect (radiation: exponent 4, then its
@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from furnace_model.diagnosis import diagnose
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
-from furnace_model.selfcheck import draw_case
+from furnace_model.diagnosis.cases import draw_case
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 CASES = ("paper pair", None, "zone_burners", "sensor_lag", "radiation")
 SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"

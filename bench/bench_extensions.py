@@ -17,9 +17,9 @@ import numpy as np
 from bench_simulate import median_time  # a script beside this one
 
 from furnace_model.effects import DeadTime, FuelChange, Radiation
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.scenario import load_scenario
-from furnace_model.structure import ModelStructure
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.scenario import load_scenario
+from furnace_model.simulation.structure import ModelStructure
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -20,12 +20,13 @@ import numpy as np
 from scipy import signal
 from scipy.optimize import differential_evolution
 
-from furnace_model.fit import _Problem, fit
-from furnace_model.ga import genetic_search
-from furnace_model.parameters import BASELINE, PAPER_TABLE_V
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
-from furnace_model.structure import ModelStructure
+from furnace_model.identification.fit import fit
+from furnace_model.identification.ga import genetic_search
+from furnace_model.identification.problem import Problem
+from furnace_model.simulation.parameters import BASELINE, PAPER_TABLE_V
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
+from furnace_model.simulation.structure import ModelStructure
 
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = [p.name for p in BASELINE]
@@ -83,7 +84,7 @@ def main() -> None:
     cap = 60.0 if args.quick else args.cap_s
     scn = load_scenario(ROOT / "config/scenarios/paper_exp1.yaml")
     exp = Plant.from_scenario(scn, seed=1).run_scenario(scn).to_experiment("paper_exp1")
-    prob = _Problem([exp], ModelStructure(), {}, {})
+    prob = Problem([exp], ModelStructure(), {}, {})
 
     def common_sse(params: dict) -> float:
         z = prob.to_z(np.array([params[n] for n in NAMES]))

@@ -30,8 +30,8 @@ from furnace_daq.fleet.engine import open_client
 from furnace_daq.fleet.jobs import run_diagnose, run_refit
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.plantlog import write_run
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 REFIT = {"period_s": 7200, "window_s": 86400, "step_s": 60}

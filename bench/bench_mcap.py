@@ -16,7 +16,7 @@ import numpy as np
 from furnace_daq.logrecover import recover
 from furnace_daq.mcaplog import LogWriter
 from furnace_model import SENSORS
-from furnace_model.logresample import resample_logs
+from furnace_model.log.resample import resample_logs
 
 T0 = 1_772_431_200 * 10**9
 S = 10**9

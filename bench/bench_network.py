@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from furnace_model.fit import fit
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.identification.fit import fit
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 

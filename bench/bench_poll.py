@@ -23,8 +23,8 @@ from furnace_daq.daemon import Daemon
 from furnace_daq.daqconfig import load_config
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.sources import ModbusSource
-from furnace_model.logread import read_messages
-from furnace_model.logschema import THERMOCOUPLES
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import THERMOCOUPLES
 
 ROOT = Path(__file__).resolve().parents[1]
 

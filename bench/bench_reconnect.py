@@ -31,7 +31,7 @@ from daq_processes import free_port, messages, sim, start_daemon  # noqa: E402
 
 from furnace_daq.daqconfig import parse_config  # noqa: E402
 from furnace_model.config import Node  # noqa: E402
-from furnace_model.logschema import THERMOCOUPLES  # noqa: E402
+from furnace_model.log.schema import THERMOCOUPLES  # noqa: E402
 
 
 def shipped(port: int):

@@ -23,9 +23,9 @@ from pathlib import Path
 from furnace_daq.daqconfig import RefitConfig
 from furnace_daq.plantlog import run_messages
 from furnace_daq.refitworker import RefitRunner
-from furnace_model.logschema import MODEL_EVENTS, MODEL_PARAMETERS
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.log.schema import MODEL_EVENTS, MODEL_PARAMETERS
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ROOT / "config" / "scenarios"

@@ -34,7 +34,7 @@ from daq_processes import furnace_daq, start_simplc, stop  # noqa: E402
 from faultproxy import ThreadedFaultProxy  # noqa: E402
 from soak_run import BACK_WITHIN_S, soak  # noqa: E402
 
-from furnace_model.logsalvage import has_footer  # noqa: E402
+from furnace_model.log.salvage import has_footer  # noqa: E402
 
 DOC = ROOT / "docs" / "reliability.md"
 START, END = "<!-- reliability-table:start -->", "<!-- reliability-table:end -->"

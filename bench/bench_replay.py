@@ -21,9 +21,9 @@ from furnace_daq.daqconfig import RefitConfig
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.plantlog import write_run
 from furnace_daq.replay import replay
-from furnace_model.logresample import resample_logs
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.log.resample import resample_logs
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "config" / "scenarios" / "week_steps.yaml"

@@ -19,7 +19,7 @@ from pathlib import Path
 from furnace_daq.fleet.engine import open_client
 from furnace_daq.fleet.jobs import run_selfcheck
 from furnace_model.cli.selfcheck import labels_of
-from furnace_model.selfcheck import check
+from furnace_model.diagnosis.selfcheck import check
 
 
 def main() -> None:

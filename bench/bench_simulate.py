@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from furnace_model.effects import DeadTime, SensorLag, ZoneBurners
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.scenario import load_scenario
-from furnace_model.structure import ModelStructure
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.scenario import load_scenario
+from furnace_model.simulation.structure import ModelStructure
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -49,7 +49,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Protocol
 
-from furnace_model.logschema import (
+from furnace_model.log.schema import (
     AMBIENT,
     BURNERS,
     DAQ_EVENTS,

@@ -14,8 +14,9 @@ import pandas as pd
 
 from furnace_model.config import Node, load_yaml
 from furnace_model.errors import ConfigError
-from furnace_model.furnace import PAPER, Furnace, named_furnace
-from furnace_model.network import parameter_names
+from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnacefile import named_furnace
+from furnace_model.simulation.network import parameter_names
 
 from .liveview import LiveViewConfig
 from .registers import (

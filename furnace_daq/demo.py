@@ -33,12 +33,15 @@ import pandas as pd
 
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import experiment_from_frame, write_table
-from furnace_model.fit import FitResult, Model, fit
-from furnace_model.furnace import PAPER, Furnace, load_furnace
-from furnace_model.logresample import resample_logs
-from furnace_model.logschema import BURNERS, THERMOCOUPLES, param_names
-from furnace_model.scenario import Scenario, load_scenario
-from furnace_model.structure import ModelStructure
+from furnace_model.identification.fit import fit
+from furnace_model.identification.model import Model
+from furnace_model.identification.result import FitResult
+from furnace_model.log.resample import resample_logs
+from furnace_model.log.schema import BURNERS, THERMOCOUPLES, param_names
+from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnacefile import load_furnace
+from furnace_model.simulation.scenario import Scenario, load_scenario
+from furnace_model.simulation.structure import ModelStructure
 
 from .daemon import EVENT_PRIORITY, Daemon
 from .daqconfig import RefitConfig, load_config

@@ -11,7 +11,7 @@ orders to the plant PLC's I/O list; `furnace-daq check` then reads every point o
 
 from __future__ import annotations
 
-from furnace_model.furnace import Furnace
+from furnace_model.simulation.furnace import Furnace
 
 from .servedmap import ServedMap
 

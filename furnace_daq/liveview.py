@@ -17,8 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from furnace_model.errors import FurnaceError
-from furnace_model.furnace import PAPER, Furnace
-from furnace_model.logschema import MESSAGE_ENCODING, SCHEMA_ENCODING, topic, topics
+from furnace_model.log.schema import MESSAGE_ENCODING, SCHEMA_ENCODING, topic, topics
+from furnace_model.simulation.furnace import PAPER, Furnace
 
 
 @dataclass(frozen=True)

@@ -15,8 +15,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from furnace_model.furnace import PAPER, Furnace
-from furnace_model.logread import METADATA_NAME, furnace_record, read_metadata, recorded_furnace
+from furnace_model.log.read import METADATA_NAME, furnace_record, read_metadata, recorded_furnace
+from furnace_model.simulation.furnace import PAPER, Furnace
 
 __all__ = ["METADATA_NAME", "build_metadata", "read_metadata", "recorded_furnace"]
 SECRET_WORDS = ("password", "secret", "token")

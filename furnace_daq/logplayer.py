@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from furnace_model.errors import DataError
-from furnace_model.furnace import Furnace
-from furnace_model.logread import iso_time, log_furnace, read_messages
-from furnace_model.logschema import AMBIENT, BURNERS, THERMOCOUPLES
+from furnace_model.log.read import iso_time, log_furnace, read_messages
+from furnace_model.log.schema import AMBIENT, BURNERS, THERMOCOUPLES
+from furnace_model.simulation.furnace import Furnace
 
 from .registers import COMM_ERROR
 from .simplc import PlcValues, states_from_counts

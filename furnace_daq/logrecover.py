@@ -2,7 +2,7 @@
 rewrites one into a complete file, and the daemon does so at start for every `.part` its
 previous run left behind.
 
-What can be read from the front of such a file is `furnace_model.logsalvage`'s job (the
+What can be read from the front of such a file is `furnace_model.log.salvage`'s job (the
 model's readers need it too); this module writes the copies and runs the start-up sweep.
 """
 
@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from furnace_model.errors import DataError
-from furnace_model.logsalvage import has_footer, salvage
+from furnace_model.log.salvage import has_footer, salvage
 
 
 def default_output(path: str | Path) -> Path:

@@ -1,6 +1,6 @@
 """The acquisition log's writer: MCAP files written so that a crash, a power cut or a full
 disk costs at most a few seconds of data. They are read back, finished or not, by
-`furnace_model.logread`, which the model's commands share (docs/logs.md).
+`furnace_model.log.read`, which the model's commands share (docs/logs.md).
 
 Writing. mcap's `Writer.flush()` closes the chunk being filled and writes it out; the log
 calls it, then `os.fsync`, at least every `flush_interval_s`, so a killed writer loses only
@@ -43,9 +43,8 @@ from typing import Any, BinaryIO, NamedTuple
 
 from mcap.writer import CompressionType, Writer
 
-from furnace_model.furnace import Furnace
-from furnace_model.logread import PART_SUFFIX, iso_time, recorded_furnace
-from furnace_model.logschema import (
+from furnace_model.log.read import PART_SUFFIX, iso_time, recorded_furnace
+from furnace_model.log.schema import (
     DAQ_EVENTS,
     DAQ_STATUS,
     LOG,
@@ -56,6 +55,7 @@ from furnace_model.logschema import (
     log_line,
     topic,
 )
+from furnace_model.simulation.furnace import Furnace
 
 from .logmeta import METADATA_NAME
 from .logrecover import fsync_dir

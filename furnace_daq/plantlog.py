@@ -13,8 +13,8 @@ from collections.abc import Iterator
 import numpy as np
 import pandas as pd
 
-from furnace_model.logschema import AMBIENT, BURNERS, THERMOCOUPLES
-from furnace_model.plant import PlantRun
+from furnace_model.log.schema import AMBIENT, BURNERS, THERMOCOUPLES
+from furnace_model.simulation.plant import PlantRun
 
 from .mcaplog import LogWriter
 from .simplc import states_from_counts, zone_slices

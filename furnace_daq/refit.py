@@ -13,7 +13,7 @@ same order: the same log gives the same timeline. No I/O here; the worker proces
 
 Windows. A refit is due at every multiple of `period_s` of the PLC clock (publish time,
 aligned to the Unix epoch); its window is the `window_s` of data before that instant,
-resampled to `step_s` exactly as `logs export` does (furnace_model.logresample.Resampler).
+resampled to `step_s` exactly as `logs export` does (furnace_model.log.resample.Resampler).
 
 Drift. Each parameter has a reference: its value and 95% interval in the first model fitted,
 or at its last drift event. A window's value moves away from the reference when (1) it lies
@@ -42,7 +42,7 @@ on its windows alone.
 
 Any furnace. The windows are of the furnace the daemon's config describes, and the model is
 its thermal network: /model/parameters carries the network's parameters (a..f for the
-paper's furnace, `k_`/`loss_`/`gain_` names for another, furnace_model.network), and drift
+paper's furnace, `k_`/`loss_`/`gain_` names for another, furnace_model.simulation.network), and drift
 is judged on each of them the same way.
 
 After a drift event no window that still holds data from before the end of the event's
@@ -63,12 +63,13 @@ import numpy as np
 import pandas as pd
 
 from furnace_model.experiment import Experiment
-from furnace_model.fit import FitResult, WarmStart, fit
-from furnace_model.furnace import PAPER, Furnace
-from furnace_model.logread import iso_time
-from furnace_model.logresample import Resampler
-from furnace_model.logschema import AMBIENT, THERMOCOUPLES, absent, param_names
-from furnace_model.structure import ModelStructure
+from furnace_model.identification.fit import WarmStart, fit
+from furnace_model.identification.result import FitResult
+from furnace_model.log.read import iso_time
+from furnace_model.log.resample import Resampler
+from furnace_model.log.schema import AMBIENT, THERMOCOUPLES, absent, param_names
+from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.structure import ModelStructure
 
 from .daqconfig import RefitConfig
 

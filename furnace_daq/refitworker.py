@@ -24,9 +24,9 @@ from collections import deque
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 
-from furnace_model.furnace import PAPER, Furnace
-from furnace_model.logread import iso_time
-from furnace_model.logschema import MODEL_EVENTS, MODEL_PARAMETERS
+from furnace_model.log.read import iso_time
+from furnace_model.log.schema import MODEL_EVENTS, MODEL_PARAMETERS
+from furnace_model.simulation.furnace import PAPER, Furnace
 
 from .daqconfig import RefitConfig
 from .refit import FitJob, RefitChain, Window, WindowCutter, run_fit
@@ -47,7 +47,7 @@ def _serve(conn: Connection) -> None:
     closes the pipe, which ends the worker too."""
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    import furnace_model.fit  # noqa: F401 - paid once at start, not by the first window
+    import furnace_model.identification.fit  # noqa: F401 - paid once at start, not by the first window
 
     conn.send(("ready", None))
     while True:

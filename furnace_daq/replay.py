@@ -27,9 +27,8 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from furnace_model.errors import DataError
-from furnace_model.furnace import PAPER, Furnace
-from furnace_model.logread import read_messages, recorded_furnace
-from furnace_model.logschema import (
+from furnace_model.log.read import read_messages, recorded_furnace
+from furnace_model.log.schema import (
     AMBIENT,
     BURNERS,
     MESSAGE_ENCODING,
@@ -38,6 +37,7 @@ from furnace_model.logschema import (
     THERMOCOUPLES,
     topic,
 )
+from furnace_model.simulation.furnace import PAPER, Furnace
 
 from .daqconfig import DaqConfig, RefitConfig
 from .logmeta import (

@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from furnace_model.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import PAPER, Furnace
 
 from .registers import (
     BIT_TABLES,

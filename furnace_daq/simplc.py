@@ -25,9 +25,9 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import SimData, SimDevice
 from pymodbus.simulator.simdata import DataType
 
-from furnace_model.furnace import PAPER, Furnace
-from furnace_model.plant import Plant
-from furnace_model.scenario import Scenario
+from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import Scenario
 
 from .registers import FUNCTION_CODE
 from .servedmap import ServedMap

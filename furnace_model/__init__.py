@@ -5,6 +5,10 @@ Pure computation on numpy/scipy/pandas; it reads files into an `Experiment` but 
 to a PLC, a bus or a socket.
 """
 
+from . import oldpaths
+
+oldpaths.install()
+
 ZONES: tuple[str, str, str] = ("soak", "heat", "preheat")
 """Zone names in the paper's numbering: zone 1 soaking, zone 2 heating, zone 3 preheating."""
 

@@ -3,15 +3,14 @@
 Everything that breaks the contract is refused with the file, the column and the row (CSV:
 the line number as an editor shows it) and nothing is guessed: an empty thermocouple cell is
 a missing reading, not a zero, and a burner count must be a whole number within the zone.
-MCAP logs become the same table through `logexperiment` (the resampling of `logs export`)
-and are checked here like any file.
+MCAP logs become the same table through `furnace_model.log.experiment` (the resampling of
+`logs export`) and are checked here like any file; `furnace_model.records` reads either.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,8 +18,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import DataError
-from .furnace import PAPER, Furnace
-from .structure import Inputs
+from .simulation.furnace import PAPER, Furnace
 
 TC_COLUMNS = PAPER.tc_columns
 BURNER_COLUMNS = PAPER.burner_columns
@@ -52,9 +50,6 @@ class Experiment:
     def zone_temp(self) -> np.ndarray:
         """Zone temperature (N, zones): mean of the zone's good thermocouples, NaN when none."""
         return self.furnace.zone_means(self.tc)
-
-    def inputs(self) -> Inputs:
-        return Inputs.from_samples(self.t_min, self.burners, self.t_air)
 
     @property
     def burner_steps(self) -> int:
@@ -114,45 +109,12 @@ def _kind(path: Path) -> str:
     raise DataError(str(path), f"unsupported file type '{suffix or '(none)'}': use .csv or .parquet")
 
 
-def load_experiments(paths: Iterable[str | Path], t_air_default: float = DEFAULT_T_AIR_C, *,
-                     start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
-                     period_s: float | None = None, furnace: Furnace = PAPER) -> list[Experiment]:
-    """The records the data arguments of `fit`, `validate` and `diagnose` make, in their
-    order: each CSV or Parquet file is one; MCAP logs are resampled as `logs export` does and
-    make one per directory (`logexperiment`). `start`/`end` keep [start, end) of the PLC
-    clock; `period_s` is the logs' resampling period (default that of `logs export`).
-    `furnace`: the description the tables' columns, and the furnace a log records in its
-    metadata, must match."""
-    from .logexperiment import group_logs, is_log, load_log
-    from .logresample import DEFAULT_PERIOD_S
-
-    paths = [Path(p) for p in paths]
-    logs = [i for i, p in enumerate(paths) if is_log(p)]
-    groups = {logs[first]: (label, files)
-              for first, label, files in group_logs(paths[i] for i in logs)}
-    out = []
-    for i, path in enumerate(paths):
-        if i in groups:
-            label, files = groups[i]
-            out.append(load_log(label, files, t_air_default, start, end,
-                                DEFAULT_PERIOD_S if period_s is None else period_s, furnace))
-        elif i not in logs:
-            out.append(load_experiment(path, t_air_default, start=start, end=end,
-                                       furnace=furnace))
-    return out
-
-
-def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
-                    start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
-                    period_s: float | None = None, furnace: Furnace = PAPER) -> Experiment:
-    """Read and check one file of the tabular contract, or one log file or log directory
-    (`load_experiments` says how), against the furnace's columns."""
-    from .logexperiment import is_log
-
+def read_table(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
+               start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
+               furnace: Furnace = PAPER) -> Experiment:
+    """Read and check one file of the tabular contract (CSV or Parquet) against the
+    furnace's columns."""
     path = Path(path)
-    if is_log(path):
-        return load_experiments([path], t_air_default, start=start, end=end,
-                                period_s=period_s, furnace=furnace)[0]
     kind = _kind(path)
     file = str(path)
     if not path.exists():

@@ -19,9 +19,9 @@ from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
 
 from .diagnosis import MIN_GAP_CLOSED, RULE, CandidateResult, Diagnosis, shortfall, where_lines
+from .diagnosis.residuals import ZONE_WORDS
 from .experiment import Experiment
-from .furnace import PAPER
-from .residuals import ZONE_WORDS
+from .simulation.furnace import PAPER
 
 STATUS_WORDS = {"no_gap": "no gap", "explained": "explained", "unexplained": "unexplained"}
 STATUS_COLOURS = {"no_gap": "#2e7d32", "explained": "#1565c0", "unexplained": "#c62828"}

@@ -13,9 +13,9 @@ from daq_processes import SCENARIO
 from furnace_daq.mcaplog import LogWriter
 from furnace_model import SENSORS, ZONES
 from furnace_model.experiment import write_table
-from furnace_model.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.log.schema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 T0 = 1_772_431_200 * 10**9  # 2026-03-02T06:00:00Z
 RANDOM = np.random.default_rng(7).integers(0, 256, 4096, dtype=np.uint8).tobytes()

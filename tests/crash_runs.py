@@ -20,8 +20,8 @@ import yaml
 from daq_processes import ROOT, furnace_daq, stop
 from faultproxy import ThreadedFaultProxy
 
-from furnace_model.logread import read_messages
-from furnace_model.logschema import THERMOCOUPLES
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import THERMOCOUPLES
 
 PERIOD_S = 0.05
 FLUSH_S = 0.5

@@ -22,9 +22,9 @@ from furnace_daq.mcaplog import LogWriter
 from furnace_daq.simplc import SimPLC
 from furnace_daq.sources import ModbusSource
 from furnace_model.config import Node
-from furnace_model.logread import read_messages
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.log.read import read_messages
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"

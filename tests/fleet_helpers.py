@@ -11,8 +11,8 @@ import yaml
 
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.plantlog import write_run
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 DAYS = 2

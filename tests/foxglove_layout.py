@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import foxglove.layouts as fl  # noqa: E402
 
 from furnace_model import SENSORS, ZONES  # noqa: E402
-from furnace_model.logschema import (  # noqa: E402
+from furnace_model.log.schema import (  # noqa: E402
     AMBIENT,
     BURNERS,
     LOG,

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from furnace_model.experiment import Experiment
-from furnace_model.plant import Plant
-from furnace_model.scenario import SensorSpec, load_scenario
-from furnace_model.structure import ModelStructure
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import SensorSpec, load_scenario
+from furnace_model.simulation.structure import ModelStructure
 
 TC_SD = 1.5
 ZONE_SD = TC_SD / np.sqrt(2)  # zone temperature = mean of two thermocouples, both reading

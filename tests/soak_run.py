@@ -20,8 +20,8 @@ from crash_runs import wait_polling
 from daq_processes import ROOT, furnace_daq, start_simplc, stop
 from faultproxy import ThreadedFaultProxy
 
-from furnace_model.logread import read_messages
-from furnace_model.logschema import DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
 
 PERIOD_S, TIMEOUT_S, BACKOFF_CAP_S = 0.1, 0.3, 0.5
 BACK_WITHIN_S = 2 * BACKOFF_CAP_S + TIMEOUT_S + PERIOD_S

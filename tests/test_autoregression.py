@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from furnace_model.autoregression import fit_ar
-from furnace_model.uncertainty import from_jacobian
+from furnace_model.identification.autoregression import fit_ar
+from furnace_model.identification.uncertainty import from_jacobian
 
 
 def _ar1(phi: float, n: int, seed: int) -> np.ndarray:

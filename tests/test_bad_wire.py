@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 from furnace_daq.registers import DATA_TYPES, ORDERS, Point, decode, encode
 from furnace_daq.simplc import SimPLC
-from furnace_model.scenario import load_scenario
+from furnace_model.simulation.scenario import load_scenario
 
 # -- register decoding: every type x word order x byte order --------------------------------
 

@@ -10,8 +10,8 @@ import can
 from daq_processes import SCENARIO, config, messages, sim, start_daemon
 
 from furnace_daq.simplc import SimPLC, flame_frame
-from furnace_model.logschema import BURNERS, DAQ_EVENTS
-from furnace_model.scenario import load_scenario
+from furnace_model.log.schema import BURNERS, DAQ_EVENTS
+from furnace_model.simulation.scenario import load_scenario
 
 
 def burner_messages(log_dir, source):

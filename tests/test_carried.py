@@ -1,4 +1,4 @@
-"""The error a fit's parameter uncertainty carries onto held-out records (furnace_model.carried),
+"""The error a fit's parameter uncertainty carries onto held-out records (furnace_model.identification.carried),
 on records with known truth: the fitted model against the true one on the same held-out
 heat-up, the initial state and offsets of each estimated from that heat-up alike."""
 
@@ -9,14 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from furnace_model.carried import carried_error
 from furnace_model.diagnosis import diagnose
+from furnace_model.diagnosis.cases import case_rng, draw_case, network_truth
 from furnace_model.diagnosis.credit import CARRIED_Z
-from furnace_model.fit import Model, fit
-from furnace_model.furnace import PAPER, load_furnace
-from furnace_model.noisefloor import pooled_floor, record_floor
-from furnace_model.selfcheck import case_rng, draw_case, network_truth
-from furnace_model.structure import ModelStructure
+from furnace_model.identification.carried import carried_error
+from furnace_model.identification.fit import fit
+from furnace_model.identification.model import Model
+from furnace_model.identification.noisefloor import pooled_floor, record_floor
+from furnace_model.simulation.furnace import PAPER
+from furnace_model.simulation.furnacefile import load_furnace
+from furnace_model.simulation.structure import ModelStructure
 
 ROOT = Path(__file__).resolve().parent.parent
 SIX = load_furnace(ROOT / "config/furnaces/six-zone.yaml")

@@ -15,7 +15,7 @@ from daq_processes import ROOT, config, free_port, sim, start_simplc, stop
 
 from furnace_daq.check import check, format_report
 from furnace_daq.simplc import SimPLC
-from furnace_model.scenario import load_scenario
+from furnace_model.simulation.scenario import load_scenario
 
 KEYS = ["thermocouples.soak_1", "thermocouples.soak_2", "thermocouples.heat_1",
         "thermocouples.heat_2", "thermocouples.preheat_1", "thermocouples.preheat_2", "ambient",

@@ -188,13 +188,13 @@ def test_no_option_that_takes_several_values_precedes_a_positional():
 
 def test_the_names_checked_before_loading_are_the_librarys():
     from furnace_model.cli.selfcheck import _label
+    from furnace_model.diagnosis.cases import NOISE as LIBRARY_NOISE
+    from furnace_model.diagnosis.cases import OUT_OF_LIBRARY as LIBRARY_OOL
+    from furnace_model.diagnosis.cases import parse_label
     from furnace_model.effects import BUILT_IN as LIBRARY_EFFECTS
-    from furnace_model.fit import METHODS as LIBRARY_METHODS
-    from furnace_model.parameters import BASELINE
-    from furnace_model.selfcheck import NOISE as LIBRARY_NOISE
-    from furnace_model.selfcheck import OUT_OF_LIBRARY as LIBRARY_OOL
-    from furnace_model.selfcheck import parse_label
-    from furnace_model.structure import ModelStructure
+    from furnace_model.identification.fit import METHODS as LIBRARY_METHODS
+    from furnace_model.simulation.parameters import BASELINE
+    from furnace_model.simulation.structure import ModelStructure
 
     assert tuple(LIBRARY_EFFECTS) == EFFECTS
     assert OUT_OF_LIBRARY == LIBRARY_OOL

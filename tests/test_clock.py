@@ -12,8 +12,8 @@ import pytest
 from daq_processes import config, sim, start_daemon
 
 from furnace_daq.logclock import LogClock
-from furnace_model.logread import read_messages
-from furnace_model.logschema import DAQ_EVENTS, THERMOCOUPLES
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import DAQ_EVENTS, THERMOCOUPLES
 
 PERIOD, SPEED, DURATION = 0.05, 600, 2.4
 HOUR = 3600 * 10**9

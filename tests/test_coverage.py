@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 
 from furnace_daq.refit import FitJob, run_fit
-from furnace_model.fit import fit
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.plant import Plant
-from furnace_model.scenario import SensorSpec, load_scenario
+from furnace_model.identification.fit import fit
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import SensorSpec, load_scenario
 
 NOISE = {
     "white": SensorSpec(noise_sd_c=1.5, bias_sd_c=0.5),

@@ -26,8 +26,8 @@ from mcap.reader import make_reader
 from furnace_daq.logrecover import lock_log_dir, recover_leftovers
 from furnace_daq.mcaplog import LogWriter
 from furnace_model.errors import DataError
-from furnace_model.logread import read_messages
-from furnace_model.logsalvage import has_footer
+from furnace_model.log.read import read_messages
+from furnace_model.log.salvage import has_footer
 
 T0 = 1_772_431_200 * 10**9
 

@@ -15,10 +15,10 @@ import yaml
 from daq_processes import ROOT, SCENARIO, start_simplc, stop
 
 from furnace_model import SENSORS, ZONES
-from furnace_model.logread import read_messages
-from furnace_model.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 PERIOD, DURATION, SPEED = 0.05, 5.0, 600.0
 

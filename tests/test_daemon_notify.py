@@ -10,8 +10,8 @@ import time
 from daq_processes import ROOT, free_port, furnace_daq
 
 from furnace_daq.sdnotify import Notifier
-from furnace_model.logread import read_messages
-from furnace_model.logschema import DAQ_STATUS
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import DAQ_STATUS
 
 
 def test_notify_watchdog_and_sigterm(tmp_path):

@@ -17,9 +17,9 @@ from logcheck import check_files
 
 from furnace_daq.logmeta import read_metadata
 from furnace_model import ZONES
-from furnace_model.logread import read_messages
-from furnace_model.logschema import MODEL_PARAMETERS, PARAM_NAMES
-from furnace_model.parameters import PAPER_TABLE_V
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import MODEL_PARAMETERS, PARAM_NAMES
+from furnace_model.simulation.parameters import PAPER_TABLE_V
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = ROOT / "tests" / "data" / "demo_quick.yaml"

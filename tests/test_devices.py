@@ -44,8 +44,8 @@ from furnace_daq.sources import ModbusSource, SourceError
 from furnace_model import SENSORS
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
-from furnace_model.logschema import DAQ_STATUS, THERMOCOUPLES
-from furnace_model.scenario import load_scenario
+from furnace_model.log.schema import DAQ_STATUS, THERMOCOUPLES
+from furnace_model.simulation.scenario import load_scenario
 
 EXAMPLE = ROOT / "config" / "devices.yaml"
 NEW_TYPES = ("int64", "uint64", "float64", "float16")

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from furnace_model.diagnosis.cases import draw_case
 from furnace_model.experiment import write_table
-from furnace_model.selfcheck import draw_case
 
 ROOT = Path(__file__).resolve().parent.parent
 

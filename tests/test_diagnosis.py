@@ -27,18 +27,18 @@ from furnace_model.diagnosis import (
     run_task,
     split,
 )
+from furnace_model.diagnosis.cases import case_rng, draw_case
 from furnace_model.diagnosis.search import _determined
 from furnace_model.effects import EFFECTS, Clues, FuelChange, Radiation, SensorDrift, ZoneBurners
 from furnace_model.effects.zone_burners import soak_only_heads
 from furnace_model.errors import FurnaceError
 from furnace_model.experiment import Experiment
-from furnace_model.fit import Model
-from furnace_model.noisefloor import pooled_floor, record_floor
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.plant import Plant
-from furnace_model.scenario import SensorSpec
-from furnace_model.selfcheck import case_rng, draw_case
-from furnace_model.structure import Inputs, ModelStructure
+from furnace_model.identification.model import Model
+from furnace_model.identification.noisefloor import pooled_floor, record_floor
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import SensorSpec
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 QUICK = ("zone_burners", "sensor_lag", "zone_losses", "fuel_change")
 CONTRACT_KEYS = {"baseline", "where", "candidates", "verdict"}

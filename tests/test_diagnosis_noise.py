@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from furnace_model.diagnosis import diagnose
-from furnace_model.selfcheck import case_rng, check, draw_case
+from furnace_model.diagnosis.cases import case_rng, draw_case
+from furnace_model.diagnosis.selfcheck import check
 
 QUICK = ("zone_burners", "sensor_lag", "zone_losses", "fuel_change")
 

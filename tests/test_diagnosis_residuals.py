@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 
 from furnace_model.diagnosis import Located, locate, where_lines
-from furnace_model.experiment import Experiment
-from furnace_model.noisefloor import record_floor
-from furnace_model.residuals import (
+from furnace_model.diagnosis.residuals import (
     error_spans,
     regime,
     residual_tests,
     sensor_faults,
     sudden_change,
 )
+from furnace_model.experiment import Experiment
+from furnace_model.identification.noisefloor import record_floor
 
 
 def _experiment(rng, n=3000, noise=(1.5, 1.0, 2.0), truth=None, burners=None) -> Experiment:

@@ -18,10 +18,10 @@ from furnace_model.effects import (
     ZoneBurners,
     ZoneLosses,
 )
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.plant import Plant
-from furnace_model.scenario import SensorSpec, load_scenario
-from furnace_model.structure import Inputs, ModelStructure
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import SensorSpec, load_scenario
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 X0 = np.full(3, 30.0)
 T = np.arange(0.0, 4001.0, 1.0)

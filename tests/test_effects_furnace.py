@@ -13,10 +13,11 @@ import pytest
 
 from furnace_model.effects import EFFECTS
 from furnace_model.errors import ConfigError, FurnaceError
-from furnace_model.furnace import PAPER, load_furnace
-from furnace_model.network import parameters
-from furnace_model.scenario import load_scenario
-from furnace_model.structure import Inputs, ModelStructure
+from furnace_model.simulation.furnace import PAPER
+from furnace_model.simulation.furnacefile import load_furnace
+from furnace_model.simulation.network import parameters
+from furnace_model.simulation.scenario import load_scenario
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 ROOT = Path(__file__).resolve().parent.parent
 SIX = load_furnace(ROOT / "config/furnaces/six-zone.yaml")
@@ -33,7 +34,7 @@ def _heatup(furnace):
 def _values(structure):
     """The selfcheck's network for the furnace (a heat-up to some hundreds of °C), the
     effects at their defaults."""
-    from furnace_model.selfcheck import network_truth
+    from furnace_model.diagnosis.cases import network_truth
 
     return {**{p.name: p.default for p in structure.params},
             **network_truth(structure.furnace)}
@@ -175,7 +176,7 @@ def test_a_furnace_with_every_zone_losing_heat_refuses_zone_losses():
 
 def test_diagnose_refuses_an_effect_that_cannot_apply_by_name():
     from furnace_model.diagnosis import diagnose
-    from furnace_model.selfcheck import case_rng, draw_case
+    from furnace_model.diagnosis.cases import case_rng, draw_case
 
     case = draw_case(None, case_rng(0, "none", 0), furnace=SIX)
     with pytest.raises(FurnaceError, match="zone_burners does not apply to furnace 'six-zone'"):
@@ -186,9 +187,9 @@ def test_the_equations_least_squares_find_a_zone_affine_effect_with_the_network(
     """A loss from one zone of six: the integrated equations put the loss in that zone,
     with the network's parameters, where the fit of a candidate from scratch starts; an
     effect that adds states keeps its defaults."""
+    from furnace_model.diagnosis.cases import case_rng, draw_case, network_truth
     from furnace_model.diagnosis.fitting import structure_of
-    from furnace_model.equationerror import equation_error
-    from furnace_model.selfcheck import case_rng, draw_case, network_truth
+    from furnace_model.identification.equationerror import equation_error
 
     case = draw_case("zone_losses", case_rng(0, "zone_losses", 0), furnace=SIX)
     g = case.truth["zone_losses"]["g_heat_bottom"]
@@ -208,8 +209,9 @@ def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_three(tmp_path):
     -0.0126 °C/min from minute 1562 of each heat-up; its pairs show it, the diagnosis names
     it, the report and the JSON name the furnace's zones."""
     from furnace_model.diagnosis import diagnose
+    from furnace_model.diagnosis.cases import case_rng, draw_case
+    from furnace_model.diagnosis.selfcheck import judge_case
     from furnace_model.report import write_report
-    from furnace_model.selfcheck import case_rng, draw_case, judge_case
 
     case = draw_case("sensor_drift", case_rng(0, "sensor_drift", 0), furnace=SIX)
     assert case.truth["sensor_drift"]["sensor"] == "heat_top_3"
@@ -234,7 +236,7 @@ def test_a_lone_thermocouples_drift_is_started_across_the_record():
     held-out gap closed). Started across the record, it finds the drift."""
     from furnace_model.diagnosis.fitting import Task, run_task
     from furnace_model.diagnosis.holdout import split
-    from furnace_model.selfcheck import selfcheck_case
+    from furnace_model.diagnosis.selfcheck import selfcheck_case
 
     case = selfcheck_case("sensor_drift", 9, furnace=SIX)
     truth = case.truth["sensor_drift"]
@@ -262,7 +264,7 @@ def test_a_large_drift_of_one_of_a_pair_is_found_whichever_its_partner_blamed():
     readings for the network's start, and either sign tried, it finds the drift."""
     from furnace_model.diagnosis.fitting import Task, run_task
     from furnace_model.diagnosis.holdout import split
-    from furnace_model.selfcheck import selfcheck_case
+    from furnace_model.diagnosis.selfcheck import selfcheck_case
 
     case = selfcheck_case("sensor_drift", 7, furnace=SIX)
     truth = case.truth["sensor_drift"]
@@ -285,7 +287,7 @@ def test_a_lag_whose_fit_has_side_valleys_is_named():
     valley with its offsets on their bounds; from the free optimum, which is physical here,
     it reaches the floor, and the gap is explained by the lag at its true time constant."""
     from furnace_model.diagnosis import diagnose
-    from furnace_model.selfcheck import judge_case, selfcheck_case
+    from furnace_model.diagnosis.selfcheck import judge_case, selfcheck_case
 
     case = selfcheck_case("sensor_lag", 2, furnace=SIX)
     d = diagnose(case.fit, case.holdout, effects=("sensor_lag", "dead_time"))
@@ -303,7 +305,8 @@ def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_a_zone_of_one():
     gap in every zone; the drift fitted on that thermocouple closes it, and the JSON names
     the furnace's zones."""
     from furnace_model.diagnosis import diagnose
-    from furnace_model.selfcheck import case_rng, draw_case, judge_case
+    from furnace_model.diagnosis.cases import case_rng, draw_case
+    from furnace_model.diagnosis.selfcheck import judge_case
 
     case = draw_case("sensor_drift", case_rng(0, "sensor_drift", 4), furnace=SIX)
     assert case.truth["sensor_drift"]["sensor"] == "preheat_bottom_1"
@@ -323,7 +326,7 @@ def test_six_zone_selfcheck_rows(label):
     """Issue 19's acceptance on the six-zone furnace, two draws a row (docs/diagnosis.md
     has ten): controls no_gap, a wall in one zone, losses in one zone, own-zone burners, a
     lagging and a drifting thermocouple named."""
-    from furnace_model.selfcheck import check
+    from furnace_model.diagnosis.selfcheck import check
 
     outcomes = check([label], 2, furnace=SIX)
     wrong = [f"{o.draw}: {o.reason}; {o.description}" for o in outcomes if not o.correct]

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from furnace_model.errors import DataError
-from furnace_model.experiment import load_experiment
+from furnace_model.records import load_experiment
 
 HEADER = ("t_min,tc_soak_1,tc_soak_2,tc_heat_1,tc_heat_2,tc_preheat_1,tc_preheat_2,"
           "burners_soak,burners_heat,burners_preheat,t_air")

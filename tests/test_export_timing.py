@@ -16,9 +16,9 @@ from furnace_daq.daqconfig import RefitConfig
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.plantlog import run_messages, write_run
 from furnace_daq.refit import cut_window
-from furnace_model.experiment import load_experiment
-from furnace_model.fit import fit
-from furnace_model.logresample import Resampler
+from furnace_model.identification.fit import fit
+from furnace_model.log.resample import Resampler
+from furnace_model.records import load_experiment
 
 SHIFT = pd.Timedelta(seconds=20)
 

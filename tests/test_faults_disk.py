@@ -39,9 +39,9 @@ from furnace_daq.mcaplog import LogWriter
 from furnace_daq.sdnotify import Notifier
 from furnace_daq.simplc import SimPLC
 from furnace_model.config import Node
-from furnace_model.logread import read_messages
-from furnace_model.logschema import DAQ_EVENTS, DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
-from furnace_model.scenario import load_scenario
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import DAQ_EVENTS, DAQ_STATUS, MODEL_PARAMETERS, THERMOCOUPLES
+from furnace_model.simulation.scenario import load_scenario
 
 WARM, BROKEN, AFTER = 0.6, 1.2, 1.0
 RETRY_S = 5.0  # LogWriter's default retry interval after a failure

@@ -15,8 +15,8 @@ from daq_processes import ROOT, config, free_port, messages, plant_readings, sim
 from furnace_daq.daqconfig import parse_config
 from furnace_model import SENSORS
 from furnace_model.config import Node
-from furnace_model.logread import read_messages
-from furnace_model.logschema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
 
 
 def test_down_at_start_then_dropped_then_back(tmp_path):

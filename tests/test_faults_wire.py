@@ -17,7 +17,7 @@ from daq_processes import config, messages, plant_readings, sim, start_daemon
 from faultproxy import FaultProxy
 
 from furnace_model import SENSORS
-from furnace_model.logschema import DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model.log.schema import DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
 
 PERIOD, TIMEOUT, BACKOFF_CAP = 0.05, 0.2, 0.4  # as daq_processes.config sets them
 WARM, FAULT, AFTER = 0.6, 1.0, 1.0

@@ -10,12 +10,13 @@ from heatups import TC_SD, ZONE_SD, heat_up
 
 from furnace_model.effects import SensorDrift
 from furnace_model.experiment import Experiment
-from furnace_model.fit import WarmStart, fit, score
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.plant import Plant
-from furnace_model.scenario import SensorSpec, load_scenario
-from furnace_model.structure import Inputs, ModelStructure
-from furnace_model.uncertainty import from_jacobian
+from furnace_model.identification.fit import WarmStart, fit
+from furnace_model.identification.model import score
+from furnace_model.identification.uncertainty import from_jacobian
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import SensorSpec, load_scenario
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 
 def combination_truth(name: str, truth: dict) -> float:
@@ -328,7 +329,7 @@ def test_criteria_reproduce_the_published_matlab_example():
     """MATLAB's aic and fpe pages fit iddata1 (300 samples, one output) and publish
     MSE 1.6575, nAIC 0.5453, AIC 1015.0, AICc 1015.3, BIC 1037.2, FPE 1.7252: all five follow
     from np = 6 estimated values."""
-    from furnace_model.criteria import criteria
+    from furnace_model.identification.criteria import criteria
 
     e = np.random.default_rng(0).normal(size=(300, 1))
     e *= np.sqrt(1.6575 / np.mean(e * e))
@@ -342,7 +343,7 @@ def test_criteria_reproduce_the_published_matlab_example():
 
 
 def test_criteria_with_missing_readings_use_the_readings_present():
-    from furnace_model.criteria import criteria
+    from furnace_model.identification.criteria import criteria
 
     rng = np.random.default_rng(1)
     e = rng.normal(size=(2000, 3)) * [1.0, 2.0, 0.5]
@@ -369,9 +370,9 @@ def test_why_the_search_stopped_and_after_how_many_iterations(paper_1min):
     assert (warm.stop_reason, warm.generations) == ("converged", 0)
     ga = fit([paper_1min], method="ga", generations=15)
     assert (ga.stop_reason, ga.iterations, ga.generations) == ("ga_generations", 0, 15)
-    from furnace_model.fit import _Problem
+    from furnace_model.identification.problem import Problem
 
-    prob = _Problem([paper_1min], ModelStructure(), {}, {})
+    prob = Problem([paper_1min], ModelStructure(), {}, {})
     start = prob.start(prob.to_z(np.array([PAPER_TABLE_V[n] for n in prob.names])) + 0.3)
     short = prob.polish(start, None, max_iter=2)
     assert (short.reason, short.iterations) == ("iteration_limit", 2)

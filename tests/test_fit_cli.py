@@ -212,10 +212,10 @@ def test_a_parameter_beyond_its_range_is_flagged_on_the_bound(tmp_path):
     """The furnace's c is 3e-5, the search range of c starts at 1e-4: the fit ends on the
     edge, and says so instead of printing 1e-4 as c's value."""
     from furnace_model.experiment import write_table
-    from furnace_model.parameters import PAPER_TABLE_V
-    from furnace_model.plant import Plant
-    from furnace_model.scenario import load_scenario
-    from furnace_model.structure import ModelStructure
+    from furnace_model.simulation.parameters import PAPER_TABLE_V
+    from furnace_model.simulation.plant import Plant
+    from furnace_model.simulation.scenario import load_scenario
+    from furnace_model.simulation.structure import ModelStructure
 
     scn = load_scenario(ROOT / "config/scenarios/paper_exp1.yaml")
     truth = {**PAPER_TABLE_V, "c": 3e-5, "f": 0.12}  # f lower: still a heat-up, not a melt

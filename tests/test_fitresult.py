@@ -10,11 +10,12 @@ from heatups import heat_up
 
 from furnace_model.effects import SensorDrift
 from furnace_model.errors import FurnaceError
-from furnace_model.fit import Model, Refinement, fit
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.scenario import SensorSpec
-from furnace_model.scores import zone_metrics
-from furnace_model.structure import ModelStructure
+from furnace_model.identification.fit import fit
+from furnace_model.identification.model import Model, Refinement
+from furnace_model.identification.scores import zone_metrics
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.scenario import SensorSpec
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 BIAS = [3.0, 1.0, -2.0, -4.0, 0.5, 1.5]  # per thermocouple: zone offsets 2, -3, 1
 
@@ -32,7 +33,7 @@ def biased():
 def test_own_records_are_predicted_as_the_fit_scored_them(biased):
     a, b, res = biased
     for j, exp in enumerate((a, b)):
-        run = ModelStructure().simulate(res.params, exp.inputs(), exp.t_min, res.x0[j][None])
+        run = ModelStructure().simulate(res.params, Inputs.of(exp), exp.t_min, res.x0[j][None])
         np.testing.assert_allclose(res.predict(j), run.zones[0] + res.offsets(j), rtol=1e-12)
         # x0 given, offsets not: the furnace as unbiased thermocouples would read it
         np.testing.assert_allclose(res.predict(exp, res.x0[j]), run.zones[0], rtol=1e-12)
@@ -106,7 +107,7 @@ def test_held_offsets_are_kept_and_read(biased):
     span = a.between(2000.0, 2600.0)
     held = res.refine([span], free=("f",), offsets=[res.offsets(0)])
     np.testing.assert_array_equal(held.offsets(0), res.offsets(0))
-    run = ModelStructure().simulate(held.params, span.inputs(), span.t_min, held.x0[0][None])
+    run = ModelStructure().simulate(held.params, Inputs.of(span), span.t_min, held.x0[0][None])
     np.testing.assert_allclose(held.predict(0), run.zones[0] + res.offsets(0), rtol=1e-12)
 
 

@@ -26,8 +26,8 @@ from furnace_daq.fleet.engine import open_client, prepare_worker
 from furnace_daq.fleet.jobs import run_diagnose, run_refit, run_selfcheck, segment_bounds
 from furnace_model.config import parse_yaml
 from furnace_model.errors import ConfigError
-from furnace_model.furnace import PAPER
-from furnace_model.logschema import PARAM_NAMES
+from furnace_model.log.schema import PARAM_NAMES
+from furnace_model.simulation.furnace import PAPER
 
 ROOT = Path(__file__).resolve().parents[1]
 START = pd.Timestamp("2026-03-02T00:00:00Z")
@@ -134,7 +134,7 @@ def test_plug_in_effects_load_in_the_workers(local):
 
 @pytest.mark.slow
 def test_selfcheck_draws_as_tasks_give_the_selfchecks_cases(local, tmp_path):
-    from furnace_model.selfcheck import check
+    from furnace_model.diagnosis.selfcheck import check
 
     got, result = run_selfcheck(local["client"], ["none"], 1, tmp_path, first=3, quiet=True)
     (want,) = check(["none"], 1, 0, first=3)
@@ -147,8 +147,8 @@ def test_selfcheck_draws_as_tasks_give_the_selfchecks_cases(local, tmp_path):
 def test_selfcheck_draws_of_another_furnace_are_that_furnaces_cases(local, tmp_path):
     """`fleet selfcheck --furnace`: the draws are heat-ups of that description, the same
     cases as `furnace-model selfcheck --furnace` draws."""
-    from furnace_model.furnace import load_furnace
-    from furnace_model.selfcheck import check
+    from furnace_model.diagnosis.selfcheck import check
+    from furnace_model.simulation.furnacefile import load_furnace
 
     six = load_furnace(ROOT / "config" / "furnaces" / "six-zone.yaml")
     got, result = run_selfcheck(local["client"], ["sensor_lag"], 1, tmp_path, quiet=True,
@@ -416,8 +416,8 @@ def test_a_six_zone_furnace_in_the_fleet_and_a_misfiled_log(local, tmp_path):
     from furnace_daq.logmeta import build_metadata
     from furnace_daq.mcaplog import LogWriter
     from furnace_daq.plantlog import write_run
-    from furnace_model.plant import Plant
-    from furnace_model.scenario import load_scenario
+    from furnace_model.simulation.plant import Plant
+    from furnace_model.simulation.scenario import load_scenario
 
     sc = load_scenario(ROOT / "config" / "scenarios" / "six_zone_heatup.yaml")
     run = Plant.from_scenario(sc, seed=4).run_scenario(sc)

@@ -13,7 +13,7 @@ pytest.importorskip("foxglove.layouts")
 
 from foxglove_layout import layout_json  # noqa: E402
 
-from furnace_model.logschema import LOG, TOPICS  # noqa: E402
+from furnace_model.log.schema import LOG, TOPICS  # noqa: E402
 
 LAYOUT = Path(__file__).resolve().parents[1] / "config" / "foxglove-layout.json"
 

@@ -26,8 +26,8 @@ from furnace_daq.mcaplog import LogWriter
 from furnace_daq.registers import decode
 from furnace_daq.simplc import CAN_ID, SimPLC
 from furnace_model import SENSORS, ZONES
-from furnace_model.logread import read_messages
-from furnace_model.logschema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
 
 SPEED, PERIOD = 600.0, 0.05
 EPOCH_NS = 1_772_431_200 * 10**9  # 2026-03-02T06:00:00Z

@@ -24,8 +24,8 @@ from furnace_daq.liveview import LiveView, LiveViewConfig
 from furnace_daq.mcaplog import LogWriter
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError, FurnaceError
-from furnace_model.logread import read_messages
-from furnace_model.logschema import (
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import (
     AMBIENT,
     BURNERS,
     DAQ_STATUS,

@@ -14,7 +14,7 @@ from furnace_daq.cli import main
 from furnace_daq.logmeta import build_metadata
 from furnace_daq.mcaplog import LogWriter
 from furnace_model import SENSORS
-from furnace_model.experiment import load_experiment
+from furnace_model.records import load_experiment
 
 T0 = 1_772_431_200 * 10**9  # 2026-03-02T06:00:00Z, on a minute
 H0 = T0 + 5 * 86400 * 10**9  # host clock: the simulated PLC runs 100x faster

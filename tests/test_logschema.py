@@ -18,7 +18,7 @@ from furnace_daq.daemon import EVENT_PRIORITY
 from furnace_daq.logmeta import build_metadata, read_metadata, recorded_refit
 from furnace_daq.mcaplog import LogWriter, finished_files
 from furnace_model import SENSORS
-from furnace_model.logschema import (
+from furnace_model.log.schema import (
     AMBIENT,
     DAQ_EVENTS,
     DAQ_STATUS,

@@ -14,8 +14,8 @@ from furnace_model.effects import (
     WallStorage,
     ZoneBurners,
 )
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.structure import Inputs, ModelStructure
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 
 def random_values(structure: ModelStructure, rng: np.random.Generator, P: int) -> dict:

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from daq_processes import SCENARIO, start_simplc, stop
 
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 pytestmark = pytest.mark.skipif(shutil.which("mbpoll") is None,
                                 reason="mbpoll not installed (make system-deps)")

@@ -21,9 +21,10 @@ from furnace_daq.mcaplog import LogWriter
 from furnace_daq.plantlog import write_run
 from furnace_model.cli import main as model_main
 from furnace_model.cli.arguments import LOG_PERIOD_S
-from furnace_model.experiment import Experiment, load_experiment, load_experiments
-from furnace_model.logresample import DEFAULT_PERIOD_S
-from furnace_model.scenario import load_scenario
+from furnace_model.experiment import Experiment
+from furnace_model.log.resample import DEFAULT_PERIOD_S
+from furnace_model.records import load_experiment, load_experiments
+from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 START = pd.Timestamp("2026-03-02T06:00:00Z")

@@ -18,9 +18,9 @@ from mcap.reader import make_reader
 from furnace_daq import mcaplog
 from furnace_daq.mcaplog import LogWriter, finished_files
 from furnace_model import SENSORS
-from furnace_model.logread import read_messages
-from furnace_model.logsalvage import has_footer
-from furnace_model.logschema import TOPICS
+from furnace_model.log.read import read_messages
+from furnace_model.log.salvage import has_footer
+from furnace_model.log.schema import TOPICS
 
 T0 = 1_772_431_200 * 10**9  # 2026-03-02T06:00:00Z
 S = 10**9

@@ -10,16 +10,17 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from furnace_model.equationerror import equation_error
 from furnace_model.errors import ConfigError, DataError, FurnaceError
-from furnace_model.experiment import load_experiment
-from furnace_model.fit import fit
-from furnace_model.furnace import PAPER, load_furnace, parse_furnace
-from furnace_model.lti import Drive, response
-from furnace_model.network import parameter_names
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
-from furnace_model.structure import ModelStructure
+from furnace_model.identification.equationerror import equation_error
+from furnace_model.identification.fit import fit
+from furnace_model.records import load_experiment
+from furnace_model.simulation.furnace import PAPER
+from furnace_model.simulation.furnacefile import load_furnace, parse_furnace
+from furnace_model.simulation.lti import Drive, response
+from furnace_model.simulation.network import parameter_names
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
+from furnace_model.simulation.structure import ModelStructure
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_YAML = ROOT / "config/furnaces/paper.yaml"

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from furnace_model import ZONES
-from furnace_model.noisefloor import limits, pooled_floor, record_floor
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.plant import Plant
-from furnace_model.scenario import SensorSpec
-from furnace_model.structure import Inputs, ModelStructure
+from furnace_model.identification.noisefloor import limits, pooled_floor, record_floor
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import SensorSpec
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 
 def _record(seed: int, n: int = 1500, **sensors) -> tuple:

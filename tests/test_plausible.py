@@ -15,16 +15,17 @@ import pandas as pd
 import pytest
 
 from furnace_model.config import ConfigError
-from furnace_model.fit import fit
-from furnace_model.furnace import PAPER, load_furnace, parse_furnace
-from furnace_model.plausible import (
+from furnace_model.diagnosis.selfcheck import carried_limit, judge_case, selfcheck_case
+from furnace_model.identification.fit import fit
+from furnace_model.identification.plausible import (
     AMBIENT_MARGIN_C,
     sensor_bias_bounds,
     start_band,
     zone_bias_bounds,
 )
-from furnace_model.selfcheck import carried_limit, judge_case, selfcheck_case
-from furnace_model.structure import ModelStructure
+from furnace_model.simulation.furnace import PAPER
+from furnace_model.simulation.furnacefile import load_furnace, parse_furnace
+from furnace_model.simulation.structure import ModelStructure
 
 ROOT = Path(__file__).resolve().parent.parent
 SIX = load_furnace(ROOT / "config/furnaces/six-zone.yaml")

@@ -15,12 +15,13 @@ import pytest
 
 from furnace_model import ZONES
 from furnace_model.diagnosis import diagnose
+from furnace_model.diagnosis.cases import case_rng, draw_case
+from furnace_model.diagnosis.selfcheck import judge_case
 from furnace_model.effects import EFFECTS, FuelChange, Option, plugins
-from furnace_model.parameters import Param
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
-from furnace_model.selfcheck import case_rng, draw_case, judge_case
-from furnace_model.structure import ModelStructure
+from furnace_model.simulation.parameters import Param
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
+from furnace_model.simulation.structure import ModelStructure
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "examples" / "slab_charging"
@@ -87,7 +88,7 @@ def test_a_plug_in_whose_physics_fails_in_a_fit_costs_its_candidate_only(tmp_pat
     path = tmp_path / "fragile.py"
     path.write_text(textwrap.dedent('''
         from furnace_model.effects import Effect
-        from furnace_model.parameters import Param
+        from furnace_model.simulation.parameters import Param
 
         class Fragile(Effect):
             name = "fragile"
@@ -114,7 +115,7 @@ def test_a_plug_in_whose_physics_fails_in_a_fit_costs_its_candidate_only(tmp_pat
 
 GOOD = '''
 from furnace_model.effects import Effect, U_AIR
-from furnace_model.parameters import Param
+from furnace_model.simulation.parameters import Param
 
 class Leak(Effect):
     name = "leak"

@@ -10,12 +10,17 @@ from heatups import ZONE_SD, heat_up
 
 from furnace_model.effects import DeadTime, Radiation, SensorLag, WallStorage
 from furnace_model.errors import FurnaceError
-from furnace_model.fit import Model
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.prediction import _by_free_response, _by_windows, predict_ahead, score_ahead
-from furnace_model.scenario import SensorSpec
-from furnace_model.scores import zone_metrics
-from furnace_model.structure import ModelStructure
+from furnace_model.identification.model import Model
+from furnace_model.identification.prediction import (
+    _by_free_response,
+    _by_windows,
+    predict_ahead,
+    score_ahead,
+)
+from furnace_model.identification.scores import zone_metrics
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.scenario import SensorSpec
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"
 EXACT = SensorSpec(noise_sd_c=0.0, bias_sd_c=0.0)
@@ -47,7 +52,7 @@ def test_hidden_states_restart_from_the_simulation(scenarios):
     exp = heat_up(scenarios, values, 1.0, structure=structure).between(0, 700)
     x0 = exp.zone_temp[0] + np.array([20.0, -10.0, 5.0])  # a simulation the readings correct
     sim = Model(structure, values).predict(exp, x0)
-    states = structure.simulate(values, exp.inputs(), exp.t_min, x0[None], states=True).states[0]
+    states = structure.simulate(values, Inputs.of(exp), exp.t_min, x0[None], states=True).states[0]
     C = structure.system(structure.theta(values)).C[0]
     miss = np.nan_to_num(exp.zone_temp - sim) @ np.linalg.pinv(C).T
     for k in (1, 6):

@@ -7,11 +7,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from furnace_model.fit import WarmStart, fit
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.plant import Plant
-from furnace_model.profile import profile_interval
-from furnace_model.scenario import SensorSpec, load_scenario
+from furnace_model.identification.fit import WarmStart, fit
+from furnace_model.identification.profile import profile_interval
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import SensorSpec, load_scenario
 
 HARDEST = SensorSpec(noise_sd_c=1.5, bias_sd_c=0.5, noise_ar_per_min=0.9, white_sd_c=0.7)
 """test_coverage's hardest thermocouples: low-pass noise with white noise on top."""

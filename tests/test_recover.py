@@ -18,7 +18,7 @@ from furnace_daq.cli import main
 from furnace_daq.logrecover import default_output, recover
 from furnace_daq.mcaplog import LogWriter
 from furnace_model.errors import DataError
-from furnace_model.logsalvage import has_footer, salvage
+from furnace_model.log.salvage import has_footer, salvage
 
 T0 = 1_772_431_200 * 10**9
 S = 10**9

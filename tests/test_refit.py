@@ -21,8 +21,9 @@ from furnace_daq.statefile import write_json_atomic
 from furnace_model import ZONES
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
-from furnace_model.fit import WarmStart, fit
-from furnace_model.logschema import MODEL_PARAMETERS, PARAM_NAMES
+from furnace_model.identification.fit import WarmStart, fit
+from furnace_model.log.schema import MODEL_PARAMETERS, PARAM_NAMES
+from furnace_model.simulation.structure import Inputs
 
 HOUR = 3600.0
 
@@ -300,17 +301,17 @@ def _recent_f_one_step(res, exp, from_min):
     """The recent span's f as one least-squares step of f and the span's starting
     temperatures, the window's offsets held: the model is affine in both, so this is the
     exact minimum the refinement has to reach."""
-    from furnace_model.structure import ModelStructure
+    from furnace_model.simulation.structure import ModelStructure
 
     span = exp.between(from_min, np.inf)
     structure = ModelStructure()
     params = dict(res.params)
-    states = structure.simulate(params, exp.inputs(), exp.t_min, res.x0[0][None],
+    states = structure.simulate(params, Inputs.of(exp), exp.t_min, res.x0[0][None],
                                 states=True).states[0]
     x = states[np.searchsorted(exp.t_min, span.t_min[0])]
 
     def run(values, x):
-        return structure.simulate(values, span.inputs(), span.t_min, x[None]).zones[0]
+        return structure.simulate(values, Inputs.of(span), span.t_min, x[None]).zones[0]
 
     base = run(params, x)
     cols = [run({**params, "f": 2 * params["f"]}, x) - base]

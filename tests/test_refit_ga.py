@@ -10,8 +10,8 @@ from refit_helpers import scenario, simulate, through_pipeline
 from furnace_daq.daqconfig import RefitConfig
 from furnace_daq.plantlog import run_messages
 from furnace_daq.refit import RefitChain, WindowCutter
-from furnace_model.logschema import PARAM_NAMES
-from furnace_model.structure import ModelStructure
+from furnace_model.log.schema import PARAM_NAMES
+from furnace_model.simulation.structure import ModelStructure
 
 HOUR = 3600.0
 GA = RefitConfig(period_s=2 * HOUR, window_s=4 * HOUR, method="ga", population=12,

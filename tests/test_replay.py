@@ -33,8 +33,8 @@ from furnace_daq.logmeta import read_metadata, recorded_refit
 from furnace_daq.replay import replay
 from furnace_daq.simplc import SimPLC
 from furnace_model.config import Node
-from furnace_model.logread import read_messages
-from furnace_model.logschema import (
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import (
     AMBIENT,
     BURNERS,
     DAQ_STATUS,
@@ -44,7 +44,7 @@ from furnace_model.logschema import (
     THERMOCOUPLES,
     time_ns,
 )
-from furnace_model.scenario import load_scenario
+from furnace_model.simulation.scenario import load_scenario
 
 SCENARIO = ROOT / "config" / "scenarios" / "week_steps.yaml"
 PERIOD = 0.05          # one poll per two simulated minutes at 2400x

@@ -19,8 +19,8 @@ from furnace_model.diagnosis import (
     rmse_per_zone,
     score_against,
 )
+from furnace_model.diagnosis.cases import draw_case
 from furnace_model.report import write_report
-from furnace_model.selfcheck import draw_case
 
 
 class _Page(HTMLParser):

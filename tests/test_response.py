@@ -8,11 +8,11 @@ import pytest
 
 from furnace_model import SENSORS, ZONES
 from furnace_model.effects import SensorDrift, SensorLag, WallStorage
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.plant import Plant
-from furnace_model.response import Response
-from furnace_model.scenario import SensorSpec
-from furnace_model.structure import Inputs, ModelStructure
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.response import Response
+from furnace_model.simulation.scenario import SensorSpec
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 INPUTS = Inputs(np.array([0.0, 60.0, 200.0]), np.array([[4, 0, 0], [9, 3, 0], [2, 0, 0.0]]),
                 np.full(3, 30.0))

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from furnace_model.errors import ConfigError
-from furnace_model.parameters import PAPER_TABLE_V, ThermalRC
-from furnace_model.scenario import load_scenario
+from furnace_model.simulation.parameters import PAPER_TABLE_V, ThermalRC
+from furnace_model.simulation.scenario import load_scenario
 
 
 def test_paper_experiment_1(scenarios):

@@ -42,9 +42,9 @@ from furnace_daq.writeback import (
 )
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
-from furnace_model.logread import read_messages
-from furnace_model.logschema import MODEL_PARAMETERS, THERMOCOUPLES
-from furnace_model.scenario import load_scenario
+from furnace_model.log.read import read_messages
+from furnace_model.log.schema import MODEL_PARAMETERS, THERMOCOUPLES
+from furnace_model.simulation.scenario import load_scenario
 
 # -- (a) the daemon only reads ----------------------------------------------------------------
 

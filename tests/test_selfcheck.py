@@ -12,19 +12,11 @@ import numpy as np
 import pytest
 
 from furnace_model import SENSORS, ZONES
+from furnace_model.diagnosis.cases import OUT_OF_LIBRARY, draw_case, parse_label
+from furnace_model.diagnosis.selfcheck import ABSORBED_REASON, Outcome, check, summarize, table
 from furnace_model.effects import EFFECTS
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.selfcheck import (
-    ABSORBED_REASON,
-    OUT_OF_LIBRARY,
-    Outcome,
-    check,
-    draw_case,
-    parse_label,
-    summarize,
-    table,
-)
-from furnace_model.structure import ModelStructure
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 
 def _rng(seed: int = 0) -> np.random.Generator:
@@ -60,7 +52,7 @@ def test_same_seed_same_case_and_different_seeds_differ():
 
 def test_control_is_the_paper_model_plus_sensor_noise():
     exp = draw_case(None, _rng(2)).fit[0]
-    model = ModelStructure().simulate(PAPER_TABLE_V, exp.inputs(), exp.t_min,
+    model = ModelStructure().simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min,
                                       np.full(3, exp.t_air[0])).zones[0]
     resid = exp.zone_temp - model
     # zone mean of two thermocouples: noise 1.5/sqrt(2), plus a bias of sd 0.5/sqrt(2)
@@ -82,11 +74,11 @@ def test_every_effect_changes_the_furnace_and_records_its_truth(name, form):
     values = {**PAPER_TABLE_V, **{p.name: truth[p.name] for p in effect.params}}
     exp = case.fit[0]
     x0 = np.full(3, exp.t_air[0])
-    model = structure.simulate(values, exp.inputs(), exp.t_min, x0).zones[0]
+    model = structure.simulate(values, Inputs.of(exp), exp.t_min, x0).zones[0]
     drift = structure.sensor_offsets(values, exp.t_min)[0].reshape(-1, 3, 2).mean(axis=2)
     resid = exp.zone_temp - model - drift
     assert np.all(np.abs(resid.std(axis=0) - 1.5 / np.sqrt(2)) < 0.1)
-    base = ModelStructure().simulate(PAPER_TABLE_V, exp.inputs(), exp.t_min, x0).zones[0]
+    base = ModelStructure().simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min, x0).zones[0]
     assert np.max(np.abs(model + drift - base)) > 3.0
     assert np.nanmax(exp.tc) < 1400.0
 
@@ -108,7 +100,7 @@ def test_door_open_cools_its_zone_for_an_hour():
     assert case.expected_status == "unexplained"
     z = ZONES.index(door["zone"])
     for j, exp in enumerate(case.fit + case.holdout):
-        clean = ModelStructure().simulate(PAPER_TABLE_V, exp.inputs(), exp.t_min,
+        clean = ModelStructure().simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min,
                                           np.full(3, exp.t_air[0])).zones[0]
         gap = clean[:, z] - exp.zone_temp[:, z]
         t_open = door["t_open"][j]

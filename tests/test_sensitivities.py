@@ -18,11 +18,11 @@ from furnace_model.effects import (
     SensorLag,
     ZoneBurners,
 )
-from furnace_model.fit import _Problem
-from furnace_model.parameters import PAPER_TABLE_V
-from furnace_model.plant import Plant
-from furnace_model.scenario import SensorSpec, load_scenario
-from furnace_model.structure import ModelStructure
+from furnace_model.identification.problem import Problem
+from furnace_model.simulation.parameters import PAPER_TABLE_V
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import SensorSpec, load_scenario
+from furnace_model.simulation.structure import Inputs, ModelStructure
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"
 
@@ -55,7 +55,7 @@ CASES = [
 
 def _problem(effects, values, record):
     structure = ModelStructure(effects)
-    prob = _Problem([record], structure, {}, {}, zone_offsets=True)
+    prob = Problem([record], structure, {}, {}, zone_offsets=True)
     v = {**PAPER_TABLE_V, **values}
     z = prob.start(prob.to_z(np.array([v[n] for n in prob.names])))
     z[prob.k:prob.k + 3] += np.array([4.0, -3.0, 2.0])  # off the readings' start
@@ -63,7 +63,7 @@ def _problem(effects, values, record):
     return prob, z
 
 
-def _central(prob: _Problem, z: np.ndarray) -> np.ndarray:
+def _central(prob: Problem, z: np.ndarray) -> np.ndarray:
     cols = []
     for i in range(z.size):
         h = 1e-5 * max(1.0, abs(z[i])) if i < prob.k else 1e-2
@@ -102,7 +102,7 @@ def test_jacobian_agrees_with_central_differences(effects, values, record):
 def test_null_share_is_the_linear_model(record):
     """At zero share the radiation structure is eq. 11: the closed form it takes there is
     what the exponential integrator gives, to rounding."""
-    inputs, t = record.inputs(), record.t_min
+    inputs, t = Inputs.of(record), record.t_min
     x0 = record.zone_temp[0]
     rad = ModelStructure([Radiation()])
     values = {**PAPER_TABLE_V, "rad_share": np.array([0.0, 0.0])}
@@ -120,7 +120,7 @@ def test_first_order_is_the_derivative_at_zero_share(record):
     """simulate_first_order departs from the integrated solution by the square of the
     share (so its difference quotient at zero is the derivative), and its derivative is
     the integrator's to some hundred-thousandths (the two schemes' discretisations)."""
-    inputs, t = record.inputs(), record.t_min
+    inputs, t = Inputs.of(record), record.t_min
     x0 = record.zone_temp[0]
     rad = ModelStructure([Radiation()])
     base = rad.simulate({**PAPER_TABLE_V, "rad_share": 0.0}, inputs, t, x0).zones[0]
@@ -140,7 +140,7 @@ def test_first_order_is_the_derivative_at_zero_share(record):
 
 
 def test_first_order_of_a_linear_set_is_its_response(record):
-    inputs, t = record.inputs(), record.t_min
+    inputs, t = Inputs.of(record), record.t_min
     rad = ModelStructure([Radiation(), SensorLag()])
     v = {**PAPER_TABLE_V, "rad_share": 0.0, "tau_lag": 4.0}
     x0 = record.zone_temp[0]

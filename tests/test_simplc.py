@@ -15,8 +15,8 @@ from pymodbus.client import AsyncModbusTcpClient
 from furnace_daq.registers import decode
 from furnace_daq.servedmap import ServedMap
 from furnace_daq.simplc import CAN_ID, SimPLC, states_from_counts
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 
 async def read_all(client) -> tuple[list[int], list[bool]]:

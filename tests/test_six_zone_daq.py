@@ -33,18 +33,19 @@ from furnace_daq.servedmap import ServedMap
 from furnace_daq.simplc import SimPLC
 from furnace_model.config import Node, parse_yaml
 from furnace_model.errors import ConfigError, DataError
-from furnace_model.experiment import load_experiment, load_experiments
-from furnace_model.furnace import PAPER, load_furnace
-from furnace_model.logread import log_furnace, read_messages
-from furnace_model.logschema import (
+from furnace_model.log.read import log_furnace, read_messages
+from furnace_model.log.schema import (
     AMBIENT,
     BURNERS,
     MODEL_PARAMETERS,
     THERMOCOUPLES,
     param_names,
 )
-from furnace_model.plant import Plant
-from furnace_model.scenario import load_scenario
+from furnace_model.records import load_experiment, load_experiments
+from furnace_model.simulation.furnace import PAPER
+from furnace_model.simulation.furnacefile import load_furnace
+from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SIX_FILE = ROOT / "config" / "furnaces" / "six-zone.yaml"
@@ -296,7 +297,7 @@ def test_the_online_refit_fits_the_network(heatup):
     assert_recovers(msg, msg["ci95"], heatup["scenario"].params)
     from logcheck import validator
 
-    from furnace_model.logschema import topics
+    from furnace_model.log.schema import topics
 
     schema = json.loads(topics(SIX)[MODEL_PARAMETERS].schema_bytes())
     assert list(validator(schema).iter_errors(json.loads(json.dumps(msg)))) == []

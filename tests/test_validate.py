@@ -82,8 +82,8 @@ def test_bad_params_file(fitted, tmp_path, content, expect):
 def test_params_of_an_extended_structure_round_trip(tmp_path):
     from furnace_model.cli.validate import load_params
     from furnace_model.effects import ZoneLosses
-    from furnace_model.fit import FitResult
-    from furnace_model.structure import ModelStructure
+    from furnace_model.identification.result import FitResult
+    from furnace_model.simulation.structure import ModelStructure
 
     structure = ModelStructure([ZoneLosses(zones=("heat",))])
     values = structure.defaults()

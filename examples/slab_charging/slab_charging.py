@@ -13,8 +13,8 @@ examples/slab_charging/slab_charging.py`.
 import numpy as np
 
 from furnace_model.effects import U_AIR, Effect, Option
-from furnace_model.lti import Drive
-from furnace_model.parameters import Param
+from furnace_model.simulation.lti import Drive
+from furnace_model.simulation.parameters import Param
 
 
 class SlabCharging(Effect):

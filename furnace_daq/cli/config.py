@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from furnace_model.furnace import load_furnace
+    from furnace_model.simulation.furnacefile import load_furnace
 
     from ..gatewayconfig import gateway_yaml
 

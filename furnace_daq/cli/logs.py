@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 from furnace_model.cli.arguments import LOG_PERIOD_S, output_file
 from furnace_model.errors import DataError
-from furnace_model.logschema import DAQ_STATUS, THERMOCOUPLES
+from furnace_model.log.schema import DAQ_STATUS, THERMOCOUPLES
 
 if TYPE_CHECKING:
     import numpy as np
@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_info(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from furnace_model.logread import decode, iso_time, open_log
+    from furnace_model.log.read import decode, iso_time, open_log
 
     counts: Counter[str] = Counter()
     tc_times: list[int] = []
@@ -122,7 +122,7 @@ def _print_metadata(files: list[Path]) -> None:
 def _print_gaps(t: np.ndarray) -> None:
     import numpy as np
 
-    from furnace_model.logread import iso_time
+    from furnace_model.log.read import iso_time
 
     if t.size < 3:
         print(f"{THERMOCOUPLES} gaps: too few messages to tell")
@@ -148,8 +148,8 @@ def _duration(s: float) -> str:
 
 def run_export(args: argparse.Namespace) -> int:
     from furnace_model.experiment import write_table
-    from furnace_model.logexperiment import log_files
-    from furnace_model.logresample import parse_time, resample_logs
+    from furnace_model.log.experiment import log_files
+    from furnace_model.log.resample import parse_time, resample_logs
 
     if args.out.suffix.lower() not in (".csv", ".parquet", ".pq"):
         raise DataError(str(args.out), "unsupported output type: use .csv or .parquet")
@@ -167,7 +167,7 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_recover(args: argparse.Namespace) -> int:
-    from furnace_model.logread import iso_time
+    from furnace_model.log.read import iso_time
 
     from ..logrecover import recover
 

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from furnace_model.cli.arguments import output_file
-from furnace_model.logschema import MODEL_EVENTS, MODEL_PARAMETERS, PARAM_NAMES
+from furnace_model.log.schema import MODEL_EVENTS, MODEL_PARAMETERS, PARAM_NAMES
 
 
 def register(sub: argparse._SubParsersAction) -> None:

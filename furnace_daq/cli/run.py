@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from furnace_model.errors import ConfigError, FurnaceError
-from furnace_model.logschema import DAQ_EVENTS
+from furnace_model.log.schema import DAQ_EVENTS
 
 if TYPE_CHECKING:
     from ..journal import Journal

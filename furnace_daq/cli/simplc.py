@@ -65,8 +65,9 @@ def run(args: argparse.Namespace) -> int:
         raise FurnaceError("--serial-port goes with --transport rtu, and only with it")
     import asyncio
 
-    from furnace_model.furnace import PAPER, load_furnace
-    from furnace_model.scenario import load_scenario
+    from furnace_model.simulation.furnace import PAPER
+    from furnace_model.simulation.furnacefile import load_furnace
+    from furnace_model.simulation.scenario import load_scenario
 
     from ..logplayer import LogPlayer
 

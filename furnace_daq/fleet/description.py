@@ -30,7 +30,8 @@ from pathlib import Path
 import pandas as pd
 
 from furnace_model.config import Node, load_yaml
-from furnace_model.furnace import PAPER, Furnace, named_furnace
+from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnacefile import named_furnace
 
 from ..daqconfig import RefitConfig, parse_refit
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from furnace_model.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import PAPER, Furnace
 
 from .description import Fleet, FleetFurnace
 from .progress import Progress
@@ -352,7 +352,7 @@ def run_selfcheck(client, labels: list[str], draws: int, out_dir: Path, *, seed:
                   furnace: Furnace = PAPER) -> tuple[list, JobResult]:
     """Every (label, draw) of the selfcheck as a task; the Outcomes in the order
     `furnace-model selfcheck` reports them."""
-    from furnace_model.selfcheck import Outcome
+    from furnace_model.diagnosis.selfcheck import Outcome
 
     specs = []
     for label in labels:

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from furnace_model.errors import DataError
-from furnace_model.furnace import PAPER, Furnace
-from furnace_model.logschema import THERMOCOUPLES, param_names
+from furnace_model.log.schema import THERMOCOUPLES, param_names
+from furnace_model.simulation.furnace import PAPER, Furnace
 
 from ..daqconfig import RefitConfig
 from .engine import prepare_worker
@@ -38,8 +38,8 @@ the host's within one file. A file is read only by the tasks whose time it may h
 
 def list_files(logs: Sequence[str | Path]) -> list[Path]:
     """The log files of a furnace's `logs:` entries: a directory's files as a log directory
-    is read (`logexperiment.log_files`), a file as named; one directory's files in order."""
-    from furnace_model.logexperiment import log_files
+    is read (`log.experiment.log_files`), a file as named; one directory's files in order."""
+    from furnace_model.log.experiment import log_files
 
     out: list[Path] = []
     for entry in logs:
@@ -66,7 +66,7 @@ def scan_furnace(furnace: str, logs: Sequence[str], description: Furnace = PAPER
     listed in `bad` with the reason (the job reports each as a failure of the furnace, and
     goes on with the rest: one corrupt or misfiled log must not hide a year); a furnace with
     no usable file at all raises DataError naming its files' problems."""
-    from furnace_model.logread import open_log, read_metadata, recorded_furnace
+    from furnace_model.log.read import open_log, read_metadata, recorded_furnace
 
     files = []
     bad: list[str] = []
@@ -131,7 +131,7 @@ def refit_segment(seg: Segment) -> dict:
     """Rows of the refit table and drift events of one segment. The chain starts cold at the
     segment's start: data are read from one window before it, so the first window fitted is
     full; windows ending at or before the start only fill the bins."""
-    from furnace_model.logread import read_messages
+    from furnace_model.log.read import read_messages
 
     from ..refit import RefitChain, WindowCutter
 
@@ -231,7 +231,7 @@ def diagnose_pair(pair: Pair) -> dict:
     import pandas as pd
 
     from furnace_model.diagnosis import diagnose
-    from furnace_model.experiment import load_experiments
+    from furnace_model.records import load_experiments
 
     prepare_worker(pair.effects_from)
     cpu0 = time.process_time()
@@ -279,7 +279,7 @@ class Draw:
 def selfcheck_draw(d: Draw) -> dict:
     """One case of `furnace-model selfcheck` (the same case for the same seed, label, draw
     and noise, whichever worker draws it)."""
-    from furnace_model.selfcheck import check
+    from furnace_model.diagnosis.selfcheck import check
 
     prepare_worker(d.effects_from)
     (outcome,) = check([d.label], 1, d.seed, form=d.form, candidates=d.candidates,

@@ -109,7 +109,8 @@ def add_furnace(parser: argparse.ArgumentParser) -> None:
 
 def furnace_of(args: argparse.Namespace):
     """The furnace --furnace names, checked; the paper's when none is named."""
-    from ..furnace import PAPER, load_furnace
+    from ..simulation.furnace import PAPER
+    from ..simulation.furnacefile import load_furnace
 
     path = getattr(args, "furnace", None)
     return PAPER if path is None else load_furnace(path)
@@ -139,7 +140,7 @@ def preload_effects(argv: list[str]) -> None:
 
 
 LOG_PERIOD_S = 60.0
-"""Default resampling period of logs in seconds (`logresample.DEFAULT_PERIOD_S`, which the
+"""Default resampling period of logs in seconds (`log.resample.DEFAULT_PERIOD_S`, which the
 parsers cannot import without pandas)."""
 
 DATA_HELP = "CSV or Parquet files, MCAP logs (.mcap, .mcap.part) or log directories"
@@ -186,7 +187,7 @@ def add_data_window(parser: argparse.ArgumentParser) -> None:
 
 
 def data_window(args: argparse.Namespace) -> dict:
-    """The keyword arguments of `experiment.load_experiments` that add_data_window's options
+    """The keyword arguments of `records.load_experiments` that add_data_window's options
     give; --from must come before --to."""
     import pandas as pd
 

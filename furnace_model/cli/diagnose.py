@@ -61,7 +61,7 @@ def effect_list(text: str, what: str = "effect") -> tuple[str, ...]:
 
 def run(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose
-    from ..experiment import load_experiments
+    from ..records import load_experiments
 
     window = data_window(args)
     furnace = furnace_of(args)

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import FurnaceError
-from ..parameters import BASELINE
+from ..simulation.parameters import BASELINE
 from .arguments import (
     DATA_HELP,
     add_data_window,
@@ -29,7 +29,7 @@ from .diagnose import effect_list
 from .names import METHODS
 
 if TYPE_CHECKING:
-    from ..fit import FitResult
+    from ..identification.result import FitResult
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -95,7 +95,7 @@ def _param_value(item: str, ranged: bool) -> tuple[str, float | tuple[float, flo
     if not eq or not name:
         raise ValueError(f"expected {'NAME=LO:HI' if ranged else 'NAME=VALUE'}")
     if name not in params and name.startswith(("k_", "loss_", "gain_")):
-        from ..network import EXCHANGE, GAIN, LOSS  # another furnace's: see _ParamValues
+        from ..simulation.network import EXCHANGE, GAIN, LOSS  # another furnace's: see _ParamValues
 
         params[name] = next(k for k in (EXCHANGE, LOSS, GAIN) if name.startswith(f"{k.name}_"))
     if name not in params:
@@ -154,9 +154,9 @@ def run(args: argparse.Namespace) -> int:
 
     from ..effects import EFFECTS
     from ..effects.plugins import guarded
-    from ..experiment import load_experiments
-    from ..fit import fit
-    from ..structure import ModelStructure
+    from ..identification.fit import fit
+    from ..records import load_experiments
+    from ..simulation.structure import ModelStructure
 
     furnace = furnace_of(args)
     try:

@@ -38,10 +38,10 @@ def sync_plugins(installed: bool = False) -> None:
     PLUGGED[:] = [n for n in REGISTERED if n not in EFFECTS]
 
 OUT_OF_LIBRARY: tuple[str, ...] = ("door_open", "tc_reads_low")
-"""`furnace_model.selfcheck.OUT_OF_LIBRARY`: perturbations no candidate expresses."""
+"""`furnace_model.diagnosis.cases.OUT_OF_LIBRARY`: perturbations no candidate expresses."""
 
 NOISE: tuple[str, ...] = ("white", "low-pass", "noisier-holdout")
-"""`furnace_model.selfcheck.NOISE`: the thermocouples a selfcheck case may have."""
+"""`furnace_model.diagnosis.cases.NOISE`: the thermocouples a selfcheck case may have."""
 
 METHODS: tuple[str, ...] = ("fast", "ga")
-"""`furnace_model.fit.METHODS`."""
+"""`furnace_model.identification.fit.METHODS`."""

@@ -27,7 +27,7 @@ from .diagnose import effect_list
 from .names import NOISE, OUT_OF_LIBRARY, effect_names, is_effect
 
 if TYPE_CHECKING:
-    from ..selfcheck import Outcome, Row
+    from ..diagnosis.selfcheck import Outcome, Row
 
 EXTRA = ("zone_burners+sensor_lag", *OUT_OF_LIBRARY)
 
@@ -98,7 +98,7 @@ def _refused(furnace) -> dict[str, str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..selfcheck import check
+    from ..diagnosis.selfcheck import check
 
     labels = labels_of(args)
     outcomes: list[Outcome] = []
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
 
 def report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool) -> list[Row]:
     """Print the table and write --json; the rows, for the acceptance."""
-    from ..selfcheck import summarize, table
+    from ..diagnosis.selfcheck import summarize, table
 
     rows = summarize(outcomes)
     print(table(rows, outcomes))
@@ -160,7 +160,7 @@ def _drawable() -> set[str]:
 
 
 def _label(text: str) -> str:
-    """What `selfcheck.parse_label` accepts, checked without loading the library."""
+    """What `cases.parse_label` accepts, checked without loading the library."""
     parts = text.split("+")
     bad = [p for p in parts if p not in OUT_OF_LIBRARY and not is_effect(p)]
     if text != "none" and (bad or not all(parts)):

@@ -28,8 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..effects.plugins import guarded
     from ..experiment import write_table
-    from ..plant import Plant
-    from ..scenario import load_scenario
+    from ..simulation.plant import Plant
+    from ..simulation.scenario import load_scenario
 
     scenario = load_scenario(args.scenario,
                              None if args.furnace is None else furnace_of(args))

@@ -27,8 +27,8 @@ from .arguments import (
 )
 
 if TYPE_CHECKING:
-    from ..fit import Model
-    from ..structure import ModelStructure
+    from ..identification.model import Model
+    from ..simulation.structure import ModelStructure
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -59,8 +59,8 @@ def load_params(path: Path, furnace=None) -> tuple[dict[str, float], ModelStruct
     `furnace`: the description the parameters are of (the paper's if None); a fit of
     another furnace, by its JSON's `furnace`, is refused."""
     from ..effects import EFFECTS
-    from ..furnace import PAPER
-    from ..structure import ModelStructure
+    from ..simulation.furnace import PAPER
+    from ..simulation.structure import ModelStructure
 
     furnace = furnace or PAPER
     try:
@@ -109,7 +109,7 @@ def load_model(path: Path, furnace=None) -> Model:
     """The model a fit's JSON holds: its parameters, and the thermocouple offsets it carries
     (`offsets_c`; from a file that predates it, its records' `zone_offsets_c` averaged),
     with offsets estimated on new records when the fit estimated them."""
-    from ..fit import Model
+    from ..identification.model import Model
 
     params, structure = load_params(path, furnace)
     doc = json.loads(path.read_text())
@@ -137,8 +137,8 @@ def load_model(path: Path, furnace=None) -> Model:
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from ..experiment import load_experiments
-    from ..scores import zone_metrics
+    from ..identification.scores import zone_metrics
+    from ..records import load_experiments
 
     furnace = furnace_of(args)
     model = load_model(args.params, furnace)
@@ -153,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
     pooled = refined.per_zone if len(experiments) > 1 else next(iter(per_exp.values()))
     ahead_exp, ahead = {}, None
     if k:
-        from ..prediction import score_ahead
+        from ..identification.prediction import score_ahead
 
         ahead_exp, ahead = score_ahead(params, experiments, k, structure, model.zone_offsets,
                                        model.offsets)

@@ -6,7 +6,7 @@ The baseline is eq. 11 fitted with a constant offset per zone and experiment (th
 bias). Held-out data are scored with the model's parameters fixed; only what belongs to the
 record and not to the furnace is estimated on it (initial temperatures, thermocouple
 offsets). The noise floor comes from the data themselves (the thermocouple pairs), record by
-record (furnace_model.noisefloor), so that "no gap" means: the baseline already predicts each
+record (furnace_model.identification.noisefloor), so that "no gap" means: the baseline already predicts each
 held-out record as well as that record's own sensors allow.
 
 One concept per module, each importing only those above it in this list:

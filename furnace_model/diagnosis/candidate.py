@@ -46,7 +46,7 @@ class CandidateResult:
     what the selfcheck holds a `no_gap` to."""
     flags: list[str] = field(default_factory=list)
     """Offsets and initial temperatures of the fitted and held-out records on their
-    physical bounds (`furnace_model.plausible`)."""
+    physical bounds (`furnace_model.identification.plausible`)."""
 
     @property
     def label(self) -> str:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fit import FitResult
+from ..identification.result import FitResult
 from .candidate import CandidateResult
 
 MAX_RATIO = 4.0

@@ -9,17 +9,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..carried import carried_error
 from ..effects import EFFECTS, Effect
-from ..equationerror import equation_error
 from ..experiment import Experiment
-from ..fit import FitResult, Refinement, fit
-from ..furnace import PAPER, Furnace
-from ..noisefloor import pooled_floor, record_floor
-from ..residuals import lag1
-from ..structure import ModelStructure
+from ..identification.carried import carried_error
+from ..identification.equationerror import equation_error
+from ..identification.fit import fit
+from ..identification.model import Refinement
+from ..identification.noisefloor import pooled_floor, record_floor
+from ..identification.result import FitResult
+from ..simulation.furnace import PAPER, Furnace
+from ..simulation.structure import ModelStructure
 from .candidate import CandidateResult
 from .credit import CARRIED_Z, identifiable
+from .residuals import lag1
 
 
 @dataclass

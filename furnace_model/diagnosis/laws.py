@@ -7,7 +7,7 @@ import numpy as np
 
 from ..effects import EFFECTS
 from ..experiment import Experiment
-from ..furnace import PAPER, Furnace
+from ..simulation.furnace import PAPER, Furnace
 from .candidate import CandidateResult
 from .credit import helps
 from .fitting import rmse_per_zone

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..experiment import Experiment
-from ..noisefloor import RecordFloor
-from ..residuals import SUDDEN_WINDOW_MIN, ZONE_WORDS, error_spans, iso, regime, sudden_change
+from ..identification.noisefloor import RecordFloor
+from .residuals import SUDDEN_WINDOW_MIN, ZONE_WORDS, error_spans, iso, regime, sudden_change
 from .words import and_words, zones_words
 
 MIN_SHARE = 0.02
@@ -98,7 +98,7 @@ class WhereLine:
 
 def where_lines(where: list[Located], zones: tuple[str, ...] = ()) -> list[WhereLine]:
     """`zones`: the furnace's, in order (the paper's when not given)."""
-    from ..furnace import PAPER
+    from ..simulation.furnace import PAPER
 
     order = zones or PAPER.zones
     out: list[WhereLine] = []

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..experiment import Experiment
-from ..noisefloor import RecordFloor
+from ..identification.noisefloor import RecordFloor
 from .candidate import CandidateResult
 from .credit import credited
 from .locate import Located

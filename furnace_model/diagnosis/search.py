@@ -12,9 +12,8 @@ import numpy as np
 from ..effects import EFFECTS, Clues
 from ..errors import FurnaceError
 from ..experiment import Experiment
-from ..fit import fit
-from ..noisefloor import RecordFloor, limits, pooled_floor, record_floor
-from ..residuals import residual_tests, sensor_faults
+from ..identification.fit import fit
+from ..identification.noisefloor import RecordFloor, limits, pooled_floor, record_floor
 from .candidate import CandidateResult
 from .credit import (
     GAP_RATIO,
@@ -34,6 +33,7 @@ from .holdout import split, uncovered
 from .laws import between_laws, further_laws, opts_text
 from .locate import locate
 from .pool import run_all
+from .residuals import residual_tests, sensor_faults
 from .result import Diagnosis
 from .verdict import judge
 
@@ -279,7 +279,7 @@ def _applies(name: str, furnace, asked: bool) -> bool:
 
 def _determined(records: list[Experiment], seed: int) -> dict[str, float]:
     """The baseline fitted on `records`, with the parameters they determine."""
-    from ..structure import ModelStructure
+    from ..simulation.structure import ModelStructure
 
     fr = fit(records, ModelStructure(furnace=records[0].furnace), seed=seed, zone_offsets=True,
              profile=False)

@@ -39,9 +39,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from ..furnace import PAPER, Furnace
-from ..lti import Drive
-from ..parameters import Param
+from ..simulation.furnace import PAPER, Furnace
+from ..simulation.lti import Drive
+from ..simulation.parameters import Param
 
 if TYPE_CHECKING:
     from ..experiment import Experiment

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..furnace import PAPER
-from ..lti import Drive
-from ..parameters import Param
+from ..simulation.furnace import PAPER
+from ..simulation.lti import Drive
+from ..simulation.parameters import Param
 from .base import Effect
 
 

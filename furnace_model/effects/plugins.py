@@ -21,7 +21,7 @@ import numpy as np
 
 from .. import SENSORS
 from ..errors import FurnaceError
-from ..parameters import BASELINE, PAPER_TABLE_V, Param
+from ..simulation.parameters import BASELINE, PAPER_TABLE_V, Param
 from . import BUILT_IN, EFFECTS
 from .base import Effect, Option
 
@@ -217,7 +217,7 @@ def _check_params(params) -> str | None:
 
 def _check_physics(effect: Effect, file: str | None) -> str | None:
     """The effect at its defaults on two hours of a heat-up with a burner step."""
-    from ..structure import Inputs, ModelStructure
+    from ..simulation.structure import Inputs, ModelStructure
 
     structure = ModelStructure([effect])
     values = {**PAPER_TABLE_V, **{p.name: p.default for p in effect.params}}

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..furnace import PAPER
-from ..parameters import Param
+from ..simulation.furnace import PAPER
+from ..simulation.parameters import Param
 from .base import Effect, Option
 
 

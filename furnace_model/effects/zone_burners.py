@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..furnace import PAPER, Furnace
-from ..parameters import Param
+from ..simulation.furnace import PAPER, Furnace
+from ..simulation.parameters import Param
 from .base import Clues, Effect, Trial
 
 if TYPE_CHECKING:

@@ -3,8 +3,8 @@ their walls (the paper: only the preheating zone, eq. 6)."""
 
 from __future__ import annotations
 
-from ..furnace import PAPER, Furnace
-from ..parameters import Param
+from ..simulation.furnace import PAPER, Furnace
+from ..simulation.parameters import Param
 from .base import Effect, Option
 
 ZONES = PAPER.zones

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .furnace import Furnace
+from ..simulation.furnace import Furnace
 from .noisefloor import second_difference_sd
 
 TOLERANCE_C = 2.5

@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .config import Node, load_yaml
-from .effects import EFFECTS, Effect, Option
-from .errors import ConfigError
-from .furnace import PAPER, Furnace, named_furnace
+from ..config import Node, load_yaml
+from ..effects import EFFECTS, Effect, Option
+from ..errors import ConfigError
+from .furnace import PAPER, Furnace
+from .furnacefile import named_furnace
 from .network import parameters
 from .structure import Inputs, ModelStructure
 

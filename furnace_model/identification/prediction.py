@@ -22,11 +22,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm
 
-from .errors import FurnaceError
-from .experiment import Experiment
-from .fit import Model
+from ..errors import FurnaceError
+from ..experiment import Experiment
+from ..simulation.structure import Inputs, ModelStructure
+from .model import Model
 from .scores import zone_metrics
-from .structure import ModelStructure
 
 
 def predict_ahead(params: dict[str, float], exp: Experiment, horizon: int,
@@ -73,7 +73,7 @@ def _by_windows(values, exp, k, structure, simulated, states, miss) -> np.ndarra
     C = structure.system(structure.theta(values)).C[0]
     additive = simulated - states @ C.T  # what the thermocouples read besides the states
     out = simulated.copy()
-    t, inputs = exp.t_min, exp.inputs()
+    t, inputs = exp.t_min, Inputs.of(exp)
     for i in range(len(exp) - k):
         start = (states[i] + miss[i])[None]
         end = structure.simulate(values, inputs, t[i:i + k + 1], start, t0=float(t[i])).zones[0, -1]

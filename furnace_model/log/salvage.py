@@ -23,7 +23,7 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Footer, Header, Message, Schema
 from mcap.stream_reader import StreamReader
 
-from .errors import DataError
+from ..errors import DataError
 
 MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_RECORD_SIZE = 1 + 8 + 20

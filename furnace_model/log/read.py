@@ -32,9 +32,10 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 
-from .errors import ConfigError, DataError
-from .furnace import PAPER, Furnace, furnace_from_node
-from .logsalvage import has_footer, salvage
+from ..errors import ConfigError, DataError
+from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnacefile import furnace_from_node
+from .salvage import has_footer, salvage
 
 LOG_SUFFIX = ".mcap"
 PART_SUFFIX = ".part"
@@ -93,7 +94,7 @@ def recorded_furnace(metadata: dict[str, str] | None, where: str) -> Furnace:
         raise DataError(where, "the metadata record's furnace entry is not JSON") from None
     if not isinstance(value, dict) or "links" not in value:
         return PAPER
-    from .config import Node
+    from ..config import Node
 
     if value.get("name") == PAPER_RECORD_NAME:
         value = {**value, "name": PAPER.name}

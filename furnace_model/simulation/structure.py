@@ -1,7 +1,7 @@
 """The paper's model (eq. 11) with optional effect terms: baseline, plant and candidates.
 
 `ModelStructure()` is exactly eq. 11; `ModelStructure(furnace=load_furnace(...))` is the
-thermal network of another furnace description (furnace_model.network), of which eq. 11 is
+thermal network of another furnace description (furnace_model.simulation.network), of which eq. 11 is
 the three-zone case. `ModelStructure([ZoneBurners(), SensorLag()])` is the
 same model extended, used by the plant simulator with chosen parameter values and by the
 diagnosis with fitted ones. All simulation is batched over parameter sets: parameter values
@@ -13,16 +13,20 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .effects import Effect, Theta
+from ..effects import Effect, Theta
 from .furnace import PAPER, Furnace
 from .lti import Drive, Modes, response
 from .network import fill, parameters
 from .parameters import Param
 from .response import Response
+
+if TYPE_CHECKING:
+    from ..experiment import Experiment
 
 
 @dataclass(frozen=True)
@@ -45,6 +49,11 @@ class Inputs:
         u[0, :, :nz] = self.burners
         u[0, :, nz] = self.t_air
         return u
+
+    @classmethod
+    def of(cls, record: Experiment) -> Inputs:
+        """A record's logged burners and ambient, as the model takes them."""
+        return cls.from_samples(record.t_min, record.burners, record.t_air)
 
     @classmethod
     def from_samples(cls, t: np.ndarray, burners: np.ndarray, t_air: np.ndarray,
@@ -210,7 +219,7 @@ class ModelStructure:
         step of the effect's strength moves the solution by d to first order, and d is a
         linear convolution of a known forcing, with no state-dependent linearisation to step
         through. A finite difference of this against `simulate` at the vanishing set is the
-        sensitivity to that strength (`_Problem.jac`), for the cost of one closed-form
+        sensitivity to that strength (`Problem.jac`), for the cost of one closed-form
         response and one quadrature instead of a whole nonlinear integration.
 
         The quadrature runs on the steps the nonlinear integrator takes (`_step_bounds`),

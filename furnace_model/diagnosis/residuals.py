@@ -1,5 +1,5 @@
 """Where a model's error lies, measured against each record's noise floor
-(furnace_model.noisefloor): the time spans and operating regimes that hold the error, thermocouples that disagree with their partner, and the
+(furnace_model.identification.noisefloor): the time spans and operating regimes that hold the error, thermocouples that disagree with their partner, and the
 whiteness and input cross-correlation tests of the residual (as MATLAB's `resid` draws them).
 
 Everything here reads measured data and a model's predictions; nothing is fitted except
@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 from scipy.ndimage import median_filter
 
-from .experiment import Experiment
-from .noisefloor import RecordFloor
+from ..experiment import Experiment
+from ..identification.noisefloor import RecordFloor
 
 Z99 = 2.5758293035489004
 MAX_LAG = 25

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import ZONES
+from .. import ZONES
 
 
 def zone_metrics(measured: np.ndarray, model: np.ndarray,

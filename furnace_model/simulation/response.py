@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from . import SENSORS, ZONES
+from .. import SENSORS, ZONES
 from .furnace import PAPER
 
 if TYPE_CHECKING:

@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
-from . import SENSORS
-from .experiment import Experiment
+from .. import SENSORS
+from ..experiment import Experiment
 from .furnace import PAPER, Furnace
 from .scenario import Scenario, SensorSpec
 from .structure import Inputs, ModelStructure

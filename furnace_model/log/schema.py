@@ -28,7 +28,7 @@ from functools import lru_cache
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the furnace loads numpy: not for a command's --help (test_cli_surface)
-    from .furnace import Furnace
+    from ..simulation.furnace import Furnace
 
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
@@ -47,7 +47,7 @@ def _furnace(furnace: Furnace | None) -> Furnace:
     """`furnace`, or the paper's when None."""
     if furnace is not None:
         return furnace
-    from .furnace import PAPER
+    from ..simulation.furnace import PAPER
 
     return PAPER
 
@@ -58,7 +58,7 @@ def param_names(furnace: Furnace | None = None) -> tuple[str, ...]:
     furnace = _furnace(furnace)
     if furnace.paper_structure:
         return PARAM_NAMES
-    from .network import parameter_names
+    from ..simulation.network import parameter_names
 
     return tuple(parameter_names(furnace))
 

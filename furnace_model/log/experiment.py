@@ -25,12 +25,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from .errors import DataError
-from .experiment import DEFAULT_T_AIR_C, Experiment, experiment_from_frame
-from .furnace import Furnace
-from .logread import LOG_SUFFIX, PART_SUFFIX, log_furnace
-from .logresample import DEFAULT_PERIOD_S, resample_logs
-from .logsalvage import MAGIC
+from ..errors import DataError
+from ..experiment import DEFAULT_T_AIR_C, Experiment, experiment_from_frame
+from ..simulation.furnace import Furnace
+from .read import LOG_SUFFIX, PART_SUFFIX, log_furnace
+from .resample import DEFAULT_PERIOD_S, resample_logs
+from .salvage import MAGIC
 
 RECOVERED_SUFFIX = ".recovered" + LOG_SUFFIX
 _HEADER_OPCODE = 0x01

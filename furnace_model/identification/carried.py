@@ -30,8 +30,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2, norm
 
-from .experiment import Experiment
-from .fit import FitResult, _Problem
+from ..experiment import Experiment
+from .problem import Problem
+from .result import FitResult
 from .uncertainty import Z95
 
 LINEAR_HALF_WIDTH = 0.5
@@ -51,7 +52,7 @@ def carried_error(fr: FitResult, records: list[Experiment], x0: list[np.ndarray]
     if unc is None or not records or not unc.names or unc.cov_white is None:
         return out
     fixed = {n: v for n, v in fr.params.items() if n not in unc.names}
-    prob = _Problem(records, fr.structure, fixed, {}, zone_offsets=True)
+    prob = Problem(records, fr.structure, fixed, {}, zone_offsets=True)
     at = prob.start(unc.z.copy())
     nz = prob.nz
     for j in range(len(records)):

@@ -37,10 +37,10 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from .errors import DataError
-from .furnace import PAPER, Furnace
-from .logread import iso_time, log_furnace, read_messages
-from .logschema import AMBIENT, BURNERS, THERMOCOUPLES
+from ..errors import DataError
+from ..simulation.furnace import PAPER, Furnace
+from .read import iso_time, log_furnace, read_messages
+from .schema import AMBIENT, BURNERS, THERMOCOUPLES
 
 
 class Binned(NamedTuple):
@@ -69,7 +69,7 @@ class Resampler:
     Messages are buffered as plain lists and binned in one vectorised pass when a table is
     asked for; `forget` drops what no later window can need, so a daemon running for months
     holds one window of bins. The thermocouples and zones are those of `furnace` (the
-    paper's by default): a log records its furnace (logread.log_furnace)."""
+    paper's by default): a log records its furnace (log.read.log_furnace)."""
 
     def __init__(self, step_ns: int, origin_ns: int = 0, furnace: Furnace = PAPER):
         self.step_ns = int(step_ns)

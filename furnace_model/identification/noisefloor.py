@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..experiment import Experiment
 from .autoregression import acf, fit_ar
-from .experiment import Experiment
 
 TREND_MIN = 360.0
 """Minutes per block of the slow trend taken out of a pair's difference. Long against the

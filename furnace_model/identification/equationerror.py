@@ -19,9 +19,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
 
-from .experiment import Experiment
-from .network import parameter_names
-from .structure import ModelStructure
+from ..experiment import Experiment
+from ..simulation.network import parameter_names
+from ..simulation.structure import ModelStructure
 
 
 def equation_error(structure: ModelStructure, records: list[Experiment]) -> dict[str, float]:

@@ -1,0 +1,381 @@
+"""Offline identification of the model's parameters from heat-up records (paper section III).
+
+The criterion is the paper's eq. 12: the sum over zones of the squared difference between
+the measured zone temperature and the model's, over every sample with a reading (missing
+readings are masked out, not filled). Unknowns are the structure's parameters plus each
+experiment's initial zone temperatures: a cold start sits at ambient, a window cut from a
+running furnace does not.
+
+Two methods:
+- `ga`: the paper's real-coded genetic algorithm, population and generations as its knobs.
+- `fast` (default): a short evolutionary search to find the basin, then a Gauss-Newton polish
+  (scipy's trust-region least squares) on the exact simulator, with the finite-difference
+  Jacobian evaluated as one batched simulation of all perturbed parameter sets.
+Both search positive parameters on the log scale. The Jacobian at the optimum gives the
+intervals and the determined combinations (furnace_model.identification.uncertainty).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import FurnaceError
+from ..experiment import Experiment
+from ..simulation.structure import ModelStructure
+from .criteria import criteria
+from .ga import genetic_search
+from .model import Model, Refinement, score
+from .plausible import Flag
+from .problem import POLISH_MAX_ITER, Polished, Problem
+from .profile import profile_interval
+from .result import FitResult
+from .uncertainty import WIDE, Z95, Uncertainty, from_jacobian
+
+__all__ = ["METHODS", "FitResult", "Model", "Refinement", "WarmStart", "fit", "score"]
+"""The fitting surface: the driver and the objects it hands back."""
+
+METHODS = ("fast", "ga")
+GA_DEFAULTS = {"fast": (32, 30), "ga": (20, 2000)}
+"""(population, generations) per method: the paper ran population 20 for 25 000-100 000
+cycles; 2000 generations already take seconds per run here."""
+PROFILE_WIDE = 0.25
+"""A linearised 95% half-width (search scale: about +-25% for a rate) beyond which the
+interval is profiled instead: nearer, the criterion is close enough to quadratic (b and c of
+a 1-minute heat-up, +-8%, held the truth in 57-59 of 60 draws linearised)."""
+PROFILE_GAIN_TOL = 1e-7
+"""A profile's refit is converged to this share of the criterion: its rise is wanted to a
+few percent, and it is thousands of times smaller than the criterion."""
+WARM_DAMPING = 1e-7
+"""The first Levenberg-Marquardt damping of a sliding window's refit (`WarmStart`): the
+previous window's optimum is next to this one's, where Gauss-Newton steps converge in two or
+three; the general warm start's 1e-3 took eight or nine to walk the last millionths of the
+criterion down the d/e valley (the same optimum, to a few millionths of d and e)."""
+
+
+
+def fit(experiments: list[Experiment], structure: ModelStructure | None = None, *,
+        method: str = "fast", runs: int = 1, population: int | None = None,
+        generations: int | None = None, seed: int = 0,
+        init: dict[str, float] | None = None,
+        fixed: dict[str, float] | None = None,
+        bounds: dict[str, tuple[float, float]] | None = None,
+        progress: Callable[[float], None] | None = None,
+        time_budget_s: float | None = None, zone_offsets: bool = False,
+        profile: bool = True, warm: WarmStart | None = None) -> FitResult:
+    """Fit the structure's parameters to the experiments (jointly; own initial state each).
+
+    Run r uses seed + r. With `init` the global search is skipped: a warm-started polish,
+    which is what a sliding-window refit wants. The best run (lowest SSE) is the result; the
+    arithmetic mean of the runs is kept as the paper's 'genetic mean parameter'.
+    `zone_offsets` adds a constant offset per zone and experiment: thermocouple biases the
+    model cannot otherwise absorb, except by bending its parameters (per experiment, since
+    thermocouples are replaced and recalibrated between campaigns). `profile`: the
+    intervals of parameters the data leave wide follow the criterion (furnace_model.identification.profile)
+    instead of its quadratic approximation; a refit per trial value, so callers that only
+    rank fits may leave it off.
+
+    `warm` (with `init`): a sliding window's refit, which starts from the window before
+    (see `WarmStart`); the same optimum and intervals, to the optimiser's and the profile's
+    tolerances, for less work.
+    """
+    t_start = time.perf_counter()
+    if method not in METHODS:
+        raise FurnaceError(f"unknown method '{method}': use one of {', '.join(METHODS)}")
+    if not experiments:
+        raise FurnaceError("no data to fit")
+    if runs < 1:
+        raise FurnaceError("runs must be at least 1")
+    structure = structure or ModelStructure()
+    prob = Problem(experiments, structure, fixed or {}, bounds or {}, zone_offsets)
+    pop_default, gen_default = GA_DEFAULTS[method]
+    population = int(population or pop_default)
+    generations = int(generations if generations is not None else gen_default)
+    deadline = None if time_budget_s is None else t_start + float(time_budget_s)
+    start, spread = None, None
+    if not init and method == "fast" and not structure.furnace.paper_structure:
+        # a network of many zones: the search starts where the equations' least squares put
+        # it, and a warm-started polish takes it from there (the parameters of an effect
+        # that is not zone-affine from their defaults, searched over half their box)
+        from .equationerror import equation_error
+
+        init = {n: v for n, v in equation_error(structure, experiments).items()
+                if n not in (fixed or {})}
+    if init:
+        start_vals = {**structure.defaults(), **init}
+        start = prob.to_z(np.array([start_vals[n] for n in prob.names]))
+        # Given values are searched near where they are; the others (an effect's parameters
+        # on top of a baseline fit) over half their box around their defaults.
+        spread = np.array([0.02 if n in init else 0.5 for n in prob.names])
+
+    offsets = None
+    if warm is not None and zone_offsets and warm.offsets is not None:
+        if len(warm.offsets) != len(experiments):
+            raise FurnaceError(f"warm start: offsets of {len(warm.offsets)} experiment(s) "
+                               f"given for {len(experiments)}")
+        offsets = [np.nan_to_num([float((o or {}).get(zone, 0.0))
+                                  for zone in structure.furnace.zones])
+                   for o in warm.offsets]
+    results = []
+    for r in range(runs):
+        t_run = time.perf_counter()
+        rng = np.random.default_rng(seed + r)
+
+        def report(frac, r=r):
+            if progress is not None:
+                progress(min((r + frac) / runs, 1.0))
+
+        run = _one_run(prob, method, population, generations, rng, start, spread, deadline,
+                       report, offsets, 1e-3 if warm is None else WARM_DAMPING)
+        results.append((run, seed + r, time.perf_counter() - t_run))
+    report_done = progress or (lambda _f: None)
+    report_done(1.0)
+
+    run_dicts = []
+    for run, s, dt in results:
+        run_dicts.append({"seed": s, "method": method, "population": population,
+                          "generations": run.generations, "params": prob.param_dict(run.z),
+                          "per_zone": prob.per_zone(run.z), "sse": prob.sse(run.z),
+                          "elapsed_s": round(dt, 4), "stop_reason": run.stop_reason,
+                          "iterations": run.iterations})
+    best_run = results[int(np.argmin([d["sse"] for d in run_dicts]))][0]
+    z = best_run.z
+    res = prob.fun(z)
+    J = prob.jac(z)
+    held = prob.held_by_bounds(Polished(z, res, J, best_run.stop_reason, 0, best_run.free_cost))
+    unc = from_jacobian(prob.unflagged(J, held), res, prob.names, prob.log, z[:prob.k],
+                        prob.series(), prob.blocked)
+    flags = prob.flags(z, held)
+    params = prob.param_dict(z)
+    ci = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val), strict=True))
+    ci_white = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val, white=True), strict=True))
+    for name, v in prob.fixed.items():
+        ci[name] = ci_white[name] = (float(v), float(v))
+    undetermined = unc.undetermined(prob.from_z(z[:prob.k]), prob.lo_val, prob.hi_val)
+    profiled = {}
+    if profile:
+        wide = [n for i, n in enumerate(prob.names)
+                if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE]
+        profiled = _profiled(prob, z, float(res @ res), unc, wide, deadline,
+                             None if warm is None else warm.intervals)
+        ci.update(profiled)
+    named = unc.determined_combinations(undetermined)
+    combos = [name for name, _ in named]
+    combo_values = {}
+    for name, coef in named:
+        value, (lo, hi) = unc.combination_value(coef)
+        combo_values[name] = {"value": value, "ci95": [lo, hi]}
+    at_bound = prob.at_bound(z)
+    warnings = _warnings(experiments, unc, undetermined, combos, best_run, time_budget_s,
+                         at_bound, params) + [f.words() for f in flags]
+    static = all(e.burner_steps == 0 for e in experiments)
+    corr = np.eye(len(structure.names))
+    cov = np.zeros((len(structure.names),) * 2)
+    idx = [structure.names.index(n) for n in prob.names]
+    corr[np.ix_(idx, idx)] = unc.corr
+    cov[np.ix_(idx, idx)] = unc.cov_own_units
+    for name in at_bound:  # a linearisation on the edge of the box says nothing about it
+        cov[structure.names.index(name), :] = cov[:, structure.names.index(name)] = np.nan
+    mean = {n: float(np.mean([d["params"][n] for d in run_dicts])) for n in structure.names}
+    # The GA alone keeps each record's initial state at its first readings: not estimated.
+    n_estimated = prob.k if method == "ga" else prob.n
+    return FitResult(
+        structure=structure, params=params,
+        x0=[prob.x0_of(z, j).copy() for j in range(len(prob.records))],
+        ci95={n: ci[n] for n in structure.names}, corr=corr, undetermined=undetermined,
+        determined_combinations=combos, warnings=warnings, per_zone=prob.per_zone(z),
+        sse=float(res @ res), n_obs=prob.n_obs, elapsed_s=time.perf_counter() - t_start,
+        runs=run_dicts, method=method,
+        status="insufficient_excitation" if static else "ok", genetic_mean=mean,
+        sigma_c=unc.sigma, combinations=combo_values,
+        zone_offsets_c=([dict(zip(structure.furnace.zones, map(float, prob.offsets_of(z, j)),
+                                  strict=True))
+                         for j in range(len(experiments))] if zone_offsets else None),
+        zone_offsets_ci95_c=_offset_intervals(prob, z, unc, flags) if zone_offsets else None,
+        bounds_c=_bounds_c(prob), flags=flags,
+        uncertainty=unc, ci95_white={n: ci_white[n] for n in structure.names},
+        profiled=list(profiled),
+        std={n: float(np.sqrt(max(cov[i, i], 0.0))) if np.isfinite(cov[i, i]) else float("nan")
+             for i, n in enumerate(structure.names)},
+        cov=cov, fixed=sorted(prob.fixed, key=structure.names.index),
+        bounds={n: (float(lo), float(hi))
+                for n, lo, hi in zip(prob.names, prob.lo_val, prob.hi_val, strict=True)},
+        at_bound=at_bound, stop_reason=best_run.stop_reason, iterations=best_run.iterations,
+        generations=best_run.generations,
+        criteria=criteria(prob.residual_matrix(z), n_estimated), data=list(experiments))
+
+
+def _offset_intervals(prob: Problem, z: np.ndarray, unc: Uncertainty,
+                      flags: list[Flag]) -> list[dict[str, list[float] | None]]:
+    """Per record, each zone offset's 95% interval (None where it sits on its bound: a
+    bound is not an estimate)."""
+    zones = prob.structure.furnace.zones
+    held = {(f.record, f.zone) for f in flags if f.kind == "offset"}
+    out = []
+    for j, r in enumerate(prob.records):
+        at = prob.block * j + prob.nz
+        sd = unc.nuisance_sd[at:at + prob.nz] if unc.nuisance_sd.size else np.full(prob.nz, np.nan)
+        off = prob.offsets_of(z, j)
+        out.append({zone: None if (r.name, zone) in held or not np.isfinite(sd[w]) else
+                    [float(off[w] - Z95 * sd[w]), float(off[w] + Z95 * sd[w])]
+                    for w, zone in enumerate(zones)})
+    return out
+
+
+def _bounds_c(prob: Problem) -> list[dict[str, dict[str, list[float | None]]]]:
+    """Per record, what its own unknowns may physically be: {"offset": {zone: [lo, hi]},
+    "initial": {zone: [lo, hi]}} (None: unbounded on that side)."""
+    zones = prob.structure.furnace.zones
+
+    def edge(v: float) -> float | None:
+        return float(v) if np.isfinite(v) else None
+
+    return [{"offset": {zone: [-float(r.bias[w]), float(r.bias[w])]
+                        for w, zone in enumerate(zones)},
+             "initial": {zone: [edge(r.x0_lo[w]), edge(r.x0_hi[w])]
+                         for w, zone in enumerate(zones)}}
+            for r in prob.records]
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """What a sliding window's refit takes from the window before it, besides its parameter
+    values (`fit`'s init): windows that overlap nearly wholly have their optimum, and their
+    intervals' ends, next to each other's."""
+
+    offsets: Sequence[Mapping[str, float] | None] | None = None
+    """Per experiment, {zone: offset in °C}: where the zone offsets start, and the initial
+    states at the first readings less them (a thermocouple's bias is in its reading). From
+    zero and the readings the polish took eight or nine steps instead of two or three."""
+    intervals: Mapping[str, tuple[float, float]] | None = None
+    """{name: (low, high)}, own units: where each profile's search starts
+    (`furnace_model.identification.profile.profile_interval`'s `start`)."""
+
+
+@dataclass
+class _Run:
+    """One run's end point, why its search stopped, and how far it went."""
+
+    z: np.ndarray
+    stop_reason: str
+    iterations: int  # accepted polish steps of the result's polish
+    generations: int  # GA generations run
+    truncated: bool  # some stage (GA or polish) stopped on the time budget
+    free_cost: float | None = None  # the polish's: see Polished
+
+
+def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
+              names: list[str], deadline: float | None,
+              starts: Mapping[str, tuple[float, float]] | None = None
+              ) -> dict[str, tuple[float, float]]:
+    """Profile-likelihood intervals of the named (wide) parameters, in their own units; the
+    criterion's rise at the ends is the linearised interval's, with the residual's colour.
+    `starts` (own units): where each search starts (a neighbouring window's ends)."""
+    out = {}
+    white = unc.cov_white if unc.cov_white is not None else unc.cov
+    for name in names:
+        i = prob.names.index(name)
+        if deadline is not None and time.perf_counter() > deadline:
+            break
+        colour = unc.cov[i, i] / white[i, i] if white[i, i] > 0 else 1.0
+        rise = Z95 ** 2 * unc.sigma ** 2 * colour
+        # Start each refit where the linearisation puts the others for that value (along
+        # the valley: d follows e at fixed d/e), not where they were; from there Gauss-Newton
+        # steps (little damping) reach the minimum in two or three.
+        along = np.delete(unc.cov[:, i] / unc.cov[i, i], i)
+        rest = np.delete(z, i)
+
+        def sse_at(z_i: float, i=i, rest=rest, along=along) -> float:
+            start = rest.copy()
+            start[:along.size] += along * (z_i - z[i])
+            r = prob.holding(i, z_i).polish(start, deadline, 30, PROFILE_GAIN_TOL, 1e-7).r
+            return float(r @ r)
+
+        start = None
+        if starts is not None and name in starts:  # on the search scale; NaN: no guide
+            ends = np.asarray(starts[name], dtype=float)
+            if prob.log[i]:
+                ends = np.log(np.where(ends > 0, ends, np.nan))
+            start = (float(ends[0]), float(ends[1]))
+        lo, hi = profile_interval(sse_at, float(z[i]), Z95 * float(np.sqrt(unc.cov[i, i])),
+                                  sse, rise, float(prob.lo[i]), float(prob.hi[i]), start)
+        if prob.log[i]:
+            out[name] = (float(np.exp(lo)), float(np.exp(hi)))
+        else:
+            out[name] = (float(lo), float(hi))
+    return out
+
+
+def _one_run(prob: Problem, method: str, population: int, generations: int,
+             rng: np.random.Generator, start: np.ndarray | None, spread: np.ndarray | None,
+             deadline: float | None, report: Callable[[float], None],
+             offsets: list[np.ndarray] | None = None, damping: float = 1e-3) -> _Run:
+    if prob.k == 0:
+        p = prob.polish(prob.start(np.zeros(0)), deadline)
+        return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget", p.free_cost)
+    if method == "fast" and start is not None and np.all(spread < 0.1):
+        # every value given: polish
+        p = prob.polish(prob.start(start, offsets), deadline, damping=damping)
+        report(1.0)
+        return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget", p.free_cost)
+    ga_deadline = deadline
+    if deadline is not None and method == "fast":
+        ga_deadline = time.perf_counter() + 0.5 * (deadline - time.perf_counter())
+    share = 0.8 if method == "fast" else 1.0
+    found = genetic_search(prob.sse_params, prob.lo, prob.hi, population=population,
+                           generations=generations, rng=rng, start=start,
+                           spread=spread if start is not None else 1.0,
+                           progress=lambda f: report(share * f), deadline=ga_deadline)
+    ga_cut = found.generations < generations  # only the deadline ends it early
+    if method == "ga":
+        return _Run(prob.start(found.best), "time_budget" if ga_cut else "ga_generations", 0,
+                    found.generations, ga_cut)
+    # Polish the best few distinct members: the GA's best may sit in a side valley. A warm
+    # start is always among them: the extended model may be the baseline with its effect off.
+    polished: list[Polished] = []
+    picked: list[np.ndarray] = []
+    first = [] if start is None else [np.clip(start, prob.lo, prob.hi)]
+    for cand in [*first, *found.population]:
+        if len(picked) == 3 + len(first):
+            break
+        if any(np.max(np.abs(cand - p)) < 0.3 for p in picked):
+            continue
+        picked.append(cand)
+        polished.append(prob.polish(prob.start(cand, offsets), deadline))
+    report(1.0)
+    best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
+    cut = ga_cut or any(p.reason == "time_budget" for p in polished)
+    return _Run(best.z, best.reason, best.iterations, found.generations, cut, best.free_cost)
+
+
+def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: list[str],
+              run: _Run, budget, at_bound: dict[str, str],
+              params: dict[str, float]) -> list[str]:
+    out = []
+    for e in experiments:
+        if e.burner_steps == 0:
+            out.append(f"{e.name}: no burner change in the data: too little excitation to "
+                       "identify the model; do not trust these values")
+    for name, side in at_bound.items():
+        out.append(f"{name} ended on the {side} bound of its search range ({params[name]:g}): "
+                   "the best fit within the range lies on its edge, so the value is the "
+                   "bound, not an estimate, and no sd or interval applies to it")
+    if undetermined:
+        pairs = [c for c in combos if c not in unc.names]
+        out.append(f"the data do not determine {', '.join(undetermined)} (95% interval wider "
+                   f"than +-{100 * WIDE:.0f}%)"
+                   + (f"; they do determine {', '.join(pairs)}" if pairs else ""))
+    for a, b, r in unc.strong_correlations():
+        out.append(f"{a} and {b} are strongly correlated (r = {r:+.3f}): the data fix a "
+                   "combination of them better than either")
+    if run.truncated:
+        out.append(f"time budget of {budget:g} s ran out: the search stopped early")
+    elif run.stop_reason == "iteration_limit":
+        out.append(f"the least-squares polish did not converge in {POLISH_MAX_ITER} iterations")
+    elif run.stop_reason == "not_finite":
+        out.append("the model could not be simulated where the polish started: these values "
+                   "are that start, not a fit")
+    return out

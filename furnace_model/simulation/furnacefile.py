@@ -1,0 +1,134 @@
+"""A furnace description read from YAML, every key checked: a file, a string, a key of a
+larger file, or a name among the descriptions shipped in config/furnaces/.
+
+Here rather than beside `Furnace`, because checking a description needs the network
+built from it (parameter names must not collide), and the network needs `Furnace`.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from ..config import Node, load_yaml, parse_yaml
+from .furnace import BURNER_HEAT, Furnace
+from .network import parameter_names
+
+_ZONE_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+
+
+def load_furnace(path: str | Path) -> Furnace:
+    """A furnace description from YAML, every key checked (errors name the key path)."""
+    return furnace_from_node(load_yaml(path), Path(path).stem)
+
+
+def parse_furnace(text: str, file: str = "<string>", name: str = "furnace") -> Furnace:
+    return furnace_from_node(parse_yaml(text, file), name)
+
+
+def furnace_from_node(node: Node, default_name: str) -> Furnace:
+    """`zones` (name, burners, thermocouples, max_bias_c), `links` (`chain`, the default, or
+    a list of pairs of zone names), `ambient` (zone names; default the last zone),
+    `burner_heat`, `max_bias_c` (every thermocouple's, unless its zone gives its own)."""
+    root = node.mapping({"name", "description", "zones", "links", "ambient", "burner_heat",
+                         "max_bias_c"})
+    name = root.get_string("name", default_name)
+    every = (root.child("max_bias_c").number(lo=0.0, hi=500.0) if root.has("max_bias_c")
+             else None)
+    zones, burners, tcs, bias = [], [], [], []
+    for z in root.child("zones").elements(min_len=1, max_len=64):
+        z.mapping({"name", "burners", "thermocouples", "max_bias_c"})
+        zname = z.child("name").string()
+        if not _ZONE_NAME.match(zname):
+            raise z.child("name").error(f"'{zname}' is not a zone name: lower-case letters, "
+                                        "digits and _, starting with a letter")
+        if zname in zones:
+            raise z.child("name").error(f"zone '{zname}' appears twice")
+        zones.append(zname)
+        burners.append(z.get_integer("burners", lo=0, hi=1000))
+        tcs.append(z.get_integer("thermocouples", 2, lo=1, hi=64))
+        bias += _max_bias(z, tcs[-1], every)
+    n = len(zones)
+
+    def index(node: Node) -> int:
+        zname = node.string()
+        if zname not in zones:
+            raise node.error(f"unknown zone '{zname}' (zones: {', '.join(zones)})")
+        return zones.index(zname)
+
+    links_node = root.child("links", "chain")
+    if isinstance(links_node.value, str):
+        links_node.string(("chain",))
+        links = [(i, i + 1) for i in range(n - 1)]
+    else:
+        links = []
+        for pair in links_node.elements():
+            ends = pair.elements(2, 2)
+            i, j = index(ends[0]), index(ends[1])
+            if i == j:
+                raise pair.error(f"a link joins two zones, got '{zones[i]}' twice")
+            if (i, j) in links or (j, i) in links:
+                raise pair.error(f"the link {zones[i]}-{zones[j]} appears twice")
+            links.append((i, j))
+    ambient_node = root.child("ambient", [zones[-1]])
+    ambient = [index(a) for a in ambient_node.elements(min_len=1)]
+    if len(set(ambient)) != len(ambient):
+        raise ambient_node.error("a zone appears twice")
+    heat = root.get_string("burner_heat", "first_zone", choices=BURNER_HEAT)
+    if sum(burners) == 0:
+        raise root.child("zones").error("no zone has burners: nothing heats the furnace")
+    furnace = Furnace(name, tuple(zones), tuple(burners), tuple(tcs), tuple(links),
+                      tuple(sorted(ambient)), heat,
+                      tuple(bias) if any(b is not None for b in bias) else ())
+    _check_connected(furnace, links_node)
+    names = parameter_names(furnace)
+    dup = sorted({p for p in names if names.count(p) > 1})
+    if dup:
+        raise root.child("zones").error(f"zone names make parameter names collide: "
+                                        f"{', '.join(dup)}; rename a zone")
+    return furnace
+
+
+def _max_bias(zone: Node, n_tc: int, every: float | None) -> list[float | None]:
+    """A zone's `max_bias_c`: one number for its thermocouples, or one per thermocouple."""
+    if not zone.has("max_bias_c"):
+        return [every] * n_tc
+    node = zone.child("max_bias_c")
+    if isinstance(node.value, list):
+        return [b.number(lo=0.0, hi=500.0) for b in node.elements(n_tc, n_tc)]
+    return [node.number(lo=0.0, hi=500.0)] * n_tc
+
+
+def _check_connected(furnace: Furnace, node: Node) -> None:
+    """Every zone must reach an ambient zone through links, or its temperature would have
+    nowhere to go: a model without a steady state, and parameters no data determine."""
+    reach = set(furnace.ambient)
+    grew = True
+    while grew:
+        grew = False
+        for i, j in furnace.links:
+            if (i in reach) != (j in reach):
+                reach |= {i, j}
+                grew = True
+    cut = [furnace.zones[i] for i in range(furnace.n_zones) if i not in reach]
+    if cut:
+        raise node.error(f"zone(s) {', '.join(cut)} reach no zone that loses heat to "
+                         "ambient: add links or ambient zones")
+
+
+FURNACES_DIR = Path(__file__).resolve().parents[2] / "config" / "furnaces"
+
+
+def named_furnace(node: Node, base: Path | None = None, what: str = "the file") -> Furnace:
+    """The furnace a `furnace:` key names, in every file that has one (a daemon config, a
+    scenario, a fleet file): a description's path relative to the naming file's directory
+    (`base`), or to the working directory, or the name of one in config/furnaces/
+    (`six-zone`, `paper`)."""
+    text = node.string()
+    candidates = [] if base is None else [base / text]
+    candidates += [Path(text), FURNACES_DIR / text, FURNACES_DIR / f"{text}.yaml"]
+    for candidate in candidates:
+        if candidate.is_file():
+            return load_furnace(candidate)
+    raise node.error(f"no furnace description '{text}' (a YAML file relative to {what}'s "
+                     f"directory or the working directory, or a name in {FURNACES_DIR})")

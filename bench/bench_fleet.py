@@ -27,7 +27,8 @@ import yaml
 
 from furnace_daq.fleet.description import load_fleet
 from furnace_daq.fleet.engine import open_client
-from furnace_daq.fleet.jobs import run_diagnose, run_refit
+from furnace_daq.fleet.jobs.diagnose import run_diagnose
+from furnace_daq.fleet.jobs.refit import run_refit
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.plantlog import write_run
 from furnace_model.simulation.plant import Plant

@@ -23,7 +23,9 @@ from fleet_helpers import SWITCH_MIN, write_fleet
 from furnace_daq.cli import main as daq_main
 from furnace_daq.fleet.description import load_fleet
 from furnace_daq.fleet.engine import open_client, prepare_worker
-from furnace_daq.fleet.jobs import run_diagnose, run_refit, run_selfcheck, segment_bounds
+from furnace_daq.fleet.jobs.diagnose import run_diagnose
+from furnace_daq.fleet.jobs.refit import run_refit, segment_bounds
+from furnace_daq.fleet.jobs.selfcheck import run_selfcheck
 from furnace_model.config import parse_yaml
 from furnace_model.errors import ConfigError
 from furnace_model.log.schema import PARAM_NAMES
@@ -136,7 +138,8 @@ def test_plug_in_effects_load_in_the_workers(local):
 def test_selfcheck_draws_as_tasks_give_the_selfchecks_cases(local, tmp_path):
     from furnace_model.diagnosis.selfcheck import check
 
-    got, result = run_selfcheck(local["client"], ["none"], 1, tmp_path, first=3, quiet=True)
+    got, result = run_selfcheck(local["client"], ["none"], 1, tmp_path, furnace=PAPER, first=3,
+                                quiet=True)
     (want,) = check(["none"], 1, 0, first=3)
     assert not result.failures and len(got) == 1
     assert (got[0].label, got[0].draw, got[0].status, got[0].named, got[0].correct) == \
@@ -322,7 +325,7 @@ def test_the_cli_refuses_a_bad_fleet_file_before_starting_a_cluster(tmp_path, ca
 
 def test_rolling_pairs_each_calendar_period_with_the_next():
     from furnace_daq.fleet.description import FleetFurnace
-    from furnace_daq.fleet.jobs import campaign_pairs
+    from furnace_daq.fleet.jobs.diagnose import campaign_pairs
 
     f = FleetFurnace("x", PAPER, (Path("x"),))
     scan = {"files": [{"start_ns": int(pd.Timestamp("2026-01-30T05:00Z").value),
@@ -391,7 +394,7 @@ def test_progress_rewrites_one_line_on_a_terminal_and_prints_tenths_otherwise():
 
 def test_campaign_pairs_in_time_order_or_as_asked():
     from furnace_daq.fleet.description import Campaign, FleetFurnace
-    from furnace_daq.fleet.jobs import campaign_pairs
+    from furnace_daq.fleet.jobs.diagnose import campaign_pairs
 
     def c(name, day):
         return Campaign(name, pd.Timestamp(f"2026-03-0{day}T00:00Z"),

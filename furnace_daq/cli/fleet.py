@@ -20,36 +20,26 @@ from furnace_model.cli.arguments import CommandParser, furnace_of, output_dir, p
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from ..fleet import jobs as fleet_jobs
+    from ..fleet.job import FleetJob
+
     p = sub.add_parser("fleet", help="batch jobs over a fleet of furnaces on Dask",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     jobs = p.add_subparsers(dest="job", required=True, metavar="JOB",
                             parser_class=CommandParser)
+    for name in fleet_jobs.names():
+        job = getattr(fleet_jobs.module(name), "JOB", None)
+        if isinstance(job, FleetJob):
+            j = jobs.add_parser(job.name, help=job.help, description=job.description)
+            _fleet_file(j)
+            job.add_arguments(j)
+            _common(j)
+            j.set_defaults(run=_run(job))
+        elif name == "selfcheck":
+            _register_selfcheck(jobs)
 
-    r = jobs.add_parser("refit", help="the online refit over every furnace's logs",
-                        description="Every furnace's logs through the online refit chain of "
-                                    "`furnace-daq replay`, furnaces in parallel.")
-    _fleet_file(r)
-    r.add_argument("--segment-days", type=_positive_days, metavar="D",
-                   help="cut each history into segments of D days, each started cold, so one "
-                        "furnace's year runs in parallel too (default: uncut, the replay "
-                        "timeline; docs/fleet.md says what a cut changes)")
-    _common(r)
-    r.set_defaults(run=run_refit)
 
-    d = jobs.add_parser("diagnose", help="campaign against campaign, per furnace",
-                        description="Per furnace, one campaign fitted and another held out "
-                                    "(`furnace-model diagnose`); default: each campaign of the "
-                                    "fleet file against the next.")
-    _fleet_file(d)
-    how = d.add_mutually_exclusive_group()
-    how.add_argument("--pair", action="append", type=_pair, metavar="FIT:HOLDOUT",
-                     help="campaign names, fitted:held out (repeatable)")
-    how.add_argument("--rolling", choices=("day", "week", "month"),
-                     help="each calendar day/week/month (UTC) of the logs against the next, "
-                          "instead of the campaigns")
-    _common(d)
-    d.set_defaults(run=run_diagnose)
-
+def _register_selfcheck(jobs: argparse._SubParsersAction) -> None:
     from furnace_model.cli.selfcheck import register as register_selfcheck
 
     holder = argparse.ArgumentParser(add_help=False).add_subparsers()
@@ -89,23 +79,6 @@ def _engine(p: argparse.ArgumentParser) -> None:
                    help="print only failures (for cron)")
 
 
-def _positive_days(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: '{text}'") from None
-    if not v > 0 or v != v:
-        raise argparse.ArgumentTypeError(f"must be a positive number of days, got {text}")
-    return v
-
-
-def _pair(text: str) -> tuple[str, str]:
-    parts = text.split(":")
-    if len(parts) != 2 or not all(parts):
-        raise argparse.ArgumentTypeError(f"expected FIT:HOLDOUT campaign names, got '{text}'")
-    return parts[0], parts[1]
-
-
 def _effects(paths: list[Path]) -> tuple[str, ...]:
     """Load the plug-ins here (their names check the fleet file) and pass them to the
     workers as absolute paths."""
@@ -143,36 +116,22 @@ def _finish(args: argparse.Namespace, result, outputs: list[str]) -> int:
     return 1 if result.failures else 0
 
 
-def run_refit(args: argparse.Namespace) -> int:
-    from ..fleet.jobs import run_refit as job
-    from ..fleet.report import REPORT
+def _run(job):
+    def run(args: argparse.Namespace) -> int:
+        fleet, effects = _prepare(args)
+        with _client(args) as client:
+            result = job.run(client, fleet, args.out, effects_from=effects, quiet=args.quiet,
+                             **job.options(args))
+        return _finish(args, result, [str(p) for p in result.outputs])
 
-    fleet, effects = _prepare(args)
-    with _client(args) as client:
-        result = job(client, fleet, args.out, segment_days=args.segment_days,
-                     effects_from=effects, quiet=args.quiet)
-    report = args.out / REPORT
-    return _finish(args, result, [str(args.out / "refit.parquet"),
-                                  str(args.out / "drift_events.parquet"), str(report)])
-
-
-def run_diagnose(args: argparse.Namespace) -> int:
-    from ..fleet.jobs import run_diagnose as job
-    from ..fleet.report import REPORT
-
-    fleet, effects = _prepare(args)
-    with _client(args) as client:
-        result = job(client, fleet, args.out, pairs=args.pair, rolling=args.rolling,
-                     effects_from=effects, quiet=args.quiet)
-    report = args.out / REPORT
-    return _finish(args, result, [str(args.out / "verdicts.parquet"), str(report)])
+    return run
 
 
 def run_selfcheck(args: argparse.Namespace) -> int:
     """As `furnace-model selfcheck` (labels, table, --json, acceptance), draws as tasks."""
     from furnace_model.cli import selfcheck as sc
 
-    from ..fleet.jobs import run_selfcheck as job
+    from ..fleet.jobs.selfcheck import run_selfcheck as job
 
     effects = _effects(args.effects_from or [])
     labels = sc.labels_of(args)

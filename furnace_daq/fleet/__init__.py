@@ -11,7 +11,9 @@ One concept per module:
   small plain tables.
 - `store`: finished task results under the output directory, keyed by furnace and a hash
   of the input files and settings, so that a rerun skips what is done.
-- `jobs`: the three jobs (refit, diagnose, selfcheck) as fan-out, gather, tables.
+- `job`: what every job shares: plan, skip what is stored, fan out, gather, write tables.
+- `jobs`: the jobs, one module each (refit, diagnose, selfcheck); the command line finds
+  them there.
 - `progress`: tasks done of total and failures, on a terminal or as lines for cron.
 - `report`: the self-contained HTML fleet report.
 """

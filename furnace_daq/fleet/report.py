@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-REPORT = "fleet_report.html"
+from .tables import DIAGNOSE_FAILURES, DRIFT_EVENTS, REFIT, REFIT_FAILURES, REPORT, VERDICTS
+
 CSS = """
 body { font-family: system-ui, -apple-system, "Segoe UI", Helvetica, Arial, sans-serif;
        margin: 2em auto; max-width: 1200px; color: #222; line-height: 1.4; padding: 0 1em; }
@@ -48,11 +49,11 @@ def _read(path: Path) -> pd.DataFrame | None:
 def write_report(out_dir: Path) -> Path:
     """Write fleet_report.html from the tables in `out_dir`; returns its path."""
     out_dir = Path(out_dir)
-    refit = _read(out_dir / "refit.parquet")
-    events = _read(out_dir / "drift_events.parquet")
-    verdicts = _read(out_dir / "verdicts.parquet")
-    failures = [f for f in (_read(out_dir / "refit_failures.parquet"),
-                            _read(out_dir / "diagnose_failures.parquet"))
+    refit = _read(out_dir / REFIT)
+    events = _read(out_dir / DRIFT_EVENTS)
+    verdicts = _read(out_dir / VERDICTS)
+    failures = [f for f in (_read(out_dir / REFIT_FAILURES),
+                            _read(out_dir / DIAGNOSE_FAILURES))
                 if f is not None and not f.empty]
     path = out_dir / REPORT
     path.write_text(render(refit, events, verdicts,

@@ -30,6 +30,7 @@ from furnace_model.config import parse_yaml
 from furnace_model.errors import ConfigError
 from furnace_model.log.schema import PARAM_NAMES
 from furnace_model.simulation.furnace import PAPER
+from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 START = pd.Timestamp("2026-03-02T00:00:00Z")
@@ -454,3 +455,29 @@ def test_a_six_zone_furnace_in_the_fleet_and_a_misfiled_log(local, tmp_path):
     assert "a" not in rows.columns
     html = (out / "fleet_report.html").read_text()
     assert "<th>gain_preheat_bottom</th>" in html and "soak_bottom" in html
+
+
+def test_fit_job_fits_every_campaign_and_stores_what_it_fitted(local, tmp_path):
+    """`fleet fit`, the job docs/fleet.md shows as its worked example: a row and a parameter
+    file per furnace and campaign, the control furnace's truth inside its intervals, what
+    the scan refused reported, and a rerun all from the store."""
+    from furnace_daq.fleet.jobs.fit import JOB
+
+    out = tmp_path / "out"
+    out.mkdir()
+    first = JOB.run(local["client"], local["fleet"], out, quiet=True)
+    rows = pd.read_parquet(out / "campaign_fits.parquet")
+    assert sorted(zip(rows["furnace"], rows["campaign"], strict=True)) == [
+        (f, c) for f in ("control", "switch", "wall") for c in ("d1", "d2")]
+    fails = first.failures_frame()  # the broken furnace, and the bad file among the control's
+    assert set(fails["furnace"]) == {"broken", "control"} and set(fails["task"]) == {"scan"}
+    truth = load_scenario(ROOT / "config" / "scenarios" / "week_steps.yaml").params
+    control = rows[rows["furnace"] == "control"]
+    inside = [bool((r[f"{p}_ci95_lo"] <= v) & (v <= r[f"{p}_ci95_hi"]))
+              for _, r in control.iterrows() for p, v in truth.items()]
+    assert sum(inside) >= len(inside) - 2, control.T
+    for _, r in rows.iterrows():
+        doc = json.loads((out / "fits" / f"{r['furnace']}__{r['campaign']}.json").read_text())
+        assert doc["params"] == {p: r[p] for p in PARAM_NAMES}
+    again = JOB.run(local["client"], local["fleet"], out, quiet=True)
+    assert (again.computed, again.cached) == (0, first.computed)

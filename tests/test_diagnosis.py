@@ -8,6 +8,8 @@ ones try all nine on ten draws per effect, as the acceptance asks."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -29,6 +31,7 @@ from furnace_model.diagnosis import (
 )
 from furnace_model.diagnosis.cases import case_rng, draw_case
 from furnace_model.diagnosis.search import _determined
+from furnace_model.diagnosis.selfcheck import judge_case
 from furnace_model.effects import EFFECTS, Clues, FuelChange, Radiation, SensorDrift, ZoneBurners
 from furnace_model.effects.zone_burners import soak_only_heads
 from furnace_model.errors import FurnaceError
@@ -122,6 +125,12 @@ def test_thermocouple_reading_low_at_times_is_unexplained_and_located():
     sensor = case.truth["tc_reads_low"]["sensor"]
     assert d.where and d.where[0].sensor == sensor
     assert sensor in d.verdict.sentence
+    assert judge_case(case, d) == (True, False, "")
+    other = next(s for s in case.fit[0].furnace.sensors if s != sensor)
+    moved = dataclasses.replace(case, truth={"tc_reads_low": {**case.truth["tc_reads_low"],
+                                                              "sensor": other}})
+    assert judge_case(moved, d) == (False, False, f"located thermocouple {sensor}, not "
+                                                  f"thermocouple {other}")
 
 
 def test_split_refuses_what_cannot_be_diagnosed():

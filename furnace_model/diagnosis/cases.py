@@ -22,16 +22,9 @@ second- or third-order sensor lag, radiation with an emissivity that changes wit
 layers in every zone or in one, losses from one zone only), so that the check does not
 merely find our own equations back.
 
-Two perturbations lie outside the library (`OUT_OF_LIBRARY`), and no candidate can express
-them; the honest verdict for them is `unexplained`, with the zone or sensor located:
-
-- `door_open`: a furnace door stands open for an hour in one zone, once in each heat-up: the
-  zone loses heat to ambient at rate g_door (1/min) for 60 minutes. Simulated with the
-  library's own pieces: the plant up to the opening, the same plant with a wall loss in that
-  zone (for preheating: a larger e) for the hour, then the plant again from the state reached.
-- `tc_reads_low`: one thermocouple intermittently reads low (a loose junction): in a handful
-  of episodes of 5-40 minutes its reading drops by 15-60 °C. Applied to the recorded
-  readings after the plant run, since the furnace itself is unaffected.
+Perturbations outside the library (`OUT_OF_LIBRARY`: a door left open, a thermocouple that
+intermittently reads low; `furnace_model.diagnosis.faults`) no candidate can express; the
+honest verdict for them is `unexplained`, with the zone or sensor located.
 
 Any furnace description (`furnace`): the cases are heat-ups of its network, with its zones,
 burners and thermocouples, and every effect made for it (`Effect.draw(..., furnace)`). The
@@ -54,17 +47,19 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..effects import EFFECTS, Effect, ZoneLosses
+from ..effects import EFFECTS, Effect
 from ..experiment import Experiment
 from ..simulation.furnace import PAPER, Furnace
 from ..simulation.network import parameters, terms
 from ..simulation.parameters import PAPER_TABLE_V
-from ..simulation.plant import Plant, PlantRun
+from ..simulation.plant import Plant
 from ..simulation.scenario import SensorSpec
 from ..simulation.structure import Inputs, ModelStructure
+from .faults import FAULTS
 
-OUT_OF_LIBRARY = ("door_open", "tc_reads_low")
-"""Perturbations no candidate expresses: the diagnosis should say `unexplained`."""
+OUT_OF_LIBRARY = tuple(FAULTS)
+"""Perturbations no candidate expresses (`furnace_model.diagnosis.faults`): the diagnosis
+should say `unexplained`."""
 
 FORMS = ("candidate", "other")
 NOISE = ("white", "low-pass", "noisier-holdout")
@@ -79,17 +74,6 @@ SAMPLE_MIN = 1.0
 DURATION_MIN = (3000.0, 3500.0)
 T_MAX_C = 1350.0
 """A schedule that would drive a zone past this is redrawn: no reheating furnace runs there."""
-
-RANGES: dict[str, dict[str, tuple[float, float]]] = {
-    "door_open": {"soak": (0.0005, 0.0015), "heat": (0.005, 0.02), "preheat": (0.1, 0.3),
-                  "other": (0.005, 0.02)},
-    "tc_reads_low": {"drop_c": (15.0, 60.0), "episodes": (4, 10), "minutes": (5.0, 40.0)},
-}
-"""Strengths of the perturbations outside the library; an effect's own are its `ranges`
-(times as a fraction of the shorter heat-up). Rates compare with the furnace's own:
-a = 0.02/min couples the soaking and heating zones, e = 0.73/min is the preheating zone's
-loss to ambient."""
-
 
 @dataclass
 class Case:
@@ -178,12 +162,9 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
         truth[name] = {**vals, **info}
     structure = ModelStructure(effects, furnace)
 
-    door = _draw_door(rng, durations, furnace) if "door_open" in names else None
-    low = _draw_low_readings(rng, durations, furnace) if "tc_reads_low" in names else None
-    if door:
-        truth["door_open"] = door
-    if low:
-        truth["tc_reads_low"] = low
+    faults = [f for f in FAULTS.values() if f.name in names]
+    for f in faults:
+        truth[f.name] = f.draw(rng, durations, furnace)
 
     exps = []
     for j in range(2):
@@ -191,10 +172,13 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
         x0 = np.full(furnace.n_zones, t_air)
         inputs = _draw_schedule(rng, structure, values, t, x0, t_air, spread=(j == 0))
         plant = Plant(structure, values, sensors[j], seed=int(rng.integers(2**31)))
-        run = _run_with_door(plant, inputs, t, x0, door, j) if door else plant.run(inputs, t, x0)
+        run = None
+        for f in faults:
+            run = run or f.run(plant, inputs, t, x0, truth[f.name], j)
+        run = run or plant.run(inputs, t, x0)
         run.start_time = starts[j]
-        if low:
-            run.tc[:, furnace.sensors.index(low["sensor"])] -= _low_episodes(t, low["episodes"][j])
+        for f in faults:
+            f.read(run, truth[f.name], j)
         exp = run.to_experiment(f"exp{j + 1}")
         if seen_as != furnace:
             exp = dataclasses.replace(exp, furnace=seen_as)
@@ -217,11 +201,6 @@ def _short(info: dict, lists: bool = False) -> str:
         elif lists and isinstance(v, (list, tuple)) and all(isinstance(x, str) for x in v):
             parts.append(f"{k}={','.join(v)}")
     return " ".join(parts)
-
-
-def _u(rng: np.random.Generator, name: str, key: str) -> float:
-    lo, hi = RANGES[name][key]
-    return float(rng.uniform(lo, hi))
 
 
 def _draw_effect(name: str, rng: np.random.Generator, form: str, duration: float,
@@ -303,72 +282,6 @@ def _fit_counts(c: np.ndarray, furnace: Furnace = PAPER) -> np.ndarray:
         c[i] += add
         extra -= add
     return c
-
-
-def _draw_door(rng: np.random.Generator, durations: np.ndarray,
-               furnace: Furnace = PAPER) -> dict:
-    zone = furnace.zones[int(rng.integers(furnace.n_zones))]
-    opens = [float(np.round(rng.uniform(0.3, 0.9) * d)) for d in durations]
-    key = zone if furnace == PAPER else "other"
-    return {"zone": zone, "g_door": _u(rng, "door_open", key), "t_open": opens,
-            "minutes": 60.0}
-
-
-def _run_with_door(plant: Plant, inputs: Inputs, t: np.ndarray, x0: np.ndarray, door: dict,
-                   j: int) -> PlantRun:
-    """The plant with a door open for an hour: three runs of the library's simulator joined
-    at the states reached, then read by the plant's own thermocouples."""
-    lo = door["t_open"][j]
-    hi = lo + door["minutes"]
-    zone, g = door["zone"], door["g_door"]
-    base, values = plant.structure, plant.values
-    furnace = base.furnace
-    z = furnace.zones.index(zone)
-    if z in furnace.ambient:  # a zone losing heat to ambient loses more (the paper's: e)
-        loss = next(t.name for t in terms(furnace) if t.kind == "loss" and t.to == z)
-        door_structure, door_values = base, {**values, loss: values[loss] + g}
-    else:
-        door_structure = ModelStructure([*base.effects, ZoneLosses(zones=(zone,),
-                                                                   furnace=furnace)], furnace)
-        door_values = {**values, f"g_{zone}": g}
-    states = np.empty((t.size, base.n_states))
-    x = base.full_state(x0)[0]
-    t_from = float(t[0])
-    for structure, vals, end in ((base, values, lo), (door_structure, door_values, hi),
-                                 (base, values, float(t[-1]) + 1.0)):
-        idx = np.nonzero((t >= t_from) & (t < end))[0]
-        grid = np.append(t[idx], min(end, float(t[-1]) + 1.0))
-        piece = structure.simulate(vals, inputs, grid, x[None], t0=t_from,
-                                   states=True).states[0]
-        states[idx] = piece[:-1]
-        x, t_from = piece[-1], end
-    C = base.system(base.theta(values)).C[0]
-    j_in = np.searchsorted(inputs.t, t, side="right") - 1
-    return PlantRun(t, states[:, :furnace.n_zones], plant.read(states @ C.T, t),
-                    inputs.burners[j_in], inputs.t_air[j_in], furnace=furnace)
-
-
-def _draw_low_readings(rng: np.random.Generator, durations: np.ndarray,
-                       furnace: Furnace = PAPER) -> dict:
-    sensor = furnace.sensors[int(rng.integers(len(furnace.sensors)))]
-    lo_n, hi_n = RANGES["tc_reads_low"]["episodes"]
-    episodes = []
-    for d in durations:
-        n = int(rng.integers(lo_n, hi_n + 1))
-        starts = np.sort(rng.uniform(0.1 * d, 0.95 * d, n))
-        lengths = rng.uniform(*RANGES["tc_reads_low"]["minutes"], n)
-        drops = rng.uniform(*RANGES["tc_reads_low"]["drop_c"], n)
-        episodes.append([(float(s), float(s + m), float(c))
-                         for s, m, c in zip(np.round(starts), np.round(lengths), drops,
-                                            strict=True)])
-    return {"sensor": sensor, "episodes": episodes}
-
-
-def _low_episodes(t: np.ndarray, episodes: list[tuple[float, float, float]]) -> np.ndarray:
-    drop = np.zeros(t.size)
-    for lo, hi, c in episodes:
-        drop[(t >= lo) & (t < hi)] = c
-    return drop
 
 
 def case_label(effect: str | tuple[str, ...] | None) -> str:

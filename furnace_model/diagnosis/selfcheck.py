@@ -14,6 +14,7 @@ import numpy as np
 from ..effects import EFFECTS
 from ..simulation.furnace import PAPER, Furnace
 from .cases import SENSORS_SPEC, Case, case_rng, draw_case, draw_sensors, parse_label
+from .faults import FAULTS
 
 # --- the check: diagnose known-truth cases and count -------------------------------------
 
@@ -64,13 +65,9 @@ def judge_case(case: Case, diagnosis) -> tuple[bool, bool, str]:
         if v.status != "unexplained":
             return False, False, f"verdict {v.status} {v.effects}"
         where = diagnosis.where[0] if diagnosis.where else None
-        if "door_open" in case.truth:
-            zone = case.truth["door_open"]["zone"]
-            ok = where is not None and where.zone == zone and where.sensor is None
-            return ok, False, "" if ok else f"located {_where(where)}, not the {zone} zone"
-        sensor = case.truth["tc_reads_low"]["sensor"]
-        ok = where is not None and where.sensor == sensor
-        return ok, False, "" if ok else f"located {_where(where)}, not thermocouple {sensor}"
+        fault = next(f for f in FAULTS.values() if f.name in case.truth)
+        ok, reason = fault.located(case.truth[fault.name], where)
+        return ok, False, reason
     want = set(case.library_effects)
     if v.status != "explained" or set(v.effects) != want:
         return False, False, f"verdict {v.status} {v.effects}"
@@ -97,12 +94,6 @@ def carried_limit(case: Case, diagnosis) -> dict[str, float]:
     change = {z: BIAS_CHANGE_SD * SENSORS_SPEC.bias_sd_c * np.sqrt(2.0 / n)
               for z, n in zip(furnace.zones, furnace.thermocouples, strict=True)}
     return {z: float(np.hypot(v, change[z])) for z, v in limit.items()}
-
-
-def _where(w) -> str:
-    if w is None:
-        return "nothing"
-    return f"thermocouple {w.sensor}" if w.sensor else f"the {w.zone} zone"
 
 
 def selfcheck_case(label: str, k: int, seed: int = 0, *, form: str = "candidate",

@@ -30,6 +30,18 @@ DATA_TYPES: dict[str, tuple[int, str]] = {
     "int64": (4, ">q"), "uint64": (4, ">Q"), "float64": (4, ">d"),
     "float16": (1, ">e"),
 }
+
+
+def integer_range(dtype: str) -> tuple[int, int] | None:
+    """The raw values an integer type holds; None for a floating-point type. From the
+    struct format, so that a type added to DATA_TYPES needs nothing else."""
+    n, fmt = DATA_TYPES[dtype]
+    if fmt[-1] in "efd":
+        return None
+    bits = 16 * n
+    return (-(2 ** (bits - 1)), 2 ** (bits - 1) - 1) if fmt[-1].islower() else (0, 2**bits - 1)
+
+
 STRING = "string"
 """Text in `length` registers, two characters per register; trailing NULs and spaces are
 padding and dropped. Not a number: no scale, offset, sentinels or range."""

@@ -24,15 +24,11 @@ from .registers import (
     BitRange,
     Point,
     encode,
+    integer_range,
 )
 
 if TYPE_CHECKING:
     from .daqconfig import DaqConfig
-
-INTEGER_RANGE = {"int16": (-2**15, 2**15 - 1), "uint16": (0, 2**16 - 1),
-                 "int32": (-2**31, 2**31 - 1), "uint32": (0, 2**32 - 1),
-                 "int64": (-2**63, 2**63 - 1), "uint64": (0, 2**64 - 1)}
-
 
 @dataclass(frozen=True)
 class ServedMap:
@@ -142,8 +138,9 @@ def _words(p: Point, value: float, wrap: bool = False) -> list[int]:
         raise OverflowError(f"{p.name} = {value:g} is beyond any {p.dtype} register")
     if not math.isfinite(raw):
         raw = p.sentinels[0] if p.sentinels else math.nan
-    if p.dtype in INTEGER_RANGE:
-        lo, hi = INTEGER_RANGE[p.dtype]
+    span = integer_range(p.dtype)
+    if span is not None:
+        lo, hi = span
         if not math.isfinite(raw):
             raw = hi  # no sentinel to say so: the most an integer register can show
         raw = int(round(raw))

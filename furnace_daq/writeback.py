@@ -34,12 +34,10 @@ from pymodbus.exceptions import ModbusException
 
 from furnace_model.config import Node
 
-from .registers import DATA_TYPES, ORDERS, encode
+from .registers import DATA_TYPES, ORDERS, encode, integer_range
 
 WRITE_FUNCTION_CODE = 16
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
-_INT_RANGE = {"int16": (-2**15, 2**15 - 1), "uint16": (0, 2**16 - 1),
-              "int32": (-2**31, 2**31 - 1), "uint32": (0, 2**32 - 1)}
 
 
 class WriteBackError(Exception):
@@ -65,8 +63,9 @@ class WritePoint:
         raw = float(value) / self.scale
         if not math.isfinite(raw):
             raise WriteBackError(f"{self.name} = {value!r} is not a finite number")
-        if self.dtype in _INT_RANGE:
-            lo, hi = _INT_RANGE[self.dtype]
+        span = integer_range(self.dtype)
+        if span is not None:
+            lo, hi = span
             if not lo <= round(raw) <= hi:
                 raise WriteBackError(f"{self.name} = {value:g} does not fit {self.dtype} "
                                      f"with scale {self.scale:g}")

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from furnace_daq.registers import (
     COMM_ERROR,
+    DATA_TYPES,
     MAX_BITS_PER_READ,
     MAX_REGISTERS_PER_READ,
     OK,
@@ -24,6 +25,7 @@ from furnace_daq.registers import (
     ReadRequest,
     decode,
     encode,
+    integer_range,
     overlaps,
     plan_reads,
     unpack_bits,
@@ -257,3 +259,19 @@ def test_plan_one_request_per_item_and_a_smaller_limit():
     assert plan_reads(pts, max_registers=5) == [ReadRequest("input", 0, 5),
                                                 ReadRequest("input", 5, 1)]
     assert plan_reads(pts, max_registers=200) == [ReadRequest("input", 0, 6)]
+
+
+@pytest.mark.parametrize("dtype", sorted(DATA_TYPES))
+def test_integer_range_is_what_the_type_encodes(dtype):
+    """Every integer type's ends encode and decode to themselves and one beyond them does not
+    encode; a floating-point type has no integer range."""
+    span = integer_range(dtype)
+    if dtype.startswith("float"):
+        assert span is None
+        return
+    lo, hi = span
+    for v in (lo, hi):
+        assert decode(encode(v, dtype), dtype) == v
+    for v in (lo - 1, hi + 1):
+        with pytest.raises(struct.error):
+            encode(v, dtype)

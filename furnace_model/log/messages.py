@@ -34,7 +34,6 @@ from .schema import (
     THERMOCOUPLES,
     Topic,
     absent,
-    param_names,
     plc_time,
     time_ns,
     topics,
@@ -268,7 +267,9 @@ class Ambient(Message):
 
     @classmethod
     def from_json(cls, message: dict) -> Ambient:
-        return cls(_float(message.get("t_air")), _str(message.get("quality")),
+        quality = message.get("quality")  # present but not a name (null): not ok
+        return cls(_float(message.get("t_air")),
+                   None if "quality" not in message else str(quality),
                    _bool(message.get("from_config")), _stamp(message))
 
     @property
@@ -397,7 +398,11 @@ class ModelParameters(Message):
         return absent(out)
 
     @classmethod
-    def from_json(cls, message: dict, furnace: Furnace) -> ModelParameters:
+    def from_json(cls, message: dict) -> ModelParameters:
+        """The parameters are the numbers at the top level that are no field of the
+        message: a reader without the furnace's description (the write-back, a saved
+        state) reads them too. A parameter logged as null is absent."""
+        names = {f.name for f in fields(cls)}
         values: dict[str, Any] = {f.name: message.get(f.name) for f in fields(cls)
                                   if f.name not in ("params", "plc_time")}
         for name in ("status", "detail", "window_start", "window_end"):
@@ -412,7 +417,7 @@ class ModelParameters(Message):
             values[name] = _list(values[name])
         for name in ("model_window_start", "model_window_end"):
             values[name] = _str(values[name])
-        params = {p: v for p in param_names(furnace) if _is_number(v := message.get(p))}
+        params = {p: v for p, v in message.items() if p not in names and _is_number(v)}
         return cls(**values, params=params, plc_time=_stamp(message))
 
     @property
@@ -508,7 +513,7 @@ def from_json(topic: str, message: dict, furnace: Furnace) -> AnyMessage:
     """A decoded message of a topic of the contract as its class (KeyError for another
     topic)."""
     cls = CLASSES[topic]
-    if cls in (Thermocouples, Burners, ModelParameters):
+    if cls in (Thermocouples, Burners):
         return cls.from_json(message, furnace)  # type: ignore[attr-defined]
     return cls.from_json(message)  # type: ignore[attr-defined]
 

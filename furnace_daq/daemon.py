@@ -49,16 +49,20 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Protocol
 
-from furnace_model.log.schema import (
-    AMBIENT,
-    BURNERS,
-    DAQ_EVENTS,
-    DAQ_STATUS,
-    MODEL_EVENTS,
-    MODEL_PARAMETERS,
-    THERMOCOUPLES,
-    plc_time,
+from furnace_model.log.messages import (
+    Ambient,
+    AnyMessage,
+    Burners,
+    DaqEvent,
+    DaqEventKind,
+    DaqStatus,
+    Event,
+    ModelEvent,
+    ModelEventKind,
+    ModelParameters,
+    Thermocouples,
 )
+from furnace_model.log.schema import DAQ_EVENTS
 
 from .daqconfig import DaqConfig, PlcConfig
 from .journal import ERR, INFO, NOTICE, WARNING, Journal
@@ -82,17 +86,18 @@ MODEL_FILE = "model.json"
 CHAIN_FILE = "refit_chain.json"
 STOP_WAIT_S = 10.0
 """At stop, how long windows already cut may still be fitted."""
-FURNACE_TOPICS = frozenset((THERMOCOUPLES, BURNERS, AMBIENT))
-EVENT_PRIORITY = {
-    "can_unavailable": ERR, "refit_error": ERR, "state_write_failed": ERR, "on_model_error": ERR,
-    "write_back_failed": ERR,
-    "clock_step": WARNING, "missed_tick": WARNING, "burner_disagreement": WARNING,
-    "state_unusable": WARNING, "refit_abandoned": WARNING, "window_dropped": WARNING,
-    "log_recovered": WARNING, "log_gap": WARNING,
-    "plc_clock_reset": NOTICE, "burner_agreement": NOTICE, "write_back_ok": NOTICE,
-    "drift": NOTICE, "refit_resumed": INFO,
+_D, _M = DaqEventKind, ModelEventKind
+EVENT_PRIORITY: dict[DaqEventKind | ModelEventKind, int] = {
+    _D.CAN_UNAVAILABLE: ERR, _D.REFIT_ERROR: ERR, _D.STATE_WRITE_FAILED: ERR,
+    _D.ON_MODEL_ERROR: ERR, _D.WRITE_BACK_FAILED: ERR,
+    _D.CLOCK_STEP: WARNING, _D.MISSED_TICK: WARNING, _D.BURNER_DISAGREEMENT: WARNING,
+    _D.STATE_UNUSABLE: WARNING, _D.REFIT_ABANDONED: WARNING, _M.WINDOW_DROPPED: WARNING,
+    _D.LOG_RECOVERED: WARNING, _D.LOG_GAP: WARNING,
+    _D.PLC_CLOCK_RESET: NOTICE, _D.BURNER_AGREEMENT: NOTICE, _D.WRITE_BACK_OK: NOTICE,
+    _M.DRIFT: NOTICE, _D.REFIT_RESUMED: INFO,
 }
-"""Journal priority of each /daq/events and /model/events kind (others: notice)."""
+"""Journal priority of each /daq/events and /model/events kind (others: notice). The kinds
+are str-valued, so a kind read back as its name finds its priority too."""
 
 
 class Log(Protocol):
@@ -324,10 +329,10 @@ class Daemon:
         if now - self._last_missed_event >= self.config.status_interval_s:
             self._last_missed_event = now
             wall = self.wall_ns()
-            self._write(DAQ_EVENTS, {"kind": "missed_tick", "detail":
-                                     f"{self._missed_unreported} poll tick(s) skipped: a poll "
-                                     "or the host was slower than the period",
-                                     "skipped": self._missed_unreported}, wall, wall)
+            self._write(DaqEvent(DaqEventKind.MISSED_TICK,
+                                 f"{self._missed_unreported} poll tick(s) skipped: a poll "
+                                 "or the host was slower than the period",
+                                 skipped=self._missed_unreported), wall, wall)
             self._missed_unreported = 0
 
     # -- one tick -----------------------------------------------------------------------------
@@ -338,8 +343,8 @@ class Daemon:
         log_ns = self.wall_ns()
         step = self.wall_ns.take_step()
         if step is not None:
-            self._write(DAQ_EVENTS, {"kind": "clock_step", "detail": self.wall_ns.describe(step),
-                                     "step_s": step / 1e9}, log_ns, log_ns)
+            self._write(DaqEvent(DaqEventKind.CLOCK_STEP, self.wall_ns.describe(step),
+                                 step_s=step / 1e9), log_ns, log_ns)
         plc_sample = await self._poll_devices(log_ns)
         flame_sample = None
         if self.flame is not None and self.flame.connected:
@@ -347,7 +352,7 @@ class Daemon:
                 flame_sample = await self.flame.read()
                 c.can_frames = getattr(self.flame, "frames", 0)
             if flame_sample is not None and flame_sample.burners is not None:
-                self._write(BURNERS, self._burner_message(flame_sample, "can"), log_ns, log_ns)
+                self._write(self._burner_message(flame_sample, "can"), log_ns, log_ns)
         if plc_sample is not None and flame_sample is not None:
             self._compare_burners(plc_sample, flame_sample, log_ns)
         if self.refit is not None:
@@ -408,9 +413,9 @@ class Daemon:
                 self._tell_sample(link, sample)
         elif failed:
             # no reading: the sensors' fields are absent (the schema has no null), quality says why
-            msg: dict = {"quality": {s: COMM_ERROR for s in self.config.furnace.sensors},
-                         "error": "; ".join(missing)}
-            self._write(THERMOCOUPLES, msg, log_ns, log_ns)
+            msg = Thermocouples({}, {s: COMM_ERROR for s in self.config.furnace.sensors},
+                                error="; ".join(missing))
+            self._write(msg, log_ns, log_ns)
         for link, reason, kind in failed:
             if link.consecutive_errors >= link.device.max_consecutive_errors:
                 await link.source.close()
@@ -541,10 +546,9 @@ class Daemon:
             return log_ns
         if self._last_plc_s is not None and s < self._last_plc_s and \
                 (self.config.clock is None or self.config.clock.epoch is None):
-            self._write(DAQ_EVENTS, {"kind": "plc_clock_reset",
-                                     "detail": f"PLC clock went back from {self._last_plc_s:g} s "
-                                               f"to {s:g} s; publish time re-anchored"},
-                        log_ns, log_ns)
+            self._write(DaqEvent(DaqEventKind.PLC_CLOCK_RESET,
+                                 f"PLC clock went back from {self._last_plc_s:g} s "
+                                 f"to {s:g} s; publish time re-anchored"), log_ns, log_ns)
             self._epoch_ns = None
         self._last_plc_s = s
         if self._epoch_ns is None:
@@ -566,34 +570,29 @@ class Daemon:
         quality = sample.quality  # each device's staleness is in its qualities already (_merge)
         # a reading that is not there is left out: the schema declares numbers, never null
         sensors = self.config.furnace.sensors
-        tc: dict = {s: v for s in sensors if (v := sample.values.get(s)) is not None}
-        tc["quality"] = {s: quality.get(s, COMM_ERROR) for s in sensors}
-        stamp: dict = {}
+        tc = Thermocouples({s: v for s in sensors if (v := sample.values.get(s)) is not None},
+                           {s: quality.get(s, COMM_ERROR) for s in sensors})
+        stamp: int | None = None  # the PLC's clock, when it has one
         if sample.plc_seconds is not None:
-            tc["plc_seconds"] = sample.plc_seconds
-            stamp["plc_time"] = plc_time(pub)  # the PLC's clock in Foxglove's {sec, nsec}
-        tc.update(stamp)
+            stamp = pub
+            tc.plc_seconds, tc.plc_time = sample.plc_seconds, stamp
         if sample.errors:  # blocks the PLC refused: why some points are comm_error
-            tc["error"] = "; ".join(sample.errors)
-        self._write(THERMOCOUPLES, tc, log_ns, pub)
+            tc.error = "; ".join(sample.errors)
+        self._write(tc, log_ns, pub)
         if self.config.ambient is not None:
-            amb = {"t_air": sample.values.get("t_air"), "quality": quality.get("t_air", COMM_ERROR)}
-            if amb["t_air"] is None:
-                del amb["t_air"]
+            amb = Ambient(sample.values.get("t_air"), quality.get("t_air", COMM_ERROR),
+                          plc_time=stamp)
         else:
-            amb = {"t_air": self.config.ambient_default_c, "quality": OK, "from_config": True}
-        self._write(AMBIENT, {**amb, **stamp}, log_ns, pub)
+            amb = Ambient(self.config.ambient_default_c, OK, True, stamp)
+        self._write(amb, log_ns, pub)
         if sample.burners is not None:
-            self._write(BURNERS, {**self._burner_message(sample, "modbus"), **stamp}, log_ns, pub)
+            self._write(self._burner_message(sample, "modbus", stamp), log_ns, pub)
 
-    def _burner_message(self, sample: Sample, source: str) -> dict:
+    def _burner_message(self, sample: Sample, source: str, stamp: int | None = None
+                        ) -> Burners:
         assert sample.burners is not None
-        zones = self.config.furnace.zones
-        msg: dict = {z: sample.burners[z] for z in zones}
-        msg.update({f"count_{z}": sum(sample.burners[z]) for z in zones})
-        msg["source"] = source
-        msg["quality"] = sample.burner_quality
-        return msg
+        states = {z: sample.burners[z] for z in self.config.furnace.zones}
+        return Burners.from_states(states, source, sample.burner_quality, stamp)
 
     def _compare_burners(self, plc: Sample, flame: Sample, log_ns: int) -> None:
         """An event when PLC states and flame scanners disagree for `disagreement_polls`
@@ -614,11 +613,11 @@ class Daemon:
         if diff:
             self.counters.disagreements += 1
             detail = f"PLC and flame scanners disagree on {', '.join(sorted(diff))}"
-            kind = "burner_disagreement"
+            kind = DaqEventKind.BURNER_DISAGREEMENT
         else:
-            detail, kind = "PLC and flame scanners agree again", "burner_agreement"
-        self._write(DAQ_EVENTS, {"kind": kind, "detail": detail, "burners": sorted(diff),
-                                 "plc": plc.burners, "flame": flame.burners}, log_ns, log_ns)
+            detail, kind = "PLC and flame scanners agree again", DaqEventKind.BURNER_AGREEMENT
+        self._write(DaqEvent(kind, detail, burners=sorted(diff), plc=plc.burners,
+                             flame=flame.burners), log_ns, log_ns)
 
     # -- connections ------------------------------------------------------------------------------
     async def _connector(self, link: Link) -> None:
@@ -682,7 +681,7 @@ class Daemon:
                 await self.flame.connect()
             except SourceError as exc:
                 now = self.wall_ns()
-                self._event({"kind": "can_unavailable", "detail": str(exc)}, now)
+                self._event(DaqEvent(DaqEventKind.CAN_UNAVAILABLE, str(exc)), now)
                 await self._sleep(self.config.plc.reconnect.delay(attempt))
                 attempt += 1
         if self.flame.connected and attempt:
@@ -713,14 +712,12 @@ class Daemon:
         self.detail = detail
         self._last_status_mono = time.monotonic()
         now = self.wall_ns()
-        msg = {"state": self.state, "detail": detail, **asdict(self.counters),
-               "period_s": self.config.poll_period_s,
-               "devices": {each.name: each.state for each in self.links}}
-        if link is not None:
-            msg["device"] = link.name
-        if self.log.error:
-            msg["log_error"] = self.log.error
-        self._write(DAQ_STATUS, msg, now, now)
+        msg = DaqStatus(self.state, detail, **asdict(self.counters),
+                        period_s=self.config.poll_period_s,
+                        devices={each.name: each.state for each in self.links},
+                        device=None if link is None else link.name,
+                        log_error=self.log.error or None)
+        self._write(msg, now, now)
         self.notifier.status(self._status_line())
 
     def _status_line(self) -> str:
@@ -729,22 +726,22 @@ class Daemon:
                 f"{c.skipped_ticks} skipped, {c.disconnects} drops")
         return line + (f"; LOG: {self.log.error}" if self.log.error else "")
 
-    def _write(self, topic: str, message: dict, log_ns: int, pub_ns: int) -> None:
-        self.log.write(topic, message, log_ns, pub_ns)
-        if topic == DAQ_EVENTS:
+    def _write(self, message: AnyMessage, log_ns: int, pub_ns: int) -> None:
+        self.log.write(message.TOPIC, message.to_json(), log_ns, pub_ns)
+        if isinstance(message, DaqEvent):
             self._tell_event(message)
-        if self.refit is not None and topic in FURNACE_TOPICS:
-            self._guarded(self.refit.feed, topic, message, pub_ns)
+        if self.refit is not None and isinstance(message, Thermocouples | Burners | Ambient):
+            self._guarded(self.refit.feed, message.TOPIC, message, pub_ns)
 
-    def _event(self, message: dict, now_ns: int) -> None:
+    def _event(self, message: DaqEvent, now_ns: int) -> None:
         """A /daq/events message, also told to the journal."""
-        self.log.write(DAQ_EVENTS, message, now_ns, now_ns)
+        self.log.write(DAQ_EVENTS, message.to_json(), now_ns, now_ns)
         self._tell_event(message)
 
-    def _tell_event(self, message: dict) -> None:
-        kind = str(message.get("kind", "event"))
-        self.journal.say(EVENT_PRIORITY.get(kind, NOTICE),
-                         f"{kind}: {message.get('detail', '')}", f"event:{kind}")
+    def _tell_event(self, message: Event) -> None:
+        kind = str(message.kind)
+        self.journal.say(EVENT_PRIORITY.get(message.kind, NOTICE),  # type: ignore[call-overload]
+                         f"{kind}: {message.detail}", f"event:{kind}")
 
     # -- refits -----------------------------------------------------------------------------------
     def _guarded(self, call: Callable, *args) -> None:
@@ -754,8 +751,8 @@ class Daemon:
             call(*args)
         except Exception as exc:  # noqa: BLE001
             now = self.wall_ns()
-            self._event({"kind": "refit_error",
-                         "detail": f"refit pipeline: {type(exc).__name__}: {exc}"}, now)
+            self._event(DaqEvent(DaqEventKind.REFIT_ERROR,
+                                 f"refit pipeline: {type(exc).__name__}: {exc}"), now)
 
     def _pump_refits(self) -> None:
         assert self.refit is not None
@@ -768,27 +765,28 @@ class Daemon:
             self._state_reported = error
             if error is not None:
                 now = self.wall_ns()
-                self._event({"kind": "state_write_failed",
-                             "detail": f"latest model not saved: {error}"}, now)
+                self._event(DaqEvent(DaqEventKind.STATE_WRITE_FAILED,
+                                     f"latest model not saved: {error}"), now)
 
-    def _model_message(self, topic: str, message: dict, pub_ns: int) -> None:
+    def _model_message(self, topic: str, message: ModelParameters | ModelEvent,
+                       pub_ns: int) -> None:
         if self._last_plc_s is not None:  # the data clock is the PLC's: say so in its field
-            message["plc_time"] = plc_time(pub_ns)
-        self.log.write(topic, message, self.wall_ns(), pub_ns)
-        if topic == MODEL_EVENTS:
+            message.plc_time = pub_ns
+        data = message.to_json()
+        self.log.write(topic, data, self.wall_ns(), pub_ns)
+        if isinstance(message, ModelEvent):
             self._tell_event(message)
-        if topic != MODEL_PARAMETERS:
             return
-        if self.on_model is not None:
+        if self.on_model is not None:  # a consumer sees the message as logged
             try:
-                self.on_model(message)
+                self.on_model(data)
             except Exception as exc:  # noqa: BLE001 - a consumer's bug is not ours to die of
                 now = self.wall_ns()
-                self._event({"kind": "on_model_error",
-                             "detail": f"{type(exc).__name__}: {exc}"}, now)
+                self._event(DaqEvent(DaqEventKind.ON_MODEL_ERROR,
+                                     f"{type(exc).__name__}: {exc}"), now)
         if self._state_writer is not None and self.config.refit is not None:
             state_dir = self.config.refit.state_dir
-            files = [(state_dir / MODEL_FILE, message)]
+            files = [(state_dir / MODEL_FILE, data)]
             if self.refit is not None:  # the chain has taken this window in already
                 files.append((state_dir / CHAIN_FILE, self.refit.chain.state()))
             self._state_writer.submit(self._write_state, files)
@@ -806,12 +804,12 @@ class Daemon:
             return
         except (OSError, UnicodeDecodeError, ValueError) as exc:
             detail = f"{path}: {getattr(exc, 'strerror', None) or exc}; refits start afresh"
-            self._event({"kind": "state_unusable", "detail": detail}, now)
+            self._event(DaqEvent(DaqEventKind.STATE_UNUSABLE, detail), now)
             return
         model = self.refit.chain.model
-        detail = (f"from {path}: model of the window to {model['window_end']}"
+        detail = (f"from {path}: model of the window to {model.window_end}"
                   if model is not None else f"from {path}: no model fitted yet")
-        self._event({"kind": "refit_resumed", "detail": detail}, now)
+        self._event(DaqEvent(DaqEventKind.REFIT_RESUMED, detail), now)
 
     def _write_state(self, files: list[tuple[Path, dict]]) -> None:
         """In the writer thread; a failure is remembered and reported once per kind."""
@@ -836,8 +834,8 @@ class Daemon:
         left = len(self.refit.queue) + (self.refit.in_flight is not None)
         if left:
             now = self.wall_ns()
-            self._event({"kind": "refit_abandoned",
-                         "detail": f"{left} refit window(s) not fitted at stop"}, now)
+            self._event(DaqEvent(DaqEventKind.REFIT_ABANDONED,
+                                 f"{left} refit window(s) not fitted at stop"), now)
         self.refit.close()
         if self._state_writer is not None:
             self._state_writer.shutdown(wait=True)

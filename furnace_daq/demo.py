@@ -36,6 +36,7 @@ from furnace_model.experiment import experiment_from_frame, write_table
 from furnace_model.identification.fit import fit
 from furnace_model.identification.model import Model
 from furnace_model.identification.result import FitResult
+from furnace_model.log.messages import Burners, ModelParameters, Thermocouples, number
 from furnace_model.log.resample import resample_logs
 from furnace_model.log.schema import BURNERS, THERMOCOUPLES, param_names
 from furnace_model.simulation.furnace import PAPER, Furnace
@@ -150,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
     out_json = args.out / "fit.json"
     out_json.write_text(json.dumps(whole.to_json([str(data)]), indent=2))
 
-    good = [m for m in refits if m.get("status") == "ok"]
+    good = [m for m in refits if m.fitted]
     print("\n4. Identified parameters against the simulator's truth")
     if not good:
         print("   no online refit succeeded: see /model/parameters in the log for why",
@@ -158,13 +159,14 @@ def run(args: argparse.Namespace) -> int:
         return 1
     last = good[-1]
     start = scenario.start_time
-    print(f"   last online refit: window {_hours(last['window_start'], start)}-"
-          f"{_hours(last['window_end'], start)} h; whole run: 0-{scenario.duration_min / 60:.1f} h")
+    print(f"   last online refit: window {_hours(last.window_start, start)}-"
+          f"{_hours(last.window_end, start)} h; whole run: 0-{scenario.duration_min / 60:.1f} h")
     _report(last, whole, scenario)
     from furnace_model.plots import plot_fit  # matplotlib: not for the refit worker's import
 
-    label = f"online model of {_hours(last['window_end'], start)} h"
-    online = Model(ModelStructure(furnace=furnace), {p: last[p] for p in param_names(furnace)})
+    label = f"online model of {_hours(last.window_end, start)} h"
+    online = Model(ModelStructure(furnace=furnace),
+                   {p: last.params[p] for p in param_names(furnace)})
     plots = plot_fit(exp, online.predict(exp), args.out, label)
     plots.append(plot_refits(good, scenario, args.out / "refits.png"))
     print(f"\n   MCAP log:   {', '.join(map(str, logs))}")
@@ -180,9 +182,10 @@ def run(args: argparse.Namespace) -> int:
 class _Tap:
     """The daemon's log, seen in passing: the display shows what was acquired and logged."""
 
-    def __init__(self, log: LogWriter):
+    def __init__(self, log: LogWriter, furnace: Furnace):
         self.inner = log
-        self.latest: dict[str, dict] = {}
+        self.furnace = furnace
+        self.latest: dict[str, Thermocouples | Burners] = {}
 
     @property
     def error(self) -> str | None:
@@ -190,8 +193,12 @@ class _Tap:
 
     def write(self, topic: str, message: dict, log_time_ns: int,
               publish_time_ns: int | None = None) -> None:
-        if topic in (THERMOCOUPLES, BURNERS) and "error" not in message:
-            self.latest[topic] = message
+        if topic == THERMOCOUPLES:
+            tc = Thermocouples.from_json(message, self.furnace)
+            if tc.error is None:
+                self.latest[topic] = tc
+        elif topic == BURNERS:
+            self.latest[topic] = Burners.from_json(message, self.furnace)
         self.inner.write(topic, message, log_time_ns, publish_time_ns)
 
     def maybe_flush(self, now_monotonic: float) -> None:
@@ -223,7 +230,7 @@ async def _start_plc(args: argparse.Namespace, scan_s: float
     return proc, int(line.rsplit(":", 1)[1])
 
 
-async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) -> list[dict]:
+async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) -> list[ModelParameters]:
     """The simulated PLC, the daemon and its refit worker: three processes, as on a gateway
     polling a PLC. Returns the /model/parameters messages."""
     poll_s = 60.0 / args.polls_per_minute / args.speed
@@ -240,10 +247,11 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
     log_dir.mkdir(parents=True, exist_ok=True)
     log = _Tap(LogWriter(log_dir, prefix=config.log.prefix, flush_interval_s=1.0,
                          file_mode=config.log.file_mode, metadata=build_metadata(config),
-                         event_priority=EVENT_PRIORITY))
-    refits: list[dict] = []
+                         event_priority=EVENT_PRIORITY), config.furnace)
+    refits: list[ModelParameters] = []
 
-    def on_model(msg: dict) -> None:
+    def on_model(message: dict) -> None:
+        msg = ModelParameters.from_json(message)
         refits.append(msg)
         print(_refit_line(msg, scenario.start_time), flush=True)
 
@@ -275,7 +283,7 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
     print(_progress_line(log.latest, config.furnace))
     print(f"   {counters.ok_polls} of {counters.polls} polls answered, "
           f"{counters.skipped_ticks} ticks skipped; {len(refits)} refits, "
-          f"{sum(m.get('status') == 'ok' for m in refits)} ok")
+          f"{sum(m.fitted for m in refits)} ok")
     skipped = counters.skipped_ticks / max(counters.polls + counters.skipped_ticks, 1)
     if skipped > 0.1:
         print(f"   note: {100 * skipped:.0f}% of the poll ticks were skipped: this host is too "
@@ -289,21 +297,22 @@ def _columns(furnace: Furnace) -> tuple[str, ...]:
     return furnace.sensors if furnace == PAPER else furnace.zones
 
 
-def _progress_line(latest: dict[str, dict], furnace: Furnace = PAPER) -> str:
+def _progress_line(latest: dict[str, Thermocouples | Burners], furnace: Furnace = PAPER
+                   ) -> str:
     tc, burners = latest.get(THERMOCOUPLES), latest.get(BURNERS)
-    if tc is None:
+    if not isinstance(tc, Thermocouples):
         return "   (no reading yet)"
-    hours = tc.get("plc_seconds", math.nan) / 3600.0
+    hours = (math.nan if tc.plc_seconds is None else tc.plc_seconds) / 3600.0
     if furnace == PAPER:
-        values = [tc.get(s) for s in furnace.sensors]
+        values: list = [tc.values.get(s) for s in furnace.sensors]
     else:
-        readings = np.array([v if isinstance(v, int | float) else np.nan
-                             for v in (tc.get(s) for s in furnace.sensors)], dtype=float)
+        readings = np.array([number(tc.values.get(s)) for s in furnace.sensors], dtype=float)
         values = [None if not np.isfinite(v) else float(v)
                   for v in furnace.zone_means(readings[None, :])[0]]
     temps = " ".join(f"{v:8.1f}" if isinstance(v, int | float) else f"{'-':>8}"
                      for v in values)
-    fired = "/".join(str(burners[f"count_{z}"]) for z in furnace.zones) if burners else "?"
+    fired = "/".join(str(burners.counts[z]) for z in furnace.zones) \
+        if isinstance(burners, Burners) else "?"
     return f"   {hours:5.1f} h  {temps}  {fired}"
 
 
@@ -313,16 +322,15 @@ def _hours(iso: str, start: pd.Timestamp | None) -> str:
     return f"{(pd.Timestamp(iso) - start).total_seconds() / 3600.0:g}"
 
 
-def _refit_line(msg: dict, start: pd.Timestamp | None) -> str:
-    window = f"{_hours(msg['window_start'], start)}-{_hours(msg['window_end'], start)} h"
-    status = msg.get("status")
-    head = f"   refit of {window:>10}: {status}"
-    if status != "ok":
-        kept = "previous model kept" if msg.get("ci95") else "no model yet"
-        return f"{head} ({msg.get('detail', '')}); {kept}"
-    names = list(msg["ci95"])  # the furnace's parameters: a..f for the paper's
-    combos = msg.get("combinations") or {}
-    named = [c for c in msg.get("determined_combinations") or () if c in combos]
+def _refit_line(msg: ModelParameters, start: pd.Timestamp | None) -> str:
+    window = f"{_hours(msg.window_start, start)}-{_hours(msg.window_end, start)} h"
+    head = f"   refit of {window:>10}: {msg.status}"
+    if not msg.fitted:
+        kept = "previous model kept" if msg.ci95 else "no model yet"
+        return f"{head} ({msg.detail}); {kept}"
+    names = list(msg.ci95 or {})  # the furnace's parameters: a..f for the paper's
+    combos = msg.combinations or {}
+    named = [c for c in msg.determined_combinations or () if c in combos]
     loose = [p for p in names if p not in named]
     if len(names) > 6:  # a network of many parameters: how many the window determines
         params = f"{len(names) - len(loose)} of {len(names)} parameters determined"
@@ -331,9 +339,10 @@ def _refit_line(msg: dict, start: pd.Timestamp | None) -> str:
     else:
         params = " ".join(f"{c} {combos[c]['value']:.5g}" for c in named)
         if loose:
-            params += "; not determined: " + " ".join(f"{p} {msg[p]:.3g}" for p in loose)
-    rmse = "/".join(f"{v:.2f}" for v in msg["rmse_c"].values())
-    took = f", {msg['elapsed_s']:.2f} s" if isinstance(msg.get("elapsed_s"), float) else ""
+            params += "; not determined: " + " ".join(f"{p} {msg.params[p]:.3g}"
+                                                      for p in loose)
+    rmse = "/".join(f"{v:.2f}" for v in (msg.rmse_c or {}).values())
+    took = f", {msg.elapsed_s:.2f} s" if isinstance(msg.elapsed_s, float) else ""
     return f"{head}: {params}; RMSE {rmse} °C{took}"
 
 
@@ -354,36 +363,37 @@ def combination_value(name: str, params: dict[str, float]) -> float:
     return value
 
 
-def _report(online: dict, whole: FitResult, scenario: Scenario) -> None:
+def _report(online: ModelParameters, whole: FitResult, scenario: Scenario) -> None:
     truth = scenario.values()
     names = param_names(scenario.furnace)
     width = max(10, *(len(n) + 1 for n in names))
     print(f"   {'':{width}}{'truth':>10}  {'last online refit':>28}  {'whole run':>28}")
-    undetermined = set(online.get("undetermined") or ())
+    undetermined = set(online.undetermined or ())
+    ci95 = online.ci95 or {}
     for name in names:
-        lo, hi = online["ci95"][name]
+        lo, hi = ci95[name]
         note = "  not determined alone (online)" if name in undetermined else ""
         print(f"   {name:{width}}{truth[name]:10.5g}  "
-              f"{_cell(online[name], truth[name], lo, hi)}  "
+              f"{_cell(online.params[name], truth[name], lo, hi)}  "
               f"{_cell(whole.params[name], truth[name], *whole.ci95[name])}{note}")
-    combos = [c for c in online.get("determined_combinations", []) if c not in names]
+    combos = [c for c in online.determined_combinations or [] if c not in names]
     combos += [c for c in whole.determined_combinations if c not in names + tuple(combos)]
     if combos:
         print("   determined combinations:")
     for name in combos:
         want = combination_value(name, truth)
         cells = []
-        for combos_of in (online.get("combinations") or {}, whole.combinations):
+        for combos_of in (online.combinations or {}, whole.combinations):
             c = combos_of.get(name)
             cells.append(_cell(c["value"], want, *c["ci95"]) if c else f"{'-':>28}")
         print(f"   {name:{width}}{want:10.5g}  {cells[0]}  {cells[1]}")
     zones = scenario.furnace.zones
     rmse = lambda m: "/".join(f"{m[z]:.2f}" for z in zones)  # noqa: E731
-    print(f"   {'RMSE, °C':{width}}{'':10}  {rmse(online['rmse_c']):>28}  "
+    print(f"   {'RMSE, °C':{width}}{'':10}  {rmse(online.rmse_c or {}):>28}  "
           f"{rmse({z: whole.per_zone[z]['rmse_c'] for z in zones}):>28}")
 
 
-def plot_refits(refits: list[dict], scenario: Scenario, path: Path) -> Path:
+def plot_refits(refits: list[ModelParameters], scenario: Scenario, path: Path) -> Path:
     """Each fitted window's a, f, b/c and d/e (another furnace's: its heats per burner)
     against the truth, with 95% intervals: what the online identification did over the run,
     on one page."""
@@ -395,7 +405,7 @@ def plot_refits(refits: list[dict], scenario: Scenario, path: Path) -> Path:
     fig = Figure(figsize=(8, 4.5), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.subplots()
-    ends = [float(_hours(m["window_end"], start)) if start is not None else k
+    ends = [float(_hours(m.window_end, start)) if start is not None else k
             for k, m in enumerate(refits)]
     furnace = scenario.furnace
     shown = (("a", "f", "b/c", "d/e") if furnace.paper_structure
@@ -404,9 +414,9 @@ def plot_refits(refits: list[dict], scenario: Scenario, path: Path) -> Path:
         want = combination_value(name, truth)
         x, y, err = [], [], []
         for end, m in zip(ends, refits, strict=True):
-            c = (m.get("combinations") or {}).get(name)
-            if c is None and name in m.get("ci95", {}) and name in m:
-                c = {"value": m[name], "ci95": m["ci95"][name]}
+            c = (m.combinations or {}).get(name)
+            if c is None and name in (m.ci95 or {}) and name in m.params:
+                c = {"value": m.params[name], "ci95": m.ci95[name]}  # type: ignore[index]
             if c is None:
                 continue
             lo, hi = c["ci95"]

@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from furnace_model.errors import DataError
+from furnace_model.log.messages import Ambient, Burners, Thermocouples, number, typed
 from furnace_model.log.read import iso_time, log_furnace, read_messages
-from furnace_model.log.schema import AMBIENT, BURNERS, THERMOCOUPLES
+from furnace_model.log.schema import FURNACE_TOPICS, THERMOCOUPLES
 from furnace_model.simulation.furnace import Furnace
 
 from .registers import COMM_ERROR
@@ -115,22 +116,20 @@ def _read(paths: Iterable[Path], names: str, furnace: Furnace) -> tuple[list, li
     air: list[tuple[int, list[float]]] = []
     plc_burners: list[tuple[int, list[bool]]] = []
     can_burners: list[tuple[int, list[bool]]] = []
-    for topic, msg, log_ns, pub_ns in read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT)):
+    for topic, msg, log_ns, pub_ns in typed(read_messages(paths, FURNACE_TOPICS), furnace):
         where = f"{names}: {topic} at {iso_time(log_ns)}"
-        if topic == THERMOCOUPLES:
-            quality = msg.get("quality")
-            quality = quality if isinstance(quality, dict) else {}
-            if all(quality.get(s) == COMM_ERROR for s in furnace.sensors):
+        if isinstance(msg, Thermocouples):
+            if all(msg.quality.get(s) == COMM_ERROR for s in furnace.sensors):
                 continue
-            tc.append((pub_ns, [_number(msg.get(s)) for s in furnace.sensors]))
+            tc.append((pub_ns, [number(msg.values.get(s)) for s in furnace.sensors]))
             tc_offsets.append((log_ns, pub_ns - log_ns))
-        elif topic == AMBIENT:
-            if msg.get("quality", "ok") == COMM_ERROR:
+        elif isinstance(msg, Ambient):
+            if msg.quality == COMM_ERROR:
                 continue
-            air.append((pub_ns, [_number(msg.get("t_air"))]))
-        elif msg.get("source") == "can":
+            air.append((pub_ns, [number(msg.t_air)]))
+        elif isinstance(msg, Burners) and msg.source == "can":
             can_burners.append((log_ns, _states(msg, where, furnace)))
-        else:
+        elif isinstance(msg, Burners):
             plc_burners.append((pub_ns, _states(msg, where, furnace)))
     burners = plc_burners
     if not burners and can_burners and tc_offsets:
@@ -141,20 +140,13 @@ def _read(paths: Iterable[Path], names: str, furnace: Furnace) -> tuple[list, li
     return tc, air, burners
 
 
-def _states(msg: dict, where: str, furnace: Furnace) -> list[bool]:
+def _states(msg: Burners, where: str, furnace: Furnace) -> list[bool]:
     """The flame states of a burner message, zone after zone (from the counts when the lists
     are absent)."""
-    lists = [msg.get(z) for z in furnace.zones]
-    if all(isinstance(v, list) for v in lists) and \
-            [len(v) for v in lists] == list(furnace.burners):
-        return [bool(b) for v in lists for b in v]
-    counts = [msg.get(f"count_{z}") for z in furnace.zones]
-    if all(isinstance(n, int) and not isinstance(n, bool) for n in counts):
+    states = msg.flame_states(furnace)
+    if states is not None:
+        return states
+    counts = msg.integer_counts(furnace)
+    if counts is not None:
         return states_from_counts(np.array(counts), furnace)
-    raise DataError(where, f"no burner states or counts in {msg}")
-
-
-def _number(v: object) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float):
-        return math.nan
-    return float(v) if math.isfinite(v) else math.nan
+    raise DataError(where, f"no burner states or counts in {msg.to_json()}")

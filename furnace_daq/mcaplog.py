@@ -43,6 +43,7 @@ from typing import Any, BinaryIO, NamedTuple
 
 from mcap.writer import CompressionType, Writer
 
+from furnace_model.log.messages import DaqEvent, DaqEventKind, DaqStatus, LogLine, ModelEvent
 from furnace_model.log.read import PART_SUFFIX, iso_time, recorded_furnace
 from furnace_model.log.schema import (
     DAQ_EVENTS,
@@ -52,7 +53,6 @@ from furnace_model.log.schema import (
     MESSAGE_ENCODING,
     MODEL_EVENTS,
     SCHEMA_ENCODING,
-    log_line,
     topic,
 )
 from furnace_model.simulation.furnace import Furnace
@@ -153,19 +153,21 @@ class LogWriter:
         """The /log line of a status change or an event, or None for other messages (and
         for a periodic status that repeats the last one)."""
         if name == DAQ_STATUS:
-            key = (message.get("state"), message.get("detail"))
+            status = DaqStatus.from_json(message)
+            key = (status.state, status.detail)
             if key == self._last_status:
                 return None
             self._last_status = key
-            level = LOG_LEVELS["info" if key[0] == "connected" else "warning"]
-            text = f"{key[0]}: {key[1]}"
+            level = LOG_LEVELS["info" if status.state == "connected" else "warning"]
+            text = f"{status.state}: {status.detail}"
         elif name in (DAQ_EVENTS, MODEL_EVENTS):
-            kind = str(message.get("kind", "event"))
-            level = _level(self.event_priority.get(kind, 5))
-            text = f"{kind}: {message.get('detail', '')}"
+            event = DaqEvent.from_json(message) if name == DAQ_EVENTS else \
+                ModelEvent.from_json(message)
+            level = _level(self.event_priority.get(event.kind, 5))
+            text = f"{event.kind}: {event.detail}"
         else:
             return None
-        return log_line(log_time_ns, level, text, LIBRARY, name)
+        return LogLine(log_time_ns, level, text, LIBRARY, name).to_json()
 
     def maybe_flush(self, now_monotonic: float) -> None:
         """Close the chunk and fsync when the flush interval has passed; retry a failed log.
@@ -345,12 +347,11 @@ class LogWriter:
         self.error = None
         dropped, self._dropped_in_outage = self._dropped_in_outage, 0
         now_ns = time.time_ns()
-        self.write(DAQ_EVENTS, {
-            "kind": "log_gap",
-            "detail": (f"the log could not be written from {iso_time(first_ns)} to {iso_time(now_ns)}: "
-                       f"{error}; {dropped} messages dropped"),
-            "error": error, "dropped": dropped,
-        }, now_ns)
+        self.write(DAQ_EVENTS, DaqEvent(
+            DaqEventKind.LOG_GAP,
+            (f"the log could not be written from {iso_time(first_ns)} to {iso_time(now_ns)}: "
+             f"{error}; {dropped} messages dropped"),
+            error=error, dropped=dropped).to_json(), now_ns)
 
     def _apply_retention(self) -> None:
         if self.retention_files <= 0:

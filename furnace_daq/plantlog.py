@@ -13,6 +13,7 @@ from collections.abc import Iterator
 import numpy as np
 import pandas as pd
 
+from furnace_model.log.messages import Ambient, Burners, FurnaceMessage, Thermocouples
 from furnace_model.log.schema import AMBIENT, BURNERS, THERMOCOUPLES
 from furnace_model.simulation.plant import PlantRun
 
@@ -21,7 +22,7 @@ from .simplc import states_from_counts, zone_slices
 
 
 def run_messages(run: PlantRun, start: pd.Timestamp | None = None
-                 ) -> Iterator[tuple[str, dict, int]]:
+                 ) -> Iterator[tuple[str, FurnaceMessage, int]]:
     """(topic, message, publish time ns) per sample, thermocouples rounded to the PLC's
     0.1 degC as the register map delivers them."""
     t0 = (start or run.start_time or pd.Timestamp("2026-01-01T00:00:00Z")).value
@@ -30,22 +31,20 @@ def run_messages(run: PlantRun, start: pd.Timestamp | None = None
     furnace = run.furnace
     ok = {s: "ok" for s in furnace.sensors}
     last_counts = None
-    burner_msg: dict = {}
+    burner_msg: Burners | None = None
     for i in range(run.t_min.size):
         t = int(pub[i])
-        msg: dict = dict(zip(furnace.sensors, tc[i].tolist(), strict=True))
-        msg["quality"] = ok
-        msg["plc_seconds"] = float(run.t_min[i] * 60.0)
-        yield THERMOCOUPLES, msg, t
-        yield AMBIENT, {"t_air": float(run.t_air[i]), "quality": "ok"}, t
+        yield THERMOCOUPLES, Thermocouples(dict(zip(furnace.sensors, tc[i].tolist(),
+                                                    strict=True)),
+                                           ok, float(run.t_min[i] * 60.0)), t
+        yield AMBIENT, Ambient(float(run.t_air[i]), "ok"), t
         counts = tuple(int(n) for n in run.burners[i])
-        if counts != last_counts:
+        if counts != last_counts or burner_msg is None:
             states = states_from_counts(np.array(counts), furnace)
-            burner_msg = {z: states[k] for z, k in zip(furnace.zones, zone_slices(furnace),
-                                                       strict=True)}
-            burner_msg.update({f"count_{z}": n for z, n in zip(furnace.zones, counts,
-                                                               strict=True)})
-            burner_msg.update(source="modbus", quality="ok")
+            burner_msg = Burners({z: states[k] for z, k in zip(furnace.zones,
+                                                               zone_slices(furnace),
+                                                               strict=True)},
+                                 dict(zip(furnace.zones, counts, strict=True)), "modbus", "ok")
             last_counts = counts
         yield BURNERS, burner_msg, t
 
@@ -55,6 +54,6 @@ def write_run(run: PlantRun, log: LogWriter, start: pd.Timestamp | None = None) 
     returns the number of messages written. The writer must be of the run's furnace."""
     n = 0
     for topic, msg, t in run_messages(run, start):
-        log.write(topic, msg, t, t)
+        log.write(topic, msg.to_json(), t, t)
         n += 1
     return n

@@ -65,9 +65,18 @@ import pandas as pd
 from furnace_model.experiment import Experiment
 from furnace_model.identification.fit import WarmStart, fit
 from furnace_model.identification.result import FitResult
+from furnace_model.log.messages import (
+    Ambient,
+    FurnaceMessage,
+    ModelEvent,
+    ModelEventKind,
+    ModelParameters,
+    Thermocouples,
+    as_message,
+)
 from furnace_model.log.read import iso_time
 from furnace_model.log.resample import Resampler
-from furnace_model.log.schema import AMBIENT, THERMOCOUPLES, absent, param_names
+from furnace_model.log.schema import param_names
 from furnace_model.simulation.furnace import PAPER, Furnace
 from furnace_model.simulation.structure import ModelStructure
 
@@ -206,6 +215,12 @@ MODEL_KEYS = ("ci95", "rmse_c", "window_start", "window_end", "determined_combin
 """What the message of a window that keeps the model copies from it."""
 
 
+def _carries_model(model: ModelParameters, names: tuple[str, ...]) -> bool:
+    """Whether `model` is a fitted /model/parameters message: a window may keep it."""
+    return (model.fitted and all(model.params.get(p, 0) > 0 for p in names)
+            and all(getattr(model, k) not in (None, "") for k in MODEL_KEYS))
+
+
 @dataclass
 class _Reference:
     value: float
@@ -224,7 +239,7 @@ class RefitChain:
     config: RefitConfig
     t_air_default: float = 30.0
     furnace: Furnace = PAPER
-    model: dict | None = None
+    model: ModelParameters | None = None
     """The model in force: the last window fitted with status ok (its message)."""
     references: dict[str, _Reference] = field(default_factory=dict)
     quiet_until: str | None = None
@@ -240,7 +255,8 @@ class RefitChain:
     def state(self) -> dict:
         """What a restarted daemon needs to go on where this chain stopped: the model in force
         and the drift references, as plain JSON."""
-        return {"version": STATE_VERSION, "model": self.model,
+        model = None if self.model is None else self.model.to_json()
+        return {"version": STATE_VERSION, "model": model,
                 "references": {p: {**asdict(r), "ci95": list(r.ci95)}
                                for p, r in self.references.items()},
                 "quiet_until": self.quiet_until, "recent_streak": self.recent_streak,
@@ -252,12 +268,10 @@ class RefitChain:
         try:
             if not isinstance(state, dict) or state.get("version") != STATE_VERSION:
                 raise ValueError(f"not a chain state of version {STATE_VERSION}")
-            model = state["model"]
-            if model is not None and not (
-                    isinstance(model, dict) and model.get("status") == "ok"
-                    and all(isinstance(model.get(p), float | int) and model[p] > 0
-                            for p in self.names)
-                    and all(k in model for k in MODEL_KEYS)):
+            raw = state["model"]
+            model = None if not isinstance(raw, dict) else \
+                ModelParameters.from_json(raw)
+            if raw is not None and (model is None or not _carries_model(model, self.names)):
                 raise ValueError("its model is not a fitted /model/parameters message")
             refs = {p: _Reference(float(r["value"]), (float(r["ci95"][0]), float(r["ci95"][1])),
                                   str(r["window_end"]), bool(r["determined"]), int(r["streak"]),
@@ -291,19 +305,19 @@ class RefitChain:
         exp = window.experiment
         cfg = self.config
         init = None if self.model is None or cfg.method == "ga" \
-            else {p: self.model[p] for p in self.names}
+            else {p: self.model.params[p] for p in self.names}
         recent_ns = window.end_ns - int(round(RECENT_PERIODS * cfg.period_s * 1e9))
         t0 = exp.start_time.value if exp.start_time is not None else window.start_ns
         recent = (recent_ns - t0) / 60e9 if recent_ns > window.start_ns else None
         warm = None
         if init is not None and self.model is not None:
-            warm = WarmStart([self.model.get("zone_offsets_c")],
-                             {p: tuple(v) for p, v in self.model["ci95"].items()})
+            warm = WarmStart([self.model.zone_offsets_c],
+                             {p: tuple(v) for p, v in (self.model.ci95 or {}).items()})
         return FitJob(exp, init, cfg.budget_s, recent, cfg.method, cfg.population,
                       cfg.generations, warm)
 
     def process(self, window: Window, fitter: Callable[[FitJob], dict] = run_fit
-                ) -> tuple[dict, list[dict]]:
+                ) -> tuple[ModelParameters, list[ModelEvent]]:
         """Check, fit in this process, accept: replay without a worker, and the tests."""
         reason = self.check(window)
         if reason is not None:
@@ -316,64 +330,62 @@ class RefitChain:
 
     # -- messages --------------------------------------------------------------------------
 
-    def _base(self, window: Window, status: str, detail: str) -> dict:
+    def _base(self, window: Window, status: str, detail: str) -> ModelParameters:
         exp = window.experiment
-        return {"status": status, "detail": detail,
-                "window_start": iso_time(window.start_ns), "window_end": iso_time(window.end_ns),
-                "n_samples": 0 if exp is None else len(exp),
-                "gap_fraction": round(window.gap_fraction, 6),
-                "burner_steps": window.burner_steps}
+        return ModelParameters(status, detail, iso_time(window.start_ns), iso_time(window.end_ns),
+                               0 if exp is None else len(exp), round(window.gap_fraction, 6),
+                               window.burner_steps)
 
-    def kept(self, window: Window, status: str, detail: str) -> dict:
+    def kept(self, window: Window, status: str, detail: str) -> ModelParameters:
         """The message of a window that did not change the model: the model in force (or
         nulls before the first), with the reason."""
         msg = self._base(window, status, detail)
         m = self.model
+        msg.ci95 = {} if m is None else m.ci95
+        msg.rmse_c = {} if m is None else m.rmse_c
         if m is not None:  # before the first model a..f are absent (the schema has no null)
-            msg.update({p: m[p] for p in self.names})
-        msg["ci95"] = {} if m is None else m["ci95"]
-        msg["rmse_c"] = {} if m is None else m["rmse_c"]
-        if m is not None:
-            msg["model_window_start"] = m["window_start"]
-            msg["model_window_end"] = m["window_end"]
-            msg["determined_combinations"] = m["determined_combinations"]
-            msg["combinations"] = m["combinations"]
+            msg.params = {p: m.params[p] for p in self.names}
+            msg.model_window_start = m.window_start
+            msg.model_window_end = m.window_end
+            msg.determined_combinations = m.determined_combinations
+            msg.combinations = m.combinations
         return msg
 
-    def accept(self, window: Window, outcome: dict) -> tuple[dict, list[dict]]:
+    def accept(self, window: Window, outcome: dict
+               ) -> tuple[ModelParameters, list[ModelEvent]]:
         """The worker's outcome for `window` -> (the /model/parameters message, events)."""
         if outcome.get("status") != "ok" or not _finite(outcome, self.names):
             detail = outcome.get("detail") or "the fit returned non-finite values"
             msg = self.kept(window, "failed", detail)
-            msg.update(absent({"elapsed_s": outcome.get("elapsed_s"),
-                               "search": outcome.get("search")}))
+            msg.elapsed_s, msg.search = outcome.get("elapsed_s"), outcome.get("search")
             return msg, []
         msg = self._base(window, "ok", outcome["detail"])
-        msg.update({p: outcome["params"][p] for p in self.names})
-        msg.update(absent({k: outcome[k] for k in ("ci95", "rmse_c", "combinations",
-                                                   "determined_combinations", "undetermined",
-                                                   "zone_offsets_c", "flags", "sigma_c",
-                                                   "elapsed_s", "search")}))
-        msg["model_window_start"] = msg["window_start"]
-        msg["model_window_end"] = msg["window_end"]
+        msg.params = {p: outcome["params"][p] for p in self.names}
+        msg.ci95, msg.rmse_c = outcome["ci95"], outcome["rmse_c"]
+        msg.combinations = outcome["combinations"]
+        msg.determined_combinations = outcome["determined_combinations"]
+        msg.undetermined, msg.zone_offsets_c = outcome["undetermined"], outcome["zone_offsets_c"]
+        msg.flags, msg.sigma_c = outcome["flags"], outcome["sigma_c"]
+        msg.elapsed_s, msg.search = outcome["elapsed_s"], outcome["search"]
+        msg.model_window_start = msg.window_start
+        msg.model_window_end = msg.window_end
         recent = outcome.get("recent")
-        if recent is not None:
-            msg["recent_f"] = recent
+        msg.recent_f = recent
         events = self._drift(msg) or self._drift_recent(msg, recent)
         self.model = msg
         return msg, events
 
-    def _drift(self, msg: dict) -> list[dict]:
+    def _drift(self, msg: ModelParameters) -> list[ModelEvent]:
         cfg = self.config
-        events: list[dict] = []
-        if self.quiet_until is not None and msg["window_start"] < self.quiet_until:
+        events: list[ModelEvent] = []
+        if self.quiet_until is not None and msg.window_start < self.quiet_until:
             return events  # still holds data from before the last event: see module doc
         for p in self.names:
-            new, (lo, hi) = float(msg[p]), msg["ci95"][p]
-            determined = p not in msg["undetermined"]
+            new, (lo, hi) = float(msg.params[p]), msg.ci95[p]
+            determined = p not in msg.undetermined
             ref = self.references.get(p)
             if ref is None or not ref.determined:
-                self.references[p] = _Reference(new, (lo, hi), msg["window_end"], determined)
+                self.references[p] = _Reference(new, (lo, hi), msg.window_end, determined)
                 continue
             direction = _moved(ref, new, (lo, hi), cfg.drift_min_change) if determined else 0
             if direction == 0 or direction != ref.direction:
@@ -385,34 +397,34 @@ class RefitChain:
             if ref.streak < cfg.drift_windows:
                 continue
             change = new / ref.value - 1.0
-            events.append({
-                "kind": "drift", "parameter": p,
-                "detail": (f"{p} {'rose' if change > 0 else 'fell'} {100 * abs(change):.1f}% "
+            events.append(ModelEvent(
+                ModelEventKind.DRIFT, parameter=p,
+                detail=(f"{p} {'rose' if change > 0 else 'fell'} {100 * abs(change):.1f}% "
                            f"from {ref.value:.6g} [{ref.ci95[0]:.6g}, {ref.ci95[1]:.6g}] "
                            f"(window to {ref.window_end}) to {new:.6g} [{lo:.6g}, {hi:.6g}] "
-                           f"over {ref.streak} windows"),
-                "old": ref.value, "old_ci95": list(ref.ci95), "old_window_end": ref.window_end,
-                "new": new, "new_ci95": [lo, hi], "relative_change": change,
-                "windows": ref.streak, "window_start": msg["window_start"],
-                "window_end": msg["window_end"], "parameters": {p: new}})
-            self.references[p] = _Reference(new, (lo, hi), msg["window_end"], determined)
+                        f"over {ref.streak} windows"),
+                old=ref.value, old_ci95=list(ref.ci95), old_window_end=ref.window_end,
+                new=new, new_ci95=[lo, hi], relative_change=change,
+                windows=ref.streak, window_start=msg.window_start,
+                window_end=msg.window_end, parameters={p: new}))
+            self.references[p] = _Reference(new, (lo, hi), msg.window_end, determined)
         if events:
             self._after_event(msg)
         return events
 
-    def _after_event(self, msg: dict) -> None:
-        self.quiet_until = msg["window_end"]
+    def _after_event(self, msg: ModelParameters) -> None:
+        self.quiet_until = msg.window_end
         self.recent_streak, self.recent_direction = 0, 0
         for ref in self.references.values():
             ref.streak, ref.direction = 0, 0
 
-    def _drift_recent(self, msg: dict, recent: dict | None) -> list[dict]:
+    def _drift_recent(self, msg: ModelParameters, recent: dict | None) -> list[ModelEvent]:
         """The recent span's f against the reference (see the module docstring). Spans
         without firing burners neither count nor break a run."""
         ref = self.references.get("f")
         if recent is None or ref is None or not ref.determined:
             return []
-        if self.quiet_until is not None and msg["window_start"] < self.quiet_until:
+        if self.quiet_until is not None and msg.window_start < self.quiet_until:
             return []  # the window model is still a compromise across the change
         direction = _recent_moved(ref, recent,
                                   RECENT_MIN_CHANGE_FACTOR * self.config.drift_min_change)
@@ -428,23 +440,23 @@ class RefitChain:
         ci = (new - 1.96 * se, new + 1.96 * se)
         change = new / ref.value - 1.0
         start = self._recent_start(msg)
-        event = {
-            "kind": "drift", "parameter": "f", "basis": "recent",
-            "detail": (f"f {'rose' if change > 0 else 'fell'} {100 * abs(change):.1f}% from "
+        event = ModelEvent(
+            ModelEventKind.DRIFT, parameter="f", basis="recent",
+            detail=(f"f {'rose' if change > 0 else 'fell'} {100 * abs(change):.1f}% from "
                        f"{ref.value:.6g} [{ref.ci95[0]:.6g}, {ref.ci95[1]:.6g}] (window to "
                        f"{ref.window_end}) to {new:.6g} [{ci[0]:.6g}, {ci[1]:.6g}] on the data "
-                       f"from {start}, {self.recent_streak} refits in a row"),
-            "old": ref.value, "old_ci95": list(ref.ci95), "old_window_end": ref.window_end,
-            "new": new, "new_ci95": list(ci), "relative_change": change,
-            "windows": self.recent_streak, "recent_start": start,
-            "window_start": msg["window_start"], "window_end": msg["window_end"],
-            "parameters": {"f": new}}
-        self.references["f"] = _Reference(new, ci, msg["window_end"], True)
+                    f"from {start}, {self.recent_streak} refits in a row"),
+            old=ref.value, old_ci95=list(ref.ci95), old_window_end=ref.window_end,
+            new=new, new_ci95=list(ci), relative_change=change,
+            windows=self.recent_streak, recent_start=start,
+            window_start=msg.window_start, window_end=msg.window_end,
+            parameters={"f": new})
+        self.references["f"] = _Reference(new, ci, msg.window_end, True)
         self._after_event(msg)
         return [event]
 
-    def _recent_start(self, msg: dict) -> str:
-        end = pd.Timestamp(msg["window_end"]).value
+    def _recent_start(self, msg: ModelParameters) -> str:
+        end = pd.Timestamp(msg.window_end).value
         return iso_time(end - int(round(RECENT_PERIODS * self.config.period_s * 1e9)))
 
 
@@ -504,10 +516,13 @@ class WindowCutter:
         self.window_ns = int(round(self.config.window_s * 1e9))
         self.resampler = Resampler(self.step_ns, 0, self.furnace)
 
-    def feed(self, topic: str, msg: dict, pub_ns: int) -> list[Window]:
+    def feed(self, topic: str, msg: FurnaceMessage | dict, pub_ns: int) -> list[Window]:
         """Only readings move the data clock: a failed poll is stamped with the host's time
-        and burner states may come from CAN on the host's clock; both still enter the bins."""
-        if topic == THERMOCOUPLES and "error" in msg or topic not in (THERMOCOUPLES, AMBIENT):
+        and burner states may come from CAN on the host's clock; both still enter the bins.
+        A decoded dict is read as its topic's class."""
+        msg = as_message(topic, msg, self.furnace)
+        if isinstance(msg, Thermocouples) and msg.error is not None \
+                or not isinstance(msg, Thermocouples | Ambient):
             self.resampler.add(topic, msg, pub_ns)
             return []
         out: list[Window] = []

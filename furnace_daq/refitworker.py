@@ -24,6 +24,7 @@ from collections import deque
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 
+from furnace_model.log.messages import FurnaceMessage, ModelEvent, ModelEventKind, ModelParameters
 from furnace_model.log.read import iso_time
 from furnace_model.log.schema import MODEL_EVENTS, MODEL_PARAMETERS
 from furnace_model.simulation.furnace import PAPER, Furnace
@@ -36,7 +37,7 @@ KILL_MARGIN_S = 5.0
 START_TIMEOUT_S = 120.0
 """A worker that has not imported numpy and scipy after this long is declared dead."""
 
-Emit = Callable[[str, dict, int], None]
+Emit = Callable[[str, ModelParameters | ModelEvent, int], None]
 """emit(topic, message, publish time ns on the data clock)"""
 
 
@@ -150,7 +151,7 @@ class RefitRunner:
     def start(self) -> None:
         self.worker.start()
 
-    def feed(self, topic: str, msg: dict, pub_ns: int) -> None:
+    def feed(self, topic: str, msg: FurnaceMessage | dict, pub_ns: int) -> None:
         """One logged message; cuts and queues the windows that became due (and hands the
         first to the worker at once when it is idle)."""
         windows = self.cutter.feed(topic, msg, pub_ns)
@@ -162,11 +163,11 @@ class RefitRunner:
             if self.max_queue is not None and len(self.queue) > self.max_queue:
                 old = self.queue.popleft()
                 self.dropped += 1
-                self.emit(MODEL_EVENTS, {
-                    "kind": "window_dropped",
-                    "detail": f"refits fall behind: window to {iso_time(old.end_ns)} dropped "
-                              f"unfitted ({self.max_queue} windows queued)",
-                    "window_end": iso_time(old.end_ns)}, old.end_ns)
+                self.emit(MODEL_EVENTS, ModelEvent(
+                    ModelEventKind.WINDOW_DROPPED,
+                    f"refits fall behind: window to {iso_time(old.end_ns)} dropped "
+                    f"unfitted ({self.max_queue} windows queued)",
+                    window_end=iso_time(old.end_ns)), old.end_ns)
         self.pump()
 
     def busy(self) -> bool:
@@ -228,8 +229,9 @@ class RefitRunner:
         self._start_at = time.monotonic() + self._restart_delay
         self._restart_delay = min(60.0, max(1.0, 2 * self._restart_delay))
 
-    def _publish(self, window: Window, msg: dict, events: list[dict]) -> None:
-        if msg["status"] == "failed":
+    def _publish(self, window: Window, msg: ModelParameters, events: list[ModelEvent]
+                 ) -> None:
+        if msg.status == "failed":
             self.failures += 1
         self.emit(MODEL_PARAMETERS, msg, window.end_ns)
         for event in events:

@@ -10,9 +10,9 @@ import struct
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
-OK, STALE, COMM_ERROR, OUT_OF_RANGE, SENSOR_OPEN = (
-    "ok", "stale", "comm_error", "out_of_range", "sensor_open")
-QUALITIES = (OK, STALE, COMM_ERROR, OUT_OF_RANGE, SENSOR_OPEN)
+from furnace_model.log.schema import QUALITIES
+
+OK, STALE, COMM_ERROR, OUT_OF_RANGE, SENSOR_OPEN = QUALITIES
 
 REGISTER_TABLES = ("input", "holding")
 BIT_TABLES = ("discrete", "coil")

@@ -27,14 +27,12 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from furnace_model.errors import DataError
+from furnace_model.log.messages import ModelEvent, ModelParameters, typed
 from furnace_model.log.read import read_messages, recorded_furnace
 from furnace_model.log.schema import (
-    AMBIENT,
-    BURNERS,
+    FURNACE_TOPICS,
     MESSAGE_ENCODING,
-    MODEL_PARAMETERS,
     SCHEMA_ENCODING,
-    THERMOCOUPLES,
     topic,
 )
 from furnace_model.simulation.furnace import PAPER, Furnace
@@ -52,7 +50,6 @@ from .logmeta import (
 from .mcaplog import encode
 from .refitworker import RefitRunner
 
-FURNACE_TOPICS = (THERMOCOUPLES, BURNERS, AMBIENT)
 PUMP_EVERY = 256
 """Messages read between two looks at the worker."""
 
@@ -96,7 +93,8 @@ def default_out(paths: list[Path]) -> Path:
 
 def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str | Path | None,
            speed: float | None = None,
-           echo: Callable[[str, dict], None] | None = None) -> list[dict]:
+           echo: Callable[[str, ModelParameters | ModelEvent], None] | None = None
+           ) -> list[ModelParameters]:
     """Run the logs through the refit pipeline; returns the /model/parameters messages in
     order. `speed` paces the data at that many data seconds per wall second (None: as fast
     as possible). `echo(topic, message)` sees every /model message as it is produced.
@@ -117,19 +115,19 @@ def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str 
     out = Path(out_path) if out_path is not None else default_out(paths)
     if out.resolve() in {p.resolve() for p in paths}:
         raise DataError(str(out), "the output would overwrite one of the logs being replayed")
-    params: list[dict] = []
+    params: list[ModelParameters] = []
     log: ModelLog | None = None
 
-    def emit(name: str, message: dict, pub_ns: int) -> None:
+    def emit(name: str, message: ModelParameters | ModelEvent, pub_ns: int) -> None:
         assert log is not None
-        log.write(name, message, pub_ns, pub_ns)
-        if name == MODEL_PARAMETERS:
+        log.write(name, message.to_json(), pub_ns, pub_ns)
+        if isinstance(message, ModelParameters):
             params.append(message)
         if echo is not None:
             echo(name, message)
 
     runner = RefitRunner(refit, emit, t_air_default=t_air, max_queue=None, furnace=furnace)
-    messages = read_messages(paths, FURNACE_TOPICS)
+    messages = typed(read_messages(paths, FURNACE_TOPICS), furnace)
     first = next(messages, None)  # reads and checks every file before anything is written
     if first is None:
         raise DataError(", ".join(map(str, paths)), "no furnace data in the logs")

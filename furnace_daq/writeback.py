@@ -33,6 +33,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
 from furnace_model.config import Node
+from furnace_model.log.messages import DaqEvent, DaqEventKind, ModelParameters
 
 from .registers import DATA_TYPES, ORDERS, encode, integer_range
 
@@ -152,7 +153,7 @@ def parse_write_back(node: Node) -> WriteBackConfig | None:
     return WriteBackConfig(allow, tuple(points), counter) if enabled else None
 
 
-Events = Callable[[dict], None]
+Events = Callable[[DaqEvent], None]
 
 
 class WriteBack:
@@ -170,13 +171,15 @@ class WriteBack:
         self.counter = 0
         self.error: str | None = None
         self._client: AsyncModbusTcpClient | None = None
-        self._latest: dict | None = None
+        self._latest: ModelParameters | None = None
         self._task: asyncio.Task | None = None
 
     def on_model(self, message: dict) -> None:
-        if message.get("status") != "ok":
+        """The daemon's callback, with the /model/parameters message as logged."""
+        model = ModelParameters.from_json(message)
+        if not model.fitted:
             return
-        self._latest = message
+        self._latest = model
         if self._task is None or self._task.done():
             self._task = asyncio.get_running_loop().create_task(self._drain(),
                                                                 name="write-back")
@@ -187,17 +190,20 @@ class WriteBack:
             try:
                 await self.write(message)
             except WriteBackError as exc:
-                self._event("write_back_failed", str(exc))
+                self._event(DaqEventKind.WRITE_BACK_FAILED, str(exc))
 
-    def plan(self, message: dict) -> list[tuple[int, list[int]]]:
-        """(address, registers) of each request for a model message, in address order,
-        neighbouring points merged into one request. All or nothing: a PLC must never run on
-        a mix of two models' parameters."""
+    def plan(self, message: ModelParameters | dict) -> list[tuple[int, list[int]]]:
+        """(address, registers) of each request for a model message (or its JSON), in
+        address order, neighbouring points merged into one request. All or nothing: a PLC
+        must never run on a mix of two models' parameters."""
+        model = message if isinstance(message, ModelParameters) else \
+            ModelParameters.from_json(message)
         words: dict[int, int] = {}
         for p in self.config.points:
-            if message.get(p.name) is None:
+            value = model.params.get(p.name)
+            if value is None:
                 raise WriteBackError(f"the model has no value for {p.name}: nothing written")
-            for k, w in enumerate(p.registers(message[p.name])):
+            for k, w in enumerate(p.registers(value)):
                 words[p.address + k] = w
         requests: list[tuple[int, list[int]]] = []
         for a in sorted(words):
@@ -208,7 +214,7 @@ class WriteBack:
                 requests.append((a, [words[a]]))
         return requests
 
-    async def write(self, message: dict) -> int:
+    async def write(self, message: ModelParameters | dict) -> int:
         """Write one model's parameters (then the counter); the number of registers written."""
         requests = self.plan(message)
         if self.config.counter is not None:
@@ -236,7 +242,8 @@ class WriteBack:
             self.counter = (self.counter + 1) & 0xFFFF
         self.writes += 1
         if self.error is not None:
-            self._event("write_back_ok", "writing model parameters to the PLC works again")
+            self._event(DaqEventKind.WRITE_BACK_OK,
+                        "writing model parameters to the PLC works again")
         self.error = None
         return sum(len(v) for _, v in requests)
 
@@ -269,10 +276,10 @@ class WriteBack:
             self._client.close()
             self._client = None
 
-    def _event(self, kind: str, detail: str) -> None:
-        if kind == "write_back_failed":
+    def _event(self, kind: DaqEventKind, detail: str) -> None:
+        if kind is DaqEventKind.WRITE_BACK_FAILED:
             if detail == self.error:
                 return  # said once, not at every model
             self.error = detail
         if self.events is not None:
-            self.events({"kind": kind, "detail": detail})
+            self.events(DaqEvent(kind, detail))

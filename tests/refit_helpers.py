@@ -34,7 +34,7 @@ def through_pipeline(run: PlantRun, config: RefitConfig, messages=None, timeout:
     events: list[dict] = []
 
     def emit(topic: str, msg: dict, pub_ns: int) -> None:
-        (params if topic == MODEL_PARAMETERS else events).append(msg)
+        (params if topic == MODEL_PARAMETERS else events).append(msg.to_json())
         assert topic in (MODEL_PARAMETERS, MODEL_EVENTS)
 
     runner = RefitRunner(config, emit, max_queue=None)

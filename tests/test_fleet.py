@@ -352,7 +352,7 @@ def test_an_uncut_refit_is_the_replay_timeline(local, fleet_file):
     gateway["refit"] = yaml.safe_load(fleet_file.read_text())["refit"]
     config = parse_config(parse_yaml(yaml.safe_dump(gateway), "gateway.yaml"))
     out = fleet_file.parent / "switch.model.mcap"
-    msgs = replay(list_files([fleet_file.parent / "switch"]), config, out)
+    msgs = [m.to_json() for m in replay(list_files([fleet_file.parent / "switch"]), config, out)]
     t = table(local["out"], "refit")
     t = t[t["furnace"] == "switch"].reset_index(drop=True)
     assert len(msgs) == len(t)

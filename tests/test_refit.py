@@ -28,6 +28,12 @@ from furnace_model.simulation.structure import Inputs
 HOUR = 3600.0
 
 
+
+def as_json(result: tuple) -> tuple[dict, list[dict]]:
+    """A chain's (message, events) as they are logged."""
+    msg, events = result
+    return msg.to_json(), [e.to_json() for e in events]
+
 def combos(p: dict) -> dict[str, float]:
     """What 1-minute data determine (docs/identification.md): a, f, b/c, d/e."""
     return {"a": p["a"], "f": p["f"], "b/c": p["b"] / p["c"], "d/e": p["d"] / p["e"]}
@@ -69,7 +75,7 @@ def test_windows_follow_the_data_clock_and_a_static_window_keeps_the_model():
     out = []
     for topic, msg, t in run_messages(simulate(s)):
         for w in cutter.feed(topic, msg, t):
-            out.append(chain.process(w)[0])
+            out.append(chain.process(w)[0].to_json())
     statuses = [m["status"] for m in out]
     assert statuses[:2] == ["insufficient_excitation"] * 2  # window not yet full
     last_ok = max(i for i, st in enumerate(statuses) if st == "ok")
@@ -94,7 +100,7 @@ def test_gaps_beyond_the_limit_are_insufficient_and_late_windows_recover():
     by_end = {}
     for topic, msg, t in msgs:
         for w in cutter.feed(topic, msg, t):
-            by_end[(w.end_ns - t0) / 3.6e12] = chain.process(w)[0]
+            by_end[(w.end_ns - t0) / 3.6e12] = chain.process(w)[0].to_json()
     assert by_end[6.0]["status"] == "ok"
     for h in (9.0, 12.0):
         assert by_end[h]["status"] == "insufficient_excitation"
@@ -105,7 +111,7 @@ def test_gaps_beyond_the_limit_are_insufficient_and_late_windows_recover():
 
 def _collect(cfg: RefitConfig) -> tuple[RefitRunner, list[dict]]:
     got: list[dict] = []
-    runner = RefitRunner(cfg, lambda topic, m, t: got.append(m) if topic == MODEL_PARAMETERS
+    runner = RefitRunner(cfg, lambda topic, m, t: got.append(m.to_json()) if topic == MODEL_PARAMETERS
                          else None)
     return runner, got
 
@@ -155,7 +161,7 @@ def test_an_overrun_is_killed_and_a_spent_budget_fails():
     # a fit that runs out of its own budget returns, but its result is not kept
     cutter = WindowCutter(cfg)
     chain = RefitChain(RefitConfig(period_s=2 * HOUR, window_s=4 * HOUR, budget_s=1e-3))
-    out = [chain.process(w)[0] for topic, msg, t in run_messages(simulate(s))
+    out = [chain.process(w)[0].to_json() for topic, msg, t in run_messages(simulate(s))
            for w in cutter.feed(topic, msg, t)]
     assert {m["status"] for m in out} == {"insufficient_excitation", "failed"}
     assert any("time budget" in m["detail"] for m in out)
@@ -200,7 +206,7 @@ def test_chain_warm_starts_from_the_previous_window():
     for topic, msg, t in run_messages(simulate(s)):
         for w in cutter.feed(topic, msg, t):
             windows.append(w)
-            out.append(chain.process(w)[0])
+            out.append(chain.process(w)[0].to_json())
     i = next(k for k in range(1, len(out)) if out[k]["status"] == "ok"
              and out[k - 1]["status"] == "ok")
     prev = out[i - 1]
@@ -227,7 +233,8 @@ def test_a_chain_restored_from_its_state_goes_on_as_the_original():
     again = RefitChain(cfg)
     again.restore(json.loads(json.dumps(chain.state())))  # as it goes through the file
     assert again.state() == chain.state()
-    (got, got_events), (want, want_events) = again.process(windows[-1]), chain.process(windows[-1])
+    (got, got_events), (want, want_events) = (
+        as_json(again.process(windows[-1])), as_json(chain.process(windows[-1])))
     assert got.pop("elapsed_s") > 0 and want.pop("elapsed_s") > 0  # the one clock-bound field
     assert (got, got_events) == (want, want_events)
     before = again.state()
@@ -245,7 +252,7 @@ def test_a_backed_up_queue_drops_the_oldest_window_with_an_event():
     s = scenario("week_steps", duration_min=30 * 60)
     cfg = RefitConfig(period_s=HOUR, window_s=4 * HOUR, queue_max=2)
     out: list[tuple[str, dict]] = []
-    runner = RefitRunner(cfg, lambda topic, m, t: out.append((topic, m)), max_queue=2)
+    runner = RefitRunner(cfg, lambda topic, m, t: out.append((topic, m.to_json())), max_queue=2)
     runner.start()  # the worker needs a second or more to start: windows pile up meanwhile
     try:
         for topic, msg, t in run_messages(simulate(s)):

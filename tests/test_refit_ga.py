@@ -38,7 +38,7 @@ def test_ga_refits_in_the_worker_say_so_and_stay_in_the_search_box():
     # the worker's result to the bit
     cutter = WindowCutter(GA)
     last = [w for topic, msg, t in run_messages(run) for w in cutter.feed(topic, msg, t)][-1]
-    alone, _ = RefitChain(GA).process(last)
+    alone = RefitChain(GA).process(last)[0].to_json()
     assert alone["window_end"] == fitted[-1]["window_end"]
     assert all(alone[p] == fitted[-1][p] for p in PARAM_NAMES)
 
@@ -47,7 +47,7 @@ def test_a_ga_that_outruns_the_budget_fails_and_keeps_the_model():
     s = scenario("week_steps", duration_min=8 * 60)
     cfg = replace(GA, budget_s=0.3, generations=10_000_000)
     cutter, chain = WindowCutter(cfg), RefitChain(cfg)
-    out = [chain.process(w)[0] for topic, msg, t in run_messages(simulate(s))
+    out = [chain.process(w)[0].to_json() for topic, msg, t in run_messages(simulate(s))
            for w in cutter.feed(topic, msg, t)]
     fitted = [m for m in out if m["status"] != "insufficient_excitation"]
     assert fitted and all(m["status"] == "failed" and "time budget" in m["detail"]

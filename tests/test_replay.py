@@ -225,7 +225,7 @@ def test_replay_of_the_log_equals_the_live_parameters(live, tmp_path):
     (the paced replay below and the command's test pass the config explicitly); the output
     records the settings it used and validates against its schemas."""
     out = tmp_path / "replay.mcap"
-    got = replay(live["logs"], None, out)
+    got = [m.to_json() for m in replay(live["logs"], None, out)]
     assert_same_timeline(got, live_params(live))
     written = [m for t, m, _, _ in read_messages([out]) if t == MODEL_PARAMETERS]
     assert written == got
@@ -239,7 +239,7 @@ def test_replay_fits_with_the_configured_method(live, tmp_path):
     whatever the live daemon did."""
     cfg = daemon_config(1, tmp_path / "state",  # the port plays no part in a replay
                         {**REFIT, "method": "ga", "population": 12, "generations": 30})
-    got = replay(live["logs"], cfg, tmp_path / "ga.mcap")
+    got = [m.to_json() for m in replay(live["logs"], cfg, tmp_path / "ga.mcap")]
     fitted = [m for m in got if m["status"] != "insufficient_excitation"]
     assert len(fitted) >= 3 and {m["status"] for m in fitted} == {"ok"}, fitted
     assert all(m["search"] == {"method": "ga", "warm_start": False, "population": 12,
@@ -377,6 +377,7 @@ def test_replay_at_a_given_speed_is_paced_by_the_data_clock(live, tmp_path):
     span_s = (pubs[-1] - pubs[0]) / 1e9
     speed = span_s / 3.0  # three seconds of wall time
     t0 = time.monotonic()
-    got = replay(live["logs"], live["config"], tmp_path / "paced.mcap", speed=speed)
+    got = [m.to_json()
+           for m in replay(live["logs"], live["config"], tmp_path / "paced.mcap", speed=speed)]
     assert time.monotonic() - t0 >= 2.9
     assert_same_timeline(got, live_params(live))

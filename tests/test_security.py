@@ -157,7 +157,7 @@ def test_write_back_writes_only_allowed_registers_with_fc16(tmp_path):
         await proxy.start()
         events: list[dict] = []
         wb = WriteBack(parse_write_back(wb_config()), "127.0.0.1", proxy.port, timeout_s=0.5,
-                       events=events.append)
+                       events=lambda e: events.append(e.to_json()))
         reader = AsyncModbusTcpClient("127.0.0.1", port=plc.port, timeout=0.5, retries=0)
         await reader.connect()
         try:
@@ -208,7 +208,7 @@ def test_write_back_failure_is_one_event_and_never_raises(tmp_path):
     async def scenario():
         events: list[dict] = []
         wb = WriteBack(parse_write_back(wb_config()), "127.0.0.1", free_port(), timeout_s=0.2,
-                       events=events.append)
+                       events=lambda e: events.append(e.to_json()))
         for _ in range(3):
             wb.on_model(MODEL)
             await asyncio.sleep(0.1)

@@ -292,6 +292,7 @@ def test_the_online_refit_fits_the_network(heatup):
                                                    (THERMOCOUPLES, BURNERS, AMBIENT))
                for w in cutter.feed(t, m, pub)]
     msg, events = chain.process(windows[-1])
+    msg = msg.to_json()
     assert msg["status"] == "ok" and events == [], msg.get("detail")
     assert set(msg["ci95"]) == set(param_names(SIX)) and set(msg["rmse_c"]) == set(SIX.zones)
     assert_recovers(msg, msg["ci95"], heatup["scenario"].params)
@@ -338,7 +339,7 @@ def test_live_refits_of_the_six_zone_furnace_equal_their_replay(tmp_path):
         [m.get("detail") for m in live]
     names = param_names(SIX)
     assert all(set(names) <= set(m) for m in live if m["status"] == "ok")
-    got = replay(files, None, tmp_path / "replay.mcap")
+    got = [m.to_json() for m in replay(files, None, tmp_path / "replay.mcap")]
     # a window cut as the daemon stopped may be left unfitted live (refit_abandoned)
     assert len(live) <= len(got) <= len(live) + 1
     assert [(m["window_end"], m["status"]) for m in got[:len(live)]] == \

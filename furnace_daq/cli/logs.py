@@ -51,6 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_info(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from furnace_model.log.messages import DaqStatus
     from furnace_model.log.read import decode, iso_time, open_log
 
     counts: Counter[str] = Counter()
@@ -70,8 +71,8 @@ def run_info(args: argparse.Namespace) -> int:
             if raw.topic == THERMOCOUPLES:
                 tc_times.append(t)
             elif raw.topic == DAQ_STATUS:
-                msg = decode(log.path, raw)
-                status.append((t, str(msg.get("state")), str(msg.get("detail", ""))))
+                msg = DaqStatus.from_json(decode(log.path, raw))
+                status.append((t, msg.state, msg.detail))
         state = ("complete" if log.complete else
                  f"INCOMPLETE ({log.cut}); {n} messages readable; "
                  f"`furnace-daq logs recover {path}` writes a complete copy")

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from furnace_model.cli.arguments import output_file
-from furnace_model.log.schema import MODEL_EVENTS, MODEL_PARAMETERS, PARAM_NAMES
+from furnace_model.log.messages import ModelEvent, ModelParameters
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,17 +33,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def summary(message: dict) -> str:
+def summary(message: ModelParameters) -> str:
     """One line per refit: window end, status, the parameters (a..f for the paper's
     furnace), RMSE per zone (or the reason)."""
-    head = f"{message['window_end']}  {message['status']:<23}"
-    if message["status"] != "ok":
-        return f"{head} {message.get('detail', '')}"
-    # the parameters of the log's furnace: a..f for the paper's, as its intervals name them
-    names = [p for p in message.get("ci95", {}) if p in message] or PARAM_NAMES
-    params = " ".join(f"{p}={message[p]:.5g}" for p in names)
-    rmse = "/".join(f"{v:.2f}" for v in message["rmse_c"].values())
-    return f"{head} {params}  rmse {rmse} °C  ({message.get('elapsed_s', 0):.2f} s)"
+    head = f"{message.window_end}  {message.status:<23}"
+    if not message.fitted:
+        return f"{head} {message.detail}"
+    params = " ".join(f"{p}={v:.5g}" for p, v in message.params.items())
+    rmse = "/".join(f"{v:.2f}" for v in (message.rmse_c or {}).values())
+    return f"{head} {params}  rmse {rmse} °C  ({message.elapsed_s or 0:.2f} s)"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,11 +54,11 @@ def run(args: argparse.Namespace) -> int:
               "using the refit defaults", file=sys.stderr)
     out = args.out or default_out(args.files)
 
-    def echo(topic: str, message: dict) -> None:
-        if topic == MODEL_PARAMETERS:
+    def echo(topic: str, message: ModelParameters | ModelEvent) -> None:
+        if isinstance(message, ModelParameters):
             print(summary(message), flush=True)
-        elif topic == MODEL_EVENTS:
-            print(f"  EVENT {message['kind']}: {message['detail']}", flush=True)
+        else:
+            print(f"  EVENT {message.kind}: {message.detail}", flush=True)
 
     t0 = time.perf_counter()
     msgs = replay(args.files, config, out, speed=args.speed, echo=echo)
@@ -70,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         source = settings(list(args.files), None)[2]
         print("refit settings: " + ("as recorded in the log" if source == "log" else
                                     "the defaults (the log records none)"), file=sys.stderr)
-    ok = sum(m["status"] == "ok" for m in msgs)
+    ok = sum(m.fitted for m in msgs)
     print(f"{len(msgs)} refits ({ok} ok) in {time.perf_counter() - t0:.1f} s -> {out}",
           file=sys.stderr)
     return 0

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from furnace_model.errors import ConfigError, FurnaceError
+from furnace_model.log.messages import DaqEvent, DaqEventKind
 from furnace_model.log.schema import DAQ_EVENTS
 
 if TYPE_CHECKING:
@@ -84,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     for note in recovered:  # files of a daemon that died: in the journal and in the log
         journal.say(WARNING, f"log recovery: {note}")
         now = time.time_ns()
-        log.write(DAQ_EVENTS, {"kind": "log_recovered", "detail": note}, now, now)
+        log.write(DAQ_EVENTS, DaqEvent(DaqEventKind.LOG_RECOVERED, note).to_json(), now, now)
     live = None
     if config.live_view is not None:  # after the log lock and recovery:
         # a second daemon stops at the lock, and a port taken leaves the recovery on record
@@ -137,9 +138,9 @@ async def _main(config, log: LogWriter, duration: float | None, journal: Journal
 
     write_back = None
     if config.write_back is not None:  # off unless the config enables it
-        def event(message: dict) -> None:
+        def event(message: DaqEvent) -> None:
             now = time.time_ns()
-            log.write(DAQ_EVENTS, message, now, now)
+            log.write(DAQ_EVENTS, message.to_json(), now, now)
         write_back = WriteBack(config.write_back, config.plc.host, config.plc.port,
                                device_id=config.plc.device_id, timeout_s=config.plc.timeout_s,
                                events=event)

@@ -21,13 +21,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from furnace_model.errors import DataError
-from furnace_model.log.schema import THERMOCOUPLES, param_names
+from furnace_model.log.messages import ModelEvent, ModelParameters, number
+from furnace_model.log.schema import FURNACE_TOPICS, THERMOCOUPLES, param_names
 from furnace_model.simulation.furnace import PAPER, Furnace
 
 from ..daqconfig import RefitConfig
 from .engine import prepare_worker
 
-FURNACE_TOPICS = ("/furnace/thermocouples", "/furnace/burners", "/furnace/ambient")
 SPAN_MARGIN_NS = 3600 * 10**9
 """A file's span on the PLC clock is its log-time span shifted by its first reading's
 (publish - log) offset; this margin on either side absorbs a PLC clock that drifts against
@@ -168,42 +168,39 @@ def refit_segment(seg: Segment) -> dict:
     return {"rows": rows, "events": events, "cpu_s": time.process_time() - cpu0}
 
 
-def parameter_row(furnace: str, segment: int, msg: dict, description: Furnace = PAPER) -> dict:
+def parameter_row(furnace: str, segment: int, msg: ModelParameters,
+                  description: Furnace = PAPER) -> dict:
     """A /model/parameters message as a flat row: the furnace's parameters, their 95% bounds,
     RMSE and zone offset per zone, and what the fit flagged."""
-    row = {"furnace": furnace, "segment": segment, "window_start": msg["window_start"],
-           "window_end": msg["window_end"], "status": msg["status"],
-           "detail": msg.get("detail", ""), "n_samples": msg.get("n_samples", 0)}
-    ci = msg.get("ci95") or {}
-    rmse = msg.get("rmse_c") or {}
-    fitted = msg["status"] == "ok"
+    row = {"furnace": furnace, "segment": segment, "window_start": msg.window_start,
+           "window_end": msg.window_end, "status": msg.status,
+           "detail": msg.detail, "n_samples": msg.n_samples or 0}
+    ci = msg.ci95 or {}
+    rmse = msg.rmse_c or {}
+    fitted = msg.fitted
     for p in param_names(description):
-        row[p] = _num(msg.get(p))
+        row[p] = number(msg.params.get(p))
         lo, hi = ci.get(p, (None, None))
-        row[f"{p}_ci95_lo"], row[f"{p}_ci95_hi"] = _num(lo), _num(hi)
-    offsets = (msg.get("zone_offsets_c") or {}) if fitted else {}
+        row[f"{p}_ci95_lo"], row[f"{p}_ci95_hi"] = number(lo), number(hi)
+    offsets = (msg.zone_offsets_c or {}) if fitted else {}
     for z in description.zones:
-        row[f"rmse_{z}_c"] = _num(rmse.get(z))
-        row[f"offset_{z}_c"] = _num(offsets.get(z))
-    row["flagged"] = ",".join(f"{f['kind']}:{f['zone']}" for f in msg.get("flags", [])) \
+        row[f"rmse_{z}_c"] = number(rmse.get(z))
+        row[f"offset_{z}_c"] = number(offsets.get(z))
+    row["flagged"] = ",".join(f"{f['kind']}:{f['zone']}" for f in msg.flags or []) \
         if fitted else ""
     # False when the window kept the model in force: its parameters are that model's.
     row["fitted"] = fitted
-    row["undetermined"] = ",".join(msg.get("undetermined", [])) if fitted else ""
-    row["elapsed_s"] = _num(msg.get("elapsed_s"))
+    row["undetermined"] = ",".join(msg.undetermined or []) if fitted else ""
+    row["elapsed_s"] = number(msg.elapsed_s)
     return row
 
 
-def event_row(furnace: str, segment: int, e: dict) -> dict:
-    return {"furnace": furnace, "segment": segment, "kind": e["kind"],
-            "parameter": e.get("parameter", ""), "basis": e.get("basis", "window"),
-            "window_start": e.get("window_start", ""), "window_end": e.get("window_end", ""),
-            "old": _num(e.get("old")), "new": _num(e.get("new")),
-            "relative_change": _num(e.get("relative_change")), "detail": e.get("detail", "")}
-
-
-def _num(v) -> float:
-    return float(v) if isinstance(v, int | float) and math.isfinite(v) else math.nan
+def event_row(furnace: str, segment: int, e: ModelEvent) -> dict:
+    return {"furnace": furnace, "segment": segment, "kind": str(e.kind),
+            "parameter": e.parameter or "", "basis": e.basis or "window",
+            "window_start": e.window_start or "", "window_end": e.window_end or "",
+            "old": number(e.old), "new": number(e.new),
+            "relative_change": number(e.relative_change), "detail": e.detail}
 
 
 # -- diagnose -------------------------------------------------------------------------------
@@ -247,15 +244,15 @@ def diagnose_pair(pair: Pair) -> dict:
     v = d.verdict
     row = {"furnace": pair.furnace, "fit_campaign": pair.fit[0],
            "holdout_campaign": pair.holdout[0], "status": v.status,
-           "effects": ",".join(v.effects), "shrink_pct": _num(v.shrink_pct),
-           "gap_closed_pct": _num(getattr(v, "gap_closed_pct", math.nan)),
+           "effects": ",".join(v.effects), "shrink_pct": number(v.shrink_pct),
+           "gap_closed_pct": number(getattr(v, "gap_closed_pct", math.nan)),
            "gap_zones": ",".join(d.gap_zones), "sentence": v.sentence,
-           "elapsed_s": _num(d.elapsed_s)}
+           "elapsed_s": number(d.elapsed_s)}
     held = d.baseline.rmse_holdout_carried_c or {}
     for z in pair.description.zones:
-        row[f"rmse_holdout_{z}_c"] = _num(d.baseline.rmse_holdout_c[z])
-        row[f"rmse_holdout_carried_offsets_{z}_c"] = _num(held.get(z))
-        row[f"noise_floor_{z}_c"] = _num(d.noise_floor_c[z])
+        row[f"rmse_holdout_{z}_c"] = number(d.baseline.rmse_holdout_c[z])
+        row[f"rmse_holdout_carried_offsets_{z}_c"] = number(held.get(z))
+        row[f"noise_floor_{z}_c"] = number(d.noise_floor_c[z])
     row["flags"] = len(d.baseline.flags)
     row["cpu_s"] = time.process_time() - cpu0
     return {"rows": [row], "diagnosis": d.to_json()}

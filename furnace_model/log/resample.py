@@ -39,6 +39,7 @@ import pandas as pd
 
 from ..errors import DataError
 from ..simulation.furnace import PAPER, Furnace
+from .messages import Ambient, Burners, FurnaceMessage, Thermocouples, as_message, number, typed
 from .read import iso_time, log_furnace, read_messages
 from .schema import AMBIENT, BURNERS, THERMOCOUPLES
 
@@ -92,27 +93,26 @@ class Resampler:
         self._burners: dict[bool, tuple[list[int], list[tuple[float, ...]]]] = {
             True: ([], []), False: ([], [])}
         self._unsorted = False
-        self._last_burner_msg: dict | None = None
+        self._last_burner_msg: Burners | None = None
         self._last_burner_pub: int | None = None
 
-    def add(self, topic: str, msg: dict, pub_ns: int) -> None:
-        if topic == THERMOCOUPLES:
+    def add(self, topic: str, msg: FurnaceMessage | dict, pub_ns: int) -> None:
+        """One furnace message (a decoded dict is read as its topic's class)."""
+        msg = as_message(topic, msg, self.furnace)
+        if isinstance(msg, Thermocouples):
             self._tc_t.append(pub_ns)
-            quality = msg.get("quality")
-            if quality == self._all_ok:  # the usual case, checked in one comparison
-                values = [msg.get(s) for s in self._sensors]
+            if msg.quality == self._all_ok:  # the usual case, checked in one comparison
+                values = [msg.values.get(s) for s in self._sensors]
                 if all(type(v) is float for v in values):
                     self._tc_v.append(values)
                     return
-            quality = quality if isinstance(quality, dict) else {}  # no quality: no good reading
-            self._tc_v.append([_number(msg.get(s)) if quality.get(s) == "ok" else math.nan
-                               for s in self._sensors])
-        elif topic == BURNERS:
+            self._tc_v.append([msg.reading(s) for s in self._sensors])
+        elif isinstance(msg, Burners):
             self._seen_t.append(pub_ns)
             if msg is self._last_burner_msg and pub_ns >= (self._last_burner_pub or 0):
-                return  # read_messages hands repeated messages over as one dict
+                return  # read_messages hands repeated messages over as one
             counts = tuple(_counts(msg, self.furnace))
-            times, states = self._burners[msg.get("source") == "modbus"]
+            times, states = self._burners[msg.source == "modbus"]
             self._last_burner_msg, self._last_burner_pub = msg, pub_ns
             if times and pub_ns >= times[-1]:
                 if states[-1] == counts:
@@ -121,10 +121,9 @@ class Resampler:
                 self._unsorted = True
             times.append(pub_ns)
             states.append(counts)
-        elif topic == AMBIENT:
+        elif isinstance(msg, Ambient):
             self._air_t.append(pub_ns)
-            self._air_v.append(_number(msg.get("t_air"))
-                               if msg.get("quality", "ok") == "ok" else math.nan)
+            self._air_v.append(number(msg.t_air) if msg.usable else math.nan)
 
     def _consolidate(self) -> None:
         if not (self._tc_t or self._air_t or self._seen_t):
@@ -248,7 +247,8 @@ def resample_logs(paths: Iterable[str | Path], period_s: float = DEFAULT_PERIOD_
     if furnace is None:
         furnace = log_furnace(paths, where)
     binner = Resampler(period_ns, lo if lo is not None else 0, furnace)
-    for topic, msg, _log_ns, pub_ns in read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT)):
+    records = read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT))
+    for topic, msg, _log_ns, pub_ns in typed(records, furnace):
         if topic == BURNERS or ((lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)):
             try:
                 binner.add(topic, msg, pub_ns)
@@ -278,25 +278,14 @@ def table_frame(t: np.ndarray, tc: np.ndarray, burners: np.ndarray,
     return frame
 
 
-def _counts(msg: dict, furnace: Furnace) -> list[float]:
-    out = []
-    for z in furnace.zones:
-        n = msg.get(f"count_{z}")
-        if n is None and isinstance(msg.get(z), list):
-            n = sum(bool(v) for v in msg[z])
-        out.append(_number(n))
+def _counts(msg: Burners, furnace: Furnace) -> list[float]:
+    out = msg.zone_counts(furnace)
     if any(math.isnan(v) for v in out):
-        raise DataError(BURNERS, f"message without burner counts: {str(msg)[:200]}")
+        raise DataError(BURNERS, f"message without burner counts: {str(msg.to_json())[:200]}")
     for z, v, n in zip(furnace.zones, out, furnace.burners, strict=True):
         if not 0 <= v <= n:
             raise DataError(BURNERS, f"burner count of zone {z} outside 0..{n}: {v:g}")
     return out
-
-
-def _number(v: object) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float):
-        return math.nan
-    return float(v) if math.isfinite(v) else math.nan
 
 
 def parse_time(text: str, option: str) -> pd.Timestamp:

@@ -70,6 +70,8 @@ DAQ_EVENTS = "/daq/events"
 MODEL_PARAMETERS = "/model/parameters"
 MODEL_EVENTS = "/model/events"
 LOG = "/log"
+FURNACE_TOPICS: tuple[str, ...] = (THERMOCOUPLES, BURNERS, AMBIENT)
+"""The topics of the furnace's readings: what the resampler and the refit read."""
 
 JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 """The draft every top-level schema declares (`$schema`); validators pick it from there."""
@@ -96,13 +98,6 @@ def absent(message: dict) -> dict:
     missing value is left out, which every schema here accepts and Foxglove plots as a gap."""
     return {k: absent(v) if isinstance(v, dict) else v
             for k, v in message.items() if v is not None}
-
-
-def log_line(ns: int, level: int, message: str, name: str, file: str = "",
-             line: int = 0) -> dict:
-    """A /log message (foxglove.Log): `level` one of LOG_LEVELS' values."""
-    return {"timestamp": plc_time(ns), "level": int(level), "message": message, "name": name,
-            "file": file, "line": int(line)}
 
 
 def _number(description: str) -> dict:

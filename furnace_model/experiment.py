@@ -138,7 +138,7 @@ def read_table(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
 def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
                           t_air_default: float = DEFAULT_T_AIR_C, row_offset: int = 1,
                           row_label: str = "row", start: pd.Timestamp | None = None,
-                          end: pd.Timestamp | None = None,
+                          end: pd.Timestamp | None = None, *,
                           furnace: Furnace) -> Experiment:
     """Check a table against the contract of a furnace and convert it. `row_offset` maps the
     frame's positional index to the number the user sees (2 for a CSV line under its

@@ -56,7 +56,7 @@ import pandas as pd
 
 from ..effects import EFFECTS, Effect, ZoneLosses
 from ..experiment import Experiment
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from ..simulation.network import parameters, terms
 from ..simulation.parameters import PAPER_TABLE_V
 from ..simulation.plant import Plant, PlantRun
@@ -81,14 +81,17 @@ T_MAX_C = 1350.0
 """A schedule that would drive a zone past this is redrawn: no reheating furnace runs there."""
 
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
-    "door_open": {"soak": (0.0005, 0.0015), "heat": (0.005, 0.02), "preheat": (0.1, 0.3),
-                  "other": (0.005, 0.02)},
+    "door_open": {"other": (0.005, 0.02)},
     "tc_reads_low": {"drop_c": (15.0, 60.0), "episodes": (4, 10), "minutes": (5.0, 40.0)},
 }
 """Strengths of the perturbations outside the library; an effect's own are its `ranges`
 (times as a fraction of the shorter heat-up). Rates compare with the furnace's own:
 a = 0.02/min couples the soaking and heating zones, e = 0.73/min is the preheating zone's
 loss to ambient."""
+DOOR_EQ11 = ((0.0005, 0.0015), (0.005, 0.02), (0.1, 0.3))
+"""An open door's loss rate on eq. 11's network, zone by zone (the paper's soaking, heating
+and preheating zones): each on the scale of the zone's own rates; on any other network,
+`RANGES["door_open"]["other"]`."""
 
 
 @dataclass
@@ -123,8 +126,9 @@ TARGET_RISE_C = 3000.0
 def network_truth(furnace: Furnace) -> dict[str, float]:
     """The true parameters of a furnace's cases: Table V for the paper's; for any other the
     network's defaults with one heat per burner (every heated zone alike) scaled so that all
-    burners firing would hold the hottest zone `TARGET_RISE_C` above ambient."""
-    if furnace == PAPER:
+    burners firing would hold the hottest zone `TARGET_RISE_C` above ambient. Eq. 11's
+    network has Table V, whatever its zones are called."""
+    if furnace.paper_structure:
         return dict(PAPER_TABLE_V)
     values = {p.name: p.default for p in parameters(furnace)}
     structure = ModelStructure(furnace=furnace)
@@ -140,7 +144,7 @@ def network_truth(furnace: Furnace) -> dict[str, float]:
 def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
               form: str = "candidate",
               sensors: tuple[SensorSpec, SensorSpec] = (SENSORS_SPEC, SENSORS_SPEC),
-              furnace: Furnace = PAPER) -> Case:
+              furnace: Furnace) -> Case:
     """A random two-experiment case with `effect` (a contract name, one of OUT_OF_LIBRARY,
     several of them, or None for a control) switched on in the plant of `furnace`;
     `sensors`: the thermocouples of the fitted and of the held-out heat-up (campaigns
@@ -176,7 +180,7 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
         effects.append(eff)
         values.update(vals)
         truth[name] = {**vals, **info}
-    structure = ModelStructure(effects, furnace)
+    structure = ModelStructure(effects, furnace=furnace)
 
     door = _draw_door(rng, durations, furnace) if "door_open" in names else None
     low = _draw_low_readings(rng, durations, furnace) if "tc_reads_low" in names else None
@@ -199,7 +203,8 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
         if seen_as != furnace:
             exp = dataclasses.replace(exp, furnace=seen_as)
         exps.append(exp)
-    description = (", ".join(f"{n}({_short(truth[n], furnace != PAPER)})" for n in names)
+    many = not furnace.paper_structure  # where an effect's zones are one place of many
+    description = (", ".join(f"{n}({_short(truth[n], many)})" for n in names)
                    or "no effect") + \
         f"; form {form}; durations {durations[0]:g} and {durations[1]:g} min"
     return Case(fit=[exps[0]], holdout=[exps[1]], truth=truth, description=description,
@@ -219,18 +224,10 @@ def _short(info: dict, lists: bool = False) -> str:
     return " ".join(parts)
 
 
-def _u(rng: np.random.Generator, name: str, key: str) -> float:
-    lo, hi = RANGES[name][key]
-    return float(rng.uniform(lo, hi))
-
-
 def _draw_effect(name: str, rng: np.random.Generator, form: str, duration: float,
-                 furnace: Furnace = PAPER) -> tuple[Effect, dict[str, float], dict]:
+                 furnace: Furnace) -> tuple[Effect, dict[str, float], dict]:
     """The effect object, its parameter values and its options (for the truth record)."""
-    if furnace == PAPER:
-        eff, vals = EFFECTS[name].draw(rng, form, duration)  # a plug-in's draw may take no furnace
-    else:
-        eff, vals = EFFECTS[name].draw(rng, form, duration, furnace=furnace)
+    eff, vals = EFFECTS[name].draw(rng, form, duration, furnace=furnace)
     info = {k: (list(v) if isinstance(v, tuple) else v) for k, v in eff.options.items()}
     return eff, {k: float(v) for k, v in vals.items()}, info
 
@@ -283,7 +280,7 @@ def _others_fire(counts: np.ndarray, furnace: Furnace) -> bool:
     return bool(np.all((counts[:, 1:] > 0).any(axis=0) | ~has))
 
 
-def _fill_soak_first(total: int, furnace: Furnace = PAPER) -> np.ndarray:
+def _fill_soak_first(total: int, furnace: Furnace) -> np.ndarray:
     c = np.zeros(furnace.n_zones)
     left = total
     for i, cap in enumerate(furnace.burners):
@@ -292,7 +289,7 @@ def _fill_soak_first(total: int, furnace: Furnace = PAPER) -> np.ndarray:
     return c
 
 
-def _fit_counts(c: np.ndarray, furnace: Furnace = PAPER) -> np.ndarray:
+def _fit_counts(c: np.ndarray, furnace: Furnace) -> np.ndarray:
     """Move burners that exceed a zone's count to the next zone with room."""
     c = c.copy()
     caps = np.array(furnace.burners, dtype=float)
@@ -306,11 +303,11 @@ def _fit_counts(c: np.ndarray, furnace: Furnace = PAPER) -> np.ndarray:
 
 
 def _draw_door(rng: np.random.Generator, durations: np.ndarray,
-               furnace: Furnace = PAPER) -> dict:
-    zone = furnace.zones[int(rng.integers(furnace.n_zones))]
+               furnace: Furnace) -> dict:
+    i = int(rng.integers(furnace.n_zones))
     opens = [float(np.round(rng.uniform(0.3, 0.9) * d)) for d in durations]
-    key = zone if furnace == PAPER else "other"
-    return {"zone": zone, "g_door": _u(rng, "door_open", key), "t_open": opens,
+    lo, hi = DOOR_EQ11[i] if furnace.paper_structure else RANGES["door_open"]["other"]
+    return {"zone": furnace.zones[i], "g_door": float(rng.uniform(lo, hi)), "t_open": opens,
             "minutes": 60.0}
 
 
@@ -329,7 +326,8 @@ def _run_with_door(plant: Plant, inputs: Inputs, t: np.ndarray, x0: np.ndarray, 
         door_structure, door_values = base, {**values, loss: values[loss] + g}
     else:
         door_structure = ModelStructure([*base.effects, ZoneLosses(zones=(zone,),
-                                                                   furnace=furnace)], furnace)
+                                                                   furnace=furnace)],
+                                       furnace=furnace)
         door_values = {**values, f"g_{zone}": g}
     states = np.empty((t.size, base.n_states))
     x = base.full_state(x0)[0]
@@ -349,7 +347,7 @@ def _run_with_door(plant: Plant, inputs: Inputs, t: np.ndarray, x0: np.ndarray, 
 
 
 def _draw_low_readings(rng: np.random.Generator, durations: np.ndarray,
-                       furnace: Furnace = PAPER) -> dict:
+                       furnace: Furnace) -> dict:
     sensor = furnace.sensors[int(rng.integers(len(furnace.sensors)))]
     lo_n, hi_n = RANGES["tc_reads_low"]["episodes"]
     episodes = []

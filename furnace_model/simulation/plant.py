@@ -19,6 +19,7 @@ from .furnace import Furnace
 from .scenario import Scenario, SensorSpec
 from .structure import Inputs, ModelStructure
 
+
 @dataclass
 class PlantRun:
     """One simulated run: the truth, what the sensors read, and the inputs, per sample."""

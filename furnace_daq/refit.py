@@ -68,7 +68,7 @@ from furnace_model.identification.result import FitResult
 from furnace_model.log.read import iso_time
 from furnace_model.log.resample import Resampler
 from furnace_model.log.schema import AMBIENT, THERMOCOUPLES, absent, param_names
-from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import Furnace
 from furnace_model.simulation.structure import ModelStructure
 
 from .daqconfig import RefitConfig
@@ -223,7 +223,7 @@ class RefitChain:
 
     config: RefitConfig
     t_air_default: float = 30.0
-    furnace: Furnace = PAPER
+    furnace: Furnace = field(kw_only=True)
     model: dict | None = None
     """The model in force: the last window fitted with status ok (its message)."""
     references: dict[str, _Reference] = field(default_factory=dict)
@@ -493,7 +493,7 @@ class WindowCutter:
 
     config: RefitConfig
     t_air_default: float = 30.0
-    furnace: Furnace = PAPER
+    furnace: Furnace = field(kw_only=True)
     resampler: Resampler = field(init=False)
     next_due_ns: int | None = None
     _last_ns: int | None = None

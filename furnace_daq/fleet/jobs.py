@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import Furnace
 
 from .description import Fleet, FleetFurnace
 from .progress import Progress
@@ -177,7 +177,7 @@ def plan_refit(fleet: Fleet, scans: dict[str, dict], segment_days: float | None,
                                                           segment_days)):
             chosen = files_between(files, None if after is None else after - window_ns, until)
             seg = Segment(f.name, i, tuple(chosen), cfg, f.ambient_default_c, after, until,
-                          effects_from, f.description)
+                          effects_from, description=f.description)
             ident = [x["identity"] for x in files if x["path"] in chosen]
             key = task_key("refit", f.name, ident,
                            {"refit": cfg, "t_air": f.ambient_default_c, "after": after,
@@ -285,7 +285,7 @@ def plan_diagnose(fleet: Fleet, scans: dict[str, dict], pairs: list[tuple[str, s
             fit_files = tuple(files_between(files, fit[1], fit[2]))
             hold_files = tuple(files_between(files, hold[1], hold[2]))
             pair = Pair(f.name, fit, hold, fit_files, hold_files, f.ambient_default_c,
-                        s.effects, s.period_s, s.seed, effects_from, f.description)
+                        s.effects, s.period_s, s.seed, effects_from, description=f.description)
             ident = [x["identity"] for x in files if x["path"] in set(fit_files + hold_files)]
             key = task_key("diagnose", f.name, ident,
                            {"fit": fit, "holdout": hold, "settings": s,
@@ -349,7 +349,7 @@ def run_selfcheck(client, labels: list[str], draws: int, out_dir: Path, *, seed:
                   first: int = 0, form: str = "candidate",
                   candidates: tuple[str, ...] | None = None, noise: str = "white",
                   effects_from: tuple[str, ...] = (), quiet: bool = False,
-                  furnace: Furnace = PAPER) -> tuple[list, JobResult]:
+                  furnace: Furnace) -> tuple[list, JobResult]:
     """Every (label, draw) of the selfcheck as a task; the Outcomes in the order
     `furnace-model selfcheck` reports them."""
     from furnace_model.diagnosis.selfcheck import Outcome
@@ -357,7 +357,7 @@ def run_selfcheck(client, labels: list[str], draws: int, out_dir: Path, *, seed:
     specs = []
     for label in labels:
         for k in range(first, first + draws):
-            d = Draw(label, k, seed, form, candidates, noise, effects_from, furnace)
+            d = Draw(label, k, seed, form, candidates, noise, effects_from, furnace=furnace)
             key = task_key("selfcheck", label, [_file_id(p) for p in effects_from], d)
             specs.append(TaskSpec("selfcheck", label, f"draw {k}", selfcheck_draw, d, key))
     result = JobResult()

@@ -116,7 +116,7 @@ def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
     air = pd.Series(rows.t_air).ffill().fillna(t_air_default).to_numpy()
     t0 = int(rows.t[0])
     exp = Experiment(name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
-                     pd.Timestamp(t0, unit="ns", tz="UTC"), name, resampler.furnace)
+                     pd.Timestamp(t0, unit="ns", tz="UTC"), name, furnace=resampler.furnace)
     complete = int((np.all(np.isfinite(exp.zone_temp), axis=1) & rows.reading).sum())
     return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps)
 

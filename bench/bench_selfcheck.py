@@ -20,6 +20,7 @@ from furnace_daq.fleet.engine import open_client
 from furnace_daq.fleet.jobs import run_selfcheck
 from furnace_model.cli.selfcheck import labels_of
 from furnace_model.diagnosis.selfcheck import check
+from furnace_model.simulation.furnace import PAPER
 
 
 def main() -> None:
@@ -38,7 +39,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as out, open_client(workers=args.workers) as client:
         t0 = time.perf_counter()
-        many, result = run_selfcheck(client, labels, args.draws, Path(out), quiet=True)
+        many, result = run_selfcheck(client, labels, args.draws, Path(out), quiet=True, furnace=PAPER)
         t_many = time.perf_counter() - t0
     assert not result.failures, result.failures
     print(f"LocalCluster of {args.workers}: {t_many:.1f} s wall", flush=True)

@@ -10,6 +10,7 @@ import pytest
 from furnace_model.diagnosis import diagnose
 from furnace_model.diagnosis.cases import case_rng, draw_case
 from furnace_model.diagnosis.selfcheck import check
+from furnace_model.simulation.furnace import PAPER
 
 QUICK = ("zone_burners", "sensor_lag", "zone_losses", "fuel_change")
 
@@ -48,7 +49,7 @@ def test_a_zone_with_one_thermocouple_says_how_its_floor_was_estimated():
     """A held-out campaign whose soaking zone lost a thermocouple: its floor is borrowed from
     the record's pairs (one sensor's noise, not a pair mean's), the JSON says so, and a model
     at that floor still has no gap."""
-    case = draw_case(None, case_rng(0, "none", 0))
+    case = draw_case(None, case_rng(0, "none", 0), furnace=PAPER)
     case.holdout[0].tc[:, 1] = np.nan  # soak_2 gone
     d = diagnose(case.fit, case.holdout, seed=0)
     assert d.verdict.status == "no_gap", d.verdict.sentence

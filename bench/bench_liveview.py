@@ -24,7 +24,8 @@ from furnace_model.simulation.furnace import PAPER
 ROOT = Path(__file__).resolve().parents[1]
 NODE_DIR = ROOT / "tests" / "node"
 T0 = 1_772_431_200 * 10**9
-TC = {s: 900.0 + i for i, s in enumerate(PAPER.sensors)} | {"quality": dict.fromkeys(PAPER.sensors, "ok")}
+TC = ({s: 900.0 + i for i, s in enumerate(PAPER.sensors)}
+      | {"quality": dict.fromkeys(PAPER.sensors, "ok")})
 
 
 def free_port() -> int:

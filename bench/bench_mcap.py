@@ -24,7 +24,8 @@ S = 10**9
 
 def one_second(rng: np.random.Generator, i: int) -> list[tuple[str, dict]]:
     """What the daemon logs per 1 Hz poll: thermocouples, burners, ambient."""
-    tc = {s: round(float(900 + 50 * np.sin(i / 3000) + rng.normal(0, 1.5)), 1) for s in PAPER.sensors}
+    tc = {s: round(float(900 + 50 * np.sin(i / 3000) + rng.normal(0, 1.5)), 1)
+          for s in PAPER.sensors}
     burners = {"soak": [True] * 6 + [False] * 4, "heat": [True] * 3 + [False] * 5,
                "preheat": [False] * 8, "count_soak": 6, "count_heat": 3, "count_preheat": 0,
                "source": "modbus"}

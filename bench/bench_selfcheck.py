@@ -39,7 +39,8 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as out, open_client(workers=args.workers) as client:
         t0 = time.perf_counter()
-        many, result = run_selfcheck(client, labels, args.draws, Path(out), quiet=True, furnace=PAPER)
+        many, result = run_selfcheck(client, labels, args.draws, Path(out), quiet=True,
+                                     furnace=PAPER)
         t_many = time.perf_counter() - t0
     assert not result.failures, result.failures
     print(f"LocalCluster of {args.workers}: {t_many:.1f} s wall", flush=True)

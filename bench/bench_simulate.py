@@ -42,8 +42,10 @@ def main() -> None:
     rows = []
     for structure, label in [
         (ModelStructure(furnace=PAPER), "paper model (eq. 11)"),
-        (ModelStructure([ZoneBurners(furnace=PAPER), SensorLag(furnace=PAPER)], furnace=PAPER), "+ zone_burners + sensor_lag (9 states)"),
-        (ModelStructure([DeadTime(furnace=PAPER)], furnace=PAPER), "+ dead_time (per-set step times)"),
+        (ModelStructure([ZoneBurners(furnace=PAPER), SensorLag(furnace=PAPER)],
+                        furnace=PAPER), "+ zone_burners + sensor_lag (9 states)"),
+        (ModelStructure([DeadTime(furnace=PAPER)],
+                        furnace=PAPER), "+ dead_time (per-set step times)"),
     ]:
         values = {p.name: p.default * np.exp(rng.normal(0, 0.2, args.sets)) if p.log
                   else np.full(args.sets, p.default) for p in structure.params}

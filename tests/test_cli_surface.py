@@ -201,7 +201,8 @@ def test_the_names_checked_before_loading_are_the_librarys():
     assert OUT_OF_LIBRARY == LIBRARY_OOL
     assert METHODS == LIBRARY_METHODS
     assert NOISE == LIBRARY_NOISE
-    assert [p.name for p in BASELINE] == ModelStructure(furnace=PAPER).names  # what fit --fix checks
+    # what fit --fix checks
+    assert [p.name for p in BASELINE] == ModelStructure(furnace=PAPER).names
     for label in ("none", "sensor_lag", "zone_burners+sensor_lag", "door_open", "warp",
                   "sensor_lag+", "+", "none+sensor_lag", ""):
         try:

@@ -130,7 +130,8 @@ def test_split_refuses_what_cannot_be_diagnosed():
     short = exp.between(0, 60)
     with pytest.raises(FurnaceError, match="too short to hold out"):
         split([short], None)
-    steady = Experiment("steady", exp.t_min, exp.tc, np.full_like(exp.burners, 2), exp.t_air, furnace=PAPER)
+    steady = Experiment("steady", exp.t_min, exp.tc, np.full_like(exp.burners, 2), exp.t_air,
+                        furnace=PAPER)
     with pytest.raises(FurnaceError, match="no burner change"):
         split([steady], None)
     with pytest.raises(FurnaceError, match="excitation"):
@@ -148,8 +149,10 @@ def test_split_refuses_what_cannot_be_diagnosed():
 
 def test_the_experiment_held_out_is_one_whose_burners_the_others_fire():
     exp = _case(None, 14).fit[0]
-    soak_only = Experiment("soak_only", exp.t_min, exp.tc, exp.burners * [1, 0, 0], exp.t_air, furnace=PAPER)
-    hot = Experiment("hot", exp.t_min, exp.tc, exp.burners * [1, 0, 0] + [0, 2, 0], exp.t_air, furnace=PAPER)
+    soak_only = Experiment("soak_only", exp.t_min, exp.tc, exp.burners * [1, 0, 0], exp.t_air,
+                           furnace=PAPER)
+    hot = Experiment("hot", exp.t_min, exp.tc, exp.burners * [1, 0, 0] + [0, 2, 0], exp.t_air,
+                     furnace=PAPER)
     fit, hold, _, how = split([soak_only, hot], None)  # not the last: no other fires zone 2
     assert [e.name for e in fit] == ["hot"] and [e.name for e in hold] == ["soak_only"]
     assert "hot fires heating-zone burners the rest never fire" in how
@@ -259,7 +262,8 @@ def testblend_weight_is_the_least_squares_one():
     p = exp.zone_temp + rng.normal(0, 5, exp.zone_temp.shape)
     q = exp.zone_temp + rng.normal(0, 5, exp.zone_temp.shape)
     truth = 0.3 * p + 0.7 * q
-    held = Experiment("held", exp.t_min, np.repeat(truth, 2, axis=1), exp.burners, exp.t_air, furnace=PAPER)
+    held = Experiment("held", exp.t_min, np.repeat(truth, 2, axis=1), exp.burners, exp.t_air,
+                      furnace=PAPER)
     assert np.allclose(held.zone_temp, truth)
     assert blend_weight([p], [q], [held]) == pytest.approx(0.7, abs=1e-9)
     assert blend_weight([p], [p], [held]) == 0.0  # nothing to weigh

@@ -20,7 +20,7 @@ def test_no_effect_no_gap(noise):
     """Held-out thermocouples one to three times as noisy as the fitted ones, or low-pass
     noise (0.5-0.9 per minute, with and without white noise on top): judged against a floor
     pooled over both records, or read off first differences, these were gaps."""
-    outcomes = check(["none"], 6, seed=0, noise=noise)
+    outcomes = check(["none"], 6, seed=0, noise=noise, furnace=PAPER)
     wrong = [(o.draw, o.status, o.description) for o in outcomes if not o.correct]
     assert not wrong, wrong
 
@@ -28,7 +28,7 @@ def test_no_effect_no_gap(noise):
 @pytest.mark.parametrize("noise", [pytest.param("noisier-holdout", marks=pytest.mark.slow),
                                    "low-pass"])
 def test_a_real_effect_is_still_named(noise):
-    outcomes = check(["zone_burners"], 1, seed=0, noise=noise, candidates=QUICK)
+    outcomes = check(["zone_burners"], 1, seed=0, noise=noise, candidates=QUICK, furnace=PAPER)
     o = outcomes[0]
     assert o.correct and o.named == ["zone_burners"], (o.status, o.named, o.reason)
 
@@ -39,7 +39,7 @@ def test_a_real_effect_is_still_named(noise):
 def test_every_effect_is_named_on_such_thermocouples(noise):
     labels = ["none", "zone_burners", "zone_losses", "sensor_lag", "dead_time",
               "fuel_change", "sensor_drift"]
-    outcomes = check(labels, 3, seed=1, noise=noise)
+    outcomes = check(labels, 3, seed=1, noise=noise, furnace=PAPER)
     wrong = [(o.label, o.draw, o.status, o.named, o.reason) for o in outcomes
              if not (o.correct or o.absorbed)]
     assert len(wrong) <= 1, wrong

@@ -104,7 +104,8 @@ def test_wall_of_two_layers_and_wall_in_one_zone():
     pre = run([WallStorage(zones=("preheat",), furnace=PAPER)], k_gw=0.2, k_wg=0.01)
     lag = (BASE - pre)[5:400]
     assert np.all(lag[:, 2] > lag[:, 1]) and np.all(lag[:, 1] > lag[:, 0])
-    assert ModelStructure([WallStorage(zones=("heat",), layers=2, furnace=PAPER)], furnace=PAPER).n_states == 5
+    assert ModelStructure([WallStorage(zones=("heat",), layers=2, furnace=PAPER)],
+                          furnace=PAPER).n_states == 5
 
 
 def test_radiation_weakens_exchange_below_and_strengthens_it_above_the_reference():
@@ -112,11 +113,13 @@ def test_radiation_weakens_exchange_below_and_strengthens_it_above_the_reference
     inputs = Inputs(np.array([0.0]), np.array([[4, 0, 0.0]]), np.array([30.0]))
     base = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, inputs, t, X0).zones[0]
     assert base.max() < 700
-    none = ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER).simulate({**PAPER_TABLE_V, "rad_share": 0.0},
+    none = ModelStructure([Radiation(furnace=PAPER)],
+                          furnace=PAPER).simulate({**PAPER_TABLE_V, "rad_share": 0.0},
                                                   inputs, t, X0).zones[0]
     np.testing.assert_allclose(none, base, rtol=1e-6)
     # everything below the 900 C reference: weaker exchange, the burner zone keeps its heat
-    cold = ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER).simulate({**PAPER_TABLE_V, "rad_share": 0.8},
+    cold = ModelStructure([Radiation(furnace=PAPER)],
+                          furnace=PAPER).simulate({**PAPER_TABLE_V, "rad_share": 0.8},
                                                   inputs, t, X0).zones[0]
     assert np.all(cold[5:, 0] > base[5:, 0])
     # a furnace far above a 100 C reference: stronger exchange, the burner zone passes heat on
@@ -174,7 +177,8 @@ def test_burner_nonlinearity_falling_heat_per_burner():
 ])
 def test_burner_curve_forms(form, factor):
     u = np.array([[[0.0, 0, 0, 25], [4, 0, 0, 25], [10, 8, 8, 25]]])
-    out = BurnerNonlinearity(form=form, furnace=PAPER).transform_levels({"k_nl": np.array([-0.02])}, u)
+    out = BurnerNonlinearity(form=form,
+                             furnace=PAPER).transform_levels({"k_nl": np.array([-0.02])}, u)
     n = u[0, :, :3].sum(axis=1)
     expect = u[0, :, :3] * np.where(n > 0, factor(np.maximum(n, 1)), 1.0)[:, None]
     np.testing.assert_allclose(out[0, :, :3], expect, rtol=1e-12)
@@ -197,7 +201,8 @@ def test_sensor_drift_moves_one_thermocouple_from_its_partner():
 
 def test_plant_without_effects_or_noise_equals_the_model(scenarios):
     scn = load_scenario(scenarios / "paper_exp2.yaml")
-    plant = Plant(ModelStructure(furnace=PAPER), scn.params, SensorSpec(noise_sd_c=0.0, bias_sd_c=0.0), seed=1)
+    plant = Plant(ModelStructure(furnace=PAPER), scn.params,
+                  SensorSpec(noise_sd_c=0.0, bias_sd_c=0.0), seed=1)
     run_ = plant.run_scenario(scn)
     model = ModelStructure(furnace=PAPER).simulate(scn.params, scn.inputs(), scn.sample_times(),
                                       scn.initial_c).zones

@@ -34,12 +34,14 @@ def biased():
 def test_own_records_are_predicted_as_the_fit_scored_them(biased):
     a, b, res = biased
     for j, exp in enumerate((a, b)):
-        run = ModelStructure(furnace=PAPER).simulate(res.params, Inputs.of(exp), exp.t_min, res.x0[j][None])
+        run = ModelStructure(furnace=PAPER).simulate(res.params, Inputs.of(exp), exp.t_min,
+                                                     res.x0[j][None])
         np.testing.assert_allclose(res.predict(j), run.zones[0] + res.offsets(j), rtol=1e-12)
         # x0 given, offsets not: the furnace as unbiased thermocouples would read it
         np.testing.assert_allclose(res.predict(exp, res.x0[j]), run.zones[0], rtol=1e-12)
     both = np.concatenate([res.predict(0), res.predict(1)])
-    assert zone_metrics(np.concatenate([a.zone_temp, b.zone_temp]), both, PAPER.zones) == res.per_zone
+    assert zone_metrics(np.concatenate([a.zone_temp, b.zone_temp]), both,
+                        PAPER.zones) == res.per_zone
     np.testing.assert_allclose(res.offsets(0), [2.0, -3.0, 1.0], atol=0.3)
     np.testing.assert_allclose(res.response(1).states[0, 0], res.x0[1], rtol=1e-12)
     with pytest.raises(IndexError, match="2 record"):
@@ -108,7 +110,8 @@ def test_held_offsets_are_kept_and_read(biased):
     span = a.between(2000.0, 2600.0)
     held = res.refine([span], free=("f",), offsets=[res.offsets(0)])
     np.testing.assert_array_equal(held.offsets(0), res.offsets(0))
-    run = ModelStructure(furnace=PAPER).simulate(held.params, Inputs.of(span), span.t_min, held.x0[0][None])
+    run = ModelStructure(furnace=PAPER).simulate(held.params, Inputs.of(span), span.t_min,
+                                                 held.x0[0][None])
     np.testing.assert_allclose(held.predict(0), run.zones[0] + res.offsets(0), rtol=1e-12)
 
 

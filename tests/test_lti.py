@@ -127,7 +127,9 @@ def test_fuel_change_equals_scaled_schedule():
 
 def test_batched_call_equals_loop_of_single_calls():
     rng = np.random.default_rng(11)
-    for structure in (ModelStructure(furnace=PAPER), ModelStructure([DeadTime(furnace=PAPER), ZoneBurners(furnace=PAPER)], furnace=PAPER)):
+    for structure in (ModelStructure(furnace=PAPER),
+                      ModelStructure([DeadTime(furnace=PAPER), ZoneBurners(furnace=PAPER)],
+                                     furnace=PAPER)):
         values = random_values(structure, rng, 40)
         inputs = random_inputs(rng)
         t = np.linspace(0, 2000, 300)
@@ -164,7 +166,8 @@ def test_per_parameter_step_times_on_an_irregular_grid():
     """Irregular samples (gaps, a step exactly on a sample, steps after the last sample):
     the blockwise impulse sum agrees with the integrator for every parameter set."""
     rng = np.random.default_rng(21)
-    ms = ModelStructure([DeadTime(furnace=PAPER), FuelChange(furnace=PAPER), ZoneBurners(furnace=PAPER)], furnace=PAPER)
+    ms = ModelStructure([DeadTime(furnace=PAPER), FuelChange(furnace=PAPER),
+                         ZoneBurners(furnace=PAPER)], furnace=PAPER)
     inputs = random_inputs(rng)
     t = np.unique(np.concatenate((np.sort(rng.uniform(0, 1500, 300)), inputs.t[1:2], [0.0])))
     x0 = np.array([350.0, 300.0, 120.0])
@@ -173,7 +176,8 @@ def test_per_parameter_step_times_on_an_irregular_grid():
               "fuel_ratio": 1.0, "f_heat": 0.4, "f_preheat": 0.2}
     y = ms.simulate(values, inputs, t, x0).zones
     for p, delay in enumerate(delays):
-        ref = reference(ModelStructure([ZoneBurners(furnace=PAPER)], furnace=PAPER), {**PAPER_TABLE_V, "f_heat": 0.4,
+        ref = reference(ModelStructure([ZoneBurners(furnace=PAPER)],
+                                       furnace=PAPER), {**PAPER_TABLE_V, "f_heat": 0.4,
                                                           "f_preheat": 0.2},
                         inputs, t, x0, delay=delay)
         assert np.max(np.abs(y[p] - ref) / np.abs(ref)) < 1e-6

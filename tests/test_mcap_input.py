@@ -69,10 +69,12 @@ def test_a_log_directory_reads_as_its_export_row_for_row(logged: Path, tmp_path:
     assert from_log.name == "logs" and len(from_log) > 15 * 60
     same_rows(from_log, load_experiment(export(logs, tmp_path / "e.parquet"), furnace=PAPER))
     # CSV keeps 0.001 °C
-    same_rows(from_log, load_experiment(export(logs, tmp_path / "e.csv"), furnace=PAPER), tc_atol=5e-4)
+    same_rows(from_log, load_experiment(export(logs, tmp_path / "e.csv"),
+                                        furnace=PAPER), tc_atol=5e-4)
     # another period, as logs export --period
     same_rows(load_experiment(logs, period_s=120.0, furnace=PAPER),
-              load_experiment(export(logs, tmp_path / "p.parquet", "--period", "120"), furnace=PAPER))
+              load_experiment(export(logs, tmp_path / "p.parquet", "--period", "120"),
+                              furnace=PAPER))
 
 
 def test_fit_on_the_log_equals_fit_on_its_export(logged: Path, tmp_path: Path, capsys) -> None:
@@ -108,7 +110,8 @@ def test_files_of_one_directory_join_as_the_directory(logged: Path, tmp_path: Pa
     whole = load_experiment(logs, furnace=PAPER)
     (joined,) = load_experiments(reversed(files), furnace=PAPER)  # named in any order: one record
     same_rows(joined, whole)
-    (again,) = load_experiments([logs, files[1]], furnace=PAPER)  # a file and its directory: read once
+    (again,) = load_experiments([logs, files[1]],
+                                furnace=PAPER)  # a file and its directory: read once
     same_rows(again, whole)
     # logs kept in two directories are two records, each its own directory's rows
     other = tmp_path / "other"
@@ -193,7 +196,8 @@ def test_bad_inputs_are_one_line_naming_the_file(case: str, logged: Path, tmp_pa
         named = str(logs)
     elif case == "t_min_table_with_window":
         table = tmp_path / "minutes.csv"
-        load_experiment(logs, furnace=PAPER).to_frame().assign(t_min=lambda f: np.arange(len(f))).drop(
+        load_experiment(logs,
+                        furnace=PAPER).to_frame().assign(t_min=lambda f: np.arange(len(f))).drop(
             columns="timestamp").to_csv(table, index=False)
         argv = ["validate", str(table), "--params", "x.json", "--to", "2026-03-02T09:00Z"]
         named = str(table)

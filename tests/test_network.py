@@ -191,7 +191,8 @@ def test_an_effect_extends_the_furnace_it_was_made_for():
     six = load_furnace(SIX_YAML)
     with pytest.raises(ValueError, match="made for another furnace"):
         ModelStructure([EFFECTS["sensor_lag"](furnace=PAPER)], furnace=six)
-    structure = ModelStructure([EFFECTS["sensor_lag"](furnace=six, zones=("heat_top",))], furnace=six)
+    structure = ModelStructure([EFFECTS["sensor_lag"](furnace=six, zones=("heat_top",))],
+                               furnace=six)
     assert structure.n_states == 7
 
 

@@ -46,7 +46,8 @@ class BurnerDerate(FuelChange):
 
     @classmethod
     def draw(cls, rng, form, duration_min, furnace):
-        return cls(furnace=furnace), {"derate": cls.uniform(rng, "derate")}  # at the time the log gives
+        # at the time the log gives
+        return cls(furnace=furnace), {"derate": cls.uniform(rng, "derate")}
 
 
 @pytest.fixture

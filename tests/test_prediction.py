@@ -48,7 +48,8 @@ def test_on_exact_data_the_prediction_is_the_data_whatever_the_start():
 def test_hidden_states_restart_from_the_simulation(scenarios):
     """With a wall, a lagged sensor and a dead time the decayed restart of a linear model
     equals simulating each window from its restarted state."""
-    structure = ModelStructure([WallStorage(furnace=PAPER), SensorLag(furnace=PAPER), DeadTime(furnace=PAPER)], furnace=PAPER)
+    structure = ModelStructure([WallStorage(furnace=PAPER), SensorLag(furnace=PAPER),
+                                DeadTime(furnace=PAPER)], furnace=PAPER)
     values = {**structure.defaults(), **PAPER_TABLE_V}
     exp = heat_up(scenarios, values, 1.0, structure=structure).between(0, 700)
     x0 = exp.zone_temp[0] + np.array([20.0, -10.0, 5.0])  # a simulation the readings correct
@@ -84,7 +85,8 @@ def test_a_biased_model_is_trusted_less_the_further_it_predicts(noisy):
     """f 10% high: the simulation drifts tens of degrees away, a short prediction does not;
     the fit falls with the horizon and reaches the simulation's when K spans the record."""
     wrong = {**PAPER_TABLE_V, "f": PAPER_TABLE_V["f"] * 1.1}
-    sim = zone_metrics(noisy.zone_temp, Model(ModelStructure(furnace=PAPER), wrong).predict(noisy), PAPER.zones)
+    sim = zone_metrics(noisy.zone_temp, Model(ModelStructure(furnace=PAPER), wrong).predict(noisy),
+                       PAPER.zones)
     fits = {k: zone_metrics(noisy.zone_temp, predict_ahead(wrong, noisy, k), PAPER.zones)
             for k in (1, 5, 30, 300, len(noisy))}
     for zone in sim:

@@ -154,7 +154,8 @@ def test_an_overrun_is_killed_and_a_spent_budget_fails():
     assert all("a" not in m for m in got), "no model yet: absent, never invented values"
     # a fit that runs out of its own budget returns, but its result is not kept
     cutter = WindowCutter(cfg, furnace=PAPER)
-    chain = RefitChain(RefitConfig(period_s=2 * HOUR, window_s=4 * HOUR, budget_s=1e-3), furnace=PAPER)
+    chain = RefitChain(RefitConfig(period_s=2 * HOUR, window_s=4 * HOUR, budget_s=1e-3),
+                       furnace=PAPER)
     out = [chain.process(w)[0] for topic, msg, t in run_messages(simulate(s))
            for w in cutter.feed(topic, msg, t)]
     assert {m["status"] for m in out} == {"insufficient_excitation", "failed"}
@@ -245,7 +246,8 @@ def test_a_backed_up_queue_drops_the_oldest_window_with_an_event():
     s = scenario("week_steps", duration_min=30 * 60)
     cfg = RefitConfig(period_s=HOUR, window_s=4 * HOUR, queue_max=2)
     out: list[tuple[str, dict]] = []
-    runner = RefitRunner(cfg, lambda topic, m, t: out.append((topic, m)), max_queue=2, furnace=PAPER)
+    runner = RefitRunner(cfg, lambda topic, m, t: out.append((topic, m)), max_queue=2,
+                         furnace=PAPER)
     runner.start()  # the worker needs a second or more to start: windows pile up meanwhile
     try:
         for topic, msg, t in run_messages(simulate(s)):

@@ -43,7 +43,8 @@ def test_case_shape_and_sensors_like_the_paper():
 
 
 def test_same_seed_same_case_and_different_seeds_differ():
-    a, b, c = draw_case("dead_time", _rng(5), furnace=PAPER), draw_case("dead_time", _rng(5), furnace=PAPER), \
+    a, b, c = draw_case("dead_time", _rng(5), furnace=PAPER), draw_case("dead_time", _rng(5),
+                                                                        furnace=PAPER), \
         draw_case("dead_time", _rng(6), furnace=PAPER)
     np.testing.assert_array_equal(a.fit[0].tc, b.fit[0].tc)
     assert a.truth == b.truth
@@ -69,7 +70,7 @@ def test_every_effect_changes_the_furnace_and_records_its_truth(name, form):
     cls = EFFECTS[name]
     truth = case.truth[name]
     effect = cls(**{k: tuple(v) if isinstance(v, list) else v
-                    for k, v in truth.items() if k in cls.option_specs})
+                    for k, v in truth.items() if k in cls.specs(PAPER)}, furnace=PAPER)
     structure = ModelStructure([effect], furnace=PAPER)
     values = {**PAPER_TABLE_V, **{p.name: truth[p.name] for p in effect.params}}
     exp = case.fit[0]
@@ -78,7 +79,8 @@ def test_every_effect_changes_the_furnace_and_records_its_truth(name, form):
     drift = structure.sensor_offsets(values, exp.t_min)[0].reshape(-1, 3, 2).mean(axis=2)
     resid = exp.zone_temp - model - drift
     assert np.all(np.abs(resid.std(axis=0) - 1.5 / np.sqrt(2)) < 0.1)
-    base = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min, x0).zones[0]
+    base = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min,
+                                                  x0).zones[0]
     assert np.max(np.abs(model + drift - base)) > 3.0
     assert np.nanmax(exp.tc) < 1400.0
 
@@ -88,7 +90,8 @@ def test_other_forms_differ_from_the_candidate():
     assert lag["order"] in (2, 3)
     rad = draw_case("radiation", _rng(4), form="other", furnace=PAPER).truth["radiation"]
     assert abs(rad["emissivity_slope"]) >= 0.4  # no power law: the candidate fits exponents
-    nl = draw_case("burner_nonlinearity", _rng(4), form="other", furnace=PAPER).truth["burner_nonlinearity"]
+    nl = draw_case("burner_nonlinearity", _rng(4), form="other",
+                   furnace=PAPER).truth["burner_nonlinearity"]
     assert nl["form"] not in ("linear", "power", "exponential")
     wall = draw_case("wall_storage", _rng(4), form="other", furnace=PAPER).truth["wall_storage"]
     assert wall["layers"] == 2  # the candidate's walls, behind any zones, have one
@@ -231,7 +234,7 @@ def test_selfcheck_command_refuses_unknown_names():
 
 
 def test_a_check_split_into_runs_draws_the_same_cases():
-    whole = check(["none"], 2, seed=3)
-    second = check(["none"], 1, seed=3, first=1)
+    whole = check(["none"], 2, seed=3, furnace=PAPER)
+    second = check(["none"], 1, seed=3, first=1, furnace=PAPER)
     assert [o.draw for o in second] == [1]
     assert second[0].description == whole[1].description != whole[0].description

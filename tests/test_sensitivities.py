@@ -34,7 +34,8 @@ def record():
     # parameter moves the residuals and none of the structures fits them exactly; 2-minute
     # samples keep the nonlinear integrations short.
     scn = load_scenario(SCENARIOS / "paper_exp2_zone_burners.yaml")
-    plant = Plant(ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER), {**PAPER_TABLE_V, "rad_share": 0.2},
+    plant = Plant(ModelStructure([Radiation(furnace=PAPER)],
+                                 furnace=PAPER), {**PAPER_TABLE_V, "rad_share": 0.2},
                   SensorSpec(noise_sd_c=TC_SD, bias_sd_c=0.0), seed=1)
     t = np.arange(0.0, 3800.0 + 1e-9, 2.0)
     return plant.run(scn.inputs(), t, scn.initial_c).to_experiment("exp1")

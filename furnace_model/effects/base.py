@@ -29,8 +29,8 @@ sensor options range over that furnace's zones and thermocouples (`specs`), and 
 reads the input channels as one burner count per zone, in the furnace's zone order, then
 ambient temperature (`u_burners`, `u_air`). Where an effect's forms differ on eq. 11's
 network from a larger one, it asks the description (`Furnace.paper_structure`), so that a
-three-zone chain named otherwise behaves as the paper's does. An effect that cannot apply to a furnace
-says why (`refusal`), and making it there is a ValueError with that reason.
+three-zone chain named otherwise behaves as the paper's does. An effect that cannot apply
+to a furnace says why (`refusal`), and making it there is a ValueError with that reason.
 """
 
 from __future__ import annotations

@@ -2,10 +2,11 @@
 
 `ModelStructure(furnace=F)` is the thermal network of the furnace description F
 (furnace_model.simulation.network); for the paper's furnace (`PAPER`) it is exactly eq. 11,
-the network's three-zone case. `ModelStructure([ZoneBurners(furnace=F), SensorLag(furnace=F)],
-furnace=F)` is the same model extended, used by the plant simulator with chosen parameter values and by the
-diagnosis with fitted ones. All simulation is batched over parameter sets: parameter values
-are arrays of length P and results carry a leading P axis.
+the network's three-zone case. `ModelStructure([ZoneBurners(furnace=F),
+SensorLag(furnace=F)], furnace=F)` is the same model extended, used by the plant simulator
+with chosen parameter values and by the diagnosis with fitted ones. All simulation is
+batched over parameter sets: parameter values are arrays of length P and results carry a
+leading P axis.
 """
 
 from __future__ import annotations

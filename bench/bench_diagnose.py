@@ -25,6 +25,7 @@ import numpy as np
 
 from furnace_model.diagnosis import diagnose
 from furnace_model.diagnosis.cases import draw_case
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
@@ -55,7 +56,7 @@ def main() -> None:
             if name == "paper pair":
                 data, hold = paper_pair(), None
             else:
-                case = draw_case(name, np.random.default_rng(7000 + r))
+                case = draw_case(name, np.random.default_rng(7000 + r), furnace=PAPER)
                 data, hold = case.fit, case.holdout
             t0 = time.perf_counter()
             d = diagnose(data, hold)

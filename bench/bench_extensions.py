@@ -17,6 +17,7 @@ import numpy as np
 from bench_simulate import median_time  # a script beside this one
 
 from furnace_model.effects import DeadTime, FuelChange, Radiation
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.scenario import load_scenario
 from furnace_model.simulation.structure import ModelStructure
@@ -34,11 +35,11 @@ def main() -> None:
     print(f"{t.size} samples (paper_exp2, 1-minute sampling), median of {args.repeat}\n")
     print("| structure | sets per call | one call | per set |")
     print("|---|---|---|---|")
-    cases = [(DeadTime(), {"theta_dead": (1.0, 60.0)}, (1, 32, 1000)),
-             (FuelChange(), {"t_fuel": (300.0, 3500.0)}, (1, 32, 1000)),
-             (Radiation(), {"rad_share": (0.1, 0.9)}, (1, 11, 32))]
+    cases = [(DeadTime(furnace=PAPER), {"theta_dead": (1.0, 60.0)}, (1, 32, 1000)),
+             (FuelChange(furnace=PAPER), {"t_fuel": (300.0, 3500.0)}, (1, 32, 1000)),
+             (Radiation(furnace=PAPER), {"rad_share": (0.1, 0.9)}, (1, 11, 32))]
     for effect, spread, sizes in cases:
-        ms = ModelStructure([effect])
+        ms = ModelStructure([effect], furnace=PAPER)
         for P in sizes:
             values = {k: v * np.exp(rng.normal(0, 0.1, P)) for k, v in PAPER_TABLE_V.items()}
             for p in effect.params:

@@ -23,6 +23,7 @@ from scipy.optimize import differential_evolution
 from furnace_model.identification.fit import fit
 from furnace_model.identification.ga import genetic_search
 from furnace_model.identification.problem import Problem
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import BASELINE, PAPER_TABLE_V
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
@@ -84,7 +85,7 @@ def main() -> None:
     cap = 60.0 if args.quick else args.cap_s
     scn = load_scenario(ROOT / "config/scenarios/paper_exp1.yaml")
     exp = Plant.from_scenario(scn, seed=1).run_scenario(scn).to_experiment("paper_exp1")
-    prob = Problem([exp], ModelStructure(), {}, {})
+    prob = Problem([exp], ModelStructure(furnace=PAPER), {}, {})
 
     def common_sse(params: dict) -> float:
         z = prob.to_z(np.array([params[n] for n in NAMES]))

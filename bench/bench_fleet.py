@@ -31,6 +31,7 @@ from furnace_daq.fleet.jobs.diagnose import run_diagnose
 from furnace_daq.fleet.jobs.refit import run_refit
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.plantlog import write_run
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
@@ -123,7 +124,8 @@ def shipped_cost(root: Path, days: float = 2.0) -> str:
             write_run(run, log, s.start_time)
     files = tuple(map(str, list_files([logs])))
     t0 = time.perf_counter()
-    r = refit_segment(Segment("shipped", 0, files, RefitConfig(), 30.0, None, None))
+    r = refit_segment(Segment("shipped", 0, files, RefitConfig(), 30.0, None, None,
+                                      description=PAPER))
     fitted = [x for x in r["rows"] if x["fitted"]]
     return (f"shipped settings, {days:g} days: {len(r['rows'])} windows, {len(fitted)} fitted, "
             f"{r['cpu_s']:.1f} s CPU ({time.perf_counter() - t0:.1f} s wall): "

@@ -17,7 +17,7 @@ import numpy as np
 
 from furnace_daq.logplayer import LogPlayer
 from furnace_daq.mcaplog import LogWriter
-from furnace_model import SENSORS
+from furnace_model.simulation.furnace import PAPER
 
 T0 = 1_772_431_200 * 10**9
 S = 10**9
@@ -30,8 +30,8 @@ def write(log_dir: Path, hours: float) -> int:
         for i in range(n):
             pub = T0 + i * S
             tc = {s: round(float(900 + 50 * np.sin(i / 3000) + rng.normal(0, 1.5)), 1)
-                  for s in SENSORS}
-            tc["quality"] = {s: "ok" for s in SENSORS}
+                  for s in PAPER.sensors}
+            tc["quality"] = {s: "ok" for s in PAPER.sensors}
             tc["plc_seconds"] = i
             on = 6 if (i // 1800) % 2 else 3
             log.write("/furnace/thermocouples", tc, pub, pub)

@@ -19,12 +19,13 @@ from pathlib import Path
 
 from furnace_daq.liveview import LiveView, LiveViewConfig
 from furnace_daq.mcaplog import LogWriter
-from furnace_model import SENSORS
+from furnace_model.simulation.furnace import PAPER
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE_DIR = ROOT / "tests" / "node"
 T0 = 1_772_431_200 * 10**9
-TC = {s: 900.0 + i for i, s in enumerate(SENSORS)} | {"quality": dict.fromkeys(SENSORS, "ok")}
+TC = ({s: 900.0 + i for i, s in enumerate(PAPER.sensors)}
+      | {"quality": dict.fromkeys(PAPER.sensors, "ok")})
 
 
 def free_port() -> int:
@@ -39,7 +40,7 @@ def run(case: str, n: int) -> float:
         log = LogWriter(tmp, flush_interval_s=5.0)
         view = client = None
         if case != "off":
-            view = LiveView(LiveViewConfig("127.0.0.1", free_port()))
+            view = LiveView(LiveViewConfig("127.0.0.1", free_port()), furnace=PAPER)
             log.listeners.append(view.send)
         if case == "client":
             client = subprocess.Popen(["node", "live_client.mjs", view.url, "60"], cwd=NODE_DIR,

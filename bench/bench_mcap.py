@@ -15,8 +15,8 @@ import numpy as np
 
 from furnace_daq.logrecover import recover
 from furnace_daq.mcaplog import LogWriter
-from furnace_model import SENSORS
 from furnace_model.log.resample import resample_logs
+from furnace_model.simulation.furnace import PAPER
 
 T0 = 1_772_431_200 * 10**9
 S = 10**9
@@ -24,11 +24,12 @@ S = 10**9
 
 def one_second(rng: np.random.Generator, i: int) -> list[tuple[str, dict]]:
     """What the daemon logs per 1 Hz poll: thermocouples, burners, ambient."""
-    tc = {s: round(float(900 + 50 * np.sin(i / 3000) + rng.normal(0, 1.5)), 1) for s in SENSORS}
+    tc = {s: round(float(900 + 50 * np.sin(i / 3000) + rng.normal(0, 1.5)), 1)
+          for s in PAPER.sensors}
     burners = {"soak": [True] * 6 + [False] * 4, "heat": [True] * 3 + [False] * 5,
                "preheat": [False] * 8, "count_soak": 6, "count_heat": 3, "count_preheat": 0,
                "source": "modbus"}
-    return [("/furnace/thermocouples", tc | {"quality": dict.fromkeys(SENSORS, "ok")}),
+    return [("/furnace/thermocouples", tc | {"quality": dict.fromkeys(PAPER.sensors, "ok")}),
             ("/furnace/burners", burners),
             ("/furnace/ambient", {"t_air": round(float(25 + rng.normal(0, 0.2)), 2)})]
 

@@ -24,6 +24,7 @@ from furnace_daq.daqconfig import RefitConfig
 from furnace_daq.plantlog import run_messages
 from furnace_daq.refitworker import RefitRunner
 from furnace_model.log.schema import MODEL_EVENTS, MODEL_PARAMETERS
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
@@ -55,7 +56,7 @@ def refits(name: str, duration_min: float | None, config: RefitConfig,
         (params if topic == MODEL_PARAMETERS else events).append(msg)
         assert topic in (MODEL_PARAMETERS, MODEL_EVENTS)
 
-    runner = RefitRunner(config, emit, max_queue=None)
+    runner = RefitRunner(config, emit, max_queue=None, furnace=PAPER)
     runner.start()
     try:
         for topic, msg, t in run_messages(run):

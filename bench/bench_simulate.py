@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from furnace_model.effects import DeadTime, SensorLag, ZoneBurners
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.scenario import load_scenario
 from furnace_model.simulation.structure import ModelStructure
@@ -40,9 +41,11 @@ def main() -> None:
     rng = np.random.default_rng(0)
     rows = []
     for structure, label in [
-        (ModelStructure(), "paper model (eq. 11)"),
-        (ModelStructure([ZoneBurners(), SensorLag()]), "+ zone_burners + sensor_lag (9 states)"),
-        (ModelStructure([DeadTime()]), "+ dead_time (per-set step times)"),
+        (ModelStructure(furnace=PAPER), "paper model (eq. 11)"),
+        (ModelStructure([ZoneBurners(furnace=PAPER), SensorLag(furnace=PAPER)],
+                        furnace=PAPER), "+ zone_burners + sensor_lag (9 states)"),
+        (ModelStructure([DeadTime(furnace=PAPER)],
+                        furnace=PAPER), "+ dead_time (per-set step times)"),
     ]:
         values = {p.name: p.default * np.exp(rng.normal(0, 0.2, args.sets)) if p.log
                   else np.full(args.sets, p.default) for p in structure.params}
@@ -51,7 +54,7 @@ def main() -> None:
         sec = median_time(lambda s=structure, v=values: s.simulate(v, scn.inputs(), t,
                                                                    scn.initial_c), args.repeat)
         rows.append((label, sec))
-    one = ModelStructure()
+    one = ModelStructure(furnace=PAPER)
     single = median_time(lambda: one.simulate(PAPER_TABLE_V, scn.inputs(), t, scn.initial_c),
                          args.repeat)
     print(f"{args.sets} parameter sets x {t.size} samples (paper_exp2, 1-minute sampling), "

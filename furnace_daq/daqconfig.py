@@ -211,7 +211,7 @@ class DaqConfig:
     document: Any = field(default=None, repr=False, compare=False)
     """The YAML mapping this config was read from: recorded in each log, so that the log
     alone rebuilds it (`sim-plc --from-log` serves its register map)."""
-    furnace: Furnace = PAPER
+    furnace: Furnace = field(kw_only=True)
     """The furnace the map reads (`furnace:`, default the paper's): its thermocouples and
     zones are the map's keys, the log's fields and the refit's model."""
 
@@ -340,7 +340,7 @@ def _exact_keys(node: Node, names: tuple[str, ...], what: str, furnace: Furnace,
     return node
 
 
-def _can(node: Node, furnace: Furnace = PAPER) -> CanConfig:
+def _can(node: Node, furnace: Furnace) -> CanConfig:
     _exact_keys(node, furnace.zones, "zone", furnace, required=False,
                 also=("interface", "channel", "bitrate", "timeout_s"))
     frames = {}

@@ -262,7 +262,7 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
           "of PLC time")
     zones = config.furnace.zones
     columns = _columns(config.furnace)
-    what = "thermocouples, °C" if config.furnace == PAPER else "zone means, °C"
+    what = "thermocouples, °C" if _each_tc(config.furnace) else "zone means, °C"
     print(f"   {'PLC time':>7}  {what:^{9 * len(columns) - 1}}  burners")
     print(f"   {'':7}  " + " ".join(f"{s:>8}" for s in columns) + "  " + "/".join(zones))
     duration = scenario.duration_min * 60.0 / args.speed + 3 * poll_s
@@ -291,19 +291,26 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
     return refits
 
 
+LINE_TCS = 8
+"""The most thermocouples a progress line shows one by one (the paper's six fit; a dozen do
+not, and a furnace of more shows its zone means)."""
+
+
+def _each_tc(furnace: Furnace) -> bool:
+    return len(furnace.sensors) <= LINE_TCS
+
+
 def _columns(furnace: Furnace) -> tuple[str, ...]:
-    """What the progress lines show: the paper's six thermocouples, or another furnace's
-    zones (the mean of each zone's readings: a dozen thermocouples do not fit a line)."""
-    return furnace.sensors if furnace == PAPER else furnace.zones
+    """What the progress lines show: each thermocouple, or each zone's mean reading."""
+    return furnace.sensors if _each_tc(furnace) else furnace.zones
 
 
-def _progress_line(latest: dict[str, Thermocouples | Burners], furnace: Furnace = PAPER
-                   ) -> str:
+def _progress_line(latest: dict[str, Thermocouples | Burners], furnace: Furnace) -> str:
     tc, burners = latest.get(THERMOCOUPLES), latest.get(BURNERS)
     if not isinstance(tc, Thermocouples):
         return "   (no reading yet)"
     hours = (math.nan if tc.plc_seconds is None else tc.plc_seconds) / 3600.0
-    if furnace == PAPER:
+    if _each_tc(furnace):
         values: list = [tc.values.get(s) for s in furnace.sensors]
     else:
         readings = np.array([number(tc.values.get(s)) for s in furnace.sensors], dtype=float)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 from furnace_model.errors import FurnaceError
 from furnace_model.log.schema import MESSAGE_ENCODING, SCHEMA_ENCODING, topic, topics
-from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import Furnace
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,7 @@ class LiveView:
     """A running server and its channels, one per log topic."""
 
     def __init__(self, config: LiveViewConfig, name: str = "furnace-daq", where: str = "",
-                 furnace: Furnace = PAPER):
+                 *, furnace: Furnace):
         import foxglove
 
         self.furnace = furnace

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from furnace_model.log.read import METADATA_NAME, furnace_record, read_metadata, recorded_furnace
-from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import Furnace
 
 __all__ = ["METADATA_NAME", "build_metadata", "read_metadata", "recorded_furnace"]
 SECRET_WORDS = ("password", "secret", "token")
@@ -46,8 +46,9 @@ def build_metadata(config: Any = None, *, furnace: Furnace | None = None,
                    software_version: str | None = None,
                    host: str | None = None) -> dict[str, str]:
     """The record's key-value pairs for a daemon run with `config` (a DaqConfig, or None for
-    a writer without one). `furnace`: the full description the readings belong to (default
-    the config's), from which every reader rebuilds the furnace."""
+    a writer without one). `furnace`: the full description the readings belong to (the
+    config's when not given; a writer without a config names it), from which every reader
+    rebuilds the furnace."""
     if software_version is None:
         from furnace_model.cli.arguments import version
 
@@ -58,7 +59,10 @@ def build_metadata(config: Any = None, *, furnace: Furnace | None = None,
         settings.pop("document", None)  # recorded on its own, as written
         settings.pop("furnace", None)  # recorded on its own, in full
     if furnace is None:
-        furnace = getattr(config, "furnace", None) or PAPER
+        furnace = getattr(config, "furnace", None)
+    if furnace is None:
+        raise ValueError("the metadata record needs the furnace: give `furnace` or a config "
+                         "with one")
     return {
         "software_version": software_version,
         "furnace": json.dumps(furnace_record(furnace)),

@@ -77,7 +77,7 @@ from furnace_model.log.messages import (
 from furnace_model.log.read import iso_time
 from furnace_model.log.resample import Resampler
 from furnace_model.log.schema import param_names
-from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import Furnace
 from furnace_model.simulation.structure import ModelStructure
 
 from .daqconfig import RefitConfig
@@ -125,7 +125,7 @@ def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
     air = pd.Series(rows.t_air).ffill().fillna(t_air_default).to_numpy()
     t0 = int(rows.t[0])
     exp = Experiment(name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
-                     pd.Timestamp(t0, unit="ns", tz="UTC"), name, resampler.furnace)
+                     pd.Timestamp(t0, unit="ns", tz="UTC"), name, furnace=resampler.furnace)
     complete = int((np.all(np.isfinite(exp.zone_temp), axis=1) & rows.reading).sum())
     return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps)
 
@@ -238,7 +238,7 @@ class RefitChain:
 
     config: RefitConfig
     t_air_default: float = 30.0
-    furnace: Furnace = PAPER
+    furnace: Furnace = field(kw_only=True)
     model: ModelParameters | None = None
     """The model in force: the last window fitted with status ok (its message)."""
     references: dict[str, _Reference] = field(default_factory=dict)
@@ -505,7 +505,7 @@ class WindowCutter:
 
     config: RefitConfig
     t_air_default: float = 30.0
-    furnace: Furnace = PAPER
+    furnace: Furnace = field(kw_only=True)
     resampler: Resampler = field(init=False)
     next_due_ns: int | None = None
     _last_ns: int | None = None

@@ -27,7 +27,7 @@ from multiprocessing.connection import Connection
 from furnace_model.log.messages import FurnaceMessage, ModelEvent, ModelEventKind, ModelParameters
 from furnace_model.log.read import iso_time
 from furnace_model.log.schema import MODEL_EVENTS, MODEL_PARAMETERS
-from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import Furnace
 
 from .daqconfig import RefitConfig
 from .refit import FitJob, RefitChain, Window, WindowCutter, run_fit
@@ -132,12 +132,12 @@ class RefitRunner:
     Not thread-safe: call everything from one thread (the event loop, or replay's loop)."""
 
     def __init__(self, config: RefitConfig, emit: Emit, *, t_air_default: float = 30.0,
-                 max_queue: int | None = None, furnace: Furnace = PAPER):
+                 max_queue: int | None = None, furnace: Furnace):
         self.config = config
         self.emit = emit
         self.max_queue = max_queue
-        self.cutter = WindowCutter(config, t_air_default, furnace)
-        self.chain = RefitChain(config, t_air_default, furnace)
+        self.cutter = WindowCutter(config, t_air_default, furnace=furnace)
+        self.chain = RefitChain(config, t_air_default, furnace=furnace)
         self.queue: deque[Window] = deque()
         self.in_flight: tuple[Window, float] | None = None
         self.worker = RefitWorker()

@@ -35,7 +35,7 @@ from furnace_model.log.schema import (
     SCHEMA_ENCODING,
     topic,
 )
-from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import Furnace
 
 from .daqconfig import DaqConfig, RefitConfig
 from .logmeta import (
@@ -57,8 +57,7 @@ PUMP_EVERY = 256
 class ModelLog:
     """One MCAP file of /model/* messages (replay output); finished on close."""
 
-    def __init__(self, path: Path, metadata: dict[str, str] | None = None,
-                 furnace: Furnace = PAPER):
+    def __init__(self, path: Path, metadata: dict[str, str] | None, furnace: Furnace):
         self.path = path
         self.furnace = furnace
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import Furnace
 
 from .registers import (
     BIT_TABLES,
@@ -40,10 +40,10 @@ class ServedMap:
     clock: Point | None
     heartbeat: Point | None
     burners: tuple[BitRange, ...]
-    furnace: Furnace = PAPER
+    furnace: Furnace
 
     @classmethod
-    def default(cls, furnace: Furnace = PAPER) -> ServedMap:
+    def default(cls, furnace: Furnace) -> ServedMap:
         """The default map of a furnace with n thermocouples (CONTRACTS.md section 3 for the
         paper's, n = 6): input registers 0..n-1 the thermocouples in the description's order
         (INT16, 0.1 °C, 32767 = open), n the ambient (INT16, 0.1 °C), n+1..n+2 the PLC clock

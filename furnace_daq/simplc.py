@@ -25,21 +25,19 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import SimData, SimDevice
 from pymodbus.simulator.simdata import DataType
 
-from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import Furnace
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import Scenario
 
 from .registers import FUNCTION_CODE
 from .servedmap import ServedMap
 
-N_BURNERS = sum(PAPER.burners)
-"""The paper's furnace's burners; another furnace's are `sum(furnace.burners)`."""
 CAN_ID = 0x180
 """Flame states on CAN: one frame (4 bytes, more for a furnace of more than 32 burners), bit
 n (byte n // 8, LSB first) = burner n."""
 
 
-def zone_slices(furnace: Furnace = PAPER) -> tuple[slice, ...]:
+def zone_slices(furnace: Furnace) -> tuple[slice, ...]:
     """Each zone's burners in the PLC's list of states: zone after zone."""
     return tuple(slice(sum(furnace.burners[:i]), sum(furnace.burners[:i + 1]))
                  for i in range(furnace.n_zones))
@@ -60,7 +58,7 @@ def _runs(cells: dict[int, int | bool]) -> list[tuple[int, list]]:
     return runs
 
 
-def states_from_counts(counts: np.ndarray, furnace: Furnace = PAPER) -> list[bool]:
+def states_from_counts(counts: np.ndarray, furnace: Furnace) -> list[bool]:
     """Burner on/off states when `counts` burners fire per zone: the first ones of each zone."""
     out: list[bool] = []
     for n, total in zip(counts, furnace.burners, strict=True):
@@ -68,7 +66,7 @@ def states_from_counts(counts: np.ndarray, furnace: Furnace = PAPER) -> list[boo
     return out
 
 
-def counts_from_states(states: list[bool], furnace: Furnace = PAPER) -> np.ndarray:
+def counts_from_states(states: list[bool], furnace: Furnace) -> np.ndarray:
     return np.array([sum(states[s]) for s in zone_slices(furnace)])
 
 
@@ -160,7 +158,7 @@ class SimPLC:
         self.manual = bool(getattr(source, "manual", False))
         self.speed, self.host, self.port, self.scan_s = speed, host, port, scan_s
         self.holding_registers = holding_registers
-        furnace = getattr(source, "furnace", PAPER)
+        furnace = source.furnace
         self.served = served or ServedMap.default(furnace)
         """The register map the values are served through."""
         if self.served.furnace != furnace:

@@ -11,18 +11,15 @@ from __future__ import annotations
 
 import contextlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .errors import DataError
-from .simulation.furnace import PAPER, Furnace
+from .simulation.furnace import Furnace
 
-TC_COLUMNS = PAPER.tc_columns
-BURNER_COLUMNS = PAPER.burner_columns
-"""The paper's furnace's columns; another furnace's are its `tc_columns`, `burner_columns`."""
 TIME_COLUMNS = ("timestamp", "t_min")
 DEFAULT_T_AIR_C = 30.0
 TEMPERATURE_RANGE_C = (-273.15, 3000.0)
@@ -41,7 +38,7 @@ class Experiment:
     t_air: np.ndarray  # (N,)
     start_time: pd.Timestamp | None = None
     source: str = ""
-    furnace: Furnace = PAPER
+    furnace: Furnace = field(kw_only=True)
 
     def __len__(self) -> int:
         return self.t_min.size
@@ -63,7 +60,7 @@ class Experiment:
         """The samples with lo <= t_min < hi, times kept as they are."""
         m = (self.t_min >= lo) & (self.t_min < hi)
         return Experiment(self.name, self.t_min[m], self.tc[m], self.burners[m], self.t_air[m],
-                          self.start_time, self.source, self.furnace)
+                          self.start_time, self.source, furnace=self.furnace)
 
     def to_frame(self) -> pd.DataFrame:
         cols: dict[str, object] = {}
@@ -111,7 +108,7 @@ def _kind(path: Path) -> str:
 
 def read_table(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
                start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
-               furnace: Furnace = PAPER) -> Experiment:
+               furnace: Furnace) -> Experiment:
     """Read and check one file of the tabular contract (CSV or Parquet) against the
     furnace's columns."""
     path = Path(path)
@@ -141,8 +138,8 @@ def read_table(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
 def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
                           t_air_default: float = DEFAULT_T_AIR_C, row_offset: int = 1,
                           row_label: str = "row", start: pd.Timestamp | None = None,
-                          end: pd.Timestamp | None = None,
-                          furnace: Furnace = PAPER) -> Experiment:
+                          end: pd.Timestamp | None = None, *,
+                          furnace: Furnace) -> Experiment:
     """Check a table against the contract of a furnace and convert it. `row_offset` maps the
     frame's positional index to the number the user sees (2 for a CSV line under its
     header). `start`/`end` keep the rows timed in [start, end), as if the file held only
@@ -171,8 +168,8 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
                   f"{', '.join(tc_columns + burner_columns)}", unknown[0])
     missing = [c for c in burner_columns if c not in cols]
     if missing:
-        raise err(f"missing required column(s): {', '.join(missing)}"
-                  + ("" if furnace == PAPER else f" (furnace '{furnace.name}')"))
+        raise err(f"missing required column(s): {', '.join(missing)} "
+                  f"(furnace '{furnace.name}')")
     for z, n in zip(furnace.zones, furnace.thermocouples, strict=True):
         if not any(f"tc_{z}_{i}" in cols for i in range(1, n + 1)):
             need = " or ".join(f"tc_{z}_{i}" for i in range(1, n + 1))
@@ -242,7 +239,8 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
 
     # Ambient changes slowly: an empty cell holds the last reading (the default before any).
     t_air = pd.Series(t_air).ffill().fillna(t_air_default).to_numpy()
-    return Experiment(Path(file).stem, t_min, tc, burners, t_air, start_time, file, furnace)
+    return Experiment(Path(file).stem, t_min, tc, burners, t_air, start_time, file,
+                      furnace=furnace)
 
 
 def window_words(start: pd.Timestamp | None, end: pd.Timestamp | None) -> str:

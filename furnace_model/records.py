@@ -12,12 +12,12 @@ import pandas as pd
 from .experiment import DEFAULT_T_AIR_C, Experiment, read_table
 from .log.experiment import group_logs, is_log, load_log
 from .log.resample import DEFAULT_PERIOD_S
-from .simulation.furnace import PAPER, Furnace
+from .simulation.furnace import Furnace
 
 
 def load_experiments(paths: Iterable[str | Path], t_air_default: float = DEFAULT_T_AIR_C, *,
                      start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
-                     period_s: float | None = None, furnace: Furnace = PAPER) -> list[Experiment]:
+                     period_s: float | None = None, furnace: Furnace) -> list[Experiment]:
     """The records the data arguments of `fit`, `validate` and `diagnose` make, in their
     order: each CSV or Parquet file is one; MCAP logs are resampled as `logs export` does and
     make one per directory (`furnace_model.log.experiment`). `start`/`end` keep [start, end) of the PLC
@@ -41,7 +41,7 @@ def load_experiments(paths: Iterable[str | Path], t_air_default: float = DEFAULT
 
 def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
                     start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
-                    period_s: float | None = None, furnace: Furnace = PAPER) -> Experiment:
+                    period_s: float | None = None, furnace: Furnace) -> Experiment:
     """Read and check one file of the tabular contract, or one log file or log directory
     (`load_experiments` says how), against the furnace's columns."""
     if is_log(Path(path)):

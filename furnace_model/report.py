@@ -21,7 +21,6 @@ from matplotlib.figure import Figure
 from .diagnosis import MIN_GAP_CLOSED, RULE, CandidateResult, Diagnosis, shortfall, where_lines
 from .diagnosis.residuals import ZONE_WORDS
 from .experiment import Experiment
-from .simulation.furnace import PAPER
 
 STATUS_WORDS = {"no_gap": "no gap", "explained": "explained", "unexplained": "unexplained"}
 STATUS_COLOURS = {"no_gap": "#2e7d32", "explained": "#1565c0", "unexplained": "#c62828"}
@@ -122,7 +121,7 @@ def _e(text: object) -> str:
 
 def _zones(d: Diagnosis) -> tuple[str, ...]:
     """The diagnosed furnace's zones, in order."""
-    return d.fit_data[0].furnace.zones if d.fit_data else PAPER.zones
+    return d.fit_data[0].furnace.zones
 
 
 def _section(title: str, body: str, figure: str, note: str) -> str:

@@ -11,9 +11,9 @@ import pandas as pd
 from daq_processes import SCENARIO
 
 from furnace_daq.mcaplog import LogWriter
-from furnace_model import SENSORS, ZONES
 from furnace_model.experiment import write_table
 from furnace_model.log.schema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
@@ -28,9 +28,9 @@ def good_frame(minutes: int = 90) -> pd.DataFrame:
     run = Plant.from_scenario(sc).run(sc.inputs(), t, sc.initial_c)
     frame = pd.DataFrame({"timestamp": pd.date_range("2026-03-02T06:00:00Z", periods=minutes,
                                                      freq="min").strftime("%Y-%m-%dT%H:%M:%SZ")})
-    for i, s in enumerate(SENSORS):
+    for i, s in enumerate(PAPER.sensors):
         frame[f"tc_{s}"] = np.round(run.tc[:, i], 1)
-    for i, z in enumerate(ZONES):
+    for i, z in enumerate(PAPER.zones):
         frame[f"burners_{z}"] = [sc.burners_at(x)[i] for x in t]
     frame["t_air"] = sc.t_air_c
     return frame
@@ -62,7 +62,7 @@ def table_cases(d: Path) -> dict[str, Path]:
                                            .astype(float).where(f.index != 3, np.nan))
     cases["inf_tc.csv"] = text.replace(",25.0\n", ",inf\n", 3).replace(
         text.splitlines()[4].split(",")[1], "inf", 1)
-    cases["nan_everywhere.csv"] = good.assign(**{f"tc_{s}": np.nan for s in SENSORS})
+    cases["nan_everywhere.csv"] = good.assign(**{f"tc_{s}": np.nan for s in PAPER.sensors})
     cases["huge.csv"] = good.assign(tc_soak_1=1e308, t_air=1e300)
     cases["overflow.csv"] = text.replace(text.splitlines()[3].split(",")[1], "1e400", 1)
     cases["huge_burners.csv"] = good.assign(burners_soak=10**30)
@@ -115,8 +115,8 @@ def _log(d: Path, name: str, put: Callable[[LogWriter], None]) -> Path:
 
 
 def _tc(i: int, **over) -> dict:
-    m: dict = {s: 400.0 + i for s in SENSORS}
-    m["quality"] = {s: "ok" for s in SENSORS}
+    m: dict = {s: 400.0 + i for s in PAPER.sensors}
+    m["quality"] = {s: "ok" for s in PAPER.sensors}
     m["plc_seconds"] = float(60 * i)
     m.update(over)
     return m

@@ -17,7 +17,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import foxglove.layouts as fl  # noqa: E402
 
-from furnace_model import SENSORS, ZONES  # noqa: E402
 from furnace_model.log.schema import (  # noqa: E402
     AMBIENT,
     BURNERS,
@@ -26,6 +25,7 @@ from furnace_model.log.schema import (  # noqa: E402
     PARAM_NAMES,
     THERMOCOUPLES,
 )
+from furnace_model.simulation.furnace import PAPER  # noqa: E402
 
 
 def _plot(paths: list[tuple[str, str]], y_label: str, step: bool = False) -> fl.PlotPanel:
@@ -38,13 +38,13 @@ def _plot(paths: list[tuple[str, str]], y_label: str, step: bool = False) -> fl.
 
 
 def layout() -> fl.Layout:
-    temps = _plot([(f"{THERMOCOUPLES}.{s}", s) for s in SENSORS]
+    temps = _plot([(f"{THERMOCOUPLES}.{s}", s) for s in PAPER.sensors]
                   + [(f"{AMBIENT}.t_air", "t_air")], "°C")
     burners = _plot([(f"{BURNERS}{{source==\"modbus\"}}.count_{z}", f"burners {z}")
-                     for z in ZONES], "burners firing", step=True)
+                     for z in PAPER.zones], "burners firing", step=True)
     params = _plot([(f"{MODEL_PARAMETERS}.{p}", p) for p in PARAM_NAMES], "parameter",
                    step=True)
-    rmse = _plot([(f"{MODEL_PARAMETERS}.rmse_c.{z}", f"RMSE {z}") for z in ZONES], "°C",
+    rmse = _plot([(f"{MODEL_PARAMETERS}.rmse_c.{z}", f"RMSE {z}") for z in PAPER.zones], "°C",
                  step=True)
     log = fl.LogPanel(config=fl.LogConfig(topic_to_render=LOG, min_log_level=1,
                                           show_level=True, show_time=True, show_name=True,

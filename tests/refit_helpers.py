@@ -8,6 +8,7 @@ from furnace_daq.daqconfig import RefitConfig
 from furnace_daq.plantlog import run_messages
 from furnace_daq.refitworker import RefitRunner
 from furnace_model.log.schema import MODEL_EVENTS, MODEL_PARAMETERS
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.plant import Plant, PlantRun
 from furnace_model.simulation.scenario import Scenario, load_scenario
 
@@ -37,7 +38,7 @@ def through_pipeline(run: PlantRun, config: RefitConfig, messages=None, timeout:
         (params if topic == MODEL_PARAMETERS else events).append(msg.to_json())
         assert topic in (MODEL_PARAMETERS, MODEL_EVENTS)
 
-    runner = RefitRunner(config, emit, max_queue=None)
+    runner = RefitRunner(config, emit, max_queue=None, furnace=PAPER)
     runner.start()
     try:
         for topic, msg, t in (messages if messages is not None else run_messages(run)):

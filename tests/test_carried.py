@@ -53,7 +53,7 @@ def test_the_papers_furnace_carries_a_tenth_of_its_noise():
     # Six parameters over a long heat-up: what they carry is small beside the thermocouples,
     # so the paper's verdicts rest on the noise floor as before.
     case = draw_case(None, case_rng(0, "none", 0), furnace=PAPER)
-    fr = fit(case.fit, ModelStructure(), seed=0, zone_offsets=True, profile=False)
+    fr = fit(case.fit, ModelStructure(furnace=PAPER), seed=0, zone_offsets=True, profile=False)
     h = case.holdout[0]
     refined = fr.refine([h])
     floor = pooled_floor([record_floor(e) for e in case.fit])

@@ -14,9 +14,9 @@ import numpy as np
 import yaml
 from daq_processes import ROOT, SCENARIO, start_simplc, stop
 
-from furnace_model import SENSORS, ZONES
 from furnace_model.log.read import read_messages
 from furnace_model.log.schema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
@@ -80,7 +80,7 @@ def test_sim_plc_to_mcap(tmp_path):
     seconds = np.array([m["plc_seconds"] for m, _, _ in tc])
     assert np.all(np.diff(seconds) >= 0) and seconds[-1] - seconds[0] > 0.5 * DURATION * SPEED
     run = Plant.from_scenario(scenario).run(scenario.inputs(), seconds / 60.0, scenario.initial_c)
-    logged = np.array([[m[s] for s in SENSORS] for m, _, _ in tc], dtype=float)
+    logged = np.array([[m[s] for s in PAPER.sensors] for m, _, _ in tc], dtype=float)
     want = np.round(run.tc * 10) / 10
     assert np.max(np.abs(logged - want)) <= 0.1 + 1e-9
     assert np.mean(np.isclose(logged, want, atol=1e-6)) > 0.99
@@ -90,7 +90,7 @@ def test_sim_plc_to_mcap(tmp_path):
     # The burner bits are a second request after the registers that carry the clock, and a
     # PLC scan may fall between the two: each reading is the schedule at some second from its
     # clock's to the next reading's.
-    counts = np.array([[m[f"count_{z}"] for z in ZONES] for m, _, _ in by_topic[BURNERS]])
+    counts = np.array([[m[f"count_{z}"] for z in PAPER.zones] for m, _, _ in by_topic[BURNERS]])
     ends = np.append(seconds[1:], seconds[-1] + SPEED * 1.0)
     for i, (got, start, end) in enumerate(zip(counts, seconds, ends, strict=True)):
         between = [scenario.burners_at(s / 60.0) for s in np.arange(start, end + 1)]

@@ -16,9 +16,9 @@ import pytest
 from logcheck import check_files
 
 from furnace_daq.logmeta import read_metadata
-from furnace_model import ZONES
 from furnace_model.log.read import read_messages
 from furnace_model.log.schema import MODEL_PARAMETERS, PARAM_NAMES
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,7 +62,7 @@ def check_run(done: subprocess.CompletedProcess, out: Path, min_ok: int) -> list
     assert len(ok) >= min_ok, [(m["window_end"], m["status"], m.get("detail")) for m in models]
     for m in ok:
         assert set(PARAM_NAMES) <= set(m) and set(m["ci95"]) >= set(PARAM_NAMES)
-        assert set(m["rmse_c"]) == set(ZONES) and m["window_start"] < m["window_end"]
+        assert set(m["rmse_c"]) == set(PAPER.zones) and m["window_start"] < m["window_end"]
         assert all(v < 1.5 for v in m["rmse_c"].values()), m["rmse_c"]
     # one progress line per refit, as it happened
     assert done.stdout.count("   refit of ") == len(models)

@@ -41,10 +41,10 @@ from furnace_daq.registers import (
 )
 from furnace_daq.simplc import SimPLC
 from furnace_daq.sources import ModbusSource, SourceError
-from furnace_model import SENSORS
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
 from furnace_model.log.schema import DAQ_STATUS, THERMOCOUPLES
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.scenario import load_scenario
 
 EXAMPLE = ROOT / "config" / "devices.yaml"
@@ -324,7 +324,7 @@ def test_the_simulated_plc_on_a_serial_line_is_polled_by_the_daemon(tmp_path):
         counters = asyncio.run(asyncio.wait_for(main(plc_end, gateway_end), 30))
     assert counters.ok_polls >= 5 and counters.comm_errors == 0, counters
     tc = [m for t, m, _ in messages(tmp_path) if t == THERMOCOUPLES]
-    assert tc and all(m["quality"][s] == "ok" for m in tc for s in SENSORS)
+    assert tc and all(m["quality"][s] == "ok" for m in tc for s in PAPER.sensors)
 
 
 # -- one device going away --------------------------------------------------------------------
@@ -367,7 +367,7 @@ def test_a_device_killed_mid_run_leaves_the_other_ok_and_is_named(tmp_path):
     after = [m for m, lt in tc if lt > killed_at]
     assert len(before) >= 5 and len(after) >= 20, (len(before), len(after))
     # the thermocouple PLC never stalled or lost quality while the burner PLC was away
-    assert all(m["quality"][s] == "ok" for m in before + after for s in SENSORS)
+    assert all(m["quality"][s] == "ok" for m in before + after for s in PAPER.sensors)
     assert any("burners:" in m.get("error", "") for m in after)
     # /daq/status names the device whose state changed, and lists each device's state
     status = [m for t, m, _ in msgs if t == DAQ_STATUS]

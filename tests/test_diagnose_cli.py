@@ -13,6 +13,7 @@ import pytest
 
 from furnace_model.diagnosis.cases import draw_case
 from furnace_model.experiment import write_table
+from furnace_model.simulation.furnace import PAPER
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -24,7 +25,7 @@ def cli(*args: str, timeout: float = 280) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def case_files(tmp_path_factory) -> tuple[Path, Path, dict]:
-    case = draw_case("zone_burners", np.random.default_rng(21))
+    case = draw_case("zone_burners", np.random.default_rng(21), furnace=PAPER)
     d = tmp_path_factory.mktemp("diag")
     fit, hold = d / "exp1.csv", d / "exp2.parquet"
     write_table(case.fit[0].to_frame(), fit)

@@ -13,7 +13,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from furnace_model import ZONES
 from furnace_model.cli.diagnose import summary
 from furnace_model.diagnosis import (
     COLD_GENERATIONS,
@@ -38,6 +37,7 @@ from furnace_model.errors import FurnaceError
 from furnace_model.experiment import Experiment
 from furnace_model.identification.model import Model
 from furnace_model.identification.noisefloor import pooled_floor, record_floor
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import SensorSpec
@@ -48,7 +48,7 @@ CONTRACT_KEYS = {"baseline", "where", "candidates", "verdict"}
 
 
 def _case(effect, seed, form="candidate"):
-    return draw_case(effect, np.random.default_rng(seed), form=form)
+    return draw_case(effect, np.random.default_rng(seed), form=form, furnace=PAPER)
 
 
 def test_control_has_no_gap():
@@ -139,12 +139,13 @@ def test_split_refuses_what_cannot_be_diagnosed():
     short = exp.between(0, 60)
     with pytest.raises(FurnaceError, match="too short to hold out"):
         split([short], None)
-    steady = Experiment("steady", exp.t_min, exp.tc, np.full_like(exp.burners, 2), exp.t_air)
+    steady = Experiment("steady", exp.t_min, exp.tc, np.full_like(exp.burners, 2), exp.t_air,
+                        furnace=PAPER)
     with pytest.raises(FurnaceError, match="no burner change"):
         split([steady], None)
     with pytest.raises(FurnaceError, match="excitation"):
         split([steady], [exp])
-    blind = Experiment("blind", exp.t_min, exp.tc.copy(), exp.burners, exp.t_air)
+    blind = Experiment("blind", exp.t_min, exp.tc.copy(), exp.burners, exp.t_air, furnace=PAPER)
     blind.tc[:, 2:4] = np.nan
     with pytest.raises(FurnaceError, match="zone 'heat' has no thermocouple readings"):
         split([exp, blind], None)
@@ -157,8 +158,10 @@ def test_split_refuses_what_cannot_be_diagnosed():
 
 def test_the_experiment_held_out_is_one_whose_burners_the_others_fire():
     exp = _case(None, 14).fit[0]
-    soak_only = Experiment("soak_only", exp.t_min, exp.tc, exp.burners * [1, 0, 0], exp.t_air)
-    hot = Experiment("hot", exp.t_min, exp.tc, exp.burners * [1, 0, 0] + [0, 2, 0], exp.t_air)
+    soak_only = Experiment("soak_only", exp.t_min, exp.tc, exp.burners * [1, 0, 0], exp.t_air,
+                           furnace=PAPER)
+    hot = Experiment("hot", exp.t_min, exp.tc, exp.burners * [1, 0, 0] + [0, 2, 0], exp.t_air,
+                     furnace=PAPER)
     fit, hold, _, how = split([soak_only, hot], None)  # not the last: no other fires zone 2
     assert [e.name for e in fit] == ["hot"] and [e.name for e in hold] == ["soak_only"]
     assert "hot fires heating-zone burners the rest never fire" in how
@@ -173,11 +176,12 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
     # A draw (selfcheck seed 0, draw 3) where the baseline bends to absorb the heating- and
     # preheating-zone burners (f tens of times off the truth) and a zone-burner fit
     # warm-started from it stays in a side valley, off the noise floor.
-    case = draw_case("zone_burners", case_rng(0, "zone_burners", 3))
+    case = draw_case("zone_burners", case_rng(0, "zone_burners", 3), furnace=PAPER)
     base = run_task(Task((), {}, case.fit, case.holdout, [None], None, 0))
     assert abs(np.log(base.params["f"] / PAPER_TABLE_V["f"])) > np.log(10.0), base.params
     trial = ZoneBurners.trial(Clues(case.fit, case.fit + case.holdout, bent=True,
-                                    baseline_on=lambda heads: _determined(heads, 0)))
+                                    baseline_on=lambda heads: _determined(heads, 0),
+                                    furnace=PAPER))
     start = trial.start
     assert not trial.from_baseline and set(start) == {"a", "f"}
     for k in start:
@@ -185,16 +189,17 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
     floor = pooled_floor([record_floor(e) for e in case.holdout])
     c = run_task(Task(("zone_burners",), {"zone_burners": {}}, case.fit, case.holdout, [None],
                       start, 0, True, _bounds(case.fit),
-                      {z: GAP_RATIO * floor[z] for z in ZONES}))
-    for z in ZONES:
+                      {z: GAP_RATIO * floor[z] for z in PAPER.zones}))
+    for z in PAPER.zones:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
     assert c.params["f_heat"] == pytest.approx(case.truth["zone_burners"]["f_heat"], rel=0.1)
     # no other burner in the fitted data: nothing to start from but the baseline
     soak_only = Experiment("soak_only", case.fit[0].t_min, case.fit[0].tc,
-                           case.fit[0].burners * [1, 0, 0], case.fit[0].t_air)
+                           case.fit[0].burners * [1, 0, 0], case.fit[0].t_air, furnace=PAPER)
     assert soak_only_heads([soak_only]) is None
     assert ZoneBurners.trial(Clues([soak_only], [soak_only], bent=True,
-                                   baseline_on=lambda heads: _determined(heads, 0))).from_baseline
+                                   baseline_on=lambda heads: _determined(heads, 0),
+                                   furnace=PAPER)).from_baseline
 
 
 @pytest.mark.slow  # a cold GA search of a nonlinear candidate: the selfcheck's radiation rows cover it
@@ -202,12 +207,12 @@ def test_nonlinear_candidate_searched_from_scratch_leaves_the_bent_baseline_vall
     # Selfcheck seed 0, radiation draw 4: strong radiation bends the baseline (a at its
     # bound), and the radiation fit warm-started from there stops 10 degC off the floor (a
     # at 1.0 again). Searched from scratch, it finds the plant.
-    case = draw_case("radiation", case_rng(0, "radiation", 4))
+    case = draw_case("radiation", case_rng(0, "radiation", 4), furnace=PAPER)
     c = run_task(Task(("radiation",), {"radiation": {"exponent": 4.0}}, case.fit, case.holdout,
                       [None], None, 1, bounds=_bounds(case.fit),
                       generations=COLD_GENERATIONS))
     floor = pooled_floor([record_floor(e) for e in case.holdout])
-    for z in ZONES:
+    for z in PAPER.zones:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
     assert c.params["rad_share"] == pytest.approx(case.truth["radiation"]["rad_share"], abs=0.02)
     assert c.params["a"] == pytest.approx(PAPER_TABLE_V["a"], rel=0.05)
@@ -227,7 +232,7 @@ def test_a_law_between_the_candidates_laws_is_named_as_their_blend():
     assert {o["form"] for o in blend["between"]} == {"linear", "exponential"}
     assert 0.2 < blend["weight"] < 0.8  # about halfway, as the square of a line is
     assert "law between" in best.note
-    for z in ZONES:
+    for z in PAPER.zones:
         assert best.rmse_holdout_c[z] < NEAR_RATIO * d.noise_floor_c[z]
     k = case.truth["burner_nonlinearity"]["k_nl"]
     assert best.params["k_nl"] == pytest.approx(k, rel=0.25)
@@ -240,10 +245,10 @@ def test_further_laws_only_for_a_candidate_that_helps():
     laws = further_laws([cand("radiation", 40.0, -300.0),  # helps
                          cand("wall_storage", 60.0, 5.0),  # closes, but costs BIC
                          cand("burner_nonlinearity", 0.0, -10.0),  # closes nothing
-                         cand("dead_time", 90.0, -900.0)])  # has one law
+                         cand("dead_time", 90.0, -900.0)], PAPER)  # has one law
     assert [(c.effects[0], o) for c, o in laws] == [("radiation", o) for o in Radiation.further_laws]
-    walls = further_laws([cand("wall_storage", 60.0, -50.0)])
-    assert [o["zones"] for _, o in walls] == [(z,) for z in ZONES]
+    walls = further_laws([cand("wall_storage", 60.0, -50.0)], PAPER)
+    assert [o["zones"] for _, o in walls] == [(z,) for z in PAPER.zones]
 
 
 def test_wall_behind_one_zone_is_named_with_its_zone():
@@ -251,7 +256,7 @@ def test_wall_behind_one_zone_is_named_with_its_zone():
     # 1): one exchange rate shared by walls behind all three zones leaves that zone off the
     # floor; the preheating-zone law reaches it, though its exchange rate trades with the
     # zone's own rates and only its release rate is determined.
-    case = draw_case("wall_storage", case_rng(0, "wall_storage", 1), form="other")
+    case = draw_case("wall_storage", case_rng(0, "wall_storage", 1), form="other", furnace=PAPER)
     assert case.truth["wall_storage"]["zones"] == ["preheat"]
     d = diagnose(case.fit, case.holdout, effects=["wall_storage"])
     assert d.verdict.status == "explained" and d.verdict.effects == ["wall_storage"]
@@ -266,7 +271,8 @@ def testblend_weight_is_the_least_squares_one():
     p = exp.zone_temp + rng.normal(0, 5, exp.zone_temp.shape)
     q = exp.zone_temp + rng.normal(0, 5, exp.zone_temp.shape)
     truth = 0.3 * p + 0.7 * q
-    held = Experiment("held", exp.t_min, np.repeat(truth, 2, axis=1), exp.burners, exp.t_air)
+    held = Experiment("held", exp.t_min, np.repeat(truth, 2, axis=1), exp.burners, exp.t_air,
+                      furnace=PAPER)
     assert np.allclose(held.zone_temp, truth)
     assert blend_weight([p], [q], [held]) == pytest.approx(0.7, abs=1e-9)
     assert blend_weight([p], [p], [held]) == 0.0  # nothing to weigh
@@ -348,7 +354,7 @@ def test_other_formulations_still_named(effect):
 def test_radiation_exponent_is_fitted_from_the_data():
     # The further radiation law fits its exponent. Started at 5.5 on a Stefan-Boltzmann
     # furnace (selfcheck seed 0, radiation draw 1), the fit finds 4 back, and the share.
-    case = draw_case("radiation", case_rng(0, "radiation", 1))
+    case = draw_case("radiation", case_rng(0, "radiation", 1), furnace=PAPER)
     truth = case.truth["radiation"]
     c = run_task(Task(("radiation",), {"radiation": {"exponent": None}}, case.fit, case.holdout,
                       [None], {**PAPER_TABLE_V, "rad_share": 0.3, "rad_exponent": 5.5}, 0,
@@ -358,7 +364,7 @@ def test_radiation_exponent_is_fitted_from_the_data():
     lo, hi = c.ci95["rad_exponent"]
     assert lo < truth["exponent"] < hi and hi - lo < 0.5
     floor = pooled_floor([record_floor(e) for e in case.holdout])
-    for z in ZONES:
+    for z in PAPER.zones:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
 
 
@@ -367,7 +373,7 @@ def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_dat
     # soaking-zone burners alone; a fitted record in which they never step leaves it
     # anywhere (selfcheck seed 0, zone_burners+sensor_lag draw 8). Fixed where the fit left
     # it, the held-out score would depend on the start, not on the model.
-    structure = ModelStructure([EFFECTS["zone_burners"]()])
+    structure = ModelStructure([EFFECTS["zone_burners"](furnace=PAPER)], furnace=PAPER)
     truth = {**PAPER_TABLE_V, "f_heat": 3.0, "f_preheat": 4.2}
     plant = Plant(structure, truth, SensorSpec(noise_sd_c=1.5, bias_sd_c=0.0), seed=5)
     t = np.arange(0.0, 1500.0, 1.0)
@@ -384,7 +390,7 @@ def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_dat
                       [None], start, 0))
     assert c.held_out_fitted == ("f",) and "f unseen by the fitted data" in c.note, c.note
     floor = pooled_floor([record_floor(soak_steps)])
-    for z in ZONES:
+    for z in PAPER.zones:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
     # an f the fitted data leave anywhere, held where a start put it, misses the held-out data
     fixed = Model(structure, {**c.params, "f": start["f"]},
@@ -396,7 +402,8 @@ def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_dat
                       [None], start, 0))
     assert d.held_out_fitted == () and "unseen" not in d.note
     # and the verdict tells the plant engineer
-    v = judge(d, c, [c], floor, {z: NEAR_RATIO * floor[z] for z in ZONES}, ZONES, [])
+    v = judge(d, c, [c], floor, {z: NEAR_RATIO * floor[z] for z in PAPER.zones}, PAPER.zones, [],
+              furnace=PAPER)
     assert v.status == "explained" and "do not show f (soaking-zone heating rate" in v.sentence
 
 

@@ -16,6 +16,7 @@ from furnace_model.diagnosis.residuals import (
 )
 from furnace_model.experiment import Experiment
 from furnace_model.identification.noisefloor import record_floor
+from furnace_model.simulation.furnace import PAPER
 
 
 def _experiment(rng, n=3000, noise=(1.5, 1.0, 2.0), truth=None, burners=None) -> Experiment:
@@ -31,7 +32,7 @@ def _experiment(rng, n=3000, noise=(1.5, 1.0, 2.0), truth=None, burners=None) ->
         burners[:, 0] = 4
         burners[n // 2:, 0] = 8
         burners[2 * n // 3:, 1] = 3
-    return Experiment("exp", t, tc, burners, np.full(n, 30.0))
+    return Experiment("exp", t, tc, burners, np.full(n, 30.0), furnace=PAPER)
 
 
 def _unit_floors(exps: list[Experiment]) -> list:
@@ -88,7 +89,7 @@ def test_zones_erring_throughout_one_record_are_said_once():
              Located("heat", "heat_1", "exp1", 100.0, 400.0, None, None, 0.3,
                      "heat_1 drifts +4.0 °C from its partner", "sensor"),
              whole("heat", 0.93, "0-1300"), whole("preheat", 0.91, "0-700")]
-    lines = where_lines(where)
+    lines = where_lines(where, PAPER.zones)
     assert [(w.who, w.kind) for w in lines] == [
         ("soaking, heating and preheating zones", "throughout"), ("thermocouple heat_1", "sensor")]
     assert lines[0].share == "92%, 93% and 91%" and lines[0].span == "0-3473 min"

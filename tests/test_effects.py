@@ -18,6 +18,7 @@ from furnace_model.effects import (
     ZoneBurners,
     ZoneLosses,
 )
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import SensorSpec, load_scenario
@@ -29,7 +30,7 @@ STEP = Inputs(np.array([0.0, 2000.0]), np.array([[2, 0, 0], [10, 8, 4.0]]), np.f
 
 
 def run(effects=(), **values):
-    ms = ModelStructure(list(effects))
+    ms = ModelStructure(list(effects), furnace=PAPER)
     return ms.simulate({**ms.defaults(), **PAPER_TABLE_V, **values}, STEP, T, X0).zones[0]
 
 
@@ -43,7 +44,7 @@ def test_contract_lists_every_effect():
 
 
 def test_zone_burners_heat_their_own_zone():
-    y = run([ZoneBurners()], f_heat=0.3, f_preheat=0.3)
+    y = run([ZoneBurners(furnace=PAPER)], f_heat=0.3, f_preheat=0.3)
     before, after = T < 2000, T > 2100
     np.testing.assert_allclose(y[before], BASE[before], rtol=1e-9)  # only soak burners yet
     # the heating zone now gets the heating-zone burners directly: it overtakes the soak
@@ -53,13 +54,13 @@ def test_zone_burners_heat_their_own_zone():
 
 
 def test_zone_losses_lower_the_steady_state():
-    y = run([ZoneLosses()], g_soak=0.005, g_heat=0.005)
+    y = run([ZoneLosses(furnace=PAPER)], g_soak=0.005, g_heat=0.005)
     assert np.all(y[100:] < BASE[100:])
     assert np.all(np.diff(BASE[-50:] - y[-50:], axis=0)[:, 0] > -1e-9)  # gap does not close
 
 
 def test_sensor_lag_delays_a_step_response():
-    y = run([SensorLag()], tau_lag=10.0)
+    y = run([SensorLag(furnace=PAPER)], tau_lag=10.0)
     rise_base = BASE[2000:2100] - BASE[2000]
     rise_lag = y[2000:2100] - y[2000]
     assert np.all(rise_lag[1:] < rise_base[1:])
@@ -71,57 +72,60 @@ def test_sensor_lag_delays_a_step_response():
 def test_dead_time_shifts_the_response():
     """From rest at the first input level, a delayed furnace answers the burner step late by
     exactly the dead time (the input before the record is taken to be its first level)."""
-    ms = ModelStructure([DeadTime()])
-    sysm = ModelStructure().system(ModelStructure().theta(PAPER_TABLE_V))
+    ms = ModelStructure([DeadTime(furnace=PAPER)], furnace=PAPER)
+    sysm = ModelStructure(furnace=PAPER).system(ModelStructure(furnace=PAPER).theta(PAPER_TABLE_V))
     rest = -np.linalg.solve(sysm.A[0], sysm.B[0] @ np.r_[STEP.burners[0], STEP.t_air[0]])
-    base = ModelStructure().simulate(PAPER_TABLE_V, STEP, T, rest).zones[0]
+    base = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, STEP, T, rest).zones[0]
     y = ms.simulate({**PAPER_TABLE_V, "theta_dead": 20.0}, STEP, T, rest).zones[0]
     np.testing.assert_allclose(y[20:], base[:-20], rtol=1e-9)
     np.testing.assert_allclose(y[:2021], np.broadcast_to(rest, (2021, 3)), rtol=1e-9)
 
 
 def test_wall_storage_slows_heating_but_keeps_the_steady_state():
-    y = run([WallStorage()], k_gw=0.2, k_wg=0.01)
+    y = run([WallStorage(furnace=PAPER)], k_gw=0.2, k_wg=0.01)
     assert np.all(y[10:1500] < BASE[10:1500])
     long = np.arange(0.0, 600001.0, 1000.0)  # the wall slows the slowest mode
-    ms = ModelStructure([WallStorage()])
+    ms = ModelStructure([WallStorage(furnace=PAPER)], furnace=PAPER)
     inputs = Inputs(np.array([0.0]), np.array([[4, 0, 0.0]]), np.array([30.0]))
     ys = ms.simulate({**PAPER_TABLE_V, "k_gw": 0.2, "k_wg": 0.01}, inputs, long, X0).zones[0]
-    yb = ModelStructure().simulate(PAPER_TABLE_V, inputs, long, X0).zones[0]
+    yb = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, inputs, long, X0).zones[0]
     np.testing.assert_allclose(ys[-1], yb[-1], rtol=1e-6)
 
 
 def test_wall_of_two_layers_and_wall_in_one_zone():
-    one = run([WallStorage()], k_gw=0.2, k_wg=0.01)
+    one = run([WallStorage(furnace=PAPER)], k_gw=0.2, k_wg=0.01)
     # a back layer that takes no heat is the one-layer wall; one that takes heat slows the
     # heat-up further
-    idle = run([WallStorage(layers=2)], k_gw=0.2, k_wg=0.01, k_wb=0.0, k_bw=0.001)
+    idle = run([WallStorage(layers=2, furnace=PAPER)], k_gw=0.2, k_wg=0.01, k_wb=0.0, k_bw=0.001)
     np.testing.assert_allclose(idle, one, rtol=1e-9)
-    two = run([WallStorage(layers=2)], k_gw=0.2, k_wg=0.01, k_wb=0.01, k_bw=0.001)
+    two = run([WallStorage(layers=2, furnace=PAPER)], k_gw=0.2, k_wg=0.01, k_wb=0.01, k_bw=0.001)
     assert np.all(two[10:1500] < one[10:1500])
     # a preheating-zone wall holds back the preheating zone first, the soaking zone last
-    pre = run([WallStorage(zones=("preheat",))], k_gw=0.2, k_wg=0.01)
+    pre = run([WallStorage(zones=("preheat",), furnace=PAPER)], k_gw=0.2, k_wg=0.01)
     lag = (BASE - pre)[5:400]
     assert np.all(lag[:, 2] > lag[:, 1]) and np.all(lag[:, 1] > lag[:, 0])
-    assert ModelStructure([WallStorage(zones=("heat",), layers=2)]).n_states == 5
+    assert ModelStructure([WallStorage(zones=("heat",), layers=2, furnace=PAPER)],
+                          furnace=PAPER).n_states == 5
 
 
 def test_radiation_weakens_exchange_below_and_strengthens_it_above_the_reference():
     t = np.arange(0.0, 1501.0, 10.0)
     inputs = Inputs(np.array([0.0]), np.array([[4, 0, 0.0]]), np.array([30.0]))
-    base = ModelStructure().simulate(PAPER_TABLE_V, inputs, t, X0).zones[0]
+    base = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, inputs, t, X0).zones[0]
     assert base.max() < 700
-    none = ModelStructure([Radiation()]).simulate({**PAPER_TABLE_V, "rad_share": 0.0},
+    none = ModelStructure([Radiation(furnace=PAPER)],
+                          furnace=PAPER).simulate({**PAPER_TABLE_V, "rad_share": 0.0},
                                                   inputs, t, X0).zones[0]
     np.testing.assert_allclose(none, base, rtol=1e-6)
     # everything below the 900 C reference: weaker exchange, the burner zone keeps its heat
-    cold = ModelStructure([Radiation()]).simulate({**PAPER_TABLE_V, "rad_share": 0.8},
+    cold = ModelStructure([Radiation(furnace=PAPER)],
+                          furnace=PAPER).simulate({**PAPER_TABLE_V, "rad_share": 0.8},
                                                   inputs, t, X0).zones[0]
     assert np.all(cold[5:, 0] > base[5:, 0])
     # a furnace far above a 100 C reference: stronger exchange, the burner zone passes heat on
     warm = X0 + 500.0
-    base_warm = ModelStructure().simulate(PAPER_TABLE_V, inputs, t, warm).zones[0]
-    hot = ModelStructure([Radiation(t_ref_c=100.0)]).simulate(
+    base_warm = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, inputs, t, warm).zones[0]
+    hot = ModelStructure([Radiation(t_ref_c=100.0, furnace=PAPER)], furnace=PAPER).simulate(
         {**PAPER_TABLE_V, "rad_share": 0.8}, inputs, t, warm).zones[0]
     assert np.all(hot[5:, 0] < base_warm[5:, 0])
 
@@ -147,7 +151,7 @@ def _radiative_exchange(effect: Radiation, theta: dict, t0: float, t1: float) ->
 def test_radiation_laws(options, theta, law):
     # a fitted exponent acts as the same fixed one; an emissivity changing with temperature
     # is another law with the same unit slope at the reference
-    effect = Radiation(t_ref_c=900.0, **options)
+    effect = Radiation(t_ref_c=900.0, **options, furnace=PAPER)
     tr = 900.0 + 273.15
     for t0, t1 in [(300.0, 1200.0), (850.0, 950.0), (1250.0, 1300.0)]:
         expect = law(t1 + 273.15, tr) - law(t0 + 273.15, tr)
@@ -157,12 +161,12 @@ def test_radiation_laws(options, theta, law):
 
 
 def test_burner_nonlinearity_falling_heat_per_burner():
-    y = run([BurnerNonlinearity()], k_nl=-0.02)
+    y = run([BurnerNonlinearity(furnace=PAPER)], k_nl=-0.02)
     rel_early = (BASE[1999] - y[1999]) / (BASE[1999] - 30)
     rel_late = (BASE[-1] - y[-1]) / (BASE[-1] - 30)
     assert np.all(y[1:] < BASE[1:])
     assert rel_late[0] > rel_early[0]  # more burners firing, bigger shortfall
-    assert run([BurnerNonlinearity()], k_nl=0.02)[-1, 0] > BASE[-1, 0]
+    assert run([BurnerNonlinearity(furnace=PAPER)], k_nl=0.02)[-1, 0] > BASE[-1, 0]
 
 
 @pytest.mark.parametrize("form, factor", [
@@ -173,7 +177,8 @@ def test_burner_nonlinearity_falling_heat_per_burner():
 ])
 def test_burner_curve_forms(form, factor):
     u = np.array([[[0.0, 0, 0, 25], [4, 0, 0, 25], [10, 8, 8, 25]]])
-    out = BurnerNonlinearity(form=form).transform_levels({"k_nl": np.array([-0.02])}, u)
+    out = BurnerNonlinearity(form=form,
+                             furnace=PAPER).transform_levels({"k_nl": np.array([-0.02])}, u)
     n = u[0, :, :3].sum(axis=1)
     expect = u[0, :, :3] * np.where(n > 0, factor(np.maximum(n, 1)), 1.0)[:, None]
     np.testing.assert_allclose(out[0, :, :3], expect, rtol=1e-12)
@@ -181,13 +186,13 @@ def test_burner_curve_forms(form, factor):
 
 
 def test_fuel_change_lowers_heat_after_the_switch_only():
-    y = run([FuelChange()], t_fuel=1000.0, fuel_ratio=0.8)
+    y = run([FuelChange(furnace=PAPER)], t_fuel=1000.0, fuel_ratio=0.8)
     np.testing.assert_allclose(y[:1001], BASE[:1001], rtol=1e-12)
     assert np.all(y[1002:] < BASE[1002:])
 
 
 def test_sensor_drift_moves_one_thermocouple_from_its_partner():
-    ms = ModelStructure([SensorDrift(sensor="heat_2")])
+    ms = ModelStructure([SensorDrift(sensor="heat_2", furnace=PAPER)], furnace=PAPER)
     off = ms.sensor_offsets({**PAPER_TABLE_V, "drift_rate": 0.01, "t_drift": 500.0}, T)[0]
     assert np.all(off[:, [0, 1, 2, 4, 5]] == 0)
     assert np.all(off[T <= 500, 3] == 0)
@@ -196,9 +201,10 @@ def test_sensor_drift_moves_one_thermocouple_from_its_partner():
 
 def test_plant_without_effects_or_noise_equals_the_model(scenarios):
     scn = load_scenario(scenarios / "paper_exp2.yaml")
-    plant = Plant(ModelStructure(), scn.params, SensorSpec(noise_sd_c=0.0, bias_sd_c=0.0), seed=1)
+    plant = Plant(ModelStructure(furnace=PAPER), scn.params,
+                  SensorSpec(noise_sd_c=0.0, bias_sd_c=0.0), seed=1)
     run_ = plant.run_scenario(scn)
-    model = ModelStructure().simulate(scn.params, scn.inputs(), scn.sample_times(),
+    model = ModelStructure(furnace=PAPER).simulate(scn.params, scn.inputs(), scn.sample_times(),
                                       scn.initial_c).zones
     np.testing.assert_array_equal(run_.tc[:, ::2], model[0])
     np.testing.assert_array_equal(run_.tc[:, 1::2], model[0])
@@ -220,8 +226,8 @@ def test_stepper_matches_a_whole_run(name, scenarios):
     """The simulated PLC advances the plant in small steps; the result must not depend on
     the step size."""
     scn = load_scenario(scenarios / "paper_exp2.yaml")
-    effect = EFFECTS[name]()
-    ms = ModelStructure([effect])
+    effect = EFFECTS[name](furnace=PAPER)
+    ms = ModelStructure([effect], furnace=PAPER)
     values = {**ms.defaults(), **scn.params}
     if name == "fuel_change":
         values["t_fuel"] = 2000.0

@@ -44,7 +44,7 @@ def _values(structure):
 def test_every_effect_runs_on_the_six_zone_furnace_and_changes_it(name):
     base = ModelStructure(furnace=SIX)
     effect = EFFECTS[name](furnace=SIX)
-    ext = ModelStructure([effect], SIX)
+    ext = ModelStructure([effect], furnace=SIX)
     inputs, t = _heatup(SIX)
     x0 = np.full(6, 30.0)
     y0 = base.simulate(_values(base), inputs, t, x0).sensors[0]
@@ -60,7 +60,7 @@ def test_zone_burners_on_the_first_zone_reading_is_the_own_zone_network():
     description itself: the effect's gains are the own-zone network's."""
     own = ModelStructure(furnace=SIX)
     truth = {**_values(own), **{f"gain_{z}": 0.3 + 0.1 * i for i, z in enumerate(SIX.zones)}}
-    first = ModelStructure([EFFECTS["zone_burners"](furnace=FIRST)], FIRST)
+    first = ModelStructure([EFFECTS["zone_burners"](furnace=FIRST)], furnace=FIRST)
     assert [p.name for p in first.effects[0].params] == [f"f_{z}" for z in SIX.zones[1:]]
     values = {**{k: v for k, v in truth.items() if k in first.names},
               **{f"f_{z}": truth[f"gain_{z}"] for z in SIX.zones[1:]}}
@@ -91,9 +91,9 @@ def test_zone_options_range_over_the_furnace():
                                          ".*own_zone"):
         EFFECTS["zone_burners"](furnace=SIX)
     # the paper's furnace: options, parameters and defaults as they always were
-    assert EFFECTS["sensor_lag"]().options == {"order": 1}
-    assert EFFECTS["zone_losses"]().options == {"zones": ("soak", "heat")}
-    assert EFFECTS["sensor_drift"]().options == {"sensor": "heat_2"}
+    assert EFFECTS["sensor_lag"](furnace=PAPER).options == {"order": 1}
+    assert EFFECTS["zone_losses"](furnace=PAPER).options == {"zones": ("soak", "heat")}
+    assert EFFECTS["sensor_drift"](furnace=PAPER).options == {"sensor": "heat_2"}
 
 
 def test_on_a_network_the_further_laws_place_an_effect_in_one_place_at_a_time():
@@ -113,7 +113,7 @@ def test_on_a_network_the_further_laws_place_an_effect_in_one_place_at_a_time():
     assert places("wall_storage", PAPER) == (False, [(z,) for z in PAPER.zones])
     for name in ("sensor_lag", "zone_losses", "sensor_drift"):
         assert places(name, PAPER) == (False, [])
-    assert EFFECTS["wall_storage"]().options["zones"] == PAPER.zones
+    assert EFFECTS["wall_storage"](furnace=PAPER).options["zones"] == PAPER.zones
 
 
 SCENARIO = """

@@ -12,6 +12,7 @@ import pytest
 
 from furnace_model.errors import DataError
 from furnace_model.records import load_experiment
+from furnace_model.simulation.furnace import PAPER
 
 HEADER = ("t_min,tc_soak_1,tc_soak_2,tc_heat_1,tc_heat_2,tc_preheat_1,tc_preheat_2,"
           "burners_soak,burners_heat,burners_preheat,t_air")
@@ -26,7 +27,7 @@ def write(tmp_path: Path, lines: list[str], name: str = "run.csv") -> Path:
 
 
 def test_good_csv_loads(tmp_path):
-    exp = load_experiment(write(tmp_path, [HEADER, *ROWS]))
+    exp = load_experiment(write(tmp_path, [HEADER, *ROWS]), furnace=PAPER)
     assert len(exp) == 4
     np.testing.assert_allclose(exp.zone_temp[2], [40.0, 33.5, 30.5])  # missing cell skipped
     assert np.isnan(exp.tc[2, 1])
@@ -39,12 +40,12 @@ def test_timestamps_and_parquet_round_trip(tmp_path):
     lines = [HEADER.replace("t_min", "timestamp")]
     for i, row in enumerate(ROWS):
         lines.append(f"2026-03-04T10:0{i}:00+01:00" + row[row.index(","):])
-    exp = load_experiment(write(tmp_path, lines))
+    exp = load_experiment(write(tmp_path, lines), furnace=PAPER)
     assert exp.start_time == pd.Timestamp("2026-03-04T09:00:00Z")
     np.testing.assert_allclose(exp.t_min, [0, 1, 2, 3])
     pq = tmp_path / "run.parquet"
     exp.to_frame().to_parquet(pq)
-    again = load_experiment(pq)
+    again = load_experiment(pq, furnace=PAPER)
     np.testing.assert_allclose(again.t_min, exp.t_min)
     np.testing.assert_array_equal(again.tc, exp.tc)
 
@@ -76,29 +77,29 @@ def test_timestamps_and_parquet_round_trip(tmp_path):
 def test_broken_files_get_their_own_error(tmp_path, mutate, match):
     header, rows = mutate(HEADER, list(ROWS))
     with pytest.raises(DataError, match=match) as info:
-        load_experiment(write(tmp_path, [header, *rows]))
+        load_experiment(write(tmp_path, [header, *rows]), furnace=PAPER)
     assert "run.csv" in str(info.value)
 
 
 def test_timestamp_without_offset_is_refused(tmp_path):
     lines = [HEADER.replace("t_min", "timestamp"), "2026-03-04T10:00:00" + ROWS[0][1:]]
     with pytest.raises(DataError, match=r"line 2: timestamp has no UTC offset"):
-        load_experiment(write(tmp_path, lines))
+        load_experiment(write(tmp_path, lines), furnace=PAPER)
 
 
 def test_empty_and_foreign_files(tmp_path):
     empty = tmp_path / "empty.csv"
     empty.write_text("")
     with pytest.raises(DataError, match="empty file"):
-        load_experiment(empty)
+        load_experiment(empty, furnace=PAPER)
     with pytest.raises(DataError, match="file not found"):
-        load_experiment(tmp_path / "nope.csv")
+        load_experiment(tmp_path / "nope.csv", furnace=PAPER)
     with pytest.raises(DataError, match="unsupported file type '.txt'"):
-        load_experiment(tmp_path / "run.txt")
+        load_experiment(tmp_path / "run.txt", furnace=PAPER)
     junk = tmp_path / "junk.parquet"
     junk.write_bytes(b"not parquet at all")
     with pytest.raises(DataError, match="not a readable parquet file"):
-        load_experiment(junk)
+        load_experiment(junk, furnace=PAPER)
 
 
 def test_parquet_errors_name_rows(tmp_path):
@@ -109,7 +110,7 @@ def test_parquet_errors_name_rows(tmp_path):
     path = tmp_path / "neg.parquet"
     frame.to_parquet(path)
     with pytest.raises(DataError, match=r"column 'burners_soak', row 2: burner count cannot be"):
-        load_experiment(path)
+        load_experiment(path, furnace=PAPER)
 
 
 def test_simulate_cli_writes_a_loadable_file_and_reports_bad_input(tmp_path, scenarios):
@@ -118,7 +119,7 @@ def test_simulate_cli_writes_a_loadable_file_and_reports_bad_input(tmp_path, sce
            "--scenario", str(scenarios / "paper_exp1.yaml"), "--out", str(out), "--seed", "3"]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
-    exp = load_experiment(out)
+    exp = load_experiment(out, furnace=PAPER)
     assert len(exp) == 3311 and exp.burner_steps == 3
     assert exp.burners[-1].tolist() == [10, 0, 0]
     bad = tmp_path / "bad.yaml"

@@ -19,6 +19,7 @@ from furnace_daq.refit import cut_window
 from furnace_model.identification.fit import fit
 from furnace_model.log.resample import Resampler
 from furnace_model.records import load_experiment
+from furnace_model.simulation.furnace import PAPER
 
 SHIFT = pd.Timedelta(seconds=20)
 
@@ -33,7 +34,7 @@ def test_export_of_1hz_data_fits_the_plant_within_1_percent(tmp_path: Path) -> N
     out = tmp_path / "run.csv"
     assert main(["logs", "export", *map(str, (tmp_path / "logs").glob("*.mcap")),
                  "--out", str(out)]) == 0
-    exp = load_experiment(out)
+    exp = load_experiment(out, furnace=PAPER)
     # one row per minute and one per burner step, each step at its own instant
     steps = int(np.count_nonzero(np.any(np.diff(run.burners, axis=0) != 0, axis=1)))
     change = np.all(np.isnan(exp.tc), axis=1)
@@ -65,7 +66,7 @@ def test_a_refit_window_holds_the_exported_rows(tmp_path: Path) -> None:
     out = tmp_path / "w.csv"
     assert main(["logs", "export", *map(str, (tmp_path / "logs").glob("*.mcap")), "--out",
                  str(out), "--start", lo.isoformat(), "--end", hi.isoformat()]) == 0
-    exported = load_experiment(out)
+    exported = load_experiment(out, furnace=PAPER)
     resampler = Resampler(60 * 10**9)
     for topic, msg, t in run_messages(run, start):
         resampler.add(topic, msg, t)

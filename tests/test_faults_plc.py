@@ -13,10 +13,10 @@ import yaml
 from daq_processes import ROOT, config, free_port, messages, plant_readings, sim, start_daemon
 
 from furnace_daq.daqconfig import parse_config
-from furnace_model import SENSORS
 from furnace_model.config import Node
 from furnace_model.log.read import read_messages
 from furnace_model.log.schema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model.simulation.furnace import PAPER
 
 
 def test_down_at_start_then_dropped_then_back(tmp_path):
@@ -79,7 +79,7 @@ def test_plc_restarted_mid_run(tmp_path):
     assert len(back) == 1, seconds                        # one restart, seen once
     before, after = seconds[:back[0] + 1], seconds[back[0] + 1:]
     assert before[-1] > 300 and after[0] < 300, (before[-1], after[0])
-    logged = np.array([[m[s] for s in SENSORS] for m, _, _ in tc], dtype=float)
+    logged = np.array([[m[s] for s in PAPER.sensors] for m, _, _ in tc], dtype=float)
     np.testing.assert_allclose(logged, plant_readings(seconds), atol=0.1 + 1e-9)
 
     events = [(m, lt) for t, m, lt in messages(tmp_path) if t == DAQ_EVENTS
@@ -98,7 +98,7 @@ def test_refused_block_is_comm_error_and_the_rest_stays_ok(tmp_path):
     answers that block with Modbus exception 2 (illegal address), every poll. Those two are
     comm_error; the other points of the same poll are logged ok, and the link stays up."""
     tc_map = {s: {"table": "input", "address": i, "type": "int16", "scale": 0.1,
-                  "sentinels": [32767]} for i, s in enumerate(SENSORS)}
+                  "sentinels": [32767]} for i, s in enumerate(PAPER.sensors)}
     tc_map["heat_1"]["address"], tc_map["heat_2"]["address"] = 100, 101
 
     async def scenario():
@@ -121,7 +121,7 @@ def test_refused_block_is_comm_error_and_the_rest_stays_ok(tmp_path):
     seconds = [m["plc_seconds"] for m in tc]
     want = plant_readings(seconds)
     for s in ("soak_1", "soak_2", "preheat_1", "preheat_2"):
-        k = SENSORS.index(s)
+        k = PAPER.sensors.index(s)
         np.testing.assert_allclose([m[s] for m in tc], want[:, k], atol=0.1 + 1e-9)
     assert len([m for t, m, _ in msgs if t == AMBIENT and m["quality"] == "ok"]) == len(tc)
     assert len([m for t, m, _ in msgs if t == BURNERS]) == len(tc)

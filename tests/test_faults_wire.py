@@ -16,8 +16,8 @@ import pytest
 from daq_processes import config, messages, plant_readings, sim, start_daemon
 from faultproxy import FaultProxy
 
-from furnace_model import SENSORS
 from furnace_model.log.schema import DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model.simulation.furnace import PAPER
 
 PERIOD, TIMEOUT, BACKOFF_CAP = 0.05, 0.2, 0.4  # as daq_processes.config sets them
 WARM, FAULT, AFTER = 0.6, 1.0, 1.0
@@ -70,7 +70,7 @@ def check_every_answer_logged(run: Run) -> list[tuple[dict, int]]:
     assert sum(answered.values()) >= 20, answered
     assert Counter(m["plc_seconds"] for m, _ in ok) == answered
     seconds = [m["plc_seconds"] for m, _ in ok]
-    logged = np.array([[m[s] for s in SENSORS] for m, _ in ok], dtype=float)
+    logged = np.array([[m[s] for s in PAPER.sensors] for m, _ in ok], dtype=float)
     np.testing.assert_allclose(logged, plant_readings(seconds), atol=0.1 + 1e-9)
     return ok
 

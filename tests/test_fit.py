@@ -13,6 +13,7 @@ from furnace_model.experiment import Experiment
 from furnace_model.identification.fit import WarmStart, fit
 from furnace_model.identification.model import score
 from furnace_model.identification.uncertainty import from_jacobian
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import SensorSpec, load_scenario
@@ -107,7 +108,7 @@ def test_ten_seeds_agree_on_the_determined_quantities(paper_1min):
 def test_no_burner_change_is_not_a_confident_answer():
     t = np.arange(0.0, 1500.0, 1.0)
     inputs = Inputs(np.array([0.0]), np.array([[4.0, 0.0, 0.0]]), np.array([30.0]))
-    plant = Plant(ModelStructure(), PAPER_TABLE_V, SensorSpec(TC_SD, 0.0), seed=3)
+    plant = Plant(ModelStructure(furnace=PAPER), PAPER_TABLE_V, SensorSpec(TC_SD, 0.0), seed=3)
     exp = plant.run(inputs, t, np.full(3, 30.0)).to_experiment("flat")
     assert exp.burner_steps == 0
     res = fit([exp])
@@ -122,7 +123,7 @@ def test_missing_readings_are_masked_not_filled(paper_1min):
     gap = (exp.t_min >= 1000) & (exp.t_min < 1400)  # no burner change inside
     tc[gap, 2:4] = np.nan  # the heating zone is blind for 400 min
     tc[(exp.t_min >= 200) & (exp.t_min < 300), 0] = np.nan  # one soak thermocouple out
-    holed = Experiment("holed", exp.t_min, tc, exp.burners, exp.t_air)
+    holed = Experiment("holed", exp.t_min, tc, exp.burners, exp.t_air, furnace=PAPER)
     res = fit([holed])
     assert res.n_obs == 3 * len(exp) - gap.sum()
     # Leaving the heating zone out of those rows must equal fitting rows that never had them:
@@ -131,7 +132,7 @@ def test_missing_readings_are_masked_not_filled(paper_1min):
     twin_tc = tc.copy()
     twin_tc[gap, 2:4] = 9999.0  # garbage where the hole is: must be masked to matter nowhere
     twin = Experiment("twin", exp.t_min, np.where(np.isnan(tc), np.nan, twin_tc),
-                      exp.burners, exp.t_air)
+                      exp.burners, exp.t_air, furnace=PAPER)
     res2 = fit([twin])
     assert res2.n_obs == res.n_obs
     for k in ("a", "f"):
@@ -181,7 +182,7 @@ def test_joint_fit_of_two_experiments_has_one_initial_state_each(scenarios):
 
 
 def test_effect_parameters_fit_too(scenarios):
-    structure = ModelStructure([SensorDrift(sensor="heat_2")])
+    structure = ModelStructure([SensorDrift(sensor="heat_2", furnace=PAPER)], furnace=PAPER)
     truth = {**PAPER_TABLE_V, "drift_rate": 0.004, "t_drift": 1500.0}
     exp = heat_up(scenarios, truth, 1.0, structure=structure)
     res = fit([exp], structure, init={**PAPER_TABLE_V, "drift_rate": 0.0, "t_drift": 1000.0})
@@ -195,7 +196,7 @@ def test_effect_parameters_fit_too(scenarios):
 
 def test_score_on_another_experiment(scenarios):
     exp2 = load_scenario(scenarios / "paper_exp2.yaml")
-    plant = Plant(ModelStructure(), PAPER_TABLE_V, SensorSpec(TC_SD, 0.0), seed=4)
+    plant = Plant(ModelStructure(furnace=PAPER), PAPER_TABLE_V, SensorSpec(TC_SD, 0.0), seed=4)
     other = plant.run(exp2.inputs(), exp2.sample_times(), exp2.initial_c).to_experiment()
     good = score(PAPER_TABLE_V, [other])
     bad = score({**PAPER_TABLE_V, "f": 0.25}, [other])
@@ -271,10 +272,10 @@ def test_an_extension_warm_started_from_the_baseline_fits_no_worse(paper_1min):
     from furnace_model.effects import SensorLag, WallStorage
 
     base = fit([paper_1min])
-    for effect in (SensorLag(), WallStorage()):
-        ext = fit([paper_1min], ModelStructure([effect]), init=base.params)
+    for effect in (SensorLag(furnace=PAPER), WallStorage(furnace=PAPER)):
+        ext = fit([paper_1min], ModelStructure([effect], furnace=PAPER), init=base.params)
         assert ext.sse <= base.sse * 1.001, (effect.name, ext.sse, base.sse)
-        assert set(ext.params) == set(ModelStructure([effect]).names)
+        assert set(ext.params) == set(ModelStructure([effect], furnace=PAPER).names)
 
 
 def test_sd_and_covariance_in_the_parameters_units(paper_1min):
@@ -372,7 +373,7 @@ def test_why_the_search_stopped_and_after_how_many_iterations(paper_1min):
     assert (ga.stop_reason, ga.iterations, ga.generations) == ("ga_generations", 0, 15)
     from furnace_model.identification.problem import Problem
 
-    prob = Problem([paper_1min], ModelStructure(), {}, {})
+    prob = Problem([paper_1min], ModelStructure(furnace=PAPER), {}, {})
     start = prob.start(prob.to_z(np.array([PAPER_TABLE_V[n] for n in prob.names])) + 0.3)
     short = prob.polish(start, None, max_iter=2)
     assert (short.reason, short.iterations) == ("iteration_limit", 2)

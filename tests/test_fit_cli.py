@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from furnace_model.simulation.furnace import PAPER
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -219,7 +221,7 @@ def test_a_parameter_beyond_its_range_is_flagged_on_the_bound(tmp_path):
 
     scn = load_scenario(ROOT / "config/scenarios/paper_exp1.yaml")
     truth = {**PAPER_TABLE_V, "c": 3e-5, "f": 0.12}  # f lower: still a heat-up, not a melt
-    plant = Plant(ModelStructure(), truth, scn.sensors, seed=1)
+    plant = Plant(ModelStructure(furnace=PAPER), truth, scn.sensors, seed=1)
     data = tmp_path / "tight_preheat.csv"
     write_table(plant.run_scenario(scn).to_experiment("tight_preheat").to_frame(), data)
     out_json = tmp_path / "fit.json"

@@ -13,6 +13,7 @@ from furnace_model.errors import FurnaceError
 from furnace_model.identification.fit import fit
 from furnace_model.identification.model import Model, Refinement
 from furnace_model.identification.scores import zone_metrics
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.scenario import SensorSpec
 from furnace_model.simulation.structure import Inputs, ModelStructure
@@ -33,12 +34,14 @@ def biased():
 def test_own_records_are_predicted_as_the_fit_scored_them(biased):
     a, b, res = biased
     for j, exp in enumerate((a, b)):
-        run = ModelStructure().simulate(res.params, Inputs.of(exp), exp.t_min, res.x0[j][None])
+        run = ModelStructure(furnace=PAPER).simulate(res.params, Inputs.of(exp), exp.t_min,
+                                                     res.x0[j][None])
         np.testing.assert_allclose(res.predict(j), run.zones[0] + res.offsets(j), rtol=1e-12)
         # x0 given, offsets not: the furnace as unbiased thermocouples would read it
         np.testing.assert_allclose(res.predict(exp, res.x0[j]), run.zones[0], rtol=1e-12)
     both = np.concatenate([res.predict(0), res.predict(1)])
-    assert zone_metrics(np.concatenate([a.zone_temp, b.zone_temp]), both) == res.per_zone
+    assert zone_metrics(np.concatenate([a.zone_temp, b.zone_temp]), both,
+                        PAPER.zones) == res.per_zone
     np.testing.assert_allclose(res.offsets(0), [2.0, -3.0, 1.0], atol=0.3)
     np.testing.assert_allclose(res.response(1).states[0, 0], res.x0[1], rtol=1e-12)
     with pytest.raises(IndexError, match="2 record"):
@@ -46,12 +49,12 @@ def test_own_records_are_predicted_as_the_fit_scored_them(biased):
 
 
 def test_own_records_with_a_sensor_effect_are_what_the_fit_scored(scenarios):
-    ms = ModelStructure([SensorDrift(sensor="heat_2")])
+    ms = ModelStructure([SensorDrift(sensor="heat_2", furnace=PAPER)], furnace=PAPER)
     truth = {**PAPER_TABLE_V, "drift_rate": 0.004, "t_drift": 1000.0}
     exp = heat_up(scenarios, truth, 2.0, structure=ms)
     exp.tc[100:400, 3] = np.nan  # the drifting one gives nothing for a while
     res = fit([exp], ms, init=truth, fixed={"t_drift": 1000.0}, profile=False)
-    assert zone_metrics(exp.zone_temp, res.predict(0)) == res.per_zone
+    assert zone_metrics(exp.zone_temp, res.predict(0), PAPER.zones) == res.per_zone
     assert res.per_zone["heat"]["rmse_c"] < 1.5
 
 
@@ -83,7 +86,7 @@ def test_refine_recovers_a_changed_parameter_with_the_others_held(scenarios):
     it, refined on new data with f free, finds the new f within its interval."""
     truth = {**PAPER_TABLE_V, "f": 0.8 * PAPER_TABLE_V["f"]}
     after = heat_up(scenarios, truth, 2.0, seed=5, name="after")
-    before = Model(ModelStructure(), PAPER_TABLE_V)
+    before = Model(ModelStructure(furnace=PAPER), PAPER_TABLE_V)
     refined = before.refine([after], free=("f",))
     f, se = refined.params["f"], refined.std["f"]
     assert abs(f - truth["f"]) < 3 * se and se < 0.005 * truth["f"], (f, se)
@@ -107,7 +110,8 @@ def test_held_offsets_are_kept_and_read(biased):
     span = a.between(2000.0, 2600.0)
     held = res.refine([span], free=("f",), offsets=[res.offsets(0)])
     np.testing.assert_array_equal(held.offsets(0), res.offsets(0))
-    run = ModelStructure().simulate(held.params, Inputs.of(span), span.t_min, held.x0[0][None])
+    run = ModelStructure(furnace=PAPER).simulate(held.params, Inputs.of(span), span.t_min,
+                                                 held.x0[0][None])
     np.testing.assert_allclose(held.predict(0), run.zones[0] + res.offsets(0), rtol=1e-12)
 
 
@@ -118,4 +122,4 @@ def test_refine_names_what_it_cannot_do(biased):
     with pytest.raises(FurnaceError, match="no data"):
         res.refine([], free=("f",))
     with pytest.raises(FurnaceError, match="missing"):
-        Model(ModelStructure([SensorDrift()]), PAPER_TABLE_V)
+        Model(ModelStructure([SensorDrift(furnace=PAPER)], furnace=PAPER), PAPER_TABLE_V)

@@ -139,9 +139,9 @@ def test_plug_in_effects_load_in_the_workers(local):
 def test_selfcheck_draws_as_tasks_give_the_selfchecks_cases(local, tmp_path):
     from furnace_model.diagnosis.selfcheck import check
 
-    got, result = run_selfcheck(local["client"], ["none"], 1, tmp_path, furnace=PAPER, first=3,
-                                quiet=True)
-    (want,) = check(["none"], 1, 0, first=3)
+    got, result = run_selfcheck(local["client"], ["none"], 1, tmp_path, first=3, quiet=True,
+                                furnace=PAPER)
+    (want,) = check(["none"], 1, 0, first=3, furnace=PAPER)
     assert not result.failures and len(got) == 1
     assert (got[0].label, got[0].draw, got[0].status, got[0].named, got[0].correct) == \
         (want.label, want.draw, want.status, want.named, want.correct)

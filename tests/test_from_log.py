@@ -25,9 +25,9 @@ from furnace_daq.logplayer import LogPlayer
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.registers import decode
 from furnace_daq.simplc import CAN_ID, SimPLC
-from furnace_model import SENSORS, ZONES
 from furnace_model.log.read import read_messages
 from furnace_model.log.schema import AMBIENT, BURNERS, DAQ_STATUS, THERMOCOUPLES
+from furnace_model.simulation.furnace import PAPER
 
 SPEED, PERIOD = 600.0, 0.05
 EPOCH_NS = 1_772_431_200 * 10**9  # 2026-03-02T06:00:00Z
@@ -114,9 +114,9 @@ def test_a_daemon_polling_a_served_log_logs_the_recorded_values(tmp_path):
     crossed = set()
     for (_, m), s in zip(tc, seconds, strict=True):
         want = held(rec[THERMOCOUPLES], origin, s)
-        got = [m[k] for k in SENSORS]
-        assert np.allclose(got, [want[k] for k in SENSORS], atol=0.1 + 1e-9), (s, got, want)
-        crossed.add(tuple(want[k] for k in SENSORS))
+        got = [m[k] for k in PAPER.sensors]
+        assert np.allclose(got, [want[k] for k in PAPER.sensors], atol=0.1 + 1e-9), (s, got, want)
+        crossed.add(tuple(want[k] for k in PAPER.sensors))
     assert seconds[0] < 300 and len(crossed) > len(rec[THERMOCOUPLES]) / 2, \
         f"the replay follows the recording: {len(crossed)} values from second {seconds[0]}"
     # Bits are a second request after the registers: a scan may fall between the two.
@@ -125,8 +125,8 @@ def test_a_daemon_polling_a_served_log_logs_the_recorded_values(tmp_path):
     for p, m in new[BURNERS]:
         s = int(round((p - pubs[0]) / 1e9)) + seconds[0]
         wants = [held(rec[BURNERS], origin, s + k) for k in (0, scan, 2 * scan)]
-        assert [m[z] for z in ZONES] in [[w[z] for z in ZONES] for w in wants], s
-    assert len({tuple(m[f"count_{z}"] for z in ZONES) for _, m in new[BURNERS]}) >= 2
+        assert [m[z] for z in PAPER.zones] in [[w[z] for z in PAPER.zones] for w in wants], s
+    assert len({tuple(m[f"count_{z}"] for z in PAPER.zones) for _, m in new[BURNERS]}) >= 2
     assert {m["t_air"] for _, m in new[AMBIENT]} == {m["t_air"] for _, m in rec[AMBIENT]}
 
 
@@ -139,15 +139,15 @@ def write_log(log_dir: Path, seconds: range, *, can_burners: bool = False,
         for s in seconds:
             pub = EPOCH_NS + s * 10**9
             host = pub + 123_456_789 + 5 * 10**9  # the gateway clock, a little off
-            tc = {k: round(20.0 + i + s / 10.0, 1) for i, k in enumerate(SENSORS)}
-            tc["quality"] = {k: "ok" for k in SENSORS}
+            tc = {k: round(20.0 + i + s / 10.0, 1) for i, k in enumerate(PAPER.sensors)}
+            tc["quality"] = {k: "ok" for k in PAPER.sensors}
             if 300 <= s < 600:
                 tc["heat_1"], tc["quality"]["heat_1"] = None, "sensor_open"
             tc["plc_seconds"] = s
             log.write(THERMOCOUPLES, tc, host, pub)
             if s == 450:
-                failed = {k: None for k in SENSORS}
-                failed["quality"] = {k: "comm_error" for k in SENSORS}
+                failed = {k: None for k in PAPER.sensors}
+                failed["quality"] = {k: "comm_error" for k in PAPER.sensors}
                 log.write(THERMOCOUPLES, failed, host + 10**8, host + 10**8)
             log.write(AMBIENT, {"t_air": 25.0 + s / 1000.0, "quality": "ok"}, host, pub)
             on = 2 if s < 400 else 7
@@ -282,7 +282,7 @@ def unusual_map(tmp_path: Path) -> Path:
     doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
     doc["thermocouples"] = {s: {"table": "holding", "address": 100 + 2 * i, "type": "float32",
                                 "byte_order": "CDAB", "range": [-50, 1600]}
-                            for i, s in enumerate(SENSORS)}
+                            for i, s in enumerate(PAPER.sensors)}
     doc["ambient"] = {"table": "input", "address": 20, "type": "float16"}
     doc["clock"] = {"table": "input", "address": 30, "type": "uint32", "word_order": "little"}
     doc["heartbeat"] = {"table": "input", "address": 33, "type": "uint16"}
@@ -315,9 +315,9 @@ def test_a_log_is_served_on_the_register_map_it_was_recorded_with(tmp_path):
     assert "; register map: recorded in" in said, said
     rows = {p.key: p for p in report.points}
     assert not report.failed, [(p.key, p.raw, p.error) for p in report.failed]
-    for i, s in enumerate(SENSORS):
+    for i, s in enumerate(PAPER.sensors):
         assert float(rows[f"thermocouples.{s}"].value) == pytest.approx(20.0 + i, abs=1e-4)
     assert float(rows["ambient"].value) == pytest.approx(25.0, abs=0.02)  # float16
-    assert [rows[f"burners.modbus.{z}"].value for z in ZONES] == \
+    assert [rows[f"burners.modbus.{z}"].value for z in PAPER.zones] == \
         ["2 of 10 on", "0 of 8 on", "0 of 8 on"]
     assert rows["burners.modbus.soak"].raw == "0x0003"  # bits 40.0 and 40.1, as packed

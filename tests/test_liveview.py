@@ -33,6 +33,7 @@ from furnace_model.log.schema import (
     THERMOCOUPLES,
     TOPICS,
 )
+from furnace_model.simulation.furnace import PAPER
 
 NODE_DIR = Path(__file__).resolve().parent / "node"
 GATEWAY = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
@@ -90,7 +91,7 @@ def test_a_failing_listener_never_stops_the_log(tmp_path):
 
 
 def test_live_view_send_never_raises_once_stopped():
-    view = LiveView(LiveViewConfig("127.0.0.1", free_port()))
+    view = LiveView(LiveViewConfig("127.0.0.1", free_port()), furnace=PAPER)
     view.close()
     view.send(THERMOCOUPLES, b'{"soak_1": 600.0}', 1)
     view.send("/not/a/contract/topic", b"not even json", 2)
@@ -103,7 +104,7 @@ def test_port_taken_is_a_clear_error_at_start(tmp_path):
         taken.listen()
         port = taken.getsockname()[1]
         with pytest.raises(FurnaceError, match=r"^live_view\.port: .*127\.0\.0\.1:\d+"):
-            LiveView(LiveViewConfig("127.0.0.1", port))
+            LiveView(LiveViewConfig("127.0.0.1", port), furnace=PAPER)
         cfg = tmp_path / "gateway.yaml"
         cfg.write_text(yaml.safe_dump(gateway(live_view={"enabled": True, "port": port})))
         proc = furnace_daq("run", "--config", str(cfg), "--log-dir", str(tmp_path / "logs"),

@@ -13,8 +13,8 @@ import pytest
 from furnace_daq.cli import main
 from furnace_daq.logmeta import build_metadata
 from furnace_daq.mcaplog import LogWriter
-from furnace_model import SENSORS
 from furnace_model.records import load_experiment
+from furnace_model.simulation.furnace import PAPER
 
 T0 = 1_772_431_200 * 10**9  # 2026-03-02T06:00:00Z, on a minute
 H0 = T0 + 5 * 86400 * 10**9  # host clock: the simulated PLC runs 100x faster
@@ -22,8 +22,8 @@ S = 10**9
 
 
 def _tc(i: int) -> dict:
-    vals = {s: 400.0 for s in SENSORS}
-    quality = dict.fromkeys(SENSORS, "ok")
+    vals = {s: 400.0 for s in PAPER.sensors}
+    quality = dict.fromkeys(PAPER.sensors, "ok")
     vals["soak_1"] = 100.0 + i
     if i % 2 == 0:
         vals["soak_2"], quality["soak_2"] = 1000.0, "stale"
@@ -98,14 +98,14 @@ def test_export_resamples_exactly(series: list[Path], tmp_path: Path, capsys) ->
         assert tuple(frame[["burners_soak", "burners_heat", "burners_preheat"]].iloc[row]) \
             == counts
     assert frame["t_air"].iloc[0] == 25.0 and frame["t_air"].iloc[1:].isna().all()
-    exp = load_experiment(out)
+    exp = load_experiment(out, furnace=PAPER)
     assert np.allclose(exp.t_min, [(t - 25) / 60 for t, _, _ in ROWS]) and exp.burner_steps == 3
 
 
 def test_export_csv_loads_as_an_experiment(series: list[Path], tmp_path: Path) -> None:
     out = tmp_path / "run.csv"
     assert main(["logs", "export", *map(str, series), "--out", str(out), "--period", "120"]) == 0
-    exp = load_experiment(out)
+    exp = load_experiment(out, furnace=PAPER)
     assert exp.start_time == pd.Timestamp("2026-03-02T06:00:55Z")
     assert np.allclose(exp.t_min * 60, [0, 70, 115, 120, 195, 270, 390])  # changes at 125, 170, 250 s
     # soak_1 over two minutes: the mean of 100+i over its 12 readings (minute 4 has none).
@@ -121,7 +121,7 @@ def test_export_time_window(series: list[Path], tmp_path: Path, capsys) -> None:
     out = tmp_path / "w.csv"
     assert main(["logs", "export", *map(str, series), "--out", str(out),
                  "--start", "2026-03-02T07:01:00+01:00", "--end", "2026-03-02T06:03:00Z"]) == 0
-    exp = load_experiment(out)
+    exp = load_experiment(out, furnace=PAPER)
     assert np.allclose(exp.t_min * 60, [0, 40, 60, 85]) and exp.start_time.minute == 1
     # the state in force from before, the changes at 125 and 170 s
     assert exp.burners.tolist() == [[10, 0, 0], [5, 8, 0], [5, 8, 0], [6, 8, 1]]
@@ -138,7 +138,8 @@ def test_export_time_window(series: list[Path], tmp_path: Path, capsys) -> None:
 
 def test_info_gives_the_first_look(tmp_path: Path, capsys) -> None:
     w = LogWriter(tmp_path, rotate_s=3600.0,
-                  metadata=build_metadata(None, software_version="9.9.9", host="gw-1"))
+                  metadata=build_metadata(None, furnace=PAPER, software_version="9.9.9",
+                                                host="gw-1"))
     w.write("/daq/status", {"state": "connected", "detail": "PLC answered"}, T0)
     for i in range(100):
         if not 40 <= i < 50:

@@ -17,7 +17,6 @@ from mcap.stream_reader import StreamReader
 from furnace_daq.daemon import EVENT_PRIORITY
 from furnace_daq.logmeta import build_metadata, read_metadata, recorded_refit
 from furnace_daq.mcaplog import LogWriter, finished_files
-from furnace_model import SENSORS
 from furnace_model.log.schema import (
     AMBIENT,
     DAQ_EVENTS,
@@ -31,6 +30,7 @@ from furnace_model.log.schema import (
     plc_time,
     time_ns,
 )
+from furnace_model.simulation.furnace import PAPER
 
 T0 = 1_772_409_600_000_000_000  # 2026-03-02T00:00:00Z
 
@@ -49,7 +49,7 @@ def test_the_foxglove_rules_catch_a_nullable_union() -> None:
 
 def test_a_null_reading_and_an_undeclared_field_are_caught() -> None:
     schema = json.loads(TOPICS[THERMOCOUPLES].schema_bytes())
-    good = {"soak_1": 1012.5, "quality": {s: "ok" for s in SENSORS},
+    good = {"soak_1": 1012.5, "quality": {s: "ok" for s in PAPER.sensors},
             "plc_time": plc_time(T0 + 1_500_000_000)}
     assert problems(THERMOCOUPLES, schema, good) == []
     null = {**good, "soak_1": None}
@@ -79,7 +79,7 @@ def test_plc_time_is_foxgloves_time_and_round_trips() -> None:
 
 
 def _write(w: LogWriter, t_ns: int) -> None:
-    w.write(THERMOCOUPLES, {"quality": {s: "comm_error" for s in SENSORS}, "error": "timeout"},
+    w.write(THERMOCOUPLES, {"quality": {s: "comm_error" for s in PAPER.sensors}, "error": "timeout"},
             t_ns)
     w.write(AMBIENT, {"t_air": 25.0, "quality": "ok", "plc_time": plc_time(t_ns)}, t_ns)
 
@@ -89,7 +89,7 @@ def test_every_file_carries_the_metadata_record_and_crcs(tmp_path) -> None:
     config drops secrets; the messages and the /log lines validate."""
     meta = build_metadata({"plc": {"host": "10.0.0.5", "password": "hunter2"},
                            "api_token": "x", "refit": {"period_s": 600.0}},
-                          software_version="9.9.9", host="gw-1")
+                          furnace=PAPER, software_version="9.9.9", host="gw-1")
     w = LogWriter(tmp_path, rotate_s=10.0, metadata=meta, event_priority=EVENT_PRIORITY)
     for k in range(3):
         _write(w, T0 + k * 10 * 10**9)

@@ -14,6 +14,7 @@ from furnace_model.effects import (
     WallStorage,
     ZoneBurners,
 )
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.structure import Inputs, ModelStructure
 
@@ -68,7 +69,7 @@ def reference(structure: ModelStructure, values: dict, inputs: Inputs, t: np.nda
 @pytest.mark.parametrize("seed", range(6))
 def test_exact_against_solve_ivp_random(seed):
     rng = np.random.default_rng(seed)
-    ms = ModelStructure()
+    ms = ModelStructure(furnace=PAPER)
     values = {k: v[0] for k, v in random_values(ms, rng, 1).items()}
     inputs = random_inputs(rng)
     # irregular sample times, some of them exactly on input changes
@@ -80,11 +81,11 @@ def test_exact_against_solve_ivp_random(seed):
 
 
 @pytest.mark.parametrize("effects", [
-    [ZoneBurners()], [SensorLag()], [WallStorage()], [SensorLag(order=2), ZoneBurners()],
+    [ZoneBurners(furnace=PAPER)], [SensorLag(furnace=PAPER)], [WallStorage(furnace=PAPER)], [SensorLag(order=2, furnace=PAPER), ZoneBurners(furnace=PAPER)],
 ], ids=lambda e: "+".join(x.name for x in e))
 def test_exact_extended_structures_against_solve_ivp(effects):
     rng = np.random.default_rng(7)
-    ms = ModelStructure(effects)
+    ms = ModelStructure(effects, furnace=PAPER)
     values = {k: v[0] for k, v in random_values(ms, rng, 1).items()}
     inputs = random_inputs(rng)
     t = np.linspace(0, 2000, 701)
@@ -97,7 +98,7 @@ def test_exact_extended_structures_against_solve_ivp(effects):
 def test_per_parameter_step_times_dead_time_exact():
     """A dead time moves the burner steps per parameter set (the superposition path)."""
     rng = np.random.default_rng(3)
-    ms = ModelStructure([DeadTime()])
+    ms = ModelStructure([DeadTime(furnace=PAPER)], furnace=PAPER)
     inputs = random_inputs(rng)
     t = np.linspace(0, 2000, 501)
     x0 = np.array([300.0, 250.0, 100.0])
@@ -105,14 +106,14 @@ def test_per_parameter_step_times_dead_time_exact():
     values = {**PAPER_TABLE_V, "theta_dead": delays}
     y = ms.simulate(values, inputs, t, x0).zones
     for p, delay in enumerate(delays):
-        ref = reference(ModelStructure(), PAPER_TABLE_V, inputs, t, x0, delay=delay)
+        ref = reference(ModelStructure(furnace=PAPER), PAPER_TABLE_V, inputs, t, x0, delay=delay)
         assert np.max(np.abs(y[p] - ref) / np.abs(ref)) < 1e-6
 
 
 def test_fuel_change_equals_scaled_schedule():
     """A fuel change at t_c is the same as burners scaled from t_c on (checked on the segment
     path, which the fuel change's per-parameter instant does not use)."""
-    ms = ModelStructure([FuelChange()])
+    ms = ModelStructure([FuelChange(furnace=PAPER)], furnace=PAPER)
     inputs = Inputs(np.array([0.0, 500.0, 1500.0]), np.array([[2, 0, 0], [6, 0, 0], [10, 4, 0.0]]),
                     np.full(3, 25.0))
     t = np.linspace(0, 2500, 1001)
@@ -120,13 +121,15 @@ def test_fuel_change_equals_scaled_schedule():
     y = ms.simulate({**PAPER_TABLE_V, "t_fuel": 1000.0, "fuel_ratio": 0.7}, inputs, t, x0).zones[0]
     scaled = Inputs(np.array([0.0, 500.0, 1000.0, 1500.0]),
                     np.array([[2, 0, 0], [6, 0, 0], [4.2, 0, 0], [7, 2.8, 0.0]]), np.full(4, 25.0))
-    ref = ModelStructure().simulate(PAPER_TABLE_V, scaled, t, x0).zones[0]
+    ref = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, scaled, t, x0).zones[0]
     np.testing.assert_allclose(y, ref, rtol=1e-9)
 
 
 def test_batched_call_equals_loop_of_single_calls():
     rng = np.random.default_rng(11)
-    for structure in (ModelStructure(), ModelStructure([DeadTime(), ZoneBurners()])):
+    for structure in (ModelStructure(furnace=PAPER),
+                      ModelStructure([DeadTime(furnace=PAPER), ZoneBurners(furnace=PAPER)],
+                                     furnace=PAPER)):
         values = random_values(structure, rng, 40)
         inputs = random_inputs(rng)
         t = np.linspace(0, 2000, 300)
@@ -139,7 +142,7 @@ def test_batched_call_equals_loop_of_single_calls():
 
 
 def test_samples_before_start_are_refused():
-    ms = ModelStructure()
+    ms = ModelStructure(furnace=PAPER)
     inputs = Inputs(np.array([10.0]), np.array([[2, 0, 0.0]]), np.array([30.0]))
     with pytest.raises(ValueError, match="precedes"):
         ms.simulate(PAPER_TABLE_V, inputs, np.array([5.0, 20.0]), np.full(3, 30.0))
@@ -147,7 +150,7 @@ def test_samples_before_start_are_refused():
 
 def test_lag_coinciding_with_a_furnace_mode_stays_exact():
     """A sensor time constant equal to a furnace mode makes A defective: no eigenbasis."""
-    ms = ModelStructure([SensorLag()])
+    ms = ModelStructure([SensorLag(furnace=PAPER)], furnace=PAPER)
     A = ms.system(ms.theta({**PAPER_TABLE_V, "tau_lag": 1.0})).A[0, :3, :3]
     tau = -1.0 / np.sort(np.linalg.eigvals(A).real)[1]
     values = {**PAPER_TABLE_V, "tau_lag": tau}
@@ -163,7 +166,8 @@ def test_per_parameter_step_times_on_an_irregular_grid():
     """Irregular samples (gaps, a step exactly on a sample, steps after the last sample):
     the blockwise impulse sum agrees with the integrator for every parameter set."""
     rng = np.random.default_rng(21)
-    ms = ModelStructure([DeadTime(), FuelChange(), ZoneBurners()])
+    ms = ModelStructure([DeadTime(furnace=PAPER), FuelChange(furnace=PAPER),
+                         ZoneBurners(furnace=PAPER)], furnace=PAPER)
     inputs = random_inputs(rng)
     t = np.unique(np.concatenate((np.sort(rng.uniform(0, 1500, 300)), inputs.t[1:2], [0.0])))
     x0 = np.array([350.0, 300.0, 120.0])
@@ -172,7 +176,8 @@ def test_per_parameter_step_times_on_an_irregular_grid():
               "fuel_ratio": 1.0, "f_heat": 0.4, "f_preheat": 0.2}
     y = ms.simulate(values, inputs, t, x0).zones
     for p, delay in enumerate(delays):
-        ref = reference(ModelStructure([ZoneBurners()]), {**PAPER_TABLE_V, "f_heat": 0.4,
+        ref = reference(ModelStructure([ZoneBurners(furnace=PAPER)],
+                                       furnace=PAPER), {**PAPER_TABLE_V, "f_heat": 0.4,
                                                           "f_preheat": 0.2},
                         inputs, t, x0, delay=delay)
         assert np.max(np.abs(y[p] - ref) / np.abs(ref)) < 1e-6
@@ -182,7 +187,7 @@ def test_many_per_parameter_step_times_in_blocks_equal_single_calls():
     """More sets than one block of the batched path, with a furnace that never cools (a zero
     eigenvalue, summed directly) among them."""
     rng = np.random.default_rng(5)
-    ms = ModelStructure([DeadTime()])
+    ms = ModelStructure([DeadTime(furnace=PAPER)], furnace=PAPER)
     P = 300
     values = random_values(ms, rng, P)
     values["theta_dead"] = rng.uniform(0.1, 100.0, P)
@@ -226,16 +231,16 @@ def reference_nonlinear(structure: ModelStructure, values: dict, inputs: Inputs,
 
 
 @pytest.mark.parametrize("effects,values", [
-    ([Radiation()], {"rad_share": 0.8}),
-    ([Radiation(exponent=3.0, t_ref_c=650.0), ZoneBurners()],
+    ([Radiation(furnace=PAPER)], {"rad_share": 0.8}),
+    ([Radiation(exponent=3.0, t_ref_c=650.0, furnace=PAPER), ZoneBurners(furnace=PAPER)],
      {"rad_share": 0.9, "f_heat": 2.0, "f_preheat": 3.0}),
-    ([Radiation(exponent=5.0), SensorLag(order=2)], {"rad_share": 0.5, "tau_lag": 6.0}),
+    ([Radiation(exponent=5.0, furnace=PAPER), SensorLag(order=2, furnace=PAPER)], {"rad_share": 0.5, "tau_lag": 6.0}),
 ], ids=["radiation", "cubic+zone_burners", "fifth+lag2"])
 def test_radiation_batched_integrator_against_tight_radau(effects, values):
     """A heat-up from cold to 850-1450 degC with a jump of 9 burners: the batched
     exponential integrator stays within 0.01 degC (noise: 1.06) of Radau at
     1e-12, for every set of a batch."""
-    ms = ModelStructure(effects)
+    ms = ModelStructure(effects, furnace=PAPER)
     inputs = Inputs(np.array([0.0, 700.0, 1500.0, 2300.0]),
                     np.array([[2, 0, 0], [6, 2, 0], [4, 0, 0], [8, 3, 2.0]]), np.full(4, 25.0))
     t = np.arange(0.0, 2601.0)
@@ -250,7 +255,7 @@ def test_radiation_batched_integrator_against_tight_radau(effects, values):
 
 
 def test_radiation_with_per_set_step_times():
-    ms = ModelStructure([Radiation(), DeadTime()])
+    ms = ModelStructure([Radiation(furnace=PAPER), DeadTime(furnace=PAPER)], furnace=PAPER)
     inputs = Inputs(np.array([0.0, 400.0, 900.0]), np.array([[2, 0, 0], [8, 0, 0], [5, 0, 0.0]]),
                     np.full(3, 30.0))
     t = np.arange(0.0, 1201.0, 2.0)
@@ -260,7 +265,7 @@ def test_radiation_with_per_set_step_times():
     for p, delay in enumerate(delays):
         shifted = Inputs(np.array([0.0, 400.0 + delay, 900.0 + delay]), inputs.burners,
                          inputs.t_air)
-        ref = reference_nonlinear(ModelStructure([Radiation()]),
+        ref = reference_nonlinear(ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER),
                                   {**PAPER_TABLE_V, "rad_share": 0.6}, shifted, t, x0)
         assert np.max(np.abs(y[p] - ref)) < 0.01
 
@@ -268,7 +273,7 @@ def test_radiation_with_per_set_step_times():
 def test_a_diverged_set_is_nan_and_leaves_the_batch_alone():
     """A search may propose a set that blows up; it must cost that set an infinite misfit,
     not stop the batch (one eigen-decomposition serves every set)."""
-    ms = ModelStructure([Radiation()])
+    ms = ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER)
     inputs = Inputs(np.array([0.0, 300.0]), np.array([[2, 0, 0], [6, 0, 0.0]]), np.full(2, 30.0))
     t = np.arange(0.0, 601.0, 5.0)
     x0 = np.array([[30.0, 30.0, 30.0], [np.nan, 30.0, 30.0]])

@@ -24,6 +24,7 @@ from furnace_model.cli.arguments import LOG_PERIOD_S
 from furnace_model.experiment import Experiment
 from furnace_model.log.resample import DEFAULT_PERIOD_S
 from furnace_model.records import load_experiment, load_experiments
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,14 +65,16 @@ def same_rows(a: Experiment, b: Experiment, tc_atol: float = 0.0) -> None:
 def test_a_log_directory_reads_as_its_export_row_for_row(logged: Path, tmp_path: Path) -> None:
     logs = logged / "logs"
     assert len(list(logs.glob("*.mcap"))) == 5  # 06:00:20-08:00, 08-12, ..., 20-21:10
-    from_log = load_experiment(logs)
+    from_log = load_experiment(logs, furnace=PAPER)
     assert from_log.name == "logs" and len(from_log) > 15 * 60
-    same_rows(from_log, load_experiment(export(logs, tmp_path / "e.parquet")))
+    same_rows(from_log, load_experiment(export(logs, tmp_path / "e.parquet"), furnace=PAPER))
     # CSV keeps 0.001 °C
-    same_rows(from_log, load_experiment(export(logs, tmp_path / "e.csv")), tc_atol=5e-4)
+    same_rows(from_log, load_experiment(export(logs, tmp_path / "e.csv"),
+                                        furnace=PAPER), tc_atol=5e-4)
     # another period, as logs export --period
-    same_rows(load_experiment(logs, period_s=120.0),
-              load_experiment(export(logs, tmp_path / "p.parquet", "--period", "120")))
+    same_rows(load_experiment(logs, period_s=120.0, furnace=PAPER),
+              load_experiment(export(logs, tmp_path / "p.parquet", "--period", "120"),
+                              furnace=PAPER))
 
 
 def test_fit_on_the_log_equals_fit_on_its_export(logged: Path, tmp_path: Path, capsys) -> None:
@@ -104,17 +107,18 @@ def test_fit_on_the_log_equals_fit_on_its_export(logged: Path, tmp_path: Path, c
 def test_files_of_one_directory_join_as_the_directory(logged: Path, tmp_path: Path) -> None:
     logs = logged / "logs"
     files = sorted(logs.glob("*.mcap"))
-    whole = load_experiment(logs)
-    (joined,) = load_experiments(reversed(files))  # named in any order: one record
+    whole = load_experiment(logs, furnace=PAPER)
+    (joined,) = load_experiments(reversed(files), furnace=PAPER)  # named in any order: one record
     same_rows(joined, whole)
-    (again,) = load_experiments([logs, files[1]])  # a file and its directory: read once
+    (again,) = load_experiments([logs, files[1]],
+                                furnace=PAPER)  # a file and its directory: read once
     same_rows(again, whole)
     # logs kept in two directories are two records, each its own directory's rows
     other = tmp_path / "other"
     other.mkdir()
     shutil.copy(files[0], other / files[0].name)
     first, second, table = load_experiments(
-        [logs, other, export(files[0], tmp_path / "t.parquet")])
+        [logs, other, export(files[0], tmp_path / "t.parquet")], furnace=PAPER)
     same_rows(first, whole)
     same_rows(second, table)
     assert (first.name, second.name, table.name) == ("logs", "other", "t")
@@ -133,18 +137,18 @@ def test_a_dead_writers_part_file_is_read(logged: Path, tmp_path: Path, capsys) 
     part = logs / (files[-1].name + ".part")
     part.write_bytes(files[-1].read_bytes()[: last.chunk_start_offset + last.chunk_length // 2])
     (logs / "furnace-20260303T000000Z.mcap.part").write_bytes(b"")  # died before writing
-    got = load_experiment(logs)
+    got = load_experiment(logs, furnace=PAPER)
     cut_at = pd.Timestamp(last.message_start_time, tz="UTC")  # the first message lost
     end = got.start_time + pd.Timedelta(minutes=got.t_min[-1])
     assert cut_at - pd.Timedelta(minutes=2) < end < cut_at
     expected = export([*logs.glob("*.mcap"), part], tmp_path / "e.parquet")
-    same_rows(got, load_experiment(expected))
+    same_rows(got, load_experiment(expected, furnace=PAPER))
     # with its recovered copy beside it (the same messages), the rows stay the same
     assert daq_main(["logs", "recover", str(part)]) == 0
     assert (logs / files[-1].name.replace(".mcap", ".recovered.mcap")).exists()
-    same_rows(load_experiment(logs), got)
+    same_rows(load_experiment(logs, furnace=PAPER), got)
     # named on its own, a .part is read too; an empty one is refused by name
-    assert len(load_experiment(part)) > 0
+    assert len(load_experiment(part, furnace=PAPER)) > 0
     assert model_main(["fit", str(logs / "furnace-20260303T000000Z.mcap.part")]) == 1
     err = capsys.readouterr().err
     assert "furnace-20260303T000000Z.mcap.part: empty file" in err
@@ -153,15 +157,15 @@ def test_a_dead_writers_part_file_is_read(logged: Path, tmp_path: Path, capsys) 
 def test_from_to_cut_the_plc_clock(logged: Path, tmp_path: Path) -> None:
     logs = logged / "logs"
     lo, hi = START + pd.Timedelta(hours=3), START + pd.Timedelta(hours=9, minutes=30)
-    cut = load_experiment(logs, start=lo, end=hi)
+    cut = load_experiment(logs, start=lo, end=hi, furnace=PAPER)
     exported = export(logs, tmp_path / "w.parquet", "--start", lo.isoformat(),
                       "--end", hi.isoformat())
-    same_rows(cut, load_experiment(exported))
+    same_rows(cut, load_experiment(exported, furnace=PAPER))
     assert lo <= cut.start_time and cut.start_time + pd.Timedelta(minutes=cut.t_min[-1]) < hi
-    assert len(cut) < len(load_experiment(logs))
+    assert len(cut) < len(load_experiment(logs, furnace=PAPER))
     # a timestamped table is cut the same way (window on whole minutes: the same bins)
     table = export(logs, tmp_path / "all.parquet")
-    same_rows(load_experiment(table, start=lo, end=hi), cut)
+    same_rows(load_experiment(table, start=lo, end=hi, furnace=PAPER), cut)
     # and the command line reads the window: validate scores the window's rows only
     fit_json = tmp_path / "fit.json"
     assert model_main(["fit", str(exported), "--json", str(fit_json)]) == 0
@@ -192,7 +196,8 @@ def test_bad_inputs_are_one_line_naming_the_file(case: str, logged: Path, tmp_pa
         named = str(logs)
     elif case == "t_min_table_with_window":
         table = tmp_path / "minutes.csv"
-        load_experiment(logs).to_frame().assign(t_min=lambda f: np.arange(len(f))).drop(
+        load_experiment(logs,
+                        furnace=PAPER).to_frame().assign(t_min=lambda f: np.arange(len(f))).drop(
             columns="timestamp").to_csv(table, index=False)
         argv = ["validate", str(table), "--params", "x.json", "--to", "2026-03-02T09:00Z"]
         named = str(table)

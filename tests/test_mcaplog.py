@@ -17,23 +17,23 @@ from mcap.reader import make_reader
 
 from furnace_daq import mcaplog
 from furnace_daq.mcaplog import LogWriter, finished_files
-from furnace_model import SENSORS
 from furnace_model.log.read import read_messages
 from furnace_model.log.salvage import has_footer
 from furnace_model.log.schema import TOPICS
+from furnace_model.simulation.furnace import PAPER
 
 T0 = 1_772_431_200 * 10**9  # 2026-03-02T06:00:00Z
 S = 10**9
 
 
 def tc_msg(i: int) -> dict:
-    return {**{s: 800.0 + i + k / 10 for k, s in enumerate(SENSORS)},
-            "quality": dict.fromkeys(SENSORS, "ok")}
+    return {**{s: 800.0 + i + k / 10 for k, s in enumerate(PAPER.sensors)},
+            "quality": dict.fromkeys(PAPER.sensors, "ok")}
 
 
 EXAMPLES = {
     "/furnace/thermocouples": {**{k: v for k, v in tc_msg(1).items() if k != "soak_2"},
-                               "quality": {**dict.fromkeys(SENSORS, "ok"), "soak_2": "sensor_open"}},
+                               "quality": {**dict.fromkeys(PAPER.sensors, "ok"), "soak_2": "sensor_open"}},
     "/furnace/burners": {"soak": [True] * 4 + [False] * 6, "heat": [False] * 8,
                          "preheat": [True] * 8, "count_soak": 4, "count_heat": 0,
                          "count_preheat": 8, "source": "modbus"},
@@ -130,7 +130,7 @@ def test_rotation_by_size(tmp_path: Path) -> None:
     w = LogWriter(tmp_path, rotate_bytes=limit)
     n = 3000
     for i in range(n):  # random digits: barely compressible, ~180 bytes each
-        w.write("/furnace/thermocouples", {s: float(v) for s, v in zip(SENSORS, rng.random(6), strict=True)}
+        w.write("/furnace/thermocouples", {s: float(v) for s, v in zip(PAPER.sensors, rng.random(6), strict=True)}
                 | {"i": i}, T0 + i * 10**6)
     w.close()
     files = finished_files(tmp_path, "furnace")

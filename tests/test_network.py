@@ -162,7 +162,7 @@ def six_run(tmp_path_factory):
 def test_columns_that_do_not_match_the_furnace_are_refused(six_run, tmp_path):
     sc, path = six_run
     with pytest.raises(DataError) as err:
-        load_experiment(path)  # the paper's furnace
+        load_experiment(path, furnace=PAPER)  # the paper's furnace
     assert err.value.file == str(path) and err.value.column == "tc_soak_top_1"
     text = path.read_text().splitlines()
     header = text[0].split(",")
@@ -190,8 +190,9 @@ def test_an_effect_extends_the_furnace_it_was_made_for():
 
     six = load_furnace(SIX_YAML)
     with pytest.raises(ValueError, match="made for another furnace"):
-        ModelStructure([EFFECTS["sensor_lag"]()], six)
-    structure = ModelStructure([EFFECTS["sensor_lag"](furnace=six, zones=("heat_top",))], six)
+        ModelStructure([EFFECTS["sensor_lag"](furnace=PAPER)], furnace=six)
+    structure = ModelStructure([EFFECTS["sensor_lag"](furnace=six, zones=("heat_top",))],
+                               furnace=six)
     assert structure.n_states == 7
 
 
@@ -241,7 +242,7 @@ def test_a_record_of_another_furnace_is_refused_by_the_fit(six_run):
     sc, path = six_run
     exp = load_experiment(path, furnace=sc.furnace)
     with pytest.raises(FurnaceError, match="furnace 'six-zone'.*furnace 'paper'"):
-        fit([exp], ModelStructure())
+        fit([exp], ModelStructure(furnace=PAPER))
 
 
 def cli(capsys, *args: str) -> tuple[int, str, str]:

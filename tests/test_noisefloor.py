@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from furnace_model import ZONES
 from furnace_model.identification.noisefloor import limits, pooled_floor, record_floor
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import SensorSpec
@@ -21,7 +21,7 @@ def _record(seed: int, n: int = 1500, **sensors) -> tuple:
     counts = np.array([[6, 0, 0], [10, 3, 2], [8, 6, 4]], dtype=float)
     inputs = Inputs(times, counts, np.full(3, 25.0))
     spec = SensorSpec(**{"noise_sd_c": 1.5, "bias_sd_c": 0.5, **sensors})
-    plant = Plant(ModelStructure(), PAPER_TABLE_V, spec, seed=int(rng.integers(2**31)))
+    plant = Plant(ModelStructure(furnace=PAPER), PAPER_TABLE_V, spec, seed=int(rng.integers(2**31)))
     run = plant.run(inputs, np.arange(0.0, n), np.full(3, 25.0))
     exp = run.to_experiment(f"run{seed}")
     noise = exp.zone_temp - run.zone_true
@@ -38,7 +38,7 @@ def test_floor_is_the_noise_the_zone_temperature_carries(ar, white):
     for seed in range(25):
         exp, noise = _record(seed, noise_ar_per_min=ar, white_sd_c=white)
         f = record_floor(exp)
-        for w, z in enumerate(ZONES):
+        for w, z in enumerate(PAPER.zones):
             ratios.append(f.zones[z].floor_c / np.std(noise[:, w]))
             claimed.append(f.zones[z].rel_sd)
             assert f.zones[z].how == "pair"
@@ -56,7 +56,7 @@ def test_each_record_has_its_own_floor():
     quiet, _ = _record(1, noise_sd_c=1.0)
     noisy, _ = _record(2, noise_sd_c=3.0, n=3000)
     fq, fn = record_floor(quiet), record_floor(noisy)
-    for z in ZONES:
+    for z in PAPER.zones:
         assert fq.zones[z].floor_c == pytest.approx(1.0 / np.sqrt(2), rel=0.1)
         assert fn.zones[z].floor_c == pytest.approx(3.0 / np.sqrt(2), rel=0.1)
         pooled = pooled_floor([fq, fn])[z]
@@ -70,7 +70,7 @@ def test_a_gap_needs_more_with_few_independent_samples():
     low-pass noise, whose samples are not independent."""
     white = record_floor(_record(3)[0])
     coloured = record_floor(_record(3, n=1000, noise_ar_per_min=0.9)[0])
-    for z in ZONES:
+    for z in PAPER.zones:
         assert limits([white], 1.25, 3.0)[z] == pytest.approx(1.25 * white.zones[z].floor_c)
         assert limits([coloured], 1.25, 3.0)[z] > 1.3 * coloured.zones[z].floor_c
 
@@ -80,7 +80,7 @@ def test_faults_and_drifts_do_not_raise_the_floor():
     exp.tc[300:340, 2] -= 40.0  # heat_1: a loose junction reads low for 40 minutes
     exp.tc[:, 5] += 0.02 * np.maximum(exp.t_min - 500.0, 0.0)  # preheat_2 drifts 20 degC
     f = record_floor(exp)
-    for w, z in enumerate(ZONES):
+    for w, z in enumerate(PAPER.zones):
         assert f.zones[z].floor_c == pytest.approx(np.std(noise[:, w]), rel=0.1), z
 
 
@@ -98,7 +98,7 @@ def test_with_no_pair_at_all_the_floor_says_it_assumes_white_noise():
     exp, _ = _record(6)
     exp.tc[:, 1::2] = np.nan  # one thermocouple per zone
     f = record_floor(exp)
-    for z in ZONES:
+    for z in PAPER.zones:
         assert f.zones[z].how == "second_difference"
         assert "white" in f.zones[z].words() and not np.isfinite(f.zones[z].rel_sd)
         assert f.zones[z].floor_c == pytest.approx(1.5, rel=0.15)

@@ -80,12 +80,12 @@ def test_a_start_stays_near_the_first_reading_and_above_ambient():
 @pytest.fixture(scope="module")
 def nonlinear():
     """A heat-up whose burners lose heat per burner as more fire: the model lacks it."""
-    return selfcheck_case("burner_nonlinearity", 0)
+    return selfcheck_case("burner_nonlinearity", 0, furnace=PAPER)
 
 
 def test_offsets_cannot_absorb_a_missing_effect_and_are_flagged(nonlinear):
     exp = nonlinear.fit[0]
-    res = fit([exp], ModelStructure(), zone_offsets=True, profile=False)
+    res = fit([exp], ModelStructure(furnace=PAPER), zone_offsets=True, profile=False)
     bounds = zone_bias_bounds(PAPER, exp.tc)
     off = res.offsets(0)
     assert np.all(np.abs(off) <= bounds + 1e-9)
@@ -102,8 +102,8 @@ def test_offsets_cannot_absorb_a_missing_effect_and_are_flagged(nonlinear):
 
 
 def test_a_model_true_to_the_plant_is_not_flagged_and_its_offsets_hold_the_bias():
-    case = selfcheck_case("none", 0)
-    res = fit(case.fit, ModelStructure(), zone_offsets=True, profile=False)
+    case = selfcheck_case("none", 0, furnace=PAPER)
+    res = fit(case.fit, ModelStructure(furnace=PAPER), zone_offsets=True, profile=False)
     assert res.flags == []
     for zone, ci in res.zone_offsets_ci95_c[0].items():
         assert ci is not None and ci[0] < res.zone_offsets_c[0][zone] < ci[1]
@@ -164,7 +164,7 @@ def test_the_selfcheck_refuses_a_no_gap_that_the_carried_offsets_contradict():
     change of the thermocouples' bias between the records can add."""
     from furnace_model.diagnosis import diagnose
 
-    case = selfcheck_case("zone_losses", 0)
+    case = selfcheck_case("zone_losses", 0, furnace=PAPER)
     d = diagnose(case.fit, case.holdout, effects=())
     assert d.verdict.status == "no_gap"
     held = d.baseline.rmse_holdout_carried_c

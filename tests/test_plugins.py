@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from furnace_model import ZONES
 from furnace_model.diagnosis import diagnose
 from furnace_model.diagnosis.cases import case_rng, draw_case
 from furnace_model.diagnosis.selfcheck import judge_case
 from furnace_model.effects import EFFECTS, FuelChange, Option, plugins
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import Param
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
@@ -45,8 +45,9 @@ class BurnerDerate(FuelChange):
         return super().transform_drive({"t_fuel": at, "fuel_ratio": theta["derate"]}, drive)
 
     @classmethod
-    def draw(cls, rng, form, duration_min):
-        return cls(), {"derate": cls.uniform(rng, "derate")}  # at the time the log gives
+    def draw(cls, rng, form, duration_min, furnace):
+        # at the time the log gives
+        return cls(furnace=furnace), {"derate": cls.uniform(rng, "derate")}
 
 
 @pytest.fixture
@@ -66,13 +67,13 @@ def test_an_effect_in_one_file_serves_simulator_diagnosis_and_selfcheck(toy, tmp
     scenario = load_scenario(path)
     assert [e.name for e in scenario.effects] == ["burner_derate"]
     own = Plant.from_scenario(scenario, seed=0).run_scenario(scenario)
-    paper = Plant(ModelStructure(), scenario.values(), scenario.sensors, seed=0).run_scenario(
+    paper = Plant(ModelStructure(furnace=PAPER), scenario.values(), scenario.sensors, seed=0).run_scenario(
         scenario)
-    soak = ZONES.index("soak")
+    soak = PAPER.zones.index("soak")
     gap = paper.zone_true[:, soak] - own.zone_true[:, soak]
     assert np.max(np.abs(gap[own.t_min < 2000])) < 1e-9 and np.max(gap) > 50.0
     # the selfcheck draws it, and the diagnosis tries it and names it
-    case = draw_case("burner_derate", case_rng(0, "burner_derate", 0))
+    case = draw_case("burner_derate", case_rng(0, "burner_derate", 0), furnace=PAPER)
     assert case.expected_status == "explained" and "derate" in case.truth["burner_derate"]
     d = diagnose(case.fit, case.holdout, effects=("burner_derate", "dead_time"))
     correct, _absorbed, why = judge_case(case, d)
@@ -104,7 +105,7 @@ def test_a_plug_in_whose_physics_fails_in_a_fit_costs_its_candidate_only(tmp_pat
     '''))
     plugins.load_file(path)
     try:
-        case = draw_case("zone_burners", np.random.default_rng(21))
+        case = draw_case("zone_burners", np.random.default_rng(21), furnace=PAPER)
         d = diagnose(case.fit, case.holdout, effects=("zone_burners", "fragile"))
     finally:
         plugins.unregister("fragile")
@@ -114,7 +115,7 @@ def test_a_plug_in_whose_physics_fails_in_a_fit_costs_its_candidate_only(tmp_pat
 
 
 GOOD = '''
-from furnace_model.effects import Effect, U_AIR
+from furnace_model.effects import Effect
 from furnace_model.simulation.parameters import Param
 
 class Leak(Effect):
@@ -127,7 +128,7 @@ class Leak(Effect):
 
     def extend(self, A, B, C, theta, first):
         A[:, 0, 0] -= theta["g_soak_leak"]
-        B[:, 0, U_AIR] += theta["g_soak_leak"]
+        B[:, 0, self.u_air] += theta["g_soak_leak"]
 '''
 
 BROKEN = {

@@ -18,6 +18,7 @@ from furnace_model.identification.prediction import (
     score_ahead,
 )
 from furnace_model.identification.scores import zone_metrics
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.scenario import SensorSpec
 from furnace_model.simulation.structure import Inputs, ModelStructure
@@ -36,7 +37,7 @@ def test_on_exact_data_the_prediction_is_the_data_whatever_the_start():
     the model predicts the next ones exactly, even from a simulation started 40 °C off."""
     exp = heat_up(SCENARIOS, PAPER_TABLE_V, 1.0, sensors=EXACT)
     x0 = exp.zone_temp[0] + np.array([40.0, -25.0, 10.0])
-    sim = Model(ModelStructure(), PAPER_TABLE_V).predict(exp, x0)
+    sim = Model(ModelStructure(furnace=PAPER), PAPER_TABLE_V).predict(exp, x0)
     assert np.abs(sim - exp.zone_temp).max() > 5  # the simulation itself is off
     for k in (1, 7):
         ahead = predict_ahead(PAPER_TABLE_V, exp, k, x0=x0)
@@ -47,7 +48,8 @@ def test_on_exact_data_the_prediction_is_the_data_whatever_the_start():
 def test_hidden_states_restart_from_the_simulation(scenarios):
     """With a wall, a lagged sensor and a dead time the decayed restart of a linear model
     equals simulating each window from its restarted state."""
-    structure = ModelStructure([WallStorage(), SensorLag(), DeadTime()])
+    structure = ModelStructure([WallStorage(furnace=PAPER), SensorLag(furnace=PAPER),
+                                DeadTime(furnace=PAPER)], furnace=PAPER)
     values = {**structure.defaults(), **PAPER_TABLE_V}
     exp = heat_up(scenarios, values, 1.0, structure=structure).between(0, 700)
     x0 = exp.zone_temp[0] + np.array([20.0, -10.0, 5.0])  # a simulation the readings correct
@@ -63,7 +65,7 @@ def test_hidden_states_restart_from_the_simulation(scenarios):
 
 
 def test_a_nonlinear_model_is_restarted_window_by_window(scenarios):
-    structure = ModelStructure([Radiation()])
+    structure = ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER)
     values = {**structure.defaults(), **PAPER_TABLE_V}
     exp = heat_up(scenarios, values, 1.0, structure=structure, sensors=EXACT).between(0, 400)
     x0 = exp.zone_temp[0] + np.array([30.0, 0.0, -20.0])
@@ -74,7 +76,7 @@ def test_a_nonlinear_model_is_restarted_window_by_window(scenarios):
 def test_one_step_error_is_about_the_noise_of_two_readings(noisy):
     """The start carries one sample's noise and the predicted sample its own: on data from
     the model the 1-step RMSE lies between the noise and sqrt(2) times it."""
-    m = zone_metrics(noisy.zone_temp, predict_ahead(PAPER_TABLE_V, noisy, 1))
+    m = zone_metrics(noisy.zone_temp, predict_ahead(PAPER_TABLE_V, noisy, 1), PAPER.zones)
     for zone, v in m.items():
         assert 0.95 * ZONE_SD < v["rmse_c"] < 1.1 * np.sqrt(2) * ZONE_SD, (zone, v)
 
@@ -83,8 +85,9 @@ def test_a_biased_model_is_trusted_less_the_further_it_predicts(noisy):
     """f 10% high: the simulation drifts tens of degrees away, a short prediction does not;
     the fit falls with the horizon and reaches the simulation's when K spans the record."""
     wrong = {**PAPER_TABLE_V, "f": PAPER_TABLE_V["f"] * 1.1}
-    sim = zone_metrics(noisy.zone_temp, Model(ModelStructure(), wrong).predict(noisy))
-    fits = {k: zone_metrics(noisy.zone_temp, predict_ahead(wrong, noisy, k))
+    sim = zone_metrics(noisy.zone_temp, Model(ModelStructure(furnace=PAPER), wrong).predict(noisy),
+                       PAPER.zones)
+    fits = {k: zone_metrics(noisy.zone_temp, predict_ahead(wrong, noisy, k), PAPER.zones)
             for k in (1, 5, 30, 300, len(noisy))}
     for zone in sim:
         seq = [fits[k][zone]["fit_pct"] for k in sorted(fits)]

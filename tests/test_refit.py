@@ -18,11 +18,11 @@ from furnace_daq.plantlog import run_messages
 from furnace_daq.refit import RefitChain, WindowCutter
 from furnace_daq.refitworker import RefitRunner
 from furnace_daq.statefile import write_json_atomic
-from furnace_model import ZONES
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
 from furnace_model.identification.fit import WarmStart, fit
 from furnace_model.log.schema import MODEL_PARAMETERS, PARAM_NAMES
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.structure import Inputs
 
 HOUR = 3600.0
@@ -71,7 +71,7 @@ def test_windows_follow_the_data_clock_and_a_static_window_keeps_the_model():
     keep = s.steps_t < 12 * 60
     s.steps_t, s.steps_burners = s.steps_t[keep], s.steps_burners[keep]
     cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR)
-    cutter, chain = WindowCutter(cfg), RefitChain(cfg)
+    cutter, chain = WindowCutter(cfg, furnace=PAPER), RefitChain(cfg, furnace=PAPER)
     out = []
     for topic, msg, t in run_messages(simulate(s)):
         for w in cutter.feed(topic, msg, t):
@@ -96,7 +96,7 @@ def test_gaps_beyond_the_limit_are_insufficient_and_late_windows_recover():
     # the daemon was stopped from hour 7 to hour 9: windows holding that gap lack 2 of 6 h
     lo, hi = t0 + int(7 * HOUR * 1e9), t0 + int(9 * HOUR * 1e9)
     msgs = [x for x in msgs if not lo <= x[2] < hi]
-    cutter, chain = WindowCutter(cfg), RefitChain(cfg)
+    cutter, chain = WindowCutter(cfg, furnace=PAPER), RefitChain(cfg, furnace=PAPER)
     by_end = {}
     for topic, msg, t in msgs:
         for w in cutter.feed(topic, msg, t):
@@ -111,8 +111,8 @@ def test_gaps_beyond_the_limit_are_insufficient_and_late_windows_recover():
 
 def _collect(cfg: RefitConfig) -> tuple[RefitRunner, list[dict]]:
     got: list[dict] = []
-    runner = RefitRunner(cfg, lambda topic, m, t: got.append(m.to_json()) if topic == MODEL_PARAMETERS
-                         else None)
+    runner = RefitRunner(cfg, lambda topic, m, t: got.append(m.to_json())
+                         if topic == MODEL_PARAMETERS else None, furnace=PAPER)
     return runner, got
 
 
@@ -159,8 +159,9 @@ def test_an_overrun_is_killed_and_a_spent_budget_fails():
                           for m in fitted), got
     assert all("a" not in m for m in got), "no model yet: absent, never invented values"
     # a fit that runs out of its own budget returns, but its result is not kept
-    cutter = WindowCutter(cfg)
-    chain = RefitChain(RefitConfig(period_s=2 * HOUR, window_s=4 * HOUR, budget_s=1e-3))
+    cutter = WindowCutter(cfg, furnace=PAPER)
+    chain = RefitChain(RefitConfig(period_s=2 * HOUR, window_s=4 * HOUR, budget_s=1e-3),
+                       furnace=PAPER)
     out = [chain.process(w)[0].to_json() for topic, msg, t in run_messages(simulate(s))
            for w in cutter.feed(topic, msg, t)]
     assert {m["status"] for m in out} == {"insufficient_excitation", "failed"}
@@ -201,7 +202,7 @@ def test_chain_warm_starts_from_the_previous_window():
     zone offsets and intervals): the same as fitting it by hand so."""
     s = scenario("week_steps", duration_min=12 * 60)
     cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR)
-    cutter, chain = WindowCutter(cfg), RefitChain(cfg)
+    cutter, chain = WindowCutter(cfg, furnace=PAPER), RefitChain(cfg, furnace=PAPER)
     windows, out = [], []
     for topic, msg, t in run_messages(simulate(s)):
         for w in cutter.feed(topic, msg, t):
@@ -225,12 +226,12 @@ def test_a_chain_restored_from_its_state_goes_on_as_the_original():
     window gives the same message and the same drift judgement as an unbroken chain."""
     s = scenario("week_steps", duration_min=12 * 60)
     cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR)
-    cutter, chain = WindowCutter(cfg), RefitChain(cfg)
+    cutter, chain = WindowCutter(cfg, furnace=PAPER), RefitChain(cfg, furnace=PAPER)
     windows = [w for topic, msg, t in run_messages(simulate(s)) for w in cutter.feed(topic, msg, t)]
     for w in windows[:-1]:
         chain.process(w)
     assert chain.model is not None and chain.references
-    again = RefitChain(cfg)
+    again = RefitChain(cfg, furnace=PAPER)
     again.restore(json.loads(json.dumps(chain.state())))  # as it goes through the file
     assert again.state() == chain.state()
     (got, got_events), (want, want_events) = (
@@ -252,7 +253,8 @@ def test_a_backed_up_queue_drops_the_oldest_window_with_an_event():
     s = scenario("week_steps", duration_min=30 * 60)
     cfg = RefitConfig(period_s=HOUR, window_s=4 * HOUR, queue_max=2)
     out: list[tuple[str, dict]] = []
-    runner = RefitRunner(cfg, lambda topic, m, t: out.append((topic, m.to_json())), max_queue=2)
+    runner = RefitRunner(cfg, lambda topic, m, t: out.append((topic, m.to_json())), max_queue=2,
+                         furnace=PAPER)
     runner.start()  # the worker needs a second or more to start: windows pile up meanwhile
     try:
         for topic, msg, t in run_messages(simulate(s)):
@@ -275,7 +277,7 @@ def test_a_clock_that_jumps_back_starts_the_windows_afresh():
     msgs = list(run_messages(simulate(s)))
     back = int(24 * HOUR * 1e9)  # the second half replayed a day earlier on the data clock
     half = len(msgs) // 2
-    cutter = WindowCutter(cfg)
+    cutter = WindowCutter(cfg, furnace=PAPER)
     windows = [w for topic, msg, t in msgs[:half] for w in cutter.feed(topic, msg, t)]
     n_before = len(windows)
     windows += [w for topic, msg, t in msgs[half:] for w in cutter.feed(topic, msg, t - back)]
@@ -311,7 +313,7 @@ def _recent_f_one_step(res, exp, from_min):
     from furnace_model.simulation.structure import ModelStructure
 
     span = exp.between(from_min, np.inf)
-    structure = ModelStructure()
+    structure = ModelStructure(furnace=PAPER)
     params = dict(res.params)
     states = structure.simulate(params, Inputs.of(exp), exp.t_min, res.x0[0][None],
                                 states=True).states[0]
@@ -323,7 +325,7 @@ def _recent_f_one_step(res, exp, from_min):
     base = run(params, x)
     cols = [run({**params, "f": 2 * params["f"]}, x) - base]
     cols += [run(params, x + u) - base for u in np.eye(3)]
-    resid = span.zone_temp - np.array([res.zone_offsets_c[0][z] for z in ZONES]) - base
+    resid = span.zone_temp - np.array([res.zone_offsets_c[0][z] for z in PAPER.zones]) - base
     good = np.isfinite(resid)
     D = np.stack([c[good] for c in cols], axis=1)
     cov = np.linalg.inv(D.T @ D)
@@ -344,7 +346,7 @@ def test_recent_f_is_the_least_squares_f_of_the_span():
     for end in (2400.0, 3100.0):
         window = exp.between(end - 1440.0, end)
         res = fit([window], zone_offsets=True, seed=0, profile=False)
-        bounds = np.array([res.bounds_c[0]["offset"][z][1] for z in ZONES])
+        bounds = np.array([res.bounds_c[0]["offset"][z][1] for z in PAPER.zones])
         assert np.all(np.abs(res.offsets(0)) <= bounds + 1e-9)
         for span_min in (360.0, 180.0):
             got = recent_f(res, window, end - span_min)

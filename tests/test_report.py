@@ -10,7 +10,6 @@ from html.parser import HTMLParser
 import numpy as np
 import pytest
 
-from furnace_model import ZONES
 from furnace_model.cli.diagnose import summary
 from furnace_model.diagnosis import (
     CandidateResult,
@@ -21,6 +20,7 @@ from furnace_model.diagnosis import (
 )
 from furnace_model.diagnosis.cases import draw_case
 from furnace_model.report import write_report
+from furnace_model.simulation.furnace import PAPER
 
 
 class _Page(HTMLParser):
@@ -67,7 +67,7 @@ def _check_self_contained(page: _Page, raw: str) -> None:
 
 @pytest.fixture(scope="module")
 def explained(tmp_path_factory):
-    case = draw_case("zone_burners", np.random.default_rng(12))
+    case = draw_case("zone_burners", np.random.default_rng(12), furnace=PAPER)
     d = diagnose(case.fit, case.holdout, effects=("zone_burners", "sensor_lag"))
     assert d.verdict.status == "explained"
     path = write_report(d, tmp_path_factory.mktemp("report") / "deep" / "er" / "report.html")
@@ -99,7 +99,7 @@ def test_report_is_one_self_contained_page_with_the_verdict_first(explained):
 
 
 def test_report_of_a_control_says_no_gap_and_draws_what_there_is(tmp_path):
-    case = draw_case(None, np.random.default_rng(11))
+    case = draw_case(None, np.random.default_rng(11), furnace=PAPER)
     d = diagnose(case.fit, case.holdout, effects=("zone_burners",))
     assert d.verdict.status == "no_gap"
     page, raw = _parse(write_report(d, tmp_path / "control.html"))
@@ -206,4 +206,4 @@ def test_a_candidate_that_worsens_the_held_out_error_is_drawn_uncredited(explain
             text[c.label]
     assert [c["credit"] for c in d.to_json()["candidates"]] == [credited(c)
                                                               for c in d.candidates]
-    assert all(np.isfinite(bad.rmse_holdout_c[z]) for z in ZONES)
+    assert all(np.isfinite(bad.rmse_holdout_c[z]) for z in PAPER.zones)

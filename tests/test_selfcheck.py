@@ -11,10 +11,10 @@ import sys
 import numpy as np
 import pytest
 
-from furnace_model import SENSORS, ZONES
 from furnace_model.diagnosis.cases import OUT_OF_LIBRARY, draw_case, parse_label
 from furnace_model.diagnosis.selfcheck import ABSORBED_REASON, Outcome, check, summarize, table
 from furnace_model.effects import EFFECTS
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.structure import Inputs, ModelStructure
 
@@ -24,7 +24,7 @@ def _rng(seed: int = 0) -> np.random.Generator:
 
 
 def test_case_shape_and_sensors_like_the_paper():
-    case = draw_case(None, _rng(1))
+    case = draw_case(None, _rng(1), furnace=PAPER)
     assert case.truth == {} and case.expected_status == "no_gap"
     assert len(case.fit) == 1 and len(case.holdout) == 1
     for exp in case.fit + case.holdout:
@@ -43,16 +43,17 @@ def test_case_shape_and_sensors_like_the_paper():
 
 
 def test_same_seed_same_case_and_different_seeds_differ():
-    a, b, c = draw_case("dead_time", _rng(5)), draw_case("dead_time", _rng(5)), \
-        draw_case("dead_time", _rng(6))
+    a, b, c = draw_case("dead_time", _rng(5), furnace=PAPER), draw_case("dead_time", _rng(5),
+                                                                        furnace=PAPER), \
+        draw_case("dead_time", _rng(6), furnace=PAPER)
     np.testing.assert_array_equal(a.fit[0].tc, b.fit[0].tc)
     assert a.truth == b.truth
     assert a.truth != c.truth
 
 
 def test_control_is_the_paper_model_plus_sensor_noise():
-    exp = draw_case(None, _rng(2)).fit[0]
-    model = ModelStructure().simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min,
+    exp = draw_case(None, _rng(2), furnace=PAPER).fit[0]
+    model = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min,
                                       np.full(3, exp.t_air[0])).zones[0]
     resid = exp.zone_temp - model
     # zone mean of two thermocouples: noise 1.5/sqrt(2), plus a bias of sd 0.5/sqrt(2)
@@ -63,14 +64,14 @@ def test_control_is_the_paper_model_plus_sensor_noise():
 @pytest.mark.parametrize("name", list(EFFECTS))
 @pytest.mark.parametrize("form", ["candidate", "other"])
 def test_every_effect_changes_the_furnace_and_records_its_truth(name, form):
-    case = draw_case(name, _rng(3), form=form)
+    case = draw_case(name, _rng(3), form=form, furnace=PAPER)
     assert set(case.truth) == {name} and case.expected_status == "explained"
     # the recorded truth rebuilds the furnace: the data are it plus sensor noise and bias
     cls = EFFECTS[name]
     truth = case.truth[name]
     effect = cls(**{k: tuple(v) if isinstance(v, list) else v
-                    for k, v in truth.items() if k in cls.option_specs})
-    structure = ModelStructure([effect])
+                    for k, v in truth.items() if k in cls.specs(PAPER)}, furnace=PAPER)
+    structure = ModelStructure([effect], furnace=PAPER)
     values = {**PAPER_TABLE_V, **{p.name: truth[p.name] for p in effect.params}}
     exp = case.fit[0]
     x0 = np.full(3, exp.t_air[0])
@@ -78,29 +79,31 @@ def test_every_effect_changes_the_furnace_and_records_its_truth(name, form):
     drift = structure.sensor_offsets(values, exp.t_min)[0].reshape(-1, 3, 2).mean(axis=2)
     resid = exp.zone_temp - model - drift
     assert np.all(np.abs(resid.std(axis=0) - 1.5 / np.sqrt(2)) < 0.1)
-    base = ModelStructure().simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min, x0).zones[0]
+    base = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min,
+                                                  x0).zones[0]
     assert np.max(np.abs(model + drift - base)) > 3.0
     assert np.nanmax(exp.tc) < 1400.0
 
 
 def test_other_forms_differ_from_the_candidate():
-    lag = draw_case("sensor_lag", _rng(4), form="other").truth["sensor_lag"]
+    lag = draw_case("sensor_lag", _rng(4), form="other", furnace=PAPER).truth["sensor_lag"]
     assert lag["order"] in (2, 3)
-    rad = draw_case("radiation", _rng(4), form="other").truth["radiation"]
+    rad = draw_case("radiation", _rng(4), form="other", furnace=PAPER).truth["radiation"]
     assert abs(rad["emissivity_slope"]) >= 0.4  # no power law: the candidate fits exponents
-    nl = draw_case("burner_nonlinearity", _rng(4), form="other").truth["burner_nonlinearity"]
+    nl = draw_case("burner_nonlinearity", _rng(4), form="other",
+                   furnace=PAPER).truth["burner_nonlinearity"]
     assert nl["form"] not in ("linear", "power", "exponential")
-    wall = draw_case("wall_storage", _rng(4), form="other").truth["wall_storage"]
+    wall = draw_case("wall_storage", _rng(4), form="other", furnace=PAPER).truth["wall_storage"]
     assert wall["layers"] == 2  # the candidate's walls, behind any zones, have one
 
 
 def test_door_open_cools_its_zone_for_an_hour():
-    case = draw_case("door_open", _rng(7))
+    case = draw_case("door_open", _rng(7), furnace=PAPER)
     door = case.truth["door_open"]
     assert case.expected_status == "unexplained"
-    z = ZONES.index(door["zone"])
+    z = PAPER.zones.index(door["zone"])
     for j, exp in enumerate(case.fit + case.holdout):
-        clean = ModelStructure().simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min,
+        clean = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, Inputs.of(exp), exp.t_min,
                                           np.full(3, exp.t_air[0])).zones[0]
         gap = clean[:, z] - exp.zone_temp[:, z]
         t_open = door["t_open"][j]
@@ -111,9 +114,9 @@ def test_door_open_cools_its_zone_for_an_hour():
 
 
 def test_thermocouple_reading_low_in_episodes():
-    case = draw_case("tc_reads_low", _rng(8))
+    case = draw_case("tc_reads_low", _rng(8), furnace=PAPER)
     low = case.truth["tc_reads_low"]
-    i = SENSORS.index(low["sensor"])
+    i = PAPER.sensors.index(low["sensor"])
     partner = i ^ 1
     for j, exp in enumerate(case.fit + case.holdout):
         diff = exp.tc[:, partner] - exp.tc[:, i]
@@ -126,14 +129,14 @@ def test_thermocouple_reading_low_in_episodes():
 
 
 def test_two_effects_at_once_and_unknown_names():
-    case = draw_case(("zone_burners", "sensor_lag"), _rng(9))
+    case = draw_case(("zone_burners", "sensor_lag"), _rng(9), furnace=PAPER)
     assert set(case.truth) == {"zone_burners", "sensor_lag"}
     assert case.library_effects == ("zone_burners", "sensor_lag")
     assert set(OUT_OF_LIBRARY).isdisjoint(EFFECTS)
     with pytest.raises(ValueError, match="unknown effect"):
-        draw_case("door_opened", _rng(0))
+        draw_case("door_opened", _rng(0), furnace=PAPER)
     with pytest.raises(ValueError, match="form"):
-        draw_case("dead_time", _rng(0), form="odd")
+        draw_case("dead_time", _rng(0), form="odd", furnace=PAPER)
 
 
 # --- the check itself --------------------------------------------------------------------
@@ -231,7 +234,7 @@ def test_selfcheck_command_refuses_unknown_names():
 
 
 def test_a_check_split_into_runs_draws_the_same_cases():
-    whole = check(["none"], 2, seed=3)
-    second = check(["none"], 1, seed=3, first=1)
+    whole = check(["none"], 2, seed=3, furnace=PAPER)
+    second = check(["none"], 1, seed=3, first=1, furnace=PAPER)
     assert [o.draw for o in second] == [1]
     assert second[0].description == whole[1].description != whole[0].description

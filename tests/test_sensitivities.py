@@ -19,6 +19,7 @@ from furnace_model.effects import (
     ZoneBurners,
 )
 from furnace_model.identification.problem import Problem
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import SensorSpec, load_scenario
@@ -33,7 +34,8 @@ def record():
     # parameter moves the residuals and none of the structures fits them exactly; 2-minute
     # samples keep the nonlinear integrations short.
     scn = load_scenario(SCENARIOS / "paper_exp2_zone_burners.yaml")
-    plant = Plant(ModelStructure([Radiation()]), {**PAPER_TABLE_V, "rad_share": 0.2},
+    plant = Plant(ModelStructure([Radiation(furnace=PAPER)],
+                                 furnace=PAPER), {**PAPER_TABLE_V, "rad_share": 0.2},
                   SensorSpec(noise_sd_c=TC_SD, bias_sd_c=0.0), seed=1)
     t = np.arange(0.0, 3800.0 + 1e-9, 2.0)
     return plant.run(scn.inputs(), t, scn.initial_c).to_experiment("exp1")
@@ -41,20 +43,20 @@ def record():
 
 CASES = [
     ([], {}),
-    ([ZoneBurners(), DeadTime()], {"f_heat": 0.3, "f_preheat": 0.2, "theta_dead": 7.5}),
-    ([FuelChange()], {"t_fuel": 1201.0, "fuel_ratio": 0.85}),
-    ([SensorDrift(sensor="heat_2")], {"drift_rate": 0.004, "t_drift": 901.0}),
-    ([SensorLag()], {"tau_lag": 3.0}),
-    ([Radiation()], {"rad_share": 0.3}),
-    ([Radiation()], {"rad_share": 0.0}),
-    ([Radiation(exponent=None)], {"rad_share": 0.0, "rad_exponent": 4.5}),
-    ([Radiation(), SensorLag()], {"rad_share": 0.0, "tau_lag": 3.0}),
-    ([Radiation(), ZoneBurners()], {"rad_share": 0.1, "f_heat": 0.3, "f_preheat": 0.2}),
+    ([ZoneBurners(furnace=PAPER), DeadTime(furnace=PAPER)], {"f_heat": 0.3, "f_preheat": 0.2, "theta_dead": 7.5}),
+    ([FuelChange(furnace=PAPER)], {"t_fuel": 1201.0, "fuel_ratio": 0.85}),
+    ([SensorDrift(sensor="heat_2", furnace=PAPER)], {"drift_rate": 0.004, "t_drift": 901.0}),
+    ([SensorLag(furnace=PAPER)], {"tau_lag": 3.0}),
+    ([Radiation(furnace=PAPER)], {"rad_share": 0.3}),
+    ([Radiation(furnace=PAPER)], {"rad_share": 0.0}),
+    ([Radiation(exponent=None, furnace=PAPER)], {"rad_share": 0.0, "rad_exponent": 4.5}),
+    ([Radiation(furnace=PAPER), SensorLag(furnace=PAPER)], {"rad_share": 0.0, "tau_lag": 3.0}),
+    ([Radiation(furnace=PAPER), ZoneBurners(furnace=PAPER)], {"rad_share": 0.1, "f_heat": 0.3, "f_preheat": 0.2}),
 ]
 
 
 def _problem(effects, values, record):
-    structure = ModelStructure(effects)
+    structure = ModelStructure(effects, furnace=PAPER)
     prob = Problem([record], structure, {}, {}, zone_offsets=True)
     v = {**PAPER_TABLE_V, **values}
     z = prob.start(prob.to_z(np.array([v[n] for n in prob.names])))
@@ -104,14 +106,14 @@ def test_null_share_is_the_linear_model(record):
     what the exponential integrator gives, to rounding."""
     inputs, t = Inputs.of(record), record.t_min
     x0 = record.zone_temp[0]
-    rad = ModelStructure([Radiation()])
+    rad = ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER)
     values = {**PAPER_TABLE_V, "rad_share": np.array([0.0, 0.0])}
     fast = rad.simulate(values, inputs, t, x0).zones
     theta = rad.theta(values)
     sysm = rad.system(theta)
     stepped = rad._exprb(theta, sysm, rad.drive(theta, inputs), np.atleast_2d(x0),
                          float(inputs.t[0]), t, sysm.C)
-    plain = ModelStructure().simulate(PAPER_TABLE_V, inputs, t, x0).zones
+    plain = ModelStructure(furnace=PAPER).simulate(PAPER_TABLE_V, inputs, t, x0).zones
     assert np.abs(fast - stepped).max() < 1e-8
     assert np.array_equal(fast[0], plain[0])
 
@@ -122,7 +124,7 @@ def test_first_order_is_the_derivative_at_zero_share(record):
     the integrator's to some hundred-thousandths (the two schemes' discretisations)."""
     inputs, t = Inputs.of(record), record.t_min
     x0 = record.zone_temp[0]
-    rad = ModelStructure([Radiation()])
+    rad = ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER)
     base = rad.simulate({**PAPER_TABLE_V, "rad_share": 0.0}, inputs, t, x0).zones[0]
     gaps = []
     for w in (1e-2, 1e-3):
@@ -141,7 +143,7 @@ def test_first_order_is_the_derivative_at_zero_share(record):
 
 def test_first_order_of_a_linear_set_is_its_response(record):
     inputs, t = Inputs.of(record), record.t_min
-    rad = ModelStructure([Radiation(), SensorLag()])
+    rad = ModelStructure([Radiation(furnace=PAPER), SensorLag(furnace=PAPER)], furnace=PAPER)
     v = {**PAPER_TABLE_V, "rad_share": 0.0, "tau_lag": 4.0}
     x0 = record.zone_temp[0]
     assert np.abs(rad.simulate_first_order(v, inputs, t, x0)

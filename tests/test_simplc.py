@@ -15,6 +15,7 @@ from pymodbus.client import AsyncModbusTcpClient
 from furnace_daq.registers import decode
 from furnace_daq.servedmap import ServedMap
 from furnace_daq.simplc import CAN_ID, SimPLC, states_from_counts
+from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
@@ -55,7 +56,7 @@ def test_registers_are_the_plant_at_the_plc_clock_and_time_runs_at_speed():
     run = Plant.from_scenario(scenario).run(scenario.inputs(), seconds / 60.0, scenario.initial_c)
     for (regs, bits), tc, s in zip(reads, run.tc, seconds, strict=True):
         assert [decode([w], "int16") for w in regs[:6]] == [tenths(v) for v in tc]
-        assert bits == states_from_counts(scenario.burners_at(s / 60.0))
+        assert bits == states_from_counts(scenario.burners_at(s / 60.0), PAPER)
 
 
 def test_manual_mode_follows_coils_and_broadcasts_flames_on_can():
@@ -101,6 +102,6 @@ def tenths(value: float) -> int:
 
 def test_the_default_map_saturates_below_the_open_sentinel():
     tc = [12.34, -3.26, 1e9, float("nan"), -1e9, 0.05]
-    image = ServedMap.default().image(tc, 20.0, 7, 1, [False] * 26)
+    image = ServedMap.default(PAPER).image(tc, 20.0, 7, 1, [False] * 26)
     assert [decode([image["input"][i]], "int16") for i in range(6)] == [tenths(v) for v in tc]
     assert [tenths(v) for v in tc] == [123, -33, 32766, 32767, -32768, 0]

@@ -64,9 +64,9 @@ def test_the_paper_derived_map_is_contracts_section_3():
                      Point("clock", "input", 7, "uint32", word_order="big"),
                      Point("heartbeat", "input", 9, "uint16"),
                      (BitRange("soak", "discrete", 0, 10), BitRange("heat", "discrete", 10, 8),
-                      BitRange("preheat", "discrete", 18, 8)))
-    assert ServedMap.default() == ServedMap.default(PAPER) == want
-    assert ServedMap.default().sizes() == {"input": 10, "holding": 1, "discrete": 26,
+                      BitRange("preheat", "discrete", 18, 8)), PAPER)
+    assert ServedMap.default(PAPER) == ServedMap.default(PAPER) == want
+    assert ServedMap.default(PAPER).sizes() == {"input": 10, "holding": 1, "discrete": 26,
                                            "coil": 26}
     # the config written for the paper's description reads what config/gateway.yaml reads
     shipped = load_config(ROOT / "config" / "gateway.yaml")
@@ -278,7 +278,7 @@ def test_fit_on_the_export_and_on_the_log_recovers_the_parameters(heatup, capsys
     assert_recovers(doc2["params"], doc2["ci95"], truth)
     # without --furnace the log's furnace is not taken for the paper's
     with pytest.raises(DataError, match="the log is of furnace 'six-zone'"):
-        load_experiments([heatup["tmp"] / "logs"])
+        load_experiments([heatup["tmp"] / "logs"], furnace=PAPER)
     capsys.readouterr()
 
 
@@ -287,7 +287,7 @@ def test_the_online_refit_fits_the_network(heatup):
     /model/parameters message carries the network's parameters and validates against the
     furnace's schema; the last window recovers them."""
     cfg = RefitConfig(period_s=12 * 3600, window_s=36 * 3600)
-    cutter, chain = WindowCutter(cfg, 30.0, SIX), RefitChain(cfg, 30.0, SIX)
+    cutter, chain = WindowCutter(cfg, 30.0, furnace=SIX), RefitChain(cfg, 30.0, furnace=SIX)
     windows = [w for t, m, _, pub in read_messages(heatup["files"],
                                                    (THERMOCOUPLES, BURNERS, AMBIENT))
                for w in cutter.feed(t, m, pub)]

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from furnace_model.simulation.furnace import PAPER
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -85,7 +87,7 @@ def test_params_of_an_extended_structure_round_trip(tmp_path):
     from furnace_model.identification.result import FitResult
     from furnace_model.simulation.structure import ModelStructure
 
-    structure = ModelStructure([ZoneLosses(zones=("heat",))])
+    structure = ModelStructure([ZoneLosses(zones=("heat",), furnace=PAPER)], furnace=PAPER)
     values = structure.defaults()
     res = FitResult(structure, values, [], {k: (v, v) for k, v in values.items()},
                     np.eye(len(values)), [], [],

@@ -2,9 +2,11 @@
 
 Every `period_min` minutes a cold slab enters the preheating zone and, for `charge_min`
 minutes, draws heat from it at `q_charge` °C/min. The zone already exchanges heat with the
-outside air through its loss rate e (eq. 6), so the charge is written as that air being
-colder by q_charge / e while it lasts: a step down and a step back up in the ambient input,
-which keeps the model linear and exactly solvable.
+outside air through its loss rate (e of eq. 6 on the paper's furnace), so the charge is
+written as that air being colder by q_charge / loss while it lasts: a step down and a step
+back up in the ambient input, which keeps the model linear and exactly solvable. The
+charging end is the furnace's one zone losing heat to ambient; on a furnace with more than
+one, the colder air would cool them all, so the effect refuses it.
 
 Use it with any command: `furnace-model simulate|fit|diagnose|selfcheck --effects-from
 examples/slab_charging/slab_charging.py`.
@@ -12,8 +14,9 @@ examples/slab_charging/slab_charging.py`.
 
 import numpy as np
 
-from furnace_model.effects import U_AIR, Effect, Option
+from furnace_model.effects import Effect, Option
 from furnace_model.simulation.lti import Drive
+from furnace_model.simulation.network import terms
 from furnace_model.simulation.parameters import Param
 
 
@@ -29,6 +32,17 @@ class SlabCharging(Effect):
     null = {"q_charge": 0.0}  # no heat drawn: no effect
     ranges = {"q_charge": (6.0, 14.0)}  # what the selfcheck draws
 
+    @classmethod
+    def refusal(cls, furnace):
+        if len(furnace.ambient) != 1:
+            return "the charge is written through ambient, which needs one zone losing heat"
+        return None
+
+    @property
+    def _loss(self) -> str:
+        """The charging zone's loss rate to ambient (the paper's e)."""
+        return next(t.name for t in terms(self.furnace) if t.kind == "loss")
+
     def _params(self):
         return (Param("q_charge", 5.0, 0.01, 100.0, unit="°C/min",
                       doc="preheating-zone cooling rate while a slab is charged"),)
@@ -38,10 +52,10 @@ class SlabCharging(Effect):
         starts = np.arange(o["first_min"], o["last_min"], o["period_min"])
         times = np.concatenate([starts, starts + o["charge_min"]])
         sign = np.concatenate([-np.ones(starts.size), np.ones(starts.size)])
-        colder = (theta["q_charge"] / theta["e"])[:, None]  # (P, 1) °C
+        colder = (theta["q_charge"] / theta[self._loss])[:, None]  # (P, 1) °C
         P, m = colder.shape[0], drive.du.shape[-1]
         du = np.zeros((P, times.size, m))
-        du[:, :, U_AIR] = colder * sign
+        du[:, :, self.u_air] = colder * sign
         s = drive.s
         if s.ndim == 1:
             s = np.concatenate([s, times])
@@ -51,5 +65,5 @@ class SlabCharging(Effect):
         return Drive(drive.t0, drive.u0, s, np.concatenate([old, du], axis=1))
 
     @classmethod
-    def draw(cls, rng, form, duration_min):
-        return cls(), {"q_charge": cls.uniform(rng, "q_charge")}
+    def draw(cls, rng, form, duration_min, furnace):
+        return cls(furnace=furnace), {"q_charge": cls.uniform(rng, "q_charge")}

@@ -17,13 +17,13 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from furnace_model.errors import DataError
 from furnace_model.log.messages import ModelEvent, ModelParameters, number
 from furnace_model.log.schema import FURNACE_TOPICS, THERMOCOUPLES, param_names
-from furnace_model.simulation.furnace import PAPER, Furnace
+from furnace_model.simulation.furnace import Furnace
 
 from ..daqconfig import RefitConfig
 from .engine import prepare_worker
@@ -60,7 +60,7 @@ def file_identity(path: Path) -> list:
     return [str(path.resolve()), st.st_size, st.st_mtime_ns]
 
 
-def scan_furnace(furnace: str, logs: Sequence[str], description: Furnace = PAPER) -> dict:
+def scan_furnace(furnace: str, logs: Sequence[str], description: Furnace) -> dict:
     """Per log file: path, identity, PLC-clock span. A file that is no readable log, or the
     log of another furnace than the fleet file's `description` of this one, is left out and
     listed in `bad` with the reason (the job reports each as a failure of the furnace, and
@@ -124,7 +124,7 @@ class Segment:
     after_ns: int | None
     until_ns: int | None
     effects_from: tuple[str, ...] = ()
-    description: Furnace = PAPER
+    description: Furnace = field(kw_only=True)
 
 
 def refit_segment(seg: Segment) -> dict:
@@ -138,8 +138,8 @@ def refit_segment(seg: Segment) -> dict:
     prepare_worker(seg.effects_from)
     cpu0 = time.process_time()
     cfg = seg.refit
-    cutter = WindowCutter(cfg, seg.t_air_default, seg.description)
-    chain = RefitChain(cfg, seg.t_air_default, seg.description)
+    cutter = WindowCutter(cfg, seg.t_air_default, furnace=seg.description)
+    chain = RefitChain(cfg, seg.t_air_default, furnace=seg.description)
     window_ns = int(round(cfg.window_s * 1e9))
     read_from = None if seg.after_ns is None else seg.after_ns - window_ns
     rows: list[dict] = []
@@ -169,7 +169,7 @@ def refit_segment(seg: Segment) -> dict:
 
 
 def parameter_row(furnace: str, segment: int, msg: ModelParameters,
-                  description: Furnace = PAPER) -> dict:
+                  description: Furnace) -> dict:
     """A /model/parameters message as a flat row: the furnace's parameters, their 95% bounds,
     RMSE and zone offset per zone, and what the fit flagged."""
     row = {"furnace": furnace, "segment": segment, "window_start": msg.window_start,
@@ -220,7 +220,7 @@ class Pair:
     period_s: float
     seed: int
     effects_from: tuple[str, ...] = ()
-    description: Furnace = PAPER
+    description: Furnace = field(kw_only=True)
 
 
 def diagnose_pair(pair: Pair) -> dict:
@@ -269,7 +269,7 @@ class Draw:
     candidates: tuple[str, ...] | None
     noise: str
     effects_from: tuple[str, ...] = ()
-    furnace: Furnace = PAPER
+    furnace: Furnace = field(kw_only=True)
     """The description the cases are heat-ups of (`selfcheck --furnace`)."""
 
 

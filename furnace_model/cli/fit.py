@@ -65,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 class _ParamValues(argparse.Action):
     """--fix NAME=V and --bounds NAME=LO:HI, repeatable and comma-separated, gathered into one
     dict per option and checked as they are read: a typo costs no fit. The parameters are
-    those `fit` identifies, `ModelStructure()`'s, which are `parameters.BASELINE`; a
+    those `fit` identifies, the paper's network's `parameters.BASELINE`; a
     network's (`k_`, `loss_`, `gain_`; --furnace) are checked against their kind's box here
     and against the furnace when it is read."""
 
@@ -162,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         structure = ModelStructure([EFFECTS[n](**EFFECTS[n].candidate_for(furnace),
                                                furnace=furnace)
-                                    for n in args.effects or ()], furnace)
+                                    for n in args.effects or ()], furnace=furnace)
     except ValueError as exc:
         raise FurnaceError(str(exc)) from None
     experiments = load_experiments(args.data, **data_window(args), furnace=furnace)

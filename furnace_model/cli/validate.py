@@ -88,7 +88,7 @@ def load_params(path: Path, furnace=None) -> tuple[dict[str, float], ModelStruct
         raise FurnaceError(f"{path}: furnace: the fit is of furnace '{fitted_on}', not of "
                            f"furnace '{furnace.name}' (--furnace)")
     try:
-        structure = ModelStructure(effects, furnace)
+        structure = ModelStructure(effects, furnace=furnace)
     except ValueError as exc:
         raise FurnaceError(f"{path}: {exc}") from None
     params = {}

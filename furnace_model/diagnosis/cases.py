@@ -49,7 +49,7 @@ import pandas as pd
 
 from ..effects import EFFECTS, Effect
 from ..experiment import Experiment
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from ..simulation.network import parameters, terms
 from ..simulation.parameters import PAPER_TABLE_V
 from ..simulation.plant import Plant
@@ -107,8 +107,9 @@ TARGET_RISE_C = 3000.0
 def network_truth(furnace: Furnace) -> dict[str, float]:
     """The true parameters of a furnace's cases: Table V for the paper's; for any other the
     network's defaults with one heat per burner (every heated zone alike) scaled so that all
-    burners firing would hold the hottest zone `TARGET_RISE_C` above ambient."""
-    if furnace == PAPER:
+    burners firing would hold the hottest zone `TARGET_RISE_C` above ambient. Eq. 11's
+    network has Table V, whatever its zones are called."""
+    if furnace.paper_structure:
         return dict(PAPER_TABLE_V)
     values = {p.name: p.default for p in parameters(furnace)}
     structure = ModelStructure(furnace=furnace)
@@ -124,7 +125,7 @@ def network_truth(furnace: Furnace) -> dict[str, float]:
 def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
               form: str = "candidate",
               sensors: tuple[SensorSpec, SensorSpec] = (SENSORS_SPEC, SENSORS_SPEC),
-              furnace: Furnace = PAPER) -> Case:
+              furnace: Furnace) -> Case:
     """A random two-experiment case with `effect` (a contract name, one of OUT_OF_LIBRARY,
     several of them, or None for a control) switched on in the plant of `furnace`;
     `sensors`: the thermocouples of the fitted and of the held-out heat-up (campaigns
@@ -160,7 +161,7 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
         effects.append(eff)
         values.update(vals)
         truth[name] = {**vals, **info}
-    structure = ModelStructure(effects, furnace)
+    structure = ModelStructure(effects, furnace=furnace)
 
     faults = [f for f in FAULTS.values() if f.name in names]
     for f in faults:
@@ -183,7 +184,8 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
         if seen_as != furnace:
             exp = dataclasses.replace(exp, furnace=seen_as)
         exps.append(exp)
-    description = (", ".join(f"{n}({_short(truth[n], furnace != PAPER)})" for n in names)
+    many = not furnace.paper_structure  # where an effect's zones are one place of many
+    description = (", ".join(f"{n}({_short(truth[n], many)})" for n in names)
                    or "no effect") + \
         f"; form {form}; durations {durations[0]:g} and {durations[1]:g} min"
     return Case(fit=[exps[0]], holdout=[exps[1]], truth=truth, description=description,
@@ -204,12 +206,9 @@ def _short(info: dict, lists: bool = False) -> str:
 
 
 def _draw_effect(name: str, rng: np.random.Generator, form: str, duration: float,
-                 furnace: Furnace = PAPER) -> tuple[Effect, dict[str, float], dict]:
+                 furnace: Furnace) -> tuple[Effect, dict[str, float], dict]:
     """The effect object, its parameter values and its options (for the truth record)."""
-    if furnace == PAPER:
-        eff, vals = EFFECTS[name].draw(rng, form, duration)  # a plug-in's draw may take no furnace
-    else:
-        eff, vals = EFFECTS[name].draw(rng, form, duration, furnace=furnace)
+    eff, vals = EFFECTS[name].draw(rng, form, duration, furnace=furnace)
     info = {k: (list(v) if isinstance(v, tuple) else v) for k, v in eff.options.items()}
     return eff, {k: float(v) for k, v in vals.items()}, info
 
@@ -262,7 +261,7 @@ def _others_fire(counts: np.ndarray, furnace: Furnace) -> bool:
     return bool(np.all((counts[:, 1:] > 0).any(axis=0) | ~has))
 
 
-def _fill_soak_first(total: int, furnace: Furnace = PAPER) -> np.ndarray:
+def _fill_soak_first(total: int, furnace: Furnace) -> np.ndarray:
     c = np.zeros(furnace.n_zones)
     left = total
     for i, cap in enumerate(furnace.burners):
@@ -271,7 +270,7 @@ def _fill_soak_first(total: int, furnace: Furnace = PAPER) -> np.ndarray:
     return c
 
 
-def _fit_counts(c: np.ndarray, furnace: Furnace = PAPER) -> np.ndarray:
+def _fit_counts(c: np.ndarray, furnace: Furnace) -> np.ndarray:
     """Move burners that exceed a zone's count to the next zone with room."""
     c = c.copy()
     caps = np.array(furnace.burners, dtype=float)

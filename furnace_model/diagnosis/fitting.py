@@ -17,7 +17,7 @@ from ..identification.fit import fit
 from ..identification.model import Refinement
 from ..identification.noisefloor import pooled_floor, record_floor
 from ..identification.result import FitResult
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from ..simulation.structure import ModelStructure
 from .candidate import CandidateResult
 from .credit import CARRIED_Z, identifiable
@@ -50,13 +50,13 @@ class Task:
 
     @property
     def furnace(self) -> Furnace:
-        return self.fit_data[0].furnace if self.fit_data else PAPER
+        return self.fit_data[0].furnace
 
 
 def structure_of(effects: tuple[str, ...], options: dict[str, dict],
-                 furnace: Furnace = PAPER) -> ModelStructure:
+                 furnace: Furnace) -> ModelStructure:
     items: list[Effect] = [EFFECTS[n](**options.get(n, {}), furnace=furnace) for n in effects]
-    return ModelStructure(items, furnace)
+    return ModelStructure(items, furnace=furnace)
 
 
 def run_task(task: Task) -> CandidateResult:
@@ -260,8 +260,10 @@ def join(head: Experiment, tail: Experiment) -> Experiment:
 
 def rmse_per_zone(data: list[Experiment], preds: list[np.ndarray],
                   zones: tuple[str, ...] | None = None) -> dict[str, float]:
-    """`zones`: the furnace's (its records' when not given; the paper's without records)."""
-    zones = zones or (data[0].furnace.zones if data else PAPER.zones)
+    """`zones`: the furnace's (its records' when not given)."""
+    if zones is None and not data:
+        raise ValueError("no records to read the furnace's zones from: give `zones`")
+    zones = zones or data[0].furnace.zones
     if not data:
         return {z: float("nan") for z in zones}
     r = np.concatenate([e.zone_temp - p for e, p in zip(data, preds, strict=True)])

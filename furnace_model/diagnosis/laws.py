@@ -7,13 +7,13 @@ import numpy as np
 
 from ..effects import EFFECTS
 from ..experiment import Experiment
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from .candidate import CandidateResult
 from .credit import helps
 from .fitting import rmse_per_zone
 
 
-def further_laws(fitted: list[CandidateResult], furnace: Furnace = PAPER
+def further_laws(fitted: list[CandidateResult], furnace: Furnace
                  ) -> list[tuple[CandidateResult, dict]]:
     """The further laws to fit (`Effect.further_laws`), each with the candidate it starts
     from: only for a candidate that helps in its first law, since the nonlinear ones are
@@ -75,9 +75,11 @@ def _blend(p: CandidateResult, q: CandidateResult, w: float, fit_data: list[Expe
     fit_pred = [(1 - w) * a + w * b for a, b in zip(p.fit_pred, q.fit_pred, strict=True)]
     hold_pred = [(1 - w) * a + w * b for a, b in zip(p.holdout_pred, q.holdout_pred, strict=True)]
     laws = f"{opts_text(p.options[n])} ({1 - w:.2f}) and {opts_text(q.options[n])} ({w:.2f})"
+    zones = fit_data[0].furnace.zones
     return CandidateResult(
         effects=p.effects, params=dict(major.params), ci95=dict(major.ci95),
-        rmse_fit_c=rmse_per_zone(fit_data, fit_pred), rmse_holdout_c=rmse_per_zone(hold, hold_pred),
+        rmse_fit_c=rmse_per_zone(fit_data, fit_pred, zones),
+        rmse_holdout_c=rmse_per_zone(hold, hold_pred, zones),
         identifiable=True, fit_pred=fit_pred, holdout_pred=hold_pred,
         note=f"law between {laws}, weighted on the fitted and held-out data together",
         options={n: {"between": [p.options[n], q.options[n]], "weight": w}},

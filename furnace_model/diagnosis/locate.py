@@ -96,11 +96,9 @@ class WhereLine:
     kind: str
 
 
-def where_lines(where: list[Located], zones: tuple[str, ...] = ()) -> list[WhereLine]:
-    """`zones`: the furnace's, in order (the paper's when not given)."""
-    from ..simulation.furnace import PAPER
-
-    order = zones or PAPER.zones
+def where_lines(where: list[Located], zones: tuple[str, ...]) -> list[WhereLine]:
+    """`zones`: the furnace's, in order."""
+    order = zones
     out: list[WhereLine] = []
     done: set[str] = set()
     for w in where:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..effects import EFFECTS
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from .cases import SENSORS_SPEC, Case, case_rng, draw_case, draw_sensors, parse_label
 from .faults import FAULTS
 
@@ -97,7 +97,7 @@ def carried_limit(case: Case, diagnosis) -> dict[str, float]:
 
 
 def selfcheck_case(label: str, k: int, seed: int = 0, *, form: str = "candidate",
-                   noise: str = "white", furnace: Furnace = PAPER) -> Case:
+                   noise: str = "white", furnace: Furnace) -> Case:
     """Draw `k` of the selfcheck's row `label`: the same case `check` diagnoses."""
     sensors = draw_sensors(noise, np.random.default_rng(
         [seed, zlib.crc32(label.encode()), k, zlib.crc32(noise.encode())]))
@@ -108,7 +108,7 @@ def selfcheck_case(label: str, k: int, seed: int = 0, *, form: str = "candidate"
 def check(labels: list[str], draws: int, seed: int = 0, *, form: str = "candidate",
           candidates: tuple[str, ...] | None = None, noise: str = "white",
           report: Callable[[Outcome], None] | None = None, first: int = 0,
-          furnace: Furnace = PAPER) -> list[Outcome]:
+          furnace: Furnace) -> list[Outcome]:
     """Draw `draws` cases per label, diagnose each with its effect withheld (the diagnosis is
     told nothing about it), and judge the verdict against the truth. The thermocouples
     (`noise`) are drawn from a stream of their own, so that a case's furnace and schedule

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ..effects import EFFECTS
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from ..simulation.structure import ModelStructure
 from .candidate import CandidateResult
 from .credit import near_floor
@@ -31,13 +31,14 @@ class Verdict:
 def judge(base: CandidateResult, kept: CandidateResult | None,
           candidates: list[CandidateResult], floor: dict[str, float], near: dict[str, float],
           gap: tuple[str, ...], where: list[Located], missing: Sequence[str] = (),
-          furnace: Furnace = PAPER) -> Verdict:
+          *, furnace: Furnace) -> Verdict:
     """The verdict and its sentence; `missing`: zones whose burners fire only in the
     held-out data."""
     zones = furnace.zones
     fl = ", ".join(f"{z} {floor[z]:.1f}" for z in zones)
     rb = ", ".join(f"{z} {base.rmse_holdout_c[z]:.1f}" for z in zones)
-    model = "The paper's model" if furnace == PAPER else f"The model of furnace '{furnace.name}'"
+    model = ("The paper's model" if furnace.paper_structure  # eq. 11, whatever the zone names
+             else f"The model of furnace '{furnace.name}'")
     if not gap:
         carried = max(base.carried_c.values(), default=0.0)
         also = (f", and up to {carried:.1f} °C that the fitted parameters' own uncertainty "
@@ -86,7 +87,7 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
            f"that the fitted ones fire every burner the held-out one does." if missing else ""))
 
 
-def _unseen_words(c: CandidateResult, furnace: Furnace = PAPER) -> str:
+def _unseen_words(c: CandidateResult, furnace: Furnace) -> str:
     if not c.held_out_fitted:
         return ""
     docs = {p.name: p.doc.split(": ")[-1] for p in ModelStructure(furnace=furnace).params}  # words, not 1/C1

@@ -5,7 +5,7 @@ read. A furnace's own effect is written the same way in the user's file and regi
 
 from __future__ import annotations
 
-from .base import KELVIN, N_INPUTS, U_AIR, U_BURNERS, Clues, Effect, Option, Theta, Trial
+from .base import KELVIN, Clues, Effect, Option, Theta, Trial
 from .burner_nonlinearity import BurnerNonlinearity
 from .dead_time import DeadTime
 from .fuel_change import FuelChange
@@ -24,6 +24,6 @@ plug-ins in the order they were loaded."""
 
 BUILT_IN: tuple[str, ...] = tuple(EFFECTS)
 
-__all__ = ["BUILT_IN", "EFFECTS", "KELVIN", "N_INPUTS", "U_AIR", "U_BURNERS", "Clues", "Effect",
-           "Option", "Theta", "Trial", "BurnerNonlinearity", "DeadTime", "FuelChange",
+__all__ = ["BUILT_IN", "EFFECTS", "KELVIN", "Clues", "Effect", "Option", "Theta", "Trial",
+           "BurnerNonlinearity", "DeadTime", "FuelChange",
            "Radiation", "SensorDrift", "SensorLag", "WallStorage", "ZoneBurners", "ZoneLosses"]

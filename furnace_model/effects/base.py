@@ -24,11 +24,13 @@ give a formulation different from the diagnosis's candidate (a second-order lag,
 radiation law that is no power of T) exist so that the diagnosis can be tested on physics
 that is not its own.
 
-An effect knows the furnace it extends (`Effect(furnace=...)`, the paper's by default): its
-zone and sensor options range over that furnace's zones and thermocouples (`specs`), and its
-physics reads the input channels as one burner count per zone, in the furnace's zone order,
-then ambient temperature (`u_burners`, `u_air`). An effect that cannot apply to a furnace
-says why (`refusal`), and making it there is a ValueError with that reason.
+An effect knows the furnace it extends (`Effect(furnace=...)`, always named): its zone and
+sensor options range over that furnace's zones and thermocouples (`specs`), and its physics
+reads the input channels as one burner count per zone, in the furnace's zone order, then
+ambient temperature (`u_burners`, `u_air`). Where an effect's forms differ on eq. 11's
+network from a larger one, it asks the description (`Furnace.paper_structure`), so that a
+three-zone chain named otherwise behaves as the paper's does. An effect that cannot apply
+to a furnace says why (`refusal`), and making it there is a ValueError with that reason.
 """
 
 from __future__ import annotations
@@ -39,18 +41,13 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from ..simulation.lti import Drive
 from ..simulation.parameters import Param
 
 if TYPE_CHECKING:
     from ..experiment import Experiment
 
-U_BURNERS = slice(0, 3)
-U_AIR = 3
-N_INPUTS = 4
-"""The paper's furnace's input channels (soak, heat, preheat, ambient); an effect reads its
-own furnace's from `u_burners`, `u_air`, `n_inputs`."""
 KELVIN = 273.15
 
 Theta = dict[str, np.ndarray]
@@ -88,7 +85,7 @@ class Clues:
     """The baseline fitted on other records (parts of these), with what they determine."""
     residuals: list[np.ndarray] = field(default_factory=list)
     """The baseline's zone residuals on `records` (N, zones) each."""
-    furnace: Furnace = PAPER
+    furnace: Furnace = field(kw_only=True)
 
 
 @dataclass
@@ -124,7 +121,7 @@ class Effect:
     change and no sensor error: the integrated equations' least squares (equationerror)
     estimate them with the network's."""
     one_place_at_a_time: ClassVar[bool] = False
-    """On any furnace but the paper's, the further laws put the effect in one place at a time
+    """On any network but eq. 11's, the further laws put the effect in one place at a time
     (one zone of its `zones` option, unless `laws_for` says otherwise) and are fitted even
     when the first law, the effect everywhere at once, does not help: on a network of many
     zones an effect in one of them may leave the candidate no better than the baseline."""
@@ -135,7 +132,7 @@ class Effect:
     ranges: ClassVar[dict[str, tuple[float, float]]] = {}
     """Ranges the selfcheck draws strengths and timings from (`draw`)."""
 
-    def __init__(self, *, furnace: Furnace = PAPER, **options: Any):
+    def __init__(self, *, furnace: Furnace, **options: Any):
         why = self.refusal(furnace)
         if why:
             raise ValueError(f"{self.name} does not apply to furnace '{furnace.name}': {why}")
@@ -167,8 +164,8 @@ class Effect:
     @classmethod
     def laws_for(cls, furnace: Furnace) -> tuple[dict[str, Any], ...]:
         """The further laws on this furnace: `further_laws`, or with `one_place_at_a_time`
-        on a furnace other than the paper's, each zone of the `zones` option's default."""
-        if furnace == PAPER or not cls.one_place_at_a_time:
+        on a network other than eq. 11's, each zone of the `zones` option's default."""
+        if furnace.paper_structure or not cls.one_place_at_a_time:
             return cls.further_laws
         return tuple({"zones": (z,)} for z in cls.specs(furnace)["zones"].default)
 
@@ -177,7 +174,7 @@ class Effect:
         """Whether the further laws are fitted even when the first law does not help: where
         each puts the effect somewhere else (one zone's wall, one thermocouple), not in
         another form, the first law need not show it at all."""
-        return cls.one_place_at_a_time and furnace != PAPER
+        return cls.one_place_at_a_time and not furnace.paper_structure
 
     @classmethod
     def physics_for(cls, furnace: Furnace) -> str:
@@ -276,7 +273,7 @@ class Effect:
     # -- selfcheck -----------------------------------------------------------------------------
     @classmethod
     def draw(cls, rng: np.random.Generator, form: str, duration_min: float,
-             furnace: Furnace = PAPER) -> tuple[Effect, dict[str, float]]:
+             furnace: Furnace) -> tuple[Effect, dict[str, float]]:
         """A furnace with the effect, at random: the effect (in the diagnosis's form, or with
         form "other" in a formulation its candidate does not use) and its parameter values,
         drawn from `ranges`; times within a heat-up of `duration_min`."""

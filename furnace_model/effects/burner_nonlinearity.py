@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..simulation.furnace import PAPER
 from ..simulation.parameters import Param
 from .base import Effect, Option
 
@@ -49,7 +48,7 @@ class BurnerNonlinearity(Effect):
         return out
 
     @classmethod
-    def draw(cls, rng, form, duration_min, furnace=PAPER):
+    def draw(cls, rng, form, duration_min, furnace):
         effect = cls(form="quadratic" if form == "other" else "linear", furnace=furnace)
         sign = -1.0 if rng.uniform() < 0.75 else 1.0
         return effect, {"k_nl": sign * cls.uniform(rng, "k_nl")}

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..simulation.furnace import PAPER
 from ..simulation.lti import Drive
 from ..simulation.parameters import Param
 from .base import Effect
@@ -31,5 +30,5 @@ class DeadTime(Effect):
         return Drive(drive.t0, drive.u0, s_new, du_new)
 
     @classmethod
-    def draw(cls, rng, form, duration_min, furnace=PAPER):
+    def draw(cls, rng, form, duration_min, furnace):
         return cls(furnace=furnace), {"theta_dead": cls.uniform(rng, "theta_dead")}

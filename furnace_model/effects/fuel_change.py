@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..simulation.furnace import PAPER
 from ..simulation.lti import Drive
 from ..simulation.parameters import Param
 from .base import Effect
@@ -43,6 +42,6 @@ class FuelChange(Effect):
                            max(float(e.t_min[-1]) for e in fit_data))}
 
     @classmethod
-    def draw(cls, rng, form, duration_min, furnace=PAPER):
+    def draw(cls, rng, form, duration_min, furnace):
         return cls(furnace=furnace), {"t_fuel": round(cls.uniform(rng, "t_fuel_frac") * duration_min),
                        "fuel_ratio": cls.uniform(rng, "fuel_ratio")}

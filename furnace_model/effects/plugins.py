@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import SENSORS
 from ..errors import FurnaceError
+from ..simulation.furnace import PAPER
 from ..simulation.parameters import BASELINE, PAPER_TABLE_V, Param
 from . import BUILT_IN, EFFECTS
 from .base import Effect, Option
@@ -30,6 +30,7 @@ RESERVED = ("none", "baseline", "door_open", "tc_reads_low")
 """Names the selfcheck and the reports already give a meaning."""
 OPTION_KINDS = ("number", "integer", "choice", "choices")
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+
 _SOURCES: dict[str, str] = {}
 """Plug-in effect name -> the file or entry point it came from."""
 _installed_loaded = False
@@ -172,7 +173,9 @@ def check(cls: type[Effect]) -> str | None:
         if set(opts) - set(cls.option_specs):
             return f"`{what}` sets undeclared option(s) {sorted(set(opts) - set(cls.option_specs))}"
     try:
-        effect = cls()
+        # checked on the paper's furnace, before any command names one: every built-in
+        # effect applies to it, and its parameters (Table V) give a finite heat-up
+        effect = cls(furnace=PAPER)
         params = effect.params
     except Exception as exc:  # noqa: BLE001
         return f"cannot be made with its default options: {type(exc).__name__}: {exc}"
@@ -197,7 +200,7 @@ def _check_params(params) -> str | None:
         return "`_params()` must return a non-empty tuple of Param"
     taken = {p.name for p in BASELINE}
     for cls in EFFECTS.values():
-        taken |= {p.name for p in cls().params}
+        taken |= {p.name for p in cls(furnace=PAPER).params}
     seen = set()
     for p in params:
         if not _NAME.match(p.name) or p.name in seen:
@@ -219,18 +222,18 @@ def _check_physics(effect: Effect, file: str | None) -> str | None:
     """The effect at its defaults on two hours of a heat-up with a burner step."""
     from ..simulation.structure import Inputs, ModelStructure
 
-    structure = ModelStructure([effect])
+    structure = ModelStructure([effect], furnace=PAPER)
     values = {**PAPER_TABLE_V, **{p.name: p.default for p in effect.params}}
     inputs = Inputs(np.array([0.0, 60.0]), np.array([[4.0, 0.0, 0.0], [10.0, 4.0, 2.0]]),
                     np.array([30.0, 30.0]))
     t = np.arange(0.0, 121.0, 1.0)
     try:
-        y = structure.simulate(values, inputs, t, np.full(3, 30.0)).sensors
+        y = structure.simulate(values, inputs, t, np.full(PAPER.n_zones, 30.0)).sensors
     except Exception as exc:  # noqa: BLE001
         return (f"its physics fails on a short heat-up at its default values"
                 f"{_line(exc, file)}: "
                 f"{type(exc).__name__}: {exc}")
-    if y.shape[-2:] != (t.size, len(SENSORS)) or not np.all(np.isfinite(y)):
+    if y.shape[-2:] != (t.size, len(PAPER.sensors)) or not np.all(np.isfinite(y)):
         return ("its physics gives no finite temperatures on a short heat-up at its default "
                 "values")
     return None

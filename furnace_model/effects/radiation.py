@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..simulation.furnace import PAPER
 from ..simulation.parameters import Param
 from .base import KELVIN, Effect, Option
 
@@ -70,7 +69,7 @@ class Radiation(Effect):
         return dx
 
     @classmethod
-    def draw(cls, rng, form, duration_min, furnace=PAPER):
+    def draw(cls, rng, form, duration_min, furnace):
         effect = cls(furnace=furnace)
         if form == "other":
             # No other exponent: the candidate fits its own. An emissivity that rises or

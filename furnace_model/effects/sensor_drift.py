@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from ..simulation.parameters import Param
 from .base import Clues, Effect, Option, Trial
 
@@ -26,16 +26,12 @@ start from the baseline reached a side valley that closed a tenth of the gap."""
 class SensorDrift(Effect):
     name = "sensor_drift"
     physics = "one thermocouple of a pair drifts away from its partner"
-    option_specs = {"sensor": Option("heat_2", "choice", choices=PAPER.sensors,
-                                         doc="the drifting thermocouple")}
     null = {"drift_rate": 0.0}
     ranges = {"drift_rate": (0.005, 0.03), "t_drift_frac": (0.15, 0.6)}
     one_place_at_a_time = True
 
     @classmethod
     def specs(cls, furnace):
-        if furnace == PAPER:
-            return cls.option_specs
         return {"sensor": Option(default_sensor(furnace), "choice", choices=furnace.sensors,
                                  doc="the drifting thermocouple")}
 
@@ -107,7 +103,7 @@ class SensorDrift(Effect):
                 "drift_rate": (-MAX_RATE, MAX_RATE)}
 
     @classmethod
-    def draw(cls, rng, form, duration_min, furnace=PAPER):
+    def draw(cls, rng, form, duration_min, furnace):
         sensors = furnace.sensors
         effect = cls(sensor=sensors[int(rng.integers(len(sensors)))], furnace=furnace)
         sign = 1.0 if rng.uniform() < 0.5 else -1.0
@@ -116,17 +112,18 @@ class SensorDrift(Effect):
 
 
 def default_sensor(furnace: Furnace) -> str:
-    """The paper's heat_2; elsewhere the second thermocouple of the first zone with two, or
-    the last thermocouple."""
-    if furnace == PAPER:
-        return "heat_2"
+    """On eq. 11's network the second thermocouple of the middle zone where it has two (the
+    paper's heat_2); elsewhere the second thermocouple of the first zone with two, or the
+    last thermocouple."""
+    if furnace.paper_structure and furnace.thermocouples[1] >= 2:
+        return f"{furnace.zones[1]}_2"
     for z, n in zip(furnace.zones, furnace.thermocouples, strict=True):
         if n >= 2:
             return f"{z}_2"
     return furnace.sensors[-1]
 
 
-def most_changed_pair(records: Sequence[Experiment], furnace: Furnace = PAPER,
+def most_changed_pair(records: Sequence[Experiment], furnace: Furnace,
                       residuals: Sequence[np.ndarray] = ()) -> str:
     """The thermocouple whose difference from its zone's first one changes most from a
     record's start to its end (for the zone mean any thermocouple of a zone is the same

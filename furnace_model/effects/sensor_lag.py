@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..simulation.furnace import PAPER
 from ..simulation.parameters import Param
 from .base import Effect, Option
 
@@ -27,9 +26,9 @@ class SensorLag(Effect):
 
     @classmethod
     def specs(cls, furnace):
-        """The paper's furnace: every zone lags (its options and JSON as they always were);
-        any other: `zones`, whose thermocouples lag."""
-        if furnace == PAPER:
+        """Eq. 11's network: every zone lags (its options and JSON as they always were on
+        the paper's furnace); any other: `zones`, whose thermocouples lag."""
+        if furnace.paper_structure:
             return cls.option_specs
         z = furnace.zones
         return {**cls.option_specs,
@@ -37,11 +36,11 @@ class SensorLag(Effect):
 
     @classmethod
     def candidate_for(cls, furnace):
-        return {} if furnace == PAPER else {"zones": furnace.zones}
+        return {} if furnace.paper_structure else {"zones": furnace.zones}
 
     @classmethod
     def physics_for(cls, furnace):
-        return cls.physics if furnace == PAPER else (
+        return cls.physics if furnace.paper_structure else (
             "a zone's thermocouples read a first-order lag of its gas temperature")
 
     def _params(self):
@@ -75,10 +74,10 @@ class SensorLag(Effect):
             C[:, z, prev] = 1.0
 
     @classmethod
-    def draw(cls, rng, form, duration_min, furnace=PAPER):
+    def draw(cls, rng, form, duration_min, furnace):
         order = int(rng.integers(2, 4)) if form == "other" else 1
-        if furnace == PAPER:
-            effect = cls(order=order)
+        if furnace.paper_structure:
+            effect = cls(order=order, furnace=furnace)
         else:
             # one zone's thermocouples (a lagging thermocouple where the zone has one)
             zone = furnace.zones[int(rng.integers(furnace.n_zones))]

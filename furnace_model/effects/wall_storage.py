@@ -4,43 +4,40 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..simulation.furnace import PAPER
 from ..simulation.parameters import Param
 from .base import Effect, Option
-
-ZONES = PAPER.zones
 
 
 class WallStorage(Effect):
     name = "wall_storage"
     physics = "the refractory wall of a zone stores heat: one more, slow state"
     option_specs = {
-        "zones": Option(ZONES, "choices", choices=ZONES, doc="zones with a storing wall"),
         "layers": Option(1, "integer", lo=1, hi=2,
                          doc="2: a hot face and a slower back layer behind it")}
     # The release rate stays determined when the exchange rate trades with the zone's own
     # rates (seen with a preheating-zone wall): either shows the wall.
     null = {"k_gw": 0.0, "k_wg": float("nan")}
-    candidate_options = {"zones": ZONES}
-    further_laws = tuple({"zones": (z,)} for z in ZONES)
-    """A wall that stores much heat in one zone only cannot be fitted by one exchange rate
-    shared by the three (seen: a preheating-zone wall left 1.8 °C held out against a floor
-    of 1.1 with walls in all zones)."""
     one_place_at_a_time = True
     ranges = {"k_gw": (0.02, 0.2), "k_wg": (0.001, 0.01), "k_wb": (0.002, 0.02),
               "k_bw": (0.0003, 0.003)}
 
     @classmethod
     def specs(cls, furnace):
-        if furnace == PAPER:
-            return cls.option_specs
         z = furnace.zones
-        return {**cls.option_specs,
-                "zones": Option(z, "choices", choices=z, doc="zones with a storing wall")}
+        return {"zones": Option(z, "choices", choices=z, doc="zones with a storing wall"),
+                **cls.option_specs}
 
     @classmethod
     def candidate_for(cls, furnace):
         return {"zones": furnace.zones}
+
+    @classmethod
+    def laws_for(cls, furnace):
+        """A wall in each zone alone, on every network: a wall that stores much heat in one
+        zone only cannot be fitted by one exchange rate shared by all (seen on the paper's
+        furnace: a preheating-zone wall left 1.8 °C held out against a floor of 1.1 with
+        walls in all zones)."""
+        return tuple({"zones": (z,)} for z in furnace.zones)
 
     def _params(self):
         face = (Param("k_gw", 0.05, 1e-5, 10.0, doc="gas-to-wall exchange rate, seen from the gas"),
@@ -65,15 +62,15 @@ class WallStorage(Effect):
                 exchange(A, face, face + len(zones), theta["k_wb"], theta["k_bw"])
 
     @classmethod
-    def draw(cls, rng, form, duration_min, furnace=PAPER):
-        """On the paper's furnace the candidate's form is a wall in every zone; on any
-        other, a wall in one zone (the zone whose lining stores heat), which the candidate
-        finds among its further laws."""
+    def draw(cls, rng, form, duration_min, furnace):
+        """On eq. 11's network the candidate's form is a wall in every zone; on any other,
+        a wall in one zone (the zone whose lining stores heat), which the candidate finds
+        among its further laws."""
         values = {"k_gw": cls.uniform(rng, "k_gw"), "k_wg": cls.uniform(rng, "k_wg")}
         zs = furnace.zones
         if form != "other":
-            if furnace == PAPER:
-                return cls(), values
+            if furnace.paper_structure:
+                return cls(furnace=furnace), values
             return cls(zones=(zs[int(rng.integers(len(zs)))],), furnace=furnace), values
         # A wall of two layers, in every zone or in one: the candidate's walls have one.
         zones = (zs, *((z,) for z in zs))[int(rng.integers(len(zs) + 1))]

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from ..simulation.parameters import Param
 from .base import Clues, Effect, Trial
 
@@ -20,8 +20,11 @@ if TYPE_CHECKING:
     from ..experiment import Experiment
 
 OTHER_RANGE = (0.1, 0.5)
-"""°C/min per burner drawn for a zone's own burners on a furnace other than the paper's:
+"""°C/min per burner drawn for a zone's own burners on a network other than eq. 11's:
 around the network's default heat per burner (network.GAIN) and up to five times it."""
+PAPER_DOCS = {1: "heating-zone rise rate per heating-zone burner on",
+              2: "preheating-zone rise rate per preheating-zone burner on"}
+"""Eq. 11's zones 2 and 3 in the paper's words, by zone index."""
 MIN_HEAD_SAMPLES = 100
 """A record's soaking-burners-only start is fitted only when it is at least this long."""
 
@@ -31,7 +34,8 @@ class ZoneBurners(Effect):
     physics = ("heating- and preheating-zone burners heat their own zone, with their own heat "
                "per burner, instead of counting as zone-1 input")
     null = {"f_heat": float("nan"), "f_preheat": float("nan")}
-    ranges = {"f_heat": (0.5, 5.0), "f_preheat": (0.5, 5.0)}
+    ranges = {"f": (0.5, 5.0)}
+    """Eq. 11's network: each own-burner zone's heat per burner, on Table V's scale."""
     zone_affine = True
 
     @classmethod
@@ -47,7 +51,7 @@ class ZoneBurners(Effect):
 
     @classmethod
     def physics_for(cls, furnace):
-        if furnace == PAPER:
+        if furnace.paper_structure:
             return cls.physics
         return (f"the burners of zones after {furnace.zones[0]} heat their own zone, with "
                 f"their own heat per burner, instead of counting as {furnace.zones[0]}-zone "
@@ -70,22 +74,14 @@ class ZoneBurners(Effect):
 
     @property
     def nulls(self):
-        if self.furnace == PAPER:
-            return type(self).null
         return {f"f_{self.furnace.zones[i]}": float("nan") for i in self._own}
 
     def _params(self):
-        if self.furnace != PAPER:
-            return tuple(Param(f"f_{self.furnace.zones[i]}", 0.15, 1e-4, 10.0,
-                               unit="°C/min per burner",
-                               doc=f"{self.furnace.zones[i]}-zone rise rate per own burner on")
-                         for i in self._own)
-        return (
-            Param("f_heat", 0.15, 1e-4, 10.0, unit="°C/min per burner",
-                  doc="heating-zone rise rate per heating-zone burner on"),
-            Param("f_preheat", 0.15, 1e-4, 10.0, unit="°C/min per burner",
-                  doc="preheating-zone rise rate per preheating-zone burner on"),
-        )
+        zones = self.furnace.zones
+        words = PAPER_DOCS if self.furnace.paper_structure else {}
+        return tuple(Param(f"f_{zones[i]}", 0.15, 1e-4, 10.0, unit="°C/min per burner",
+                           doc=words.get(i, f"{zones[i]}-zone rise rate per own burner on"))
+                     for i in self._own)
 
     def extend(self, A, B, C, theta, first):
         B[:, 0, 1:self.n_zones] = 0.0
@@ -106,12 +102,13 @@ class ZoneBurners(Effect):
         return Trial(start=start, from_baseline=False) if start else Trial()
 
     @classmethod
-    def draw(cls, rng, form, duration_min, furnace=PAPER):
-        """On another furnace, each zone's heat per own burner from `OTHER_RANGE`."""
-        if furnace == PAPER:
-            return cls(), {"f_heat": cls.uniform(rng, "f_heat"),
-                           "f_preheat": cls.uniform(rng, "f_preheat")}
+    def draw(cls, rng, form, duration_min, furnace):
+        """Each own-burner zone's heat per burner: from `ranges` on eq. 11's network, whose
+        true values are Table V's; elsewhere from `OTHER_RANGE`, around the network's
+        default gain."""
         effect = cls(furnace=furnace)
+        if furnace.paper_structure:
+            return effect, {p.name: cls.uniform(rng, "f") for p in effect.params}
         return effect, {p.name: float(rng.uniform(*OTHER_RANGE)) for p in effect.params}
 
 

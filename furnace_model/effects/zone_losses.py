@@ -3,13 +3,9 @@ their walls (the paper: only the preheating zone, eq. 6)."""
 
 from __future__ import annotations
 
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from ..simulation.parameters import Param
 from .base import Effect, Option
-
-ZONES = PAPER.zones
-LOSING = ("soak", "heat")
-"""The paper's zones that do not lose heat to ambient in its model."""
 
 
 def losing(furnace: Furnace) -> tuple[str, ...]:
@@ -21,8 +17,6 @@ def losing(furnace: Furnace) -> tuple[str, ...]:
 class ZoneLosses(Effect):
     name = "zone_losses"
     physics = "a zone besides preheating loses heat to ambient through its walls"
-    option_specs = {"zones": Option(LOSING, "choices", choices=ZONES,
-                                        doc="zones that lose heat (soak, heat)")}
     null = {"g_soak": 0.0, "g_heat": 0.0}
     ranges = {"g": (0.002, 0.01)}
     zone_affine = True
@@ -39,15 +33,14 @@ class ZoneLosses(Effect):
 
     @classmethod
     def specs(cls, furnace):
-        if furnace == PAPER:
-            return cls.option_specs
+        """`zones`: any the description does not have losing heat, all of them by default."""
         z = losing(furnace)
         return {"zones": Option(z, "choices", choices=furnace.zones,
                                 doc=f"zones that lose heat ({', '.join(z)})")}
 
     @classmethod
     def physics_for(cls, furnace):
-        if furnace == PAPER:
+        if furnace.paper_structure:
             return cls.physics
         ambient = [furnace.zones[i] for i in furnace.ambient]
         return (f"a zone besides {' and '.join(ambient)} loses heat to ambient through its "
@@ -78,13 +71,14 @@ class ZoneLosses(Effect):
             B[:, i, self.u_air] += g
 
     @classmethod
-    def draw(cls, rng, form, duration_min, furnace=PAPER):
-        """The paper's furnace: both its zones in the candidate's form, one in the other;
-        any other: one zone (the one whose walls lose heat)."""
-        if furnace == PAPER:
-            zones = (("soak",), ("heat",))[int(rng.integers(2))] if form == "other" else LOSING
+    def draw(cls, rng, form, duration_min, furnace):
+        """Eq. 11's network: both zones that might lose heat in the candidate's form (its
+        first law), one in the other; any other network: one zone (the one whose walls lose
+        heat), which the candidate finds among its further laws."""
+        can = losing(furnace)
+        if furnace.paper_structure and form != "other":
+            zones = can
         else:
-            can = losing(furnace)
             zones = (can[int(rng.integers(len(can)))],)
         return cls(zones=zones, furnace=furnace), {f"g_{z}": cls.uniform(rng, "g")
                                                     for z in zones}

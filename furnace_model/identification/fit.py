@@ -66,7 +66,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         progress: Callable[[float], None] | None = None,
         time_budget_s: float | None = None, zone_offsets: bool = False,
         profile: bool = True, warm: WarmStart | None = None) -> FitResult:
-    """Fit the structure's parameters to the experiments (jointly; own initial state each).
+    """Fit the structure's parameters to the experiments (jointly; own initial state each);
+    without a structure, the baseline of the furnace the records are of.
 
     Run r uses seed + r. With `init` the global search is skipped: a warm-started polish,
     which is what a sliding-window refit wants. The best run (lowest SSE) is the result; the
@@ -89,7 +90,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         raise FurnaceError("no data to fit")
     if runs < 1:
         raise FurnaceError("runs must be at least 1")
-    structure = structure or ModelStructure()
+    structure = structure or ModelStructure(furnace=experiments[0].furnace)
     prob = Problem(experiments, structure, fixed or {}, bounds or {}, zone_offsets)
     pop_default, gen_default = GA_DEFAULTS[method]
     population = int(population or pop_default)

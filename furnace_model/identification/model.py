@@ -97,8 +97,9 @@ def score(params: dict, experiments: list[Experiment],
           offsets: np.ndarray | None = None) -> dict:
     """Per-zone MAE, RMSE and fit % of given parameters on experiments (the paper's
     Table VI), each experiment's initial state (and with `zone_offsets` its thermocouple
-    offsets, from the carried `offsets`) estimated from its data."""
-    structure = structure or ModelStructure()
+    offsets, from the carried `offsets`) estimated from its data. Without a structure, the
+    baseline of the furnace the records are of."""
+    structure = structure or ModelStructure(furnace=experiments[0].furnace)
     missing = [n for n in structure.names if n not in params]
     if missing:
         raise FurnaceError(f"parameter(s) {', '.join(missing)} missing for {structure.label}")

@@ -39,7 +39,7 @@ def predict_ahead(params: dict[str, float], exp: Experiment, horizon: int,
         raise FurnaceError(f"the prediction horizon must be a whole number of samples of at "
                            f"least 1, got {horizon}")
     k = int(horizon)
-    model = Model(structure or ModelStructure(), params)
+    model = Model(structure or ModelStructure(furnace=exp.furnace), params)
     structure, values = model.structure, model.params
     if x0 is None:
         x0 = model.refine([exp]).x0[0]
@@ -88,7 +88,8 @@ def score_ahead(params: dict[str, float], experiments: list[Experiment], horizon
     (by name) and pooled; each experiment's initial state (and with `zone_offsets` its
     offsets, from the carried `offsets`) estimated from its data as `score` does for the
     simulation."""
-    model = Model(structure or ModelStructure(), params, zone_offsets, offsets)
+    model = Model(structure or ModelStructure(furnace=experiments[0].furnace), params,
+                  zone_offsets, offsets)
     per_exp, measured, predicted = {}, [], []
     for exp in experiments:
         start = model.refine([exp])

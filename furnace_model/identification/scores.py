@@ -10,11 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import ZONES
-
 
 def zone_metrics(measured: np.ndarray, model: np.ndarray,
-                 zones: tuple[str, ...] = ZONES) -> dict[str, dict[str, float]]:
+                 zones: tuple[str, ...]) -> dict[str, dict[str, float]]:
     """{zone: {mae_c, rmse_c, fit_pct, n}} over the finite entries of measured (N, zones)."""
     out: dict[str, dict[str, float]] = {}
     for w, zone in enumerate(zones):
@@ -33,6 +31,6 @@ def zone_metrics(measured: np.ndarray, model: np.ndarray,
 
 
 def pooled_metrics(measured: list[np.ndarray], model: list[np.ndarray],
-                   zones: tuple[str, ...] = ZONES) -> dict[str, dict[str, float]]:
+                   zones: tuple[str, ...]) -> dict[str, dict[str, float]]:
     """zone_metrics over several experiments taken together."""
     return zone_metrics(np.concatenate(measured), np.concatenate(model), zones)

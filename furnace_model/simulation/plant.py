@@ -8,20 +8,16 @@ effects the scenario switches on. Runs are reproducible from a seed.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
-from .. import SENSORS
 from ..experiment import Experiment
-from .furnace import PAPER, Furnace
+from .furnace import Furnace
 from .scenario import Scenario, SensorSpec
 from .structure import Inputs, ModelStructure
-
-SENSOR_ZONE = np.array([i // 2 for i in range(len(SENSORS))])
-"""Zone index of each thermocouple of the paper's furnace, in SENSORS order."""
 
 
 @dataclass
@@ -34,11 +30,11 @@ class PlantRun:
     burners: np.ndarray  # (N, zones) burners on per zone
     t_air: np.ndarray  # (N,)
     start_time: pd.Timestamp | None = None
-    furnace: Furnace = PAPER
+    furnace: Furnace = field(kw_only=True)
 
     def to_experiment(self, name: str = "simulated") -> Experiment:
         return Experiment(name, self.t_min, self.tc, self.burners.astype(int), self.t_air,
-                          self.start_time, name, self.furnace)
+                          self.start_time, name, furnace=self.furnace)
 
     def to_frame(self) -> pd.DataFrame:
         """The run as the tabular contract (CONTRACTS.md section 1)."""
@@ -112,7 +108,7 @@ class Plant:
         j = np.searchsorted(inputs.t, t, side="right") - 1
         nz = self.structure.n_zones
         return PlantRun(t, run.states[0, :, :nz], self.read(run.zones[0], t), inputs.burners[j],
-                        inputs.t_air[j], start_time, self.furnace)
+                        inputs.t_air[j], start_time, furnace=self.furnace)
 
     def run_scenario(self, scenario: Scenario) -> PlantRun:
         return self.run(scenario.inputs(), scenario.sample_times(), scenario.initial_c,

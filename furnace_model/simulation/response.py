@@ -16,20 +16,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from .. import SENSORS, ZONES
-from .furnace import PAPER
-
 if TYPE_CHECKING:
     from .structure import ModelStructure
-
-SENSOR_ZONE = np.array([ZONES.index(s.rsplit("_", 1)[0]) for s in SENSORS])
-"""The zone (index into ZONES) each thermocouple of SENSORS sits in (the paper's furnace)."""
-
-
-def weights(good: np.ndarray) -> np.ndarray:
-    """How each thermocouple of the paper's furnace enters its zone's reading (N, 6), from
-    which read (N, 6): the mean of the good ones, none where a zone has none."""
-    return PAPER.weights(good)
 
 
 class Response:
@@ -38,7 +26,7 @@ class Response:
     `zones` (P, N, zones) are the sensed zone temperatures (C x: a lagged sensor's state
     where the structure has one); `sensors` (P, N, thermocouples) add the structure's
     per-thermocouple errors (a drifting thermocouple) to its zone's value, in the furnace's
-    thermocouple order (SENSORS for the paper's); `readings` are the zone
+    thermocouple order (`furnace.sensors`); `readings` are the zone
     temperatures as the mean of a record's good thermocouples reads them, which is what a
     fit compares with the data. No bias or noise: those belong to a plant's thermocouples.
     """
@@ -96,7 +84,7 @@ class Response:
         return self.zones[:, :, self.structure.furnace.sensor_zone] + self.sensor_offsets
 
     def sensor(self, name: str) -> np.ndarray:
-        """One thermocouple's reading (P, N), by its SENSORS name (`heat_2`)."""
+        """One thermocouple's reading (P, N), by its name in `furnace.sensors` (`heat_2`)."""
         return self.sensors[:, :, self.structure.furnace.sensors.index(name)]
 
     def readings(self, good: np.ndarray | None = None, *,
@@ -106,7 +94,7 @@ class Response:
         `good` (N, 6) says which thermocouples gave a reading at each sample (all if None):
         with a drifting one, a zone's reading depends on whether its partner was there. A
         zone with no good thermocouple at a sample gets the zone's value. `weight`:
-        `weights(good)` computed once, for a record read many times (a fit's criterion).
+        `furnace.weights(good)` computed once, for a record read many times (a fit's criterion).
         Without sensor effects this is `zones` itself."""
         if not self.structure.has_sensor_offsets:
             return self.zones

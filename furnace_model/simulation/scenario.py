@@ -36,7 +36,7 @@ class SensorSpec:
     noise_sd_c: float = 1.5
     bias_sd_c: float = 0.5
     bias_c: tuple[float, ...] | None = None
-    """Fixed biases in thermocouple order (SENSORS for the paper's furnace); when absent they
+    """Fixed biases in the furnace's thermocouple order (`furnace.sensors`); when absent they
     are drawn (sd bias_sd_c) from the seed."""
     noise_ar_per_min: float = 0.0
     """Correlation of the noise one minute apart (0: white); its sd stays noise_sd_c."""
@@ -59,10 +59,10 @@ class Scenario:
     description: str = ""
     start_time: pd.Timestamp | None = None
     file: str = ""
-    furnace: Furnace = PAPER
+    furnace: Furnace = field(kw_only=True)
 
     def structure(self) -> ModelStructure:
-        return ModelStructure(self.effects, self.furnace)
+        return ModelStructure(self.effects, furnace=self.furnace)
 
     def values(self) -> dict[str, float]:
         return {**self.params, **self.effect_values}
@@ -81,8 +81,7 @@ class Scenario:
         return np.arange(n + 1) * self.sample_min
 
 
-def split_total(total: int, fill_order: tuple[str, ...],
-                furnace: Furnace = PAPER) -> np.ndarray:
+def split_total(total: int, fill_order: tuple[str, ...], furnace: Furnace) -> np.ndarray:
     """Burners on per zone when `total` are open, filling zones in order (the paper: soaking
     first, then heating, then preheating)."""
     counts = np.zeros(furnace.n_zones, dtype=int)
@@ -188,7 +187,7 @@ def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
     )
 
 
-def effect_from_yaml(cls: type[Effect], node: Node, furnace: Furnace = PAPER
+def effect_from_yaml(cls: type[Effect], node: Node, furnace: Furnace
                      ) -> tuple[Effect, dict[str, float]]:
     """`effects.<name>` of a scenario: the effect on `furnace` with its options, and its
     parameter values (each within its search box); the options the class declares for that

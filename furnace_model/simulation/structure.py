@@ -1,11 +1,12 @@
 """The paper's model (eq. 11) with optional effect terms: baseline, plant and candidates.
 
-`ModelStructure()` is exactly eq. 11; `ModelStructure(furnace=load_furnace(...))` is the
-thermal network of another furnace description (furnace_model.simulation.network), of which eq. 11 is
-the three-zone case. `ModelStructure([ZoneBurners(), SensorLag()])` is the
-same model extended, used by the plant simulator with chosen parameter values and by the
-diagnosis with fitted ones. All simulation is batched over parameter sets: parameter values
-are arrays of length P and results carry a leading P axis.
+`ModelStructure(furnace=F)` is the thermal network of the furnace description F
+(furnace_model.simulation.network); for the paper's furnace (`PAPER`) it is exactly eq. 11,
+the network's three-zone case. `ModelStructure([ZoneBurners(furnace=F),
+SensorLag(furnace=F)], furnace=F)` is the same model extended, used by the plant simulator
+with chosen parameter values and by the diagnosis with fitted ones. All simulation is
+batched over parameter sets: parameter values are arrays of length P and results carry a
+leading P axis.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from ..effects import Effect, Theta
-from .furnace import PAPER, Furnace
+from .furnace import Furnace
 from .lti import Drive, Modes, response
 from .network import fill, parameters
 from .parameters import Param
@@ -90,15 +91,16 @@ class System:
 class ModelStructure:
     """Baseline plus effects: which states, which parameters, and how to simulate them.
 
-    The baseline is the furnace's thermal network (the paper's eq. 11 by default); each
-    effect is made for the same furnace (`Effect(furnace=...)`), whose zones, thermocouples
-    and input channels it reads."""
+    The baseline is the furnace's thermal network (eq. 11 for the paper's); each effect is
+    made for the same furnace (`Effect(furnace=...)`), whose zones, thermocouples and input
+    channels it reads. The furnace is named, never assumed: a structure of the wrong furnace
+    would simulate without complaint and fit the wrong columns."""
 
-    def __init__(self, effects: Sequence[Effect] = (), furnace: Furnace = PAPER):
+    def __init__(self, effects: Sequence[Effect] = (), *, furnace: Furnace):
         names = [e.name for e in effects]
         if len(set(names)) != len(names):
             raise ValueError(f"an effect appears twice in {names}")
-        other = [e.name for e in effects if getattr(e, "furnace", PAPER) != furnace]
+        other = [e.name for e in effects if getattr(e, "furnace", None) != furnace]
         if other:
             raise ValueError(f"effect(s) {', '.join(other)} were made for another furnace than "
                              f"'{furnace.name}' (make them with furnace=...)")
@@ -114,8 +116,6 @@ class ModelStructure:
         self.linear = all(e.linear for e in self.effects)
 
     def __repr__(self) -> str:
-        if self.furnace == PAPER:
-            return f"ModelStructure({[e.name for e in self.effects]})"
         return f"ModelStructure({[e.name for e in self.effects]}, furnace={self.furnace.name!r})"
 
     @property

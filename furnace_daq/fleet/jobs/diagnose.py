@@ -106,7 +106,8 @@ class DiagnoseJob(FleetJob):
                 fit_files = tuple(files_between(files, fit[1], fit[2]))
                 hold_files = tuple(files_between(files, hold[1], hold[2]))
                 pair = Pair(f.name, fit, hold, fit_files, hold_files, f.ambient_default_c,
-                            s.effects, s.period_s, s.seed, effects_from, f.description)
+                            s.effects, s.period_s, s.seed, effects_from,
+                            description=f.description)
                 ident = [x["identity"] for x in files
                          if x["path"] in set(fit_files + hold_files)]
                 key = task_key("diagnose", f.name, ident,

@@ -77,7 +77,7 @@ class RefitJob(FleetJob):
                 chosen = files_between(files, None if after is None else after - window_ns,
                                        until)
                 seg = Segment(f.name, i, tuple(chosen), cfg, f.ambient_default_c, after, until,
-                              effects_from, f.description)
+                              effects_from, description=f.description)
                 ident = [x["identity"] for x in files if x["path"] in chosen]
                 key = task_key("refit", f.name, ident,
                                {"refit": cfg, "t_air": f.ambient_default_c, "after": after,

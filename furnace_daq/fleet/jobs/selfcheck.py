@@ -31,7 +31,7 @@ def run_selfcheck(client, labels: list[str], draws: int, out_dir: Path, *, furna
     specs = []
     for label in labels:
         for k in range(first, first + draws):
-            d = Draw(label, k, seed, form, candidates, noise, effects_from, furnace)
+            d = Draw(label, k, seed, form, candidates, noise, effects_from, furnace=furnace)
             key = task_key("selfcheck", label, [file_id(p) for p in effects_from], d)
             specs.append(TaskSpec("selfcheck", label, f"draw {k}", selfcheck_draw, d, key))
     result = JobResult()

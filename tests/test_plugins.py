@@ -18,6 +18,7 @@ from furnace_model.diagnosis.cases import case_rng, draw_case
 from furnace_model.diagnosis.selfcheck import judge_case
 from furnace_model.effects import EFFECTS, FuelChange, Option, plugins
 from furnace_model.simulation.furnace import PAPER
+from furnace_model.simulation.furnacefile import load_furnace
 from furnace_model.simulation.parameters import Param
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
@@ -259,3 +260,53 @@ def test_selfcheck_refuses_by_name_an_effect_it_cannot_draw(tmp_path):
               timeout=60)
     assert r.returncode == 1 and "Traceback" not in r.stderr
     assert "effect leak has no `draw`" in r.stderr
+
+
+OLD_STYLE = '''
+import numpy as np
+
+from furnace_model.effects import U_AIR, Effect
+from furnace_model.lti import Drive
+from furnace_model.parameters import Param
+
+
+class AirDip(Effect):
+    name = "air_dip"
+    physics = "the air around the furnace is colder for an hour"
+    null = {"dip": 0.0}
+    ranges = {"dip": (20.0, 40.0)}
+
+    def _params(self):
+        return (Param("dip", 5.0, 0.0, 100.0, log=False, unit="degC", doc="how much colder"),)
+
+    def transform_drive(self, theta, drive):
+        P, m = theta["dip"].shape[0], drive.du.shape[-1]
+        du = np.zeros((P, 2, m))
+        du[:, 0, U_AIR], du[:, 1, U_AIR] = -theta["dip"], theta["dip"]
+        s = np.concatenate([drive.s, [600.0, 660.0]])
+        old = np.broadcast_to(drive.du, (P,) + drive.du.shape[1:])
+        return Drive(drive.t0, drive.u0, s, np.concatenate([old, du], axis=1))
+
+    @classmethod
+    def draw(cls, rng, form, duration_min):
+        return cls(), {"dip": cls.uniform(rng, "dip")}
+'''
+
+
+def test_a_plug_in_written_for_the_paper_s_furnace_alone_still_works(tmp_path):
+    """Written against the old module paths and the paper's input channels, constructed
+    without a furnace, drawn without one: it loads, is drawn for the paper's furnace with
+    DeprecationWarnings that name the new ways, and refuses another furnace in words."""
+    path = tmp_path / "air_dip.py"
+    path.write_text(OLD_STYLE)
+    with pytest.warns(DeprecationWarning):
+        plugins.load_file(path)
+    try:
+        with pytest.warns(DeprecationWarning, match="pass furnace="):
+            case = draw_case("air_dip", case_rng(0, "air_dip", 0), furnace=PAPER)
+        assert 20.0 <= case.truth["air_dip"]["dip"] <= 40.0
+        six = load_furnace(ROOT / "config" / "furnaces" / "six-zone.yaml")
+        with pytest.raises(ValueError, match="its draw takes no furnace"):
+            draw_case("air_dip", case_rng(0, "air_dip", 0), furnace=six)
+    finally:
+        plugins.unregister("air_dip")

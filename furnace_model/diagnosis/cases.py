@@ -41,6 +41,7 @@ furnace with every burner heating the first zone, whose model lacks what the pla
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import zlib
 from dataclasses import dataclass, field
 
@@ -207,8 +208,17 @@ def _short(info: dict, lists: bool = False) -> str:
 
 def _draw_effect(name: str, rng: np.random.Generator, form: str, duration: float,
                  furnace: Furnace) -> tuple[Effect, dict[str, float], dict]:
-    """The effect object, its parameter values and its options (for the truth record)."""
-    eff, vals = EFFECTS[name].draw(rng, form, duration, furnace=furnace)
+    """The effect object, its parameter values and its options (for the truth record). A
+    plug-in whose `draw` takes no furnace draws on eq. 11's network alone."""
+    cls = EFFECTS[name]
+    params = inspect.signature(cls.draw).parameters.values()
+    if any(p.name == "furnace" or p.kind is p.VAR_KEYWORD for p in params):
+        eff, vals = cls.draw(rng, form, duration, furnace=furnace)
+    elif furnace.paper_structure:
+        eff, vals = cls.draw(rng, form, duration)
+    else:
+        raise ValueError(f"{name}: its draw takes no furnace, so the selfcheck cannot draw it "
+                         f"on furnace '{furnace.name}'")
     info = {k: (list(v) if isinstance(v, tuple) else v) for k, v in eff.options.items()}
     return eff, {k: float(v) for k, v in vals.items()}, info
 

@@ -24,6 +24,21 @@ plug-ins in the order they were loaded."""
 
 BUILT_IN: tuple[str, ...] = tuple(EFFECTS)
 
+_PAPER_CHANNELS = {"U_BURNERS": slice(0, 3), "U_AIR": 3, "N_INPUTS": 4}
+"""The paper's furnace's input channels, for plug-ins written before an effect read its own
+furnace's (`Effect.u_burners`, `u_air`, `n_inputs`)."""
+
+
+def __getattr__(name: str) -> object:
+    if name in _PAPER_CHANNELS:
+        import warnings
+
+        warnings.warn(f"furnace_model.effects.{name} is the paper's furnace's input channel; "
+                      f"an effect reads its own furnace's from self.{name.lower()}",
+                      DeprecationWarning, stacklevel=2)
+        return _PAPER_CHANNELS[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 __all__ = ["BUILT_IN", "EFFECTS", "KELVIN", "Clues", "Effect", "Option", "Theta", "Trial",
            "BurnerNonlinearity", "DeadTime", "FuelChange",
            "Radiation", "SensorDrift", "SensorLag", "WallStorage", "ZoneBurners", "ZoneLosses"]

@@ -56,7 +56,7 @@ def fit_campaign(task: CampaignFit) -> dict:
     data = load_experiments(task.files, task.t_air_default, start=pd.Timestamp(lo, tz="UTC"),
                             end=pd.Timestamp(hi, tz="UTC"), period_s=task.period_s,
                             furnace=task.description)
-    result = fit(data, ModelStructure([], task.description), seed=task.seed, zone_offsets=True)
+    result = fit(data, ModelStructure(furnace=task.description), seed=task.seed, zone_offsets=True)
     row: dict[str, Any] = {"furnace": task.furnace, "campaign": name, "status": result.status,
                            "sigma_c": result.sigma_c, "elapsed_s": result.elapsed_s,
                            "undetermined": ",".join(result.undetermined)}

@@ -67,7 +67,7 @@ def test_a_refit_window_holds_the_exported_rows(tmp_path: Path) -> None:
     assert main(["logs", "export", *map(str, (tmp_path / "logs").glob("*.mcap")), "--out",
                  str(out), "--start", lo.isoformat(), "--end", hi.isoformat()]) == 0
     exported = load_experiment(out, furnace=PAPER)
-    resampler = Resampler(60 * 10**9)
+    resampler = Resampler(60 * 10**9, 0, PAPER)
     for topic, msg, t in run_messages(run, start):
         resampler.add(topic, msg, t)
     window = cut_window(resampler, lo.value, hi.value, 60 * 10**9,

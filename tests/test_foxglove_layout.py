@@ -13,7 +13,11 @@ pytest.importorskip("foxglove.layouts")
 
 from foxglove_layout import layout_json  # noqa: E402
 
-from furnace_model.log.schema import LOG, TOPICS  # noqa: E402
+from furnace_model.log.schema import LOG, topics  # noqa: E402
+from furnace_model.simulation.furnace import PAPER  # noqa: E402
+
+TOPICS = topics(PAPER)
+"""The paper's furnace's topics, which these tests check."""
 
 LAYOUT = Path(__file__).resolve().parents[1] / "config" / "foxglove-layout.json"
 

@@ -1,4 +1,5 @@
 """The live view (furnace_daq.liveview) seen by a Foxglove WebSocket client we did not write:
+
 @foxglove/ws-protocol's FoxgloveClient, run by node from tests/node. The daemon runs as the
 CLI runs it, against the simulated PLC, on loopback only."""
 
@@ -31,9 +32,12 @@ from furnace_model.log.schema import (
     DAQ_STATUS,
     SCHEMA_ENCODING,
     THERMOCOUPLES,
-    TOPICS,
+    topics,
 )
 from furnace_model.simulation.furnace import PAPER
+
+TOPICS = topics(PAPER)
+"""The paper's furnace's topics, which these tests check."""
 
 NODE_DIR = Path(__file__).resolve().parent / "node"
 GATEWAY = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())

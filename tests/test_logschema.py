@@ -25,12 +25,15 @@ from furnace_model.log.schema import (
     LOG_LEVELS,
     MODEL_PARAMETERS,
     THERMOCOUPLES,
-    TOPICS,
     absent,
     plc_time,
     time_ns,
+    topics,
 )
 from furnace_model.simulation.furnace import PAPER
+
+TOPICS = topics(PAPER)
+"""The paper's furnace's topics, which these tests check."""
 
 T0 = 1_772_409_600_000_000_000  # 2026-03-02T00:00:00Z
 

@@ -19,8 +19,11 @@ from furnace_daq import mcaplog
 from furnace_daq.mcaplog import LogWriter, finished_files
 from furnace_model.log.read import read_messages
 from furnace_model.log.salvage import has_footer
-from furnace_model.log.schema import TOPICS
+from furnace_model.log.schema import topics
 from furnace_model.simulation.furnace import PAPER
+
+TOPICS = topics(PAPER)
+"""The paper's furnace's topics, which these tests check."""
 
 T0 = 1_772_431_200 * 10**9  # 2026-03-02T06:00:00Z
 S = 10**9

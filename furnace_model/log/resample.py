@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import DataError
-from ..simulation.furnace import PAPER, Furnace
+from ..simulation.furnace import Furnace
 from .messages import Ambient, Burners, FurnaceMessage, Thermocouples, as_message, number, typed
 from .read import iso_time, log_furnace, read_messages
 from .schema import AMBIENT, BURNERS, THERMOCOUPLES
@@ -69,10 +69,10 @@ class Resampler:
 
     Messages are buffered as plain lists and binned in one vectorised pass when a table is
     asked for; `forget` drops what no later window can need, so a daemon running for months
-    holds one window of bins. The thermocouples and zones are those of `furnace` (the
-    paper's by default): a log records its furnace (log.read.log_furnace)."""
+    holds one window of bins. The thermocouples and zones are those of `furnace`: a log
+    records its furnace (log.read.log_furnace)."""
 
-    def __init__(self, step_ns: int, origin_ns: int = 0, furnace: Furnace = PAPER):
+    def __init__(self, step_ns: int, origin_ns: int, furnace: Furnace):
         self.step_ns = int(step_ns)
         self.origin_ns = int(origin_ns)
         self.furnace = furnace
@@ -265,7 +265,7 @@ def resample_logs(paths: Iterable[str | Path], period_s: float = DEFAULT_PERIOD_
 
 
 def table_frame(t: np.ndarray, tc: np.ndarray, burners: np.ndarray,
-                air: np.ndarray, furnace: Furnace = PAPER) -> pd.DataFrame:
+                air: np.ndarray, furnace: Furnace) -> pd.DataFrame:
     """Resampled arrays as the tabular contract (CONTRACTS.md section 1), in the furnace's
     columns (`tc_<zone>_<k>`, `burners_<zone>`)."""
     stamps = pd.to_datetime(np.round(t / 1e6).astype(np.int64), unit="ms", utc=True)

@@ -43,19 +43,8 @@ PARAM_NAMES: tuple[str, ...] = ("a", "b", "c", "d", "e", "f")
 """The paper's furnace's parameters; another furnace's are `param_names(furnace)`."""
 
 
-def _furnace(furnace: Furnace | None) -> Furnace:
-    """`furnace`, or the paper's when None."""
-    if furnace is not None:
-        return furnace
-    from ..simulation.furnace import PAPER
-
-    return PAPER
-
-
-def param_names(furnace: Furnace | None = None) -> tuple[str, ...]:
-    """The names /model/parameters carries for `furnace` (default the paper's): a..f for
-    the paper's."""
-    furnace = _furnace(furnace)
+def param_names(furnace: Furnace) -> tuple[str, ...]:
+    """The names /model/parameters carries for `furnace`: a..f for eq. 11's network."""
     if furnace.paper_structure:
         return PARAM_NAMES
     from ..simulation.network import parameter_names
@@ -405,12 +394,12 @@ _LOG = {
 }
 
 
-def topics(furnace: Furnace | None = None) -> dict[str, Topic]:
+def topics(furnace: Furnace) -> dict[str, Topic]:
     """Every topic of the contract for `furnace`, in the order the writer registers them:
     the furnace topics' fields are its thermocouples and zones, /model/parameters its
     network's parameters (CONTRACTS.md section 2). Same names and schema names for every
-    furnace, so a reader finds the topics of any log. Default: the paper's furnace."""
-    return _topics(_furnace(furnace))
+    furnace, so a reader finds the topics of any log."""
+    return _topics(furnace)
 
 
 @lru_cache(maxsize=16)
@@ -427,16 +416,7 @@ def _topics(furnace: Furnace) -> dict[str, Topic]:
     )}
 
 
-def __getattr__(name: str) -> object:
-    """`TOPICS`, the paper's furnace's topics, built when first asked for (module-level
-    `__getattr__`, PEP 562): building them loads the furnace description, and with it
-    numpy, which a command's --help must not pay for."""
-    if name == "TOPICS":
-        return topics()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def topic(name: str, furnace: Furnace | None = None) -> Topic:
+def topic(name: str, furnace: Furnace) -> Topic:
     """The contract's topic, or an open object schema for a topic the contract does not name
     yet (logged rather than lost; Foxglove shows its fields without autocompletion)."""
     known = topics(furnace).get(name)

@@ -64,21 +64,20 @@ from furnace_model.log.messages import (
 )
 from furnace_model.log.schema import DAQ_EVENTS
 
-from .daqconfig import DaqConfig, PlcConfig
+from .daqconfig import DaqConfig
+from .devicelink import Link, sleep_unless
 from .journal import ERR, INFO, NOTICE, WARNING, Journal
 from .logclock import LogClock
 from .refitworker import RefitRunner
 from .registers import COMM_ERROR, OK, STALE
 from .sdnotify import Notifier
 from .sources import (
-    CONNECT_FAILURES,
     CanSource,
     ModbusSource,
     Sample,
     Source,
     SourceError,
     exception_text,
-    failure_kind,
 )
 from .statefile import write_json_atomic
 
@@ -150,51 +149,6 @@ def summary(counters: Counters) -> tuple[int, str]:
     return priority, text
 
 
-class Link:
-    """One Modbus device as the daemon keeps it: its source, and the state of its
-    connection and redials. Each device has its own, so one that is down is redialled on
-    its own schedule and never marks the others' points."""
-
-    def __init__(self, device: PlcConfig, source: Source, named: bool):
-        self.device, self.source = device, source
-        self.name = device.name
-        where = f"{getattr(source, 'host', '?')}:{getattr(source, 'port', '?')}"
-        if device.transport == "rtu":
-            where = device.where
-        self.label = f"{device.name} ({where})" if named else where
-        """How the journal names the device: host:port alone when it is the only one."""
-        self.key = f"{device.name}:" if named else ""
-        """Prefix of its journal kinds, so each device is rate-limited on its own."""
-        self.state = "disconnected"
-        self.detail = "starting"
-        self.connected = asyncio.Event()
-        self.need_dial = asyncio.Event()
-        self.need_dial.set()
-        self.consecutive_errors = 0
-        self.dials_since_ok = 0  # dials since the last good poll: the backoff's step
-        self.down_kind = "no connection yet"  # why the device is away, for the failure count
-        self.outage_since = time.monotonic()  # the fast redial phase counts from here
-        self.hangups = 0  # connections lost before one good poll: the backoff's step
-        self.slow_steps = 0  # backoff waits after the fast redial phase
-        self.connects = 0
-        self.heartbeat: tuple[float | str, float] | None = None  # (value, when it changed)
-        self.was_stale = self.last_stale = False
-
-    @property
-    def read_budget_s(self) -> float:
-        """The longest one poll of this device may take: its timeout, plus the pauses its
-        workarounds ask for."""
-        d = self.device
-        w = d.workarounds
-        n = len(getattr(self.source, "requests", ())) or 1
-        budget = d.timeout_s + w.pause_between_requests_s * (n - 1)
-        if w.close_connection_after_gather:
-            budget += d.timeout_s + w.pause_after_connect_s
-        if w.one_request_per_field:
-            budget += d.timeout_s * (n - 1)
-        return budget
-
-
 class Daemon:
     def __init__(self, config: DaqConfig, log: Log, *, plc: Source | None = None,
                  flame: Source | None = None, notifier: Notifier | None = None,
@@ -260,8 +214,10 @@ class Daemon:
             self._resume_chain()
             self.refit.start()
             self._state_writer = ThreadPoolExecutor(1, thread_name_prefix="state-writer")
-        tasks = [asyncio.create_task(self._connector(link), name=f"{link.name} connector")
-                 for link in self.links]
+        tasks = [asyncio.create_task(
+            link.keep_dialled(self._stop, on_dial=self._dialling, on_failure=self._dial_failed,
+                              on_connected=self._connected), name=f"{link.name} connector")
+            for link in self.links]
         if self.flame is not None:
             tasks.append(asyncio.create_task(self._open_flame(), name="can connector"))
         try:
@@ -387,22 +343,21 @@ class Daemon:
         missing: list[str] = []
         for link, (sample, failure) in zip(self.links, results, strict=True):
             if sample is not None:
-                link.consecutive_errors = link.dials_since_ok = 0
-                link.hangups = link.slow_steps = 0
+                link.polled()
                 link.last_stale = self._stale(link, sample)
                 good.append((link, sample))
             elif failure is not None:
                 reason, kind = failure
                 c.comm_errors += 1
-                link.consecutive_errors += 1
-                self._count_failure(self._named(link, kind))
+                link.poll_failed()
+                self._count_failure(link.named(kind))
                 self.journal.say(WARNING, f"PLC {link.label}: poll failed ({kind}): {reason}",
                                  f"{link.key}poll:{kind}")
                 failed.append((link, reason, kind))
-                missing.append(self._named(link, reason))
+                missing.append(link.named(reason))
             else:  # away: counted as the kind of the outage
-                self._count_failure(self._named(link, link.down_kind))
-                missing.append(self._named(link, f"not connected ({link.down_kind})"))
+                self._count_failure(link.named(link.down_kind))
+                missing.append(link.named(f"not connected ({link.down_kind})"))
         merged: Sample | None = None
         if good:
             if len(good) == len(self.links):
@@ -417,28 +372,16 @@ class Daemon:
                                 error="; ".join(missing))
             self._write(msg, log_ns, log_ns)
         for link, reason, kind in failed:
-            if link.consecutive_errors >= link.device.max_consecutive_errors:
+            if link.failing:
                 await link.source.close()
                 self._lost(link, f"{link.consecutive_errors} failed polls in a row, last: "
                                  f"{reason}", kind)
         return merged
 
-    def _named(self, link: Link, text: str) -> str:
-        return f"{link.name}: {text}" if self.config.several_devices else text
-
     async def _read(self, link: Link) -> tuple[Sample | None, tuple[str, str] | None]:
-        """One device's poll: (sample, None), (None, (reason, kind)) when it failed, or
-        (None, None) when the device is away."""
-        if link.connected.is_set() and not link.source.connected:
+        if link.closed_by_peer:
             self._lost(link, "connection closed by the PLC", "connection lost")
-        if not link.connected.is_set():
-            return None, None
-        try:
-            return await asyncio.wait_for(link.source.read(), link.read_budget_s), None
-        except (SourceError, TimeoutError, OSError) as exc:
-            return None, (str(exc) or "timeout", failure_kind(exc))
-        except Exception as exc:  # a malformed reply must not end acquisition
-            return None, (f"{type(exc).__name__}: {exc}", failure_kind(exc))
+        return await link.read()
 
     def _merge(self, good: list[tuple[Link, Sample]], missing: list[str]) -> Sample:
         """One sample from the devices that delivered, as if one PLC held every point:
@@ -459,7 +402,7 @@ class Daemon:
                     burner_quality = STALE
             if s.burner_quality != OK:
                 burner_quality = s.burner_quality
-            out.errors += [self._named(link, e) for e in s.errors]
+            out.errors += [link.named(e) for e in s.errors]
             out.refused.update(s.refused)
         out.errors += missing
         if self.config.burner_source in ("modbus", "both"):
@@ -471,15 +414,8 @@ class Daemon:
         return out
 
     def _lost(self, link: Link, why: str, kind: str) -> None:
-        link.connected.clear()
-        link.need_dial.set()
-        link.consecutive_errors = 0
+        link.lose(kind)
         self.counters.disconnects += 1
-        link.down_kind = kind
-        if link.dials_since_ok:  # lost before one good poll: the PLC accepts and hangs up
-            link.hangups += 1
-        else:  # the last poll was good: an outage starts here
-            link.outage_since = time.monotonic()
         self._status("disconnected", why, link)
         self._bad_news(ERR, f"PLC {link.label}: connection lost: {why}", f"{link.key}lost")
 
@@ -620,58 +556,26 @@ class Daemon:
                              flame=flame.burners), log_ns, log_ns)
 
     # -- connections ------------------------------------------------------------------------------
-    async def _connector(self, link: Link) -> None:
-        """Dial while disconnected. A dial the PLC did not accept (refused, unreachable, no
-        answer) is retried every `retry_s` for the first `fast_for_s` of the outage: it costs
-        the PLC no session, and a restarted PLC is found within that interval. After that,
-        and whenever a connection is lost before one good poll (a PLC that accepts and hangs
-        up at once, its connection limit reached), the waits grow exponentially up to
-        `max_s`, so such a PLC is not redialled at every tick. Each device has its own."""
-        source = link.source
-        backoff = link.device.reconnect
-        while not self._stop.is_set():
-            if not link.need_dial.is_set():
-                await link.need_dial.wait()
-                if link.hangups:
-                    await self._sleep(backoff.delay(link.hangups - 1))
-                continue
-            attempt = link.dials_since_ok
-            link.dials_since_ok += 1
-            self.counters.connect_attempts += 1
-            started = time.monotonic()
-            try:
-                await source.connect()
-            except SourceError as exc:
-                now = time.monotonic()
-                link.down_kind = exc.kind
-                if exc.kind in CONNECT_FAILURES and now - link.outage_since < backoff.fast_for_s:
-                    wait = max(0.0, backoff.fast_s - (now - started))  # start to start
-                    how = f"every {backoff.fast_s:g} s"
-                else:
-                    wait = backoff.delay(link.slow_steps)
-                    link.slow_steps += 1
-                    how = f"in {wait:g} s (backing off up to {backoff.max_s:g} s)"
-                link.detail = self.detail = self._named(
-                    link, f"{exc}; retry {attempt + 1} in {wait:.3g} s")
-                self.journal.say(ERR, f"PLC {link.label}: {exc}; retrying {how}"
-                                 if link.key else f"PLC: {exc}; retrying {how}",
-                                 f"{link.key}dial:{exc.kind}")
-                await self._sleep(wait)
-                continue
-            self.counters.connects += 1
-            link.connects += 1
-            link.consecutive_errors = 0
-            link.heartbeat = None
-            link.need_dial.clear()
-            link.connected.set()
-            self._poll_now = True  # poll at once, not at the next tick of the grid
-            self._wake.set()
-            self._status("connected", f"connected after {attempt + 1} attempt(s)", link)
-            again = "" if link.connects == 1 else \
-                f", {time.monotonic() - link.outage_since:.1f} s after it went away"
-            self._good_news(NOTICE, f"PLC {link.label}: connected after {attempt + 1} "
-                                    f"attempt(s){again}", f"{link.key}lost",
-                            first=link.connects == 1)
+    def _dialling(self) -> None:
+        self.counters.connect_attempts += 1
+
+    def _dial_failed(self, link: Link, exc: SourceError, attempt: int, wait: float,
+                     how: str) -> None:
+        link.detail = self.detail = link.named(f"{exc}; retry {attempt + 1} in {wait:.3g} s")
+        self.journal.say(ERR, f"PLC {link.label}: {exc}; retrying {how}"
+                         if link.key else f"PLC: {exc}; retrying {how}",
+                         f"{link.key}dial:{exc.kind}")
+
+    def _connected(self, link: Link, attempt: int) -> None:
+        self.counters.connects += 1
+        self._poll_now = True  # poll at once, not at the next tick of the grid
+        self._wake.set()
+        self._status("connected", f"connected after {attempt + 1} attempt(s)", link)
+        again = "" if link.connects == 1 else \
+            f", {time.monotonic() - link.outage_since:.1f} s after it went away"
+        self._good_news(NOTICE, f"PLC {link.label}: connected after {attempt + 1} "
+                                f"attempt(s){again}", f"{link.key}lost",
+                        first=link.connects == 1)
 
     async def _open_flame(self) -> None:
         assert self.flame is not None
@@ -682,14 +586,10 @@ class Daemon:
             except SourceError as exc:
                 now = self.wall_ns()
                 self._event(DaqEvent(DaqEventKind.CAN_UNAVAILABLE, str(exc)), now)
-                await self._sleep(self.config.plc.reconnect.delay(attempt))
+                await sleep_unless(self._stop, self.config.plc.reconnect.delay(attempt))
                 attempt += 1
         if self.flame.connected and attempt:
             self.journal.say(NOTICE, "CAN bus open again", "event:can_unavailable")
-
-    async def _sleep(self, seconds: float) -> None:
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._stop.wait(), seconds)
 
     # -- status -----------------------------------------------------------------------------------
     @property
@@ -705,7 +605,7 @@ class Daemon:
         to none (a periodic or log-error message). `devices` holds each device's state."""
         if link is not None and state is not None:
             link.state, link.detail = state, detail
-            detail = self._named(link, detail)
+            detail = link.named(detail)
         elif state is not None:
             for each in self.links:
                 each.state = state

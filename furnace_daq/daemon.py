@@ -70,6 +70,7 @@ from .journal import ERR, INFO, NOTICE, WARNING, Journal
 from .logclock import LogClock
 from .refitworker import RefitRunner
 from .registers import COMM_ERROR, OK, STALE
+from .samplemerge import merge
 from .sdnotify import Notifier
 from .sources import (
     CanSource,
@@ -344,7 +345,8 @@ class Daemon:
         for link, (sample, failure) in zip(self.links, results, strict=True):
             if sample is not None:
                 link.polled()
-                link.last_stale = self._stale(link, sample)
+                link.last_stale = link.heartbeat.stale(sample.heartbeat, time.monotonic(),
+                                                       self.config.stale_after_s)
                 good.append((link, sample))
             elif failure is not None:
                 reason, kind = failure
@@ -362,7 +364,7 @@ class Daemon:
         if good:
             if len(good) == len(self.links):
                 c.ok_polls += 1
-            merged = self._merge(good, missing)
+            merged = merge(good, missing, self.config.furnace.zones, self.config.burner_source)
             self._log_plc(merged, log_ns)
             for link, sample in good:
                 self._tell_sample(link, sample)
@@ -382,36 +384,6 @@ class Daemon:
         if link.closed_by_peer:
             self._lost(link, "connection closed by the PLC", "connection lost")
         return await link.read()
-
-    def _merge(self, good: list[tuple[Link, Sample]], missing: list[str]) -> Sample:
-        """One sample from the devices that delivered, as if one PLC held every point:
-        each device's staleness marks its own points only."""
-        out = Sample()
-        burners: dict[str, list[bool]] = {}
-        burner_quality = OK
-        for link, s in good:
-            stale = link.last_stale
-            out.values.update(s.values)
-            out.quality.update({k: STALE if stale and q == OK else q
-                                for k, q in s.quality.items()})
-            if s.plc_seconds is not None:
-                out.plc_seconds = s.plc_seconds
-            if s.burners is not None:
-                burners.update(s.burners)
-                if stale and s.burner_quality == OK:
-                    burner_quality = STALE
-            if s.burner_quality != OK:
-                burner_quality = s.burner_quality
-            out.errors += [link.named(e) for e in s.errors]
-            out.refused.update(s.refused)
-        out.errors += missing
-        if self.config.burner_source in ("modbus", "both"):
-            if all(z in burners for z in self.config.furnace.zones):
-                out.burners = burners
-            else:
-                burner_quality = COMM_ERROR
-        out.burner_quality = burner_quality
-        return out
 
     def _lost(self, link: Link, why: str, kind: str) -> None:
         link.lose(kind)
@@ -491,19 +463,9 @@ class Daemon:
             self._epoch_ns = log_ns - int(round(s * 1e9))
         return self._epoch_ns + int(round(s * 1e9))
 
-    def _stale(self, link: Link, sample: Sample) -> bool:
-        """Whether the device's heartbeat has stood still for `stale_after_s`."""
-        if sample.heartbeat is None:
-            return False
-        now = time.monotonic()
-        if link.heartbeat is None or sample.heartbeat != link.heartbeat[0]:
-            link.heartbeat = (sample.heartbeat, now)
-            return False
-        return now - link.heartbeat[1] > self.config.stale_after_s
-
     def _log_plc(self, sample: Sample, log_ns: int) -> None:
         pub = self._publish_ns(sample, log_ns)
-        quality = sample.quality  # each device's staleness is in its qualities already (_merge)
+        quality = sample.quality  # each device's staleness is in its qualities already (merge)
         # a reading that is not there is left out: the schema declares numbers, never null
         sensors = self.config.furnace.sensors
         tc = Thermocouples({s: v for s in sensors if (v := sample.values.get(s)) is not None},

@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable
 
 from .daqconfig import PlcConfig
+from .samplemerge import Heartbeat
 from .sources import CONNECT_FAILURES, Sample, Source, SourceError, failure_kind
 
 ReadOutcome = tuple[Sample | None, tuple[str, str] | None]
@@ -60,7 +61,7 @@ class Link:
         self.hangups = 0  # connections lost before one good poll: the backoff's step
         self.slow_steps = 0  # backoff waits after the fast redial phase
         self.connects = 0
-        self.heartbeat: tuple[float | str, float] | None = None  # (value, when it changed)
+        self.heartbeat = Heartbeat()
         self.was_stale = self.last_stale = False
 
     def named(self, text: str) -> str:
@@ -120,7 +121,7 @@ class Link:
                 continue
             self.connects += 1
             self.consecutive_errors = 0
-            self.heartbeat = None
+            self.heartbeat.reset()
             self.need_dial.clear()
             self.connected.set()
             on_connected(self, attempt)

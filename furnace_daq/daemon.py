@@ -68,6 +68,7 @@ from .daqconfig import DaqConfig
 from .devicelink import Link, sleep_unless
 from .journal import ERR, INFO, NOTICE, WARNING, Journal
 from .logclock import LogClock
+from .plcclock import PlcClock
 from .refitworker import RefitRunner
 from .registers import COMM_ERROR, OK, STALE
 from .samplemerge import merge
@@ -180,10 +181,8 @@ class Daemon:
         self._where = ", ".join(link.label for link in self.links)
         self._qualities: dict[str, str] = {}  # last quality of each point, told on change
         self._told_bad: set[str] = set()  # kinds whose bad news reached the journal
-        self._epoch_ns: int | None = None
-        if config.clock is not None and config.clock.epoch is not None:
-            self._epoch_ns = config.clock.epoch.value
-        self._last_plc_s: float | None = None
+        self.plc_clock = PlcClock(None if config.clock is None or config.clock.epoch is None
+                                  else config.clock.epoch.value)
         self._disagree: tuple[frozenset[str], int] = (frozenset(), 0)
         self._reported_disagreement: frozenset[str] = frozenset()
         self._last_status_mono = float("-inf")
@@ -448,23 +447,10 @@ class Daemon:
         return [it for link in self.links for it in getattr(link.source, "items", ())]
 
     # -- logging a PLC sample -------------------------------------------------------------------
-    def _publish_ns(self, sample: Sample, log_ns: int) -> int:
-        s = sample.plc_seconds
-        if s is None:
-            return log_ns
-        if self._last_plc_s is not None and s < self._last_plc_s and \
-                (self.config.clock is None or self.config.clock.epoch is None):
-            self._write(DaqEvent(DaqEventKind.PLC_CLOCK_RESET,
-                                 f"PLC clock went back from {self._last_plc_s:g} s "
-                                 f"to {s:g} s; publish time re-anchored"), log_ns, log_ns)
-            self._epoch_ns = None
-        self._last_plc_s = s
-        if self._epoch_ns is None:
-            self._epoch_ns = log_ns - int(round(s * 1e9))
-        return self._epoch_ns + int(round(s * 1e9))
-
     def _log_plc(self, sample: Sample, log_ns: int) -> None:
-        pub = self._publish_ns(sample, log_ns)
+        pub, reset = self.plc_clock.publish_ns(sample.plc_seconds, log_ns)
+        if reset is not None:
+            self._write(reset, log_ns, log_ns)
         quality = sample.quality  # each device's staleness is in its qualities already (merge)
         # a reading that is not there is left out: the schema declares numbers, never null
         sensors = self.config.furnace.sensors
@@ -632,7 +618,7 @@ class Daemon:
 
     def _model_message(self, topic: str, message: ModelParameters | ModelEvent,
                        pub_ns: int) -> None:
-        if self._last_plc_s is not None:  # the data clock is the PLC's: say so in its field
+        if self.plc_clock.seen:  # the data clock is the PLC's: say so in its field
             message.plc_time = pub_ns
         data = message.to_json()
         self.log.write(topic, data, self.wall_ns(), pub_ns)

@@ -68,6 +68,7 @@ from .daqconfig import DaqConfig
 from .devicelink import Link, sleep_unless
 from .journal import ERR, INFO, NOTICE, WARNING, Journal
 from .logclock import LogClock
+from .messagebuild import FlameComparison, MessageBuilder
 from .plcclock import PlcClock
 from .refitworker import RefitRunner
 from .registers import COMM_ERROR, OK, STALE
@@ -183,8 +184,8 @@ class Daemon:
         self._told_bad: set[str] = set()  # kinds whose bad news reached the journal
         self.plc_clock = PlcClock(None if config.clock is None or config.clock.epoch is None
                                   else config.clock.epoch.value)
-        self._disagree: tuple[frozenset[str], int] = (frozenset(), 0)
-        self._reported_disagreement: frozenset[str] = frozenset()
+        self.messages = MessageBuilder(config)
+        self.flame_comparison = FlameComparison(config.furnace.zones, config.disagreement_polls)
         self._last_status_mono = float("-inf")
         self._log_error_told: str | None = None
         self.on_model = on_model
@@ -308,9 +309,13 @@ class Daemon:
                 flame_sample = await self.flame.read()
                 c.can_frames = getattr(self.flame, "frames", 0)
             if flame_sample is not None and flame_sample.burners is not None:
-                self._write(self._burner_message(flame_sample, "can"), log_ns, log_ns)
+                self._write(self.messages.burners(flame_sample, "can"), log_ns, log_ns)
         if plc_sample is not None and flame_sample is not None:
-            self._compare_burners(plc_sample, flame_sample, log_ns)
+            event = self.flame_comparison.compare(plc_sample, flame_sample)
+            if event is not None:
+                if event.kind == DaqEventKind.BURNER_DISAGREEMENT:
+                    c.disagreements += 1
+                self._write(event, log_ns, log_ns)
         if self.refit is not None:
             self._pump_refits()
         now = time.monotonic()
@@ -369,9 +374,7 @@ class Daemon:
                 self._tell_sample(link, sample)
         elif failed:
             # no reading: the sensors' fields are absent (the schema has no null), quality says why
-            msg = Thermocouples({}, {s: COMM_ERROR for s in self.config.furnace.sensors},
-                                error="; ".join(missing))
-            self._write(msg, log_ns, log_ns)
+            self._write(self.messages.no_reading(missing), log_ns, log_ns)
         for link, reason, kind in failed:
             if link.failing:
                 await link.source.close()
@@ -451,57 +454,8 @@ class Daemon:
         pub, reset = self.plc_clock.publish_ns(sample.plc_seconds, log_ns)
         if reset is not None:
             self._write(reset, log_ns, log_ns)
-        quality = sample.quality  # each device's staleness is in its qualities already (merge)
-        # a reading that is not there is left out: the schema declares numbers, never null
-        sensors = self.config.furnace.sensors
-        tc = Thermocouples({s: v for s in sensors if (v := sample.values.get(s)) is not None},
-                           {s: quality.get(s, COMM_ERROR) for s in sensors})
-        stamp: int | None = None  # the PLC's clock, when it has one
-        if sample.plc_seconds is not None:
-            stamp = pub
-            tc.plc_seconds, tc.plc_time = sample.plc_seconds, stamp
-        if sample.errors:  # blocks the PLC refused: why some points are comm_error
-            tc.error = "; ".join(sample.errors)
-        self._write(tc, log_ns, pub)
-        if self.config.ambient is not None:
-            amb = Ambient(sample.values.get("t_air"), quality.get("t_air", COMM_ERROR),
-                          plc_time=stamp)
-        else:
-            amb = Ambient(self.config.ambient_default_c, OK, True, stamp)
-        self._write(amb, log_ns, pub)
-        if sample.burners is not None:
-            self._write(self._burner_message(sample, "modbus", stamp), log_ns, pub)
-
-    def _burner_message(self, sample: Sample, source: str, stamp: int | None = None
-                        ) -> Burners:
-        assert sample.burners is not None
-        states = {z: sample.burners[z] for z in self.config.furnace.zones}
-        return Burners.from_states(states, source, sample.burner_quality, stamp)
-
-    def _compare_burners(self, plc: Sample, flame: Sample, log_ns: int) -> None:
-        """An event when PLC states and flame scanners disagree for `disagreement_polls`
-        polls in a row, and one when they agree again: a burner commanded on whose flame
-        is out (or the reverse) is what an operator must see."""
-        if plc.burners is None or flame.burners is None or plc.burner_quality != OK \
-                or flame.burner_quality != OK:
-            return
-        diff = frozenset(f"{z}[{i}]" for z in self.config.furnace.zones
-                         for i, (a, b) in enumerate(zip(plc.burners[z], flame.burners[z],
-                                                        strict=True)) if a != b)
-        seen, n = self._disagree
-        n = n + 1 if diff == seen else 1
-        self._disagree = (diff, n)
-        if diff == self._reported_disagreement or n < self.config.disagreement_polls:
-            return
-        self._reported_disagreement = diff
-        if diff:
-            self.counters.disagreements += 1
-            detail = f"PLC and flame scanners disagree on {', '.join(sorted(diff))}"
-            kind = DaqEventKind.BURNER_DISAGREEMENT
-        else:
-            detail, kind = "PLC and flame scanners agree again", DaqEventKind.BURNER_AGREEMENT
-        self._write(DaqEvent(kind, detail, burners=sorted(diff), plc=plc.burners,
-                             flame=flame.burners), log_ns, log_ns)
+        for message in self.messages.readings(sample, pub):
+            self._write(message, log_ns, pub)
 
     # -- connections ------------------------------------------------------------------------------
     def _dialling(self) -> None:

@@ -44,9 +44,7 @@ import contextlib
 import json
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Protocol
 
 from furnace_model.log.messages import (
@@ -82,10 +80,8 @@ from .sources import (
     SourceError,
     exception_text,
 )
-from .statefile import write_json_atomic
+from .statewriter import CHAIN_FILE, StateWriter
 
-MODEL_FILE = "model.json"
-CHAIN_FILE = "refit_chain.json"
 STOP_WAIT_S = 10.0
 """At stop, how long windows already cut may still be fitted."""
 _D, _M = DaqEventKind, ModelEventKind
@@ -194,9 +190,9 @@ class Daemon:
             self.refit = RefitRunner(config.refit, self._model_message,
                                      t_air_default=config.ambient_default_c,
                                      max_queue=config.refit.queue_max, furnace=config.furnace)
-        self._state_writer: ThreadPoolExecutor | None = None
-        self._state_error: str | None = None  # set by the writer thread
-        self._state_reported: str | None = None
+        self.state_writer: StateWriter | None = None
+        if config.refit is not None:
+            self.state_writer = StateWriter(config.refit.state_dir, self._event_now)
 
     # -- life cycle ----------------------------------------------------------------------------
     def stop(self) -> None:
@@ -214,7 +210,8 @@ class Daemon:
         if self.refit is not None:
             self._resume_chain()
             self.refit.start()
-            self._state_writer = ThreadPoolExecutor(1, thread_name_prefix="state-writer")
+            assert self.state_writer is not None
+            self.state_writer.start()
         tasks = [asyncio.create_task(
             link.keep_dialled(self._stop, on_dial=self._dialling, on_failure=self._dial_failed,
                               on_connected=self._connected), name=f"{link.name} connector")
@@ -540,6 +537,9 @@ class Daemon:
         self.log.write(DAQ_EVENTS, message.to_json(), now_ns, now_ns)
         self._tell_event(message)
 
+    def _event_now(self, message: DaqEvent) -> None:
+        self._event(message, self.wall_ns())
+
     def _tell_event(self, message: Event) -> None:
         kind = str(message.kind)
         self.journal.say(EVENT_PRIORITY.get(message.kind, NOTICE),  # type: ignore[call-overload]
@@ -559,16 +559,8 @@ class Daemon:
     def _pump_refits(self) -> None:
         assert self.refit is not None
         self._guarded(self.refit.pump)
-        self._report_state_error()
-
-    def _report_state_error(self) -> None:
-        error = self._state_error
-        if error != self._state_reported:
-            self._state_reported = error
-            if error is not None:
-                now = self.wall_ns()
-                self._event(DaqEvent(DaqEventKind.STATE_WRITE_FAILED,
-                                     f"latest model not saved: {error}"), now)
+        assert self.state_writer is not None
+        self.state_writer.report()
 
     def _model_message(self, topic: str, message: ModelParameters | ModelEvent,
                        pub_ns: int) -> None:
@@ -586,12 +578,8 @@ class Daemon:
                 now = self.wall_ns()
                 self._event(DaqEvent(DaqEventKind.ON_MODEL_ERROR,
                                      f"{type(exc).__name__}: {exc}"), now)
-        if self._state_writer is not None and self.config.refit is not None:
-            state_dir = self.config.refit.state_dir
-            files = [(state_dir / MODEL_FILE, data)]
-            if self.refit is not None:  # the chain has taken this window in already
-                files.append((state_dir / CHAIN_FILE, self.refit.chain.state()))
-            self._state_writer.submit(self._write_state, files)
+        if self.state_writer is not None:
+            self.state_writer.save(data, None if self.refit is None else self.refit.chain.state())
 
     def _resume_chain(self) -> None:
         """Go on with the model in force and the drift references a previous run left, so
@@ -613,16 +601,6 @@ class Daemon:
                   if model is not None else f"from {path}: no model fitted yet")
         self._event(DaqEvent(DaqEventKind.REFIT_RESUMED, detail), now)
 
-    def _write_state(self, files: list[tuple[Path, dict]]) -> None:
-        """In the writer thread; a failure is remembered and reported once per kind."""
-        for path, value in files:
-            try:
-                write_json_atomic(path, value)
-            except (OSError, ValueError, TypeError) as exc:
-                self._state_error = f"{path}: {getattr(exc, 'strerror', None) or exc}"
-                return
-        self._state_error = None
-
     async def _finish_refits(self) -> None:
         """At stop: give the windows already cut their fit (bounded), then end the worker."""
         if self.refit is None:
@@ -639,6 +617,5 @@ class Daemon:
             self._event(DaqEvent(DaqEventKind.REFIT_ABANDONED,
                                  f"{left} refit window(s) not fitted at stop"), now)
         self.refit.close()
-        if self._state_writer is not None:
-            self._state_writer.shutdown(wait=True)
-        self._report_state_error()
+        if self.state_writer is not None:
+            self.state_writer.close()

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -55,9 +54,7 @@ from furnace_model.log.messages import (
     DaqEventKind,
     DaqStatus,
     Event,
-    ModelEvent,
     ModelEventKind,
-    ModelParameters,
     Thermocouples,
 )
 from furnace_model.log.schema import DAQ_EVENTS
@@ -68,7 +65,7 @@ from .journal import ERR, INFO, NOTICE, WARNING, Journal
 from .logclock import LogClock
 from .messagebuild import FlameComparison, MessageBuilder
 from .plcclock import PlcClock
-from .refitworker import RefitRunner
+from .refitpump import RefitPump
 from .registers import COMM_ERROR, OK, STALE
 from .samplemerge import merge
 from .sdnotify import Notifier
@@ -80,10 +77,7 @@ from .sources import (
     SourceError,
     exception_text,
 )
-from .statewriter import CHAIN_FILE, StateWriter
 
-STOP_WAIT_S = 10.0
-"""At stop, how long windows already cut may still be fitted."""
 _D, _M = DaqEventKind, ModelEventKind
 EVENT_PRIORITY: dict[DaqEventKind | ModelEventKind, int] = {
     _D.CAN_UNAVAILABLE: ERR, _D.REFIT_ERROR: ERR, _D.STATE_WRITE_FAILED: ERR,
@@ -184,15 +178,13 @@ class Daemon:
         self.flame_comparison = FlameComparison(config.furnace.zones, config.disagreement_polls)
         self._last_status_mono = float("-inf")
         self._log_error_told: str | None = None
-        self.on_model = on_model
-        self.refit: RefitRunner | None = None
+        self.refit: RefitPump | None = None
         if config.refit is not None:
-            self.refit = RefitRunner(config.refit, self._model_message,
-                                     t_air_default=config.ambient_default_c,
-                                     max_queue=config.refit.queue_max, furnace=config.furnace)
-        self.state_writer: StateWriter | None = None
-        if config.refit is not None:
-            self.state_writer = StateWriter(config.refit.state_dir, self._event_now)
+            self.refit = RefitPump(
+                config.refit, t_air_default=config.ambient_default_c, furnace=config.furnace,
+                wall_ns=self.wall_ns, event=self._event, tell=self._tell_event,
+                log_write=lambda *args: self.log.write(*args),
+                plc_clock_seen=lambda: self.plc_clock.seen, on_model=on_model)
 
     # -- life cycle ----------------------------------------------------------------------------
     def stop(self) -> None:
@@ -208,10 +200,7 @@ class Daemon:
         self.notifier.ready(f"polling {where} every {self.config.poll_period_s:g} s")
         self._status("disconnected", f"starting; dialling PLC at {where}")
         if self.refit is not None:
-            self._resume_chain()
             self.refit.start()
-            assert self.state_writer is not None
-            self.state_writer.start()
         tasks = [asyncio.create_task(
             link.keep_dialled(self._stop, on_dial=self._dialling, on_failure=self._dial_failed,
                               on_connected=self._connected), name=f"{link.name} connector")
@@ -238,7 +227,8 @@ class Daemon:
                 await link.source.close()
             if self.flame is not None:
                 await self.flame.close()
-            await self._finish_refits()
+            if self.refit is not None:
+                await self.refit.finish(self.notifier.watchdog)
             self.journal.flush()
             self._status("disconnected", "stopping")
             self.log.close()
@@ -314,7 +304,7 @@ class Daemon:
                     c.disagreements += 1
                 self._write(event, log_ns, log_ns)
         if self.refit is not None:
-            self._pump_refits()
+            self.refit.pump()
         now = time.monotonic()
         if now - self._last_status_mono >= self.config.status_interval_s:
             self._status(None, self.detail)
@@ -530,92 +520,14 @@ class Daemon:
         if isinstance(message, DaqEvent):
             self._tell_event(message)
         if self.refit is not None and isinstance(message, Thermocouples | Burners | Ambient):
-            self._guarded(self.refit.feed, message.TOPIC, message, pub_ns)
+            self.refit.feed(message, pub_ns)
 
     def _event(self, message: DaqEvent, now_ns: int) -> None:
         """A /daq/events message, also told to the journal."""
         self.log.write(DAQ_EVENTS, message.to_json(), now_ns, now_ns)
         self._tell_event(message)
 
-    def _event_now(self, message: DaqEvent) -> None:
-        self._event(message, self.wall_ns())
-
     def _tell_event(self, message: Event) -> None:
         kind = str(message.kind)
         self.journal.say(EVENT_PRIORITY.get(message.kind, NOTICE),  # type: ignore[call-overload]
                          f"{kind}: {message.detail}", f"event:{kind}")
-
-    # -- refits -----------------------------------------------------------------------------------
-    def _guarded(self, call: Callable, *args) -> None:
-        """Online identification is a guest of the acquisition: whatever goes wrong in it is
-        an event, never the end of polling."""
-        try:
-            call(*args)
-        except Exception as exc:  # noqa: BLE001
-            now = self.wall_ns()
-            self._event(DaqEvent(DaqEventKind.REFIT_ERROR,
-                                 f"refit pipeline: {type(exc).__name__}: {exc}"), now)
-
-    def _pump_refits(self) -> None:
-        assert self.refit is not None
-        self._guarded(self.refit.pump)
-        assert self.state_writer is not None
-        self.state_writer.report()
-
-    def _model_message(self, topic: str, message: ModelParameters | ModelEvent,
-                       pub_ns: int) -> None:
-        if self.plc_clock.seen:  # the data clock is the PLC's: say so in its field
-            message.plc_time = pub_ns
-        data = message.to_json()
-        self.log.write(topic, data, self.wall_ns(), pub_ns)
-        if isinstance(message, ModelEvent):
-            self._tell_event(message)
-            return
-        if self.on_model is not None:  # a consumer sees the message as logged
-            try:
-                self.on_model(data)
-            except Exception as exc:  # noqa: BLE001 - a consumer's bug is not ours to die of
-                now = self.wall_ns()
-                self._event(DaqEvent(DaqEventKind.ON_MODEL_ERROR,
-                                     f"{type(exc).__name__}: {exc}"), now)
-        if self.state_writer is not None:
-            self.state_writer.save(data, None if self.refit is None else self.refit.chain.state())
-
-    def _resume_chain(self) -> None:
-        """Go on with the model in force and the drift references a previous run left, so
-        that a restart neither forgets the model nor starts drift detection afresh. A state
-        file that cannot be used is reported and set aside; the chain then starts empty."""
-        assert self.refit is not None and self.config.refit is not None
-        path = self.config.refit.state_dir / CHAIN_FILE
-        now = self.wall_ns()
-        try:
-            self.refit.chain.restore(json.loads(path.read_text(encoding="utf-8")))
-        except FileNotFoundError:
-            return
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
-            detail = f"{path}: {getattr(exc, 'strerror', None) or exc}; refits start afresh"
-            self._event(DaqEvent(DaqEventKind.STATE_UNUSABLE, detail), now)
-            return
-        model = self.refit.chain.model
-        detail = (f"from {path}: model of the window to {model.window_end}"
-                  if model is not None else f"from {path}: no model fitted yet")
-        self._event(DaqEvent(DaqEventKind.REFIT_RESUMED, detail), now)
-
-    async def _finish_refits(self) -> None:
-        """At stop: give the windows already cut their fit (bounded), then end the worker."""
-        if self.refit is None:
-            return
-        # systemd gives a stopping unit 30 s (TimeoutStopSec): a fit in hand gets part of it
-        deadline = time.monotonic() + min(self.refit.kill_after_s, STOP_WAIT_S)
-        while self.refit.busy() and time.monotonic() < deadline:
-            self._pump_refits()
-            self.notifier.watchdog()
-            await asyncio.sleep(0.01)
-        left = len(self.refit.queue) + (self.refit.in_flight is not None)
-        if left:
-            now = self.wall_ns()
-            self._event(DaqEvent(DaqEventKind.REFIT_ABANDONED,
-                                 f"{left} refit window(s) not fitted at stop"), now)
-        self.refit.close()
-        if self.state_writer is not None:
-            self.state_writer.close()

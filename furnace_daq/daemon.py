@@ -16,10 +16,14 @@ new connection runs at once and the tick grid restarts there. Every change of st
 message on /daq/status, so a gap in the data is always explained next to it.
 
 Journal. Every change of connection state, every kind of failure and every event also goes
-to stderr with an sd-daemon priority prefix (journal.Journal: `<3>` errors, `<4>` warnings,
-`<5>` notices), each kind at most once per `stderr_interval_s` with a count of the repeats,
-so `journalctl -p err` shows why the data stopped. Failed polls are counted by kind
-(`Counters.failures`): a tick while disconnected counts as the kind of the outage.
+to stderr with an sd-daemon priority prefix, each kind rate-limited (statusreport), so
+`journalctl -p err` shows why the data stopped.
+
+Parts. This module is the loop and the wiring; each job it runs is a part that can be
+driven alone: devicelink (a device's dialling, backoff and reads), samplemerge (several
+devices as one, staleness), plcclock (publish time), messagebuild (log messages, the burner
+comparison), statusreport (status messages, counters, journal lines), refitpump and
+statewriter (online refits and their state files).
 
 Time. log_time is host UTC at acquisition. publish_time is the PLC's clock when the map has
 one: epoch + PLC seconds, the epoch given in the config or anchored at the first reading (and
@@ -43,7 +47,6 @@ import asyncio
 import contextlib
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
 from furnace_model.log.messages import (
@@ -52,21 +55,17 @@ from furnace_model.log.messages import (
     Burners,
     DaqEvent,
     DaqEventKind,
-    DaqStatus,
-    Event,
-    ModelEventKind,
     Thermocouples,
 )
 from furnace_model.log.schema import DAQ_EVENTS
 
 from .daqconfig import DaqConfig
 from .devicelink import Link, sleep_unless
-from .journal import ERR, INFO, NOTICE, WARNING, Journal
+from .journal import NOTICE, Journal
 from .logclock import LogClock
 from .messagebuild import FlameComparison, MessageBuilder
 from .plcclock import PlcClock
 from .refitpump import RefitPump
-from .registers import COMM_ERROR, OK, STALE
 from .samplemerge import merge
 from .sdnotify import Notifier
 from .sources import (
@@ -75,21 +74,12 @@ from .sources import (
     Sample,
     Source,
     SourceError,
-    exception_text,
 )
+from .statusreport import EVENT_PRIORITY, Counters, Reporter, summary
 
-_D, _M = DaqEventKind, ModelEventKind
-EVENT_PRIORITY: dict[DaqEventKind | ModelEventKind, int] = {
-    _D.CAN_UNAVAILABLE: ERR, _D.REFIT_ERROR: ERR, _D.STATE_WRITE_FAILED: ERR,
-    _D.ON_MODEL_ERROR: ERR, _D.WRITE_BACK_FAILED: ERR,
-    _D.CLOCK_STEP: WARNING, _D.MISSED_TICK: WARNING, _D.BURNER_DISAGREEMENT: WARNING,
-    _D.STATE_UNUSABLE: WARNING, _D.REFIT_ABANDONED: WARNING, _M.WINDOW_DROPPED: WARNING,
-    _D.LOG_RECOVERED: WARNING, _D.LOG_GAP: WARNING,
-    _D.PLC_CLOCK_RESET: NOTICE, _D.BURNER_AGREEMENT: NOTICE, _D.WRITE_BACK_OK: NOTICE,
-    _M.DRIFT: NOTICE, _D.REFIT_RESUMED: INFO,
-}
-"""Journal priority of each /daq/events and /model/events kind (others: notice). The kinds
-are str-valued, so a kind read back as its name finds its priority too."""
+__all__ = ["EVENT_PRIORITY", "Counters", "Daemon", "Log", "summary"]
+"""The journal's priorities, the counters and the closing summary are the status reporter's
+(statusreport); they are named here too, where the daemon's users look for them."""
 
 
 class Log(Protocol):
@@ -101,45 +91,6 @@ class Log(Protocol):
     def maybe_flush(self, now_monotonic: float) -> None: ...
 
     def close(self) -> None: ...
-
-
-@dataclass
-class Counters:
-    polls: int = 0
-    ok_polls: int = 0
-    comm_errors: int = 0
-    skipped_ticks: int = 0
-    connects: int = 0
-    disconnects: int = 0
-    connect_attempts: int = 0
-    can_frames: int = 0
-    disagreements: int = 0
-    failures: dict[str, int] = field(default_factory=dict)
-    """Polls that gave no data, by kind ('connection refused', 'poll timeout', ...); a tick
-    while disconnected counts as the kind of failure that keeps the PLC away."""
-    incomplete: dict[str, int] = field(default_factory=dict)
-    """Polls that were logged with a block the PLC refused, by block and exception."""
-
-
-def _by_kind(counts: dict[str, int]) -> str:
-    return ", ".join(f"{n} {kind}" for kind, n in sorted(counts.items(), key=lambda kv: -kv[1]))
-
-
-def summary(counters: Counters) -> tuple[int, str]:
-    """The journal priority and text of the line the daemon ends with: the counters, then
-    the failed polls by kind, so the journal says why there was no data without the log."""
-    c = counters
-    text = (f"stopped: {c.ok_polls}/{c.polls} polls ok, {c.comm_errors} errors, "
-            f"{c.skipped_ticks} skipped ticks, {c.disconnects} drops")
-    failed = sum(c.failures.values())
-    if failed:
-        text += f"; {failed} failed: {_by_kind(c.failures)}"
-    if c.incomplete:
-        text += f"; {sum(c.incomplete.values())} incomplete: {_by_kind(c.incomplete)}"
-    priority = INFO
-    if failed or c.incomplete:
-        priority = ERR if c.polls and not c.ok_polls else WARNING
-    return priority, text
 
 
 class Daemon:
@@ -162,27 +113,23 @@ class Daemon:
             self.flame = CanSource(config.can)
         self.notifier = notifier or Notifier({})
         self.wall_ns = LogClock(wall_ns)
-        self.counters = Counters()
-        self.detail = "starting"
+        self.reporter = Reporter(config, self.links, self.journal, self.notifier,
+                                 write=self._write, wall_ns=self.wall_ns,
+                                 log_error=lambda: self.log.error)
+        self.counters = self.reporter.counters
         self._stop = asyncio.Event()
         self._wake = asyncio.Event()  # stop, or a new connection to poll at once
         self._poll_now = False
-        self._missed_unreported = 0
-        self._last_missed_event = float("-inf")
         self._where = ", ".join(link.label for link in self.links)
-        self._qualities: dict[str, str] = {}  # last quality of each point, told on change
-        self._told_bad: set[str] = set()  # kinds whose bad news reached the journal
         self.plc_clock = PlcClock(None if config.clock is None or config.clock.epoch is None
                                   else config.clock.epoch.value)
         self.messages = MessageBuilder(config)
         self.flame_comparison = FlameComparison(config.furnace.zones, config.disagreement_polls)
-        self._last_status_mono = float("-inf")
-        self._log_error_told: str | None = None
         self.refit: RefitPump | None = None
         if config.refit is not None:
             self.refit = RefitPump(
                 config.refit, t_air_default=config.ambient_default_c, furnace=config.furnace,
-                wall_ns=self.wall_ns, event=self._event, tell=self._tell_event,
+                wall_ns=self.wall_ns, event=self._event, tell=self.reporter.tell_event,
                 log_write=lambda *args: self.log.write(*args),
                 plc_clock_seen=lambda: self.plc_clock.seen, on_model=on_model)
 
@@ -198,11 +145,12 @@ class Daemon:
             link.outage_since = t_start
         where = self._where
         self.notifier.ready(f"polling {where} every {self.config.poll_period_s:g} s")
-        self._status("disconnected", f"starting; dialling PLC at {where}")
+        self.reporter.status("disconnected", f"starting; dialling PLC at {where}")
         if self.refit is not None:
             self.refit.start()
         tasks = [asyncio.create_task(
-            link.keep_dialled(self._stop, on_dial=self._dialling, on_failure=self._dial_failed,
+            link.keep_dialled(self._stop, on_dial=self.reporter.dialling,
+                              on_failure=self.reporter.dial_failed,
                               on_connected=self._connected), name=f"{link.name} connector")
             for link in self.links]
         if self.flame is not None:
@@ -230,7 +178,7 @@ class Daemon:
             if self.refit is not None:
                 await self.refit.finish(self.notifier.watchdog)
             self.journal.flush()
-            self._status("disconnected", "stopping")
+            self.reporter.status("disconnected", "stopping")
             self.log.close()
             self.notifier.close()
         return self.counters
@@ -263,21 +211,7 @@ class Daemon:
             if late > 0:  # the next grid point has passed already: skip, do not burst
                 missed = int(late // period) + 1
                 k += missed
-                self.counters.skipped_ticks += missed
-                self._missed(missed)
-
-    def _missed(self, n: int) -> None:
-        """One /daq/events message per status interval at most, however long a stall."""
-        self._missed_unreported += n
-        now = time.monotonic()
-        if now - self._last_missed_event >= self.config.status_interval_s:
-            self._last_missed_event = now
-            wall = self.wall_ns()
-            self._write(DaqEvent(DaqEventKind.MISSED_TICK,
-                                 f"{self._missed_unreported} poll tick(s) skipped: a poll "
-                                 "or the host was slower than the period",
-                                 skipped=self._missed_unreported), wall, wall)
-            self._missed_unreported = 0
+                self.reporter.missed(missed)
 
     # -- one tick -----------------------------------------------------------------------------
     async def tick(self) -> None:
@@ -306,22 +240,11 @@ class Daemon:
         if self.refit is not None:
             self.refit.pump()
         now = time.monotonic()
-        if now - self._last_status_mono >= self.config.status_interval_s:
-            self._status(None, self.detail)
+        self.reporter.periodic(now)
         self.log.maybe_flush(now)
-        if self.log.error != self._log_error_told:  # a full disk is news at once, journal too
-            self._log_error_told = self.log.error
-            if self.log.error:
-                self.journal.say(ERR, f"log: {self.log.error}")
-            else:
-                self.journal.say(NOTICE, "log: writing again")
-            self._status(None, self.detail)
+        self.reporter.tell_log_error()
         self.journal.pump()
         self.notifier.watchdog(now)
-
-    def _count_failure(self, kind: str, counts: dict[str, int] | None = None) -> None:
-        counts = self.counters.failures if counts is None else counts
-        counts[kind] = counts.get(kind, 0) + 1
 
     async def _poll_devices(self, log_ns: int) -> Sample | None:
         """Every device read at once, each within its own budget: one that hangs costs the
@@ -341,15 +264,12 @@ class Daemon:
                 good.append((link, sample))
             elif failure is not None:
                 reason, kind = failure
-                c.comm_errors += 1
                 link.poll_failed()
-                self._count_failure(link.named(kind))
-                self.journal.say(WARNING, f"PLC {link.label}: poll failed ({kind}): {reason}",
-                                 f"{link.key}poll:{kind}")
+                self.reporter.poll_failed(link, reason, kind)
                 failed.append((link, reason, kind))
                 missing.append(link.named(reason))
             else:  # away: counted as the kind of the outage
-                self._count_failure(link.named(link.down_kind))
+                self.reporter.away(link)
                 missing.append(link.named(f"not connected ({link.down_kind})"))
         merged: Sample | None = None
         if good:
@@ -358,7 +278,7 @@ class Daemon:
             merged = merge(good, missing, self.config.furnace.zones, self.config.burner_source)
             self._log_plc(merged, log_ns)
             for link, sample in good:
-                self._tell_sample(link, sample)
+                self.reporter.tell_sample(link, sample)
         elif failed:
             # no reading: the sensors' fields are absent (the schema has no null), quality says why
             self._write(self.messages.no_reading(missing), log_ns, log_ns)
@@ -376,62 +296,7 @@ class Daemon:
 
     def _lost(self, link: Link, why: str, kind: str) -> None:
         link.lose(kind)
-        self.counters.disconnects += 1
-        self._status("disconnected", why, link)
-        self._bad_news(ERR, f"PLC {link.label}: connection lost: {why}", f"{link.key}lost")
-
-    def _tell_sample(self, link: Link, sample: Sample) -> None:
-        """The journal hears of a block the PLC refuses and of each point whose quality
-        changes, not of every poll that repeats them."""
-        keys = self.config.key_paths()
-        for req, code in sample.refused.items():
-            block = f"{req.table} {req.address}+{req.count}"
-            self._count_failure(f"{block} refused with exception code "
-                                f"{'?' if code is None else code}", self.counters.incomplete)
-            items = getattr(link.source, "items", ())
-            names = [keys.get(item.name, item.name) for item in items
-                     if item.table == req.table and req.address <= item.address < req.end]
-            self.journal.say(ERR, f"PLC {link.label}: {block} refused with "
-                                  f"{exception_text(code)}: {', '.join(names) or 'no point'} "
-                                  f"not read (check the register map)",
-                             f"{link.key}refused:{block}")
-        stale = link.was_stale
-        for name, quality in sample.quality.items():
-            before = self._qualities.get(name, OK)
-            self._qualities[name] = quality
-            if quality == before or quality in (COMM_ERROR, STALE):
-                continue  # refused blocks are told above, staleness below
-            key = keys.get(name, name)
-            if quality == OK:
-                self._good_news(NOTICE, f"{key}: ok again", f"quality:{name}")
-            else:
-                self._bad_news(WARNING, f"{key}: {quality}", f"quality:{name}")
-        now_stale = link.last_stale
-        if now_stale != stale:
-            link.was_stale = now_stale
-            if now_stale:
-                self._bad_news(WARNING, f"PLC {link.label}: values stale, heartbeat "
-                                        f"unchanged for {self.config.stale_after_s:g} s "
-                                        "(PLC program stopped?)", f"{link.key}stale")
-            else:
-                self._good_news(NOTICE, f"PLC {link.label}: values moving again",
-                                f"{link.key}stale")
-
-    def _bad_news(self, priority: int, text: str, kind: str) -> None:
-        if self.journal.say(priority, text, kind):
-            self._told_bad.add(kind)
-        else:
-            self._told_bad.discard(kind)
-
-    def _good_news(self, priority: int, text: str, kind: str, first: bool = False) -> None:
-        """The end of a trouble the journal was told of is always told: a reader must not
-        be left believing the PLC is still away. Recoveries from troubles it was not told
-        of (held back as repeats) are rate-limited like them."""
-        if first or kind in self._told_bad:
-            self._told_bad.discard(kind)
-            self.journal.say(priority, text)
-        else:
-            self.journal.say(priority, text, f"{kind}:recovered")
+        self.reporter.lost(link, why)
 
     def plc_items(self) -> list:
         return [it for link in self.links for it in getattr(link.source, "items", ())]
@@ -445,26 +310,10 @@ class Daemon:
             self._write(message, log_ns, pub)
 
     # -- connections ------------------------------------------------------------------------------
-    def _dialling(self) -> None:
-        self.counters.connect_attempts += 1
-
-    def _dial_failed(self, link: Link, exc: SourceError, attempt: int, wait: float,
-                     how: str) -> None:
-        link.detail = self.detail = link.named(f"{exc}; retry {attempt + 1} in {wait:.3g} s")
-        self.journal.say(ERR, f"PLC {link.label}: {exc}; retrying {how}"
-                         if link.key else f"PLC: {exc}; retrying {how}",
-                         f"{link.key}dial:{exc.kind}")
-
     def _connected(self, link: Link, attempt: int) -> None:
-        self.counters.connects += 1
         self._poll_now = True  # poll at once, not at the next tick of the grid
         self._wake.set()
-        self._status("connected", f"connected after {attempt + 1} attempt(s)", link)
-        again = "" if link.connects == 1 else \
-            f", {time.monotonic() - link.outage_since:.1f} s after it went away"
-        self._good_news(NOTICE, f"PLC {link.label}: connected after {attempt + 1} "
-                                f"attempt(s){again}", f"{link.key}lost",
-                        first=link.connects == 1)
+        self.reporter.connected(link, attempt)
 
     async def _open_flame(self) -> None:
         assert self.flame is not None
@@ -480,54 +329,20 @@ class Daemon:
         if self.flame.connected and attempt:
             self.journal.say(NOTICE, "CAN bus open again", "event:can_unavailable")
 
-    # -- status -----------------------------------------------------------------------------------
-    @property
-    def state(self) -> str:
-        """connected when every device is; a device away makes the daemon disconnected
-        (its points are missing), whichever device it is."""
-        return "connected" if all(link.state == "connected" for link in self.links) \
-            else "disconnected"
-
-    def _status(self, state: str | None, detail: str, link: Link | None = None) -> None:
-        """A /daq/status message. With `link`, that device's state changed to `state`
-        (named in `device`); without, `state` applies to every device (start, stop), None
-        to none (a periodic or log-error message). `devices` holds each device's state."""
-        if link is not None and state is not None:
-            link.state, link.detail = state, detail
-            detail = link.named(detail)
-        elif state is not None:
-            for each in self.links:
-                each.state = state
-        self.detail = detail
-        self._last_status_mono = time.monotonic()
-        now = self.wall_ns()
-        msg = DaqStatus(self.state, detail, **asdict(self.counters),
-                        period_s=self.config.poll_period_s,
-                        devices={each.name: each.state for each in self.links},
-                        device=None if link is None else link.name,
-                        log_error=self.log.error or None)
-        self._write(msg, now, now)
-        self.notifier.status(self._status_line())
-
-    def _status_line(self) -> str:
-        c = self.counters
-        line = (f"{self.state}: {c.ok_polls}/{c.polls} polls ok, {c.comm_errors} errors, "
-                f"{c.skipped_ticks} skipped, {c.disconnects} drops")
-        return line + (f"; LOG: {self.log.error}" if self.log.error else "")
-
+    # -- writing ----------------------------------------------------------------------------------
     def _write(self, message: AnyMessage, log_ns: int, pub_ns: int) -> None:
         self.log.write(message.TOPIC, message.to_json(), log_ns, pub_ns)
         if isinstance(message, DaqEvent):
-            self._tell_event(message)
+            self.reporter.tell_event(message)
         if self.refit is not None and isinstance(message, Thermocouples | Burners | Ambient):
             self.refit.feed(message, pub_ns)
 
     def _event(self, message: DaqEvent, now_ns: int) -> None:
         """A /daq/events message, also told to the journal."""
         self.log.write(DAQ_EVENTS, message.to_json(), now_ns, now_ns)
-        self._tell_event(message)
+        self.reporter.tell_event(message)
 
-    def _tell_event(self, message: Event) -> None:
-        kind = str(message.kind)
-        self.journal.say(EVENT_PRIORITY.get(message.kind, NOTICE),  # type: ignore[call-overload]
-                         f"{kind}: {message.detail}", f"event:{kind}")
+    @property
+    def state(self) -> str:
+        """connected when every device is (see Reporter.state)."""
+        return self.reporter.state

@@ -16,10 +16,14 @@ new connection runs at once and the tick grid restarts there. Every change of st
 message on /daq/status, so a gap in the data is always explained next to it.
 
 Journal. Every change of connection state, every kind of failure and every event also goes
-to stderr with an sd-daemon priority prefix (journal.Journal: `<3>` errors, `<4>` warnings,
-`<5>` notices), each kind at most once per `stderr_interval_s` with a count of the repeats,
-so `journalctl -p err` shows why the data stopped. Failed polls are counted by kind
-(`Counters.failures`): a tick while disconnected counts as the kind of the outage.
+to stderr with an sd-daemon priority prefix, each kind rate-limited (statusreport), so
+`journalctl -p err` shows why the data stopped.
+
+Parts. This module is the loop and the wiring; each job it runs is a part that can be
+driven alone: devicelink (a device's dialling, backoff and reads), samplemerge (several
+devices as one, staleness), plcclock (publish time), messagebuild (log messages, the burner
+comparison), statusreport (status messages, counters, journal lines), refitpump and
+statewriter (online refits and their state files).
 
 Time. log_time is host UTC at acquisition. publish_time is the PLC's clock when the map has
 one: epoch + PLC seconds, the epoch given in the config or anchored at the first reading (and
@@ -41,12 +45,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Protocol
 
 from furnace_model.log.messages import (
@@ -55,49 +55,31 @@ from furnace_model.log.messages import (
     Burners,
     DaqEvent,
     DaqEventKind,
-    DaqStatus,
-    Event,
-    ModelEvent,
-    ModelEventKind,
-    ModelParameters,
     Thermocouples,
 )
 from furnace_model.log.schema import DAQ_EVENTS
 
-from .daqconfig import DaqConfig, PlcConfig
-from .journal import ERR, INFO, NOTICE, WARNING, Journal
+from .daqconfig import DaqConfig
+from .devicelink import Link, sleep_unless
+from .journal import NOTICE, Journal
 from .logclock import LogClock
-from .refitworker import RefitRunner
-from .registers import COMM_ERROR, OK, STALE
+from .messagebuild import FlameComparison, MessageBuilder
+from .plcclock import PlcClock
+from .refitpump import RefitPump
+from .samplemerge import merge
 from .sdnotify import Notifier
 from .sources import (
-    CONNECT_FAILURES,
     CanSource,
     ModbusSource,
     Sample,
     Source,
     SourceError,
-    exception_text,
-    failure_kind,
 )
-from .statefile import write_json_atomic
+from .statusreport import EVENT_PRIORITY, Counters, Reporter, summary
 
-MODEL_FILE = "model.json"
-CHAIN_FILE = "refit_chain.json"
-STOP_WAIT_S = 10.0
-"""At stop, how long windows already cut may still be fitted."""
-_D, _M = DaqEventKind, ModelEventKind
-EVENT_PRIORITY: dict[DaqEventKind | ModelEventKind, int] = {
-    _D.CAN_UNAVAILABLE: ERR, _D.REFIT_ERROR: ERR, _D.STATE_WRITE_FAILED: ERR,
-    _D.ON_MODEL_ERROR: ERR, _D.WRITE_BACK_FAILED: ERR,
-    _D.CLOCK_STEP: WARNING, _D.MISSED_TICK: WARNING, _D.BURNER_DISAGREEMENT: WARNING,
-    _D.STATE_UNUSABLE: WARNING, _D.REFIT_ABANDONED: WARNING, _M.WINDOW_DROPPED: WARNING,
-    _D.LOG_RECOVERED: WARNING, _D.LOG_GAP: WARNING,
-    _D.PLC_CLOCK_RESET: NOTICE, _D.BURNER_AGREEMENT: NOTICE, _D.WRITE_BACK_OK: NOTICE,
-    _M.DRIFT: NOTICE, _D.REFIT_RESUMED: INFO,
-}
-"""Journal priority of each /daq/events and /model/events kind (others: notice). The kinds
-are str-valued, so a kind read back as its name finds its priority too."""
+__all__ = ["EVENT_PRIORITY", "Counters", "Daemon", "Log", "summary"]
+"""The journal's priorities, the counters and the closing summary are the status reporter's
+(statusreport); they are named here too, where the daemon's users look for them."""
 
 
 class Log(Protocol):
@@ -109,90 +91,6 @@ class Log(Protocol):
     def maybe_flush(self, now_monotonic: float) -> None: ...
 
     def close(self) -> None: ...
-
-
-@dataclass
-class Counters:
-    polls: int = 0
-    ok_polls: int = 0
-    comm_errors: int = 0
-    skipped_ticks: int = 0
-    connects: int = 0
-    disconnects: int = 0
-    connect_attempts: int = 0
-    can_frames: int = 0
-    disagreements: int = 0
-    failures: dict[str, int] = field(default_factory=dict)
-    """Polls that gave no data, by kind ('connection refused', 'poll timeout', ...); a tick
-    while disconnected counts as the kind of failure that keeps the PLC away."""
-    incomplete: dict[str, int] = field(default_factory=dict)
-    """Polls that were logged with a block the PLC refused, by block and exception."""
-
-
-def _by_kind(counts: dict[str, int]) -> str:
-    return ", ".join(f"{n} {kind}" for kind, n in sorted(counts.items(), key=lambda kv: -kv[1]))
-
-
-def summary(counters: Counters) -> tuple[int, str]:
-    """The journal priority and text of the line the daemon ends with: the counters, then
-    the failed polls by kind, so the journal says why there was no data without the log."""
-    c = counters
-    text = (f"stopped: {c.ok_polls}/{c.polls} polls ok, {c.comm_errors} errors, "
-            f"{c.skipped_ticks} skipped ticks, {c.disconnects} drops")
-    failed = sum(c.failures.values())
-    if failed:
-        text += f"; {failed} failed: {_by_kind(c.failures)}"
-    if c.incomplete:
-        text += f"; {sum(c.incomplete.values())} incomplete: {_by_kind(c.incomplete)}"
-    priority = INFO
-    if failed or c.incomplete:
-        priority = ERR if c.polls and not c.ok_polls else WARNING
-    return priority, text
-
-
-class Link:
-    """One Modbus device as the daemon keeps it: its source, and the state of its
-    connection and redials. Each device has its own, so one that is down is redialled on
-    its own schedule and never marks the others' points."""
-
-    def __init__(self, device: PlcConfig, source: Source, named: bool):
-        self.device, self.source = device, source
-        self.name = device.name
-        where = f"{getattr(source, 'host', '?')}:{getattr(source, 'port', '?')}"
-        if device.transport == "rtu":
-            where = device.where
-        self.label = f"{device.name} ({where})" if named else where
-        """How the journal names the device: host:port alone when it is the only one."""
-        self.key = f"{device.name}:" if named else ""
-        """Prefix of its journal kinds, so each device is rate-limited on its own."""
-        self.state = "disconnected"
-        self.detail = "starting"
-        self.connected = asyncio.Event()
-        self.need_dial = asyncio.Event()
-        self.need_dial.set()
-        self.consecutive_errors = 0
-        self.dials_since_ok = 0  # dials since the last good poll: the backoff's step
-        self.down_kind = "no connection yet"  # why the device is away, for the failure count
-        self.outage_since = time.monotonic()  # the fast redial phase counts from here
-        self.hangups = 0  # connections lost before one good poll: the backoff's step
-        self.slow_steps = 0  # backoff waits after the fast redial phase
-        self.connects = 0
-        self.heartbeat: tuple[float | str, float] | None = None  # (value, when it changed)
-        self.was_stale = self.last_stale = False
-
-    @property
-    def read_budget_s(self) -> float:
-        """The longest one poll of this device may take: its timeout, plus the pauses its
-        workarounds ask for."""
-        d = self.device
-        w = d.workarounds
-        n = len(getattr(self.source, "requests", ())) or 1
-        budget = d.timeout_s + w.pause_between_requests_s * (n - 1)
-        if w.close_connection_after_gather:
-            budget += d.timeout_s + w.pause_after_connect_s
-        if w.one_request_per_field:
-            budget += d.timeout_s * (n - 1)
-        return budget
 
 
 class Daemon:
@@ -215,33 +113,25 @@ class Daemon:
             self.flame = CanSource(config.can)
         self.notifier = notifier or Notifier({})
         self.wall_ns = LogClock(wall_ns)
-        self.counters = Counters()
-        self.detail = "starting"
+        self.reporter = Reporter(config, self.links, self.journal, self.notifier,
+                                 write=self._write, wall_ns=self.wall_ns,
+                                 log_error=lambda: self.log.error)
+        self.counters = self.reporter.counters
         self._stop = asyncio.Event()
         self._wake = asyncio.Event()  # stop, or a new connection to poll at once
         self._poll_now = False
-        self._missed_unreported = 0
-        self._last_missed_event = float("-inf")
         self._where = ", ".join(link.label for link in self.links)
-        self._qualities: dict[str, str] = {}  # last quality of each point, told on change
-        self._told_bad: set[str] = set()  # kinds whose bad news reached the journal
-        self._epoch_ns: int | None = None
-        if config.clock is not None and config.clock.epoch is not None:
-            self._epoch_ns = config.clock.epoch.value
-        self._last_plc_s: float | None = None
-        self._disagree: tuple[frozenset[str], int] = (frozenset(), 0)
-        self._reported_disagreement: frozenset[str] = frozenset()
-        self._last_status_mono = float("-inf")
-        self._log_error_told: str | None = None
-        self.on_model = on_model
-        self.refit: RefitRunner | None = None
+        self.plc_clock = PlcClock(None if config.clock is None or config.clock.epoch is None
+                                  else config.clock.epoch.value)
+        self.messages = MessageBuilder(config)
+        self.flame_comparison = FlameComparison(config.furnace.zones, config.disagreement_polls)
+        self.refit: RefitPump | None = None
         if config.refit is not None:
-            self.refit = RefitRunner(config.refit, self._model_message,
-                                     t_air_default=config.ambient_default_c,
-                                     max_queue=config.refit.queue_max, furnace=config.furnace)
-        self._state_writer: ThreadPoolExecutor | None = None
-        self._state_error: str | None = None  # set by the writer thread
-        self._state_reported: str | None = None
+            self.refit = RefitPump(
+                config.refit, t_air_default=config.ambient_default_c, furnace=config.furnace,
+                wall_ns=self.wall_ns, event=self._event, tell=self.reporter.tell_event,
+                log_write=lambda *args: self.log.write(*args),
+                plc_clock_seen=lambda: self.plc_clock.seen, on_model=on_model)
 
     # -- life cycle ----------------------------------------------------------------------------
     def stop(self) -> None:
@@ -255,13 +145,14 @@ class Daemon:
             link.outage_since = t_start
         where = self._where
         self.notifier.ready(f"polling {where} every {self.config.poll_period_s:g} s")
-        self._status("disconnected", f"starting; dialling PLC at {where}")
+        self.reporter.status("disconnected", f"starting; dialling PLC at {where}")
         if self.refit is not None:
-            self._resume_chain()
             self.refit.start()
-            self._state_writer = ThreadPoolExecutor(1, thread_name_prefix="state-writer")
-        tasks = [asyncio.create_task(self._connector(link), name=f"{link.name} connector")
-                 for link in self.links]
+        tasks = [asyncio.create_task(
+            link.keep_dialled(self._stop, on_dial=self.reporter.dialling,
+                              on_failure=self.reporter.dial_failed,
+                              on_connected=self._connected), name=f"{link.name} connector")
+            for link in self.links]
         if self.flame is not None:
             tasks.append(asyncio.create_task(self._open_flame(), name="can connector"))
         try:
@@ -284,9 +175,10 @@ class Daemon:
                 await link.source.close()
             if self.flame is not None:
                 await self.flame.close()
-            await self._finish_refits()
+            if self.refit is not None:
+                await self.refit.finish(self.notifier.watchdog)
             self.journal.flush()
-            self._status("disconnected", "stopping")
+            self.reporter.status("disconnected", "stopping")
             self.log.close()
             self.notifier.close()
         return self.counters
@@ -319,21 +211,7 @@ class Daemon:
             if late > 0:  # the next grid point has passed already: skip, do not burst
                 missed = int(late // period) + 1
                 k += missed
-                self.counters.skipped_ticks += missed
-                self._missed(missed)
-
-    def _missed(self, n: int) -> None:
-        """One /daq/events message per status interval at most, however long a stall."""
-        self._missed_unreported += n
-        now = time.monotonic()
-        if now - self._last_missed_event >= self.config.status_interval_s:
-            self._last_missed_event = now
-            wall = self.wall_ns()
-            self._write(DaqEvent(DaqEventKind.MISSED_TICK,
-                                 f"{self._missed_unreported} poll tick(s) skipped: a poll "
-                                 "or the host was slower than the period",
-                                 skipped=self._missed_unreported), wall, wall)
-            self._missed_unreported = 0
+                self.reporter.missed(missed)
 
     # -- one tick -----------------------------------------------------------------------------
     async def tick(self) -> None:
@@ -352,28 +230,21 @@ class Daemon:
                 flame_sample = await self.flame.read()
                 c.can_frames = getattr(self.flame, "frames", 0)
             if flame_sample is not None and flame_sample.burners is not None:
-                self._write(self._burner_message(flame_sample, "can"), log_ns, log_ns)
+                self._write(self.messages.burners(flame_sample, "can"), log_ns, log_ns)
         if plc_sample is not None and flame_sample is not None:
-            self._compare_burners(plc_sample, flame_sample, log_ns)
+            event = self.flame_comparison.compare(plc_sample, flame_sample)
+            if event is not None:
+                if event.kind == DaqEventKind.BURNER_DISAGREEMENT:
+                    c.disagreements += 1
+                self._write(event, log_ns, log_ns)
         if self.refit is not None:
-            self._pump_refits()
+            self.refit.pump()
         now = time.monotonic()
-        if now - self._last_status_mono >= self.config.status_interval_s:
-            self._status(None, self.detail)
+        self.reporter.periodic(now)
         self.log.maybe_flush(now)
-        if self.log.error != self._log_error_told:  # a full disk is news at once, journal too
-            self._log_error_told = self.log.error
-            if self.log.error:
-                self.journal.say(ERR, f"log: {self.log.error}")
-            else:
-                self.journal.say(NOTICE, "log: writing again")
-            self._status(None, self.detail)
+        self.reporter.tell_log_error()
         self.journal.pump()
         self.notifier.watchdog(now)
-
-    def _count_failure(self, kind: str, counts: dict[str, int] | None = None) -> None:
-        counts = self.counters.failures if counts is None else counts
-        counts[kind] = counts.get(kind, 0) + 1
 
     async def _poll_devices(self, log_ns: int) -> Sample | None:
         """Every device read at once, each within its own budget: one that hangs costs the
@@ -387,291 +258,62 @@ class Daemon:
         missing: list[str] = []
         for link, (sample, failure) in zip(self.links, results, strict=True):
             if sample is not None:
-                link.consecutive_errors = link.dials_since_ok = 0
-                link.hangups = link.slow_steps = 0
-                link.last_stale = self._stale(link, sample)
+                link.polled()
+                link.last_stale = link.heartbeat.stale(sample.heartbeat, time.monotonic(),
+                                                       self.config.stale_after_s)
                 good.append((link, sample))
             elif failure is not None:
                 reason, kind = failure
-                c.comm_errors += 1
-                link.consecutive_errors += 1
-                self._count_failure(self._named(link, kind))
-                self.journal.say(WARNING, f"PLC {link.label}: poll failed ({kind}): {reason}",
-                                 f"{link.key}poll:{kind}")
+                link.poll_failed()
+                self.reporter.poll_failed(link, reason, kind)
                 failed.append((link, reason, kind))
-                missing.append(self._named(link, reason))
+                missing.append(link.named(reason))
             else:  # away: counted as the kind of the outage
-                self._count_failure(self._named(link, link.down_kind))
-                missing.append(self._named(link, f"not connected ({link.down_kind})"))
+                self.reporter.away(link)
+                missing.append(link.named(f"not connected ({link.down_kind})"))
         merged: Sample | None = None
         if good:
             if len(good) == len(self.links):
                 c.ok_polls += 1
-            merged = self._merge(good, missing)
+            merged = merge(good, missing, self.config.furnace.zones, self.config.burner_source)
             self._log_plc(merged, log_ns)
             for link, sample in good:
-                self._tell_sample(link, sample)
+                self.reporter.tell_sample(link, sample)
         elif failed:
             # no reading: the sensors' fields are absent (the schema has no null), quality says why
-            msg = Thermocouples({}, {s: COMM_ERROR for s in self.config.furnace.sensors},
-                                error="; ".join(missing))
-            self._write(msg, log_ns, log_ns)
+            self._write(self.messages.no_reading(missing), log_ns, log_ns)
         for link, reason, kind in failed:
-            if link.consecutive_errors >= link.device.max_consecutive_errors:
+            if link.failing:
                 await link.source.close()
                 self._lost(link, f"{link.consecutive_errors} failed polls in a row, last: "
                                  f"{reason}", kind)
         return merged
 
-    def _named(self, link: Link, text: str) -> str:
-        return f"{link.name}: {text}" if self.config.several_devices else text
-
     async def _read(self, link: Link) -> tuple[Sample | None, tuple[str, str] | None]:
-        """One device's poll: (sample, None), (None, (reason, kind)) when it failed, or
-        (None, None) when the device is away."""
-        if link.connected.is_set() and not link.source.connected:
+        if link.closed_by_peer:
             self._lost(link, "connection closed by the PLC", "connection lost")
-        if not link.connected.is_set():
-            return None, None
-        try:
-            return await asyncio.wait_for(link.source.read(), link.read_budget_s), None
-        except (SourceError, TimeoutError, OSError) as exc:
-            return None, (str(exc) or "timeout", failure_kind(exc))
-        except Exception as exc:  # a malformed reply must not end acquisition
-            return None, (f"{type(exc).__name__}: {exc}", failure_kind(exc))
-
-    def _merge(self, good: list[tuple[Link, Sample]], missing: list[str]) -> Sample:
-        """One sample from the devices that delivered, as if one PLC held every point:
-        each device's staleness marks its own points only."""
-        out = Sample()
-        burners: dict[str, list[bool]] = {}
-        burner_quality = OK
-        for link, s in good:
-            stale = link.last_stale
-            out.values.update(s.values)
-            out.quality.update({k: STALE if stale and q == OK else q
-                                for k, q in s.quality.items()})
-            if s.plc_seconds is not None:
-                out.plc_seconds = s.plc_seconds
-            if s.burners is not None:
-                burners.update(s.burners)
-                if stale and s.burner_quality == OK:
-                    burner_quality = STALE
-            if s.burner_quality != OK:
-                burner_quality = s.burner_quality
-            out.errors += [self._named(link, e) for e in s.errors]
-            out.refused.update(s.refused)
-        out.errors += missing
-        if self.config.burner_source in ("modbus", "both"):
-            if all(z in burners for z in self.config.furnace.zones):
-                out.burners = burners
-            else:
-                burner_quality = COMM_ERROR
-        out.burner_quality = burner_quality
-        return out
+        return await link.read()
 
     def _lost(self, link: Link, why: str, kind: str) -> None:
-        link.connected.clear()
-        link.need_dial.set()
-        link.consecutive_errors = 0
-        self.counters.disconnects += 1
-        link.down_kind = kind
-        if link.dials_since_ok:  # lost before one good poll: the PLC accepts and hangs up
-            link.hangups += 1
-        else:  # the last poll was good: an outage starts here
-            link.outage_since = time.monotonic()
-        self._status("disconnected", why, link)
-        self._bad_news(ERR, f"PLC {link.label}: connection lost: {why}", f"{link.key}lost")
-
-    def _tell_sample(self, link: Link, sample: Sample) -> None:
-        """The journal hears of a block the PLC refuses and of each point whose quality
-        changes, not of every poll that repeats them."""
-        keys = self.config.key_paths()
-        for req, code in sample.refused.items():
-            block = f"{req.table} {req.address}+{req.count}"
-            self._count_failure(f"{block} refused with exception code "
-                                f"{'?' if code is None else code}", self.counters.incomplete)
-            items = getattr(link.source, "items", ())
-            names = [keys.get(item.name, item.name) for item in items
-                     if item.table == req.table and req.address <= item.address < req.end]
-            self.journal.say(ERR, f"PLC {link.label}: {block} refused with "
-                                  f"{exception_text(code)}: {', '.join(names) or 'no point'} "
-                                  f"not read (check the register map)",
-                             f"{link.key}refused:{block}")
-        stale = link.was_stale
-        for name, quality in sample.quality.items():
-            before = self._qualities.get(name, OK)
-            self._qualities[name] = quality
-            if quality == before or quality in (COMM_ERROR, STALE):
-                continue  # refused blocks are told above, staleness below
-            key = keys.get(name, name)
-            if quality == OK:
-                self._good_news(NOTICE, f"{key}: ok again", f"quality:{name}")
-            else:
-                self._bad_news(WARNING, f"{key}: {quality}", f"quality:{name}")
-        now_stale = link.last_stale
-        if now_stale != stale:
-            link.was_stale = now_stale
-            if now_stale:
-                self._bad_news(WARNING, f"PLC {link.label}: values stale, heartbeat "
-                                        f"unchanged for {self.config.stale_after_s:g} s "
-                                        "(PLC program stopped?)", f"{link.key}stale")
-            else:
-                self._good_news(NOTICE, f"PLC {link.label}: values moving again",
-                                f"{link.key}stale")
-
-    def _bad_news(self, priority: int, text: str, kind: str) -> None:
-        if self.journal.say(priority, text, kind):
-            self._told_bad.add(kind)
-        else:
-            self._told_bad.discard(kind)
-
-    def _good_news(self, priority: int, text: str, kind: str, first: bool = False) -> None:
-        """The end of a trouble the journal was told of is always told: a reader must not
-        be left believing the PLC is still away. Recoveries from troubles it was not told
-        of (held back as repeats) are rate-limited like them."""
-        if first or kind in self._told_bad:
-            self._told_bad.discard(kind)
-            self.journal.say(priority, text)
-        else:
-            self.journal.say(priority, text, f"{kind}:recovered")
+        link.lose(kind)
+        self.reporter.lost(link, why)
 
     def plc_items(self) -> list:
         return [it for link in self.links for it in getattr(link.source, "items", ())]
 
     # -- logging a PLC sample -------------------------------------------------------------------
-    def _publish_ns(self, sample: Sample, log_ns: int) -> int:
-        s = sample.plc_seconds
-        if s is None:
-            return log_ns
-        if self._last_plc_s is not None and s < self._last_plc_s and \
-                (self.config.clock is None or self.config.clock.epoch is None):
-            self._write(DaqEvent(DaqEventKind.PLC_CLOCK_RESET,
-                                 f"PLC clock went back from {self._last_plc_s:g} s "
-                                 f"to {s:g} s; publish time re-anchored"), log_ns, log_ns)
-            self._epoch_ns = None
-        self._last_plc_s = s
-        if self._epoch_ns is None:
-            self._epoch_ns = log_ns - int(round(s * 1e9))
-        return self._epoch_ns + int(round(s * 1e9))
-
-    def _stale(self, link: Link, sample: Sample) -> bool:
-        """Whether the device's heartbeat has stood still for `stale_after_s`."""
-        if sample.heartbeat is None:
-            return False
-        now = time.monotonic()
-        if link.heartbeat is None or sample.heartbeat != link.heartbeat[0]:
-            link.heartbeat = (sample.heartbeat, now)
-            return False
-        return now - link.heartbeat[1] > self.config.stale_after_s
-
     def _log_plc(self, sample: Sample, log_ns: int) -> None:
-        pub = self._publish_ns(sample, log_ns)
-        quality = sample.quality  # each device's staleness is in its qualities already (_merge)
-        # a reading that is not there is left out: the schema declares numbers, never null
-        sensors = self.config.furnace.sensors
-        tc = Thermocouples({s: v for s in sensors if (v := sample.values.get(s)) is not None},
-                           {s: quality.get(s, COMM_ERROR) for s in sensors})
-        stamp: int | None = None  # the PLC's clock, when it has one
-        if sample.plc_seconds is not None:
-            stamp = pub
-            tc.plc_seconds, tc.plc_time = sample.plc_seconds, stamp
-        if sample.errors:  # blocks the PLC refused: why some points are comm_error
-            tc.error = "; ".join(sample.errors)
-        self._write(tc, log_ns, pub)
-        if self.config.ambient is not None:
-            amb = Ambient(sample.values.get("t_air"), quality.get("t_air", COMM_ERROR),
-                          plc_time=stamp)
-        else:
-            amb = Ambient(self.config.ambient_default_c, OK, True, stamp)
-        self._write(amb, log_ns, pub)
-        if sample.burners is not None:
-            self._write(self._burner_message(sample, "modbus", stamp), log_ns, pub)
-
-    def _burner_message(self, sample: Sample, source: str, stamp: int | None = None
-                        ) -> Burners:
-        assert sample.burners is not None
-        states = {z: sample.burners[z] for z in self.config.furnace.zones}
-        return Burners.from_states(states, source, sample.burner_quality, stamp)
-
-    def _compare_burners(self, plc: Sample, flame: Sample, log_ns: int) -> None:
-        """An event when PLC states and flame scanners disagree for `disagreement_polls`
-        polls in a row, and one when they agree again: a burner commanded on whose flame
-        is out (or the reverse) is what an operator must see."""
-        if plc.burners is None or flame.burners is None or plc.burner_quality != OK \
-                or flame.burner_quality != OK:
-            return
-        diff = frozenset(f"{z}[{i}]" for z in self.config.furnace.zones
-                         for i, (a, b) in enumerate(zip(plc.burners[z], flame.burners[z],
-                                                        strict=True)) if a != b)
-        seen, n = self._disagree
-        n = n + 1 if diff == seen else 1
-        self._disagree = (diff, n)
-        if diff == self._reported_disagreement or n < self.config.disagreement_polls:
-            return
-        self._reported_disagreement = diff
-        if diff:
-            self.counters.disagreements += 1
-            detail = f"PLC and flame scanners disagree on {', '.join(sorted(diff))}"
-            kind = DaqEventKind.BURNER_DISAGREEMENT
-        else:
-            detail, kind = "PLC and flame scanners agree again", DaqEventKind.BURNER_AGREEMENT
-        self._write(DaqEvent(kind, detail, burners=sorted(diff), plc=plc.burners,
-                             flame=flame.burners), log_ns, log_ns)
+        pub, reset = self.plc_clock.publish_ns(sample.plc_seconds, log_ns)
+        if reset is not None:
+            self._write(reset, log_ns, log_ns)
+        for message in self.messages.readings(sample, pub):
+            self._write(message, log_ns, pub)
 
     # -- connections ------------------------------------------------------------------------------
-    async def _connector(self, link: Link) -> None:
-        """Dial while disconnected. A dial the PLC did not accept (refused, unreachable, no
-        answer) is retried every `retry_s` for the first `fast_for_s` of the outage: it costs
-        the PLC no session, and a restarted PLC is found within that interval. After that,
-        and whenever a connection is lost before one good poll (a PLC that accepts and hangs
-        up at once, its connection limit reached), the waits grow exponentially up to
-        `max_s`, so such a PLC is not redialled at every tick. Each device has its own."""
-        source = link.source
-        backoff = link.device.reconnect
-        while not self._stop.is_set():
-            if not link.need_dial.is_set():
-                await link.need_dial.wait()
-                if link.hangups:
-                    await self._sleep(backoff.delay(link.hangups - 1))
-                continue
-            attempt = link.dials_since_ok
-            link.dials_since_ok += 1
-            self.counters.connect_attempts += 1
-            started = time.monotonic()
-            try:
-                await source.connect()
-            except SourceError as exc:
-                now = time.monotonic()
-                link.down_kind = exc.kind
-                if exc.kind in CONNECT_FAILURES and now - link.outage_since < backoff.fast_for_s:
-                    wait = max(0.0, backoff.fast_s - (now - started))  # start to start
-                    how = f"every {backoff.fast_s:g} s"
-                else:
-                    wait = backoff.delay(link.slow_steps)
-                    link.slow_steps += 1
-                    how = f"in {wait:g} s (backing off up to {backoff.max_s:g} s)"
-                link.detail = self.detail = self._named(
-                    link, f"{exc}; retry {attempt + 1} in {wait:.3g} s")
-                self.journal.say(ERR, f"PLC {link.label}: {exc}; retrying {how}"
-                                 if link.key else f"PLC: {exc}; retrying {how}",
-                                 f"{link.key}dial:{exc.kind}")
-                await self._sleep(wait)
-                continue
-            self.counters.connects += 1
-            link.connects += 1
-            link.consecutive_errors = 0
-            link.heartbeat = None
-            link.need_dial.clear()
-            link.connected.set()
-            self._poll_now = True  # poll at once, not at the next tick of the grid
-            self._wake.set()
-            self._status("connected", f"connected after {attempt + 1} attempt(s)", link)
-            again = "" if link.connects == 1 else \
-                f", {time.monotonic() - link.outage_since:.1f} s after it went away"
-            self._good_news(NOTICE, f"PLC {link.label}: connected after {attempt + 1} "
-                                    f"attempt(s){again}", f"{link.key}lost",
-                            first=link.connects == 1)
+    def _connected(self, link: Link, attempt: int) -> None:
+        self._poll_now = True  # poll at once, not at the next tick of the grid
+        self._wake.set()
+        self.reporter.connected(link, attempt)
 
     async def _open_flame(self) -> None:
         assert self.flame is not None
@@ -682,161 +324,25 @@ class Daemon:
             except SourceError as exc:
                 now = self.wall_ns()
                 self._event(DaqEvent(DaqEventKind.CAN_UNAVAILABLE, str(exc)), now)
-                await self._sleep(self.config.plc.reconnect.delay(attempt))
+                await sleep_unless(self._stop, self.config.plc.reconnect.delay(attempt))
                 attempt += 1
         if self.flame.connected and attempt:
             self.journal.say(NOTICE, "CAN bus open again", "event:can_unavailable")
 
-    async def _sleep(self, seconds: float) -> None:
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._stop.wait(), seconds)
-
-    # -- status -----------------------------------------------------------------------------------
-    @property
-    def state(self) -> str:
-        """connected when every device is; a device away makes the daemon disconnected
-        (its points are missing), whichever device it is."""
-        return "connected" if all(link.state == "connected" for link in self.links) \
-            else "disconnected"
-
-    def _status(self, state: str | None, detail: str, link: Link | None = None) -> None:
-        """A /daq/status message. With `link`, that device's state changed to `state`
-        (named in `device`); without, `state` applies to every device (start, stop), None
-        to none (a periodic or log-error message). `devices` holds each device's state."""
-        if link is not None and state is not None:
-            link.state, link.detail = state, detail
-            detail = self._named(link, detail)
-        elif state is not None:
-            for each in self.links:
-                each.state = state
-        self.detail = detail
-        self._last_status_mono = time.monotonic()
-        now = self.wall_ns()
-        msg = DaqStatus(self.state, detail, **asdict(self.counters),
-                        period_s=self.config.poll_period_s,
-                        devices={each.name: each.state for each in self.links},
-                        device=None if link is None else link.name,
-                        log_error=self.log.error or None)
-        self._write(msg, now, now)
-        self.notifier.status(self._status_line())
-
-    def _status_line(self) -> str:
-        c = self.counters
-        line = (f"{self.state}: {c.ok_polls}/{c.polls} polls ok, {c.comm_errors} errors, "
-                f"{c.skipped_ticks} skipped, {c.disconnects} drops")
-        return line + (f"; LOG: {self.log.error}" if self.log.error else "")
-
+    # -- writing ----------------------------------------------------------------------------------
     def _write(self, message: AnyMessage, log_ns: int, pub_ns: int) -> None:
         self.log.write(message.TOPIC, message.to_json(), log_ns, pub_ns)
         if isinstance(message, DaqEvent):
-            self._tell_event(message)
+            self.reporter.tell_event(message)
         if self.refit is not None and isinstance(message, Thermocouples | Burners | Ambient):
-            self._guarded(self.refit.feed, message.TOPIC, message, pub_ns)
+            self.refit.feed(message, pub_ns)
 
     def _event(self, message: DaqEvent, now_ns: int) -> None:
         """A /daq/events message, also told to the journal."""
         self.log.write(DAQ_EVENTS, message.to_json(), now_ns, now_ns)
-        self._tell_event(message)
+        self.reporter.tell_event(message)
 
-    def _tell_event(self, message: Event) -> None:
-        kind = str(message.kind)
-        self.journal.say(EVENT_PRIORITY.get(message.kind, NOTICE),  # type: ignore[call-overload]
-                         f"{kind}: {message.detail}", f"event:{kind}")
-
-    # -- refits -----------------------------------------------------------------------------------
-    def _guarded(self, call: Callable, *args) -> None:
-        """Online identification is a guest of the acquisition: whatever goes wrong in it is
-        an event, never the end of polling."""
-        try:
-            call(*args)
-        except Exception as exc:  # noqa: BLE001
-            now = self.wall_ns()
-            self._event(DaqEvent(DaqEventKind.REFIT_ERROR,
-                                 f"refit pipeline: {type(exc).__name__}: {exc}"), now)
-
-    def _pump_refits(self) -> None:
-        assert self.refit is not None
-        self._guarded(self.refit.pump)
-        self._report_state_error()
-
-    def _report_state_error(self) -> None:
-        error = self._state_error
-        if error != self._state_reported:
-            self._state_reported = error
-            if error is not None:
-                now = self.wall_ns()
-                self._event(DaqEvent(DaqEventKind.STATE_WRITE_FAILED,
-                                     f"latest model not saved: {error}"), now)
-
-    def _model_message(self, topic: str, message: ModelParameters | ModelEvent,
-                       pub_ns: int) -> None:
-        if self._last_plc_s is not None:  # the data clock is the PLC's: say so in its field
-            message.plc_time = pub_ns
-        data = message.to_json()
-        self.log.write(topic, data, self.wall_ns(), pub_ns)
-        if isinstance(message, ModelEvent):
-            self._tell_event(message)
-            return
-        if self.on_model is not None:  # a consumer sees the message as logged
-            try:
-                self.on_model(data)
-            except Exception as exc:  # noqa: BLE001 - a consumer's bug is not ours to die of
-                now = self.wall_ns()
-                self._event(DaqEvent(DaqEventKind.ON_MODEL_ERROR,
-                                     f"{type(exc).__name__}: {exc}"), now)
-        if self._state_writer is not None and self.config.refit is not None:
-            state_dir = self.config.refit.state_dir
-            files = [(state_dir / MODEL_FILE, data)]
-            if self.refit is not None:  # the chain has taken this window in already
-                files.append((state_dir / CHAIN_FILE, self.refit.chain.state()))
-            self._state_writer.submit(self._write_state, files)
-
-    def _resume_chain(self) -> None:
-        """Go on with the model in force and the drift references a previous run left, so
-        that a restart neither forgets the model nor starts drift detection afresh. A state
-        file that cannot be used is reported and set aside; the chain then starts empty."""
-        assert self.refit is not None and self.config.refit is not None
-        path = self.config.refit.state_dir / CHAIN_FILE
-        now = self.wall_ns()
-        try:
-            self.refit.chain.restore(json.loads(path.read_text(encoding="utf-8")))
-        except FileNotFoundError:
-            return
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
-            detail = f"{path}: {getattr(exc, 'strerror', None) or exc}; refits start afresh"
-            self._event(DaqEvent(DaqEventKind.STATE_UNUSABLE, detail), now)
-            return
-        model = self.refit.chain.model
-        detail = (f"from {path}: model of the window to {model.window_end}"
-                  if model is not None else f"from {path}: no model fitted yet")
-        self._event(DaqEvent(DaqEventKind.REFIT_RESUMED, detail), now)
-
-    def _write_state(self, files: list[tuple[Path, dict]]) -> None:
-        """In the writer thread; a failure is remembered and reported once per kind."""
-        for path, value in files:
-            try:
-                write_json_atomic(path, value)
-            except (OSError, ValueError, TypeError) as exc:
-                self._state_error = f"{path}: {getattr(exc, 'strerror', None) or exc}"
-                return
-        self._state_error = None
-
-    async def _finish_refits(self) -> None:
-        """At stop: give the windows already cut their fit (bounded), then end the worker."""
-        if self.refit is None:
-            return
-        # systemd gives a stopping unit 30 s (TimeoutStopSec): a fit in hand gets part of it
-        deadline = time.monotonic() + min(self.refit.kill_after_s, STOP_WAIT_S)
-        while self.refit.busy() and time.monotonic() < deadline:
-            self._pump_refits()
-            self.notifier.watchdog()
-            await asyncio.sleep(0.01)
-        left = len(self.refit.queue) + (self.refit.in_flight is not None)
-        if left:
-            now = self.wall_ns()
-            self._event(DaqEvent(DaqEventKind.REFIT_ABANDONED,
-                                 f"{left} refit window(s) not fitted at stop"), now)
-        self.refit.close()
-        if self._state_writer is not None:
-            self._state_writer.shutdown(wait=True)
-        self._report_state_error()
+    @property
+    def state(self) -> str:
+        """connected when every device is (see Reporter.state)."""
+        return self.reporter.state

@@ -14,7 +14,8 @@ import asyncio
 import time
 from dataclasses import dataclass, field
 
-from .daqconfig import DaqConfig, PlcConfig
+from .daqconfig import DaqConfig
+from .deviceconfig import PlcConfig
 from .registers import BIT_TABLES, COMM_ERROR, OK, BitRange, Image, Point, ReadRequest, span
 from .sources import CanSource, ModbusSource, SourceError, exception_text
 

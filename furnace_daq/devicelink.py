@@ -20,7 +20,7 @@ import contextlib
 import time
 from collections.abc import Callable
 
-from .daqconfig import PlcConfig
+from .deviceconfig import PlcConfig
 from .samplemerge import Heartbeat
 from .sources import CONNECT_FAILURES, Sample, Source, SourceError, failure_kind
 

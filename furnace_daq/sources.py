@@ -18,7 +18,8 @@ from pymodbus import FramerType
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from .daqconfig import CanConfig, DaqConfig, PlcConfig
+from .daqconfig import CanConfig, DaqConfig
+from .deviceconfig import PlcConfig
 from .registers import COMM_ERROR, OK, STALE, BitRange, Image, Point, ReadRequest, plan_reads
 
 CONNECT_FAILURES = frozenset({"connection refused", "connect timeout", "host unreachable",

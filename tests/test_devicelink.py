@@ -8,7 +8,7 @@ from dataclasses import replace
 
 from daq_processes import config, free_port
 
-from furnace_daq.daqconfig import Backoff, Workarounds
+from furnace_daq.deviceconfig import Backoff, Workarounds
 from furnace_daq.devicelink import Link
 from furnace_daq.sources import ModbusSource, SourceError
 

@@ -11,13 +11,30 @@ nothing it does not read.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import pandas as pd
 
 if TYPE_CHECKING:
-    from .structure import ModelStructure
+    from .furnace import Furnace
+
+
+class Simulated(Protocol):
+    """What a response asks of the structure that made it (`ModelStructure`), named here so
+    that the result does not depend on its producer."""
+
+    @property
+    def label(self) -> str: ...
+
+    @property
+    def furnace(self) -> Furnace: ...
+
+    @property
+    def has_sensor_offsets(self) -> bool: ...
+
+    def sensor_offsets(self, values: Mapping[str, np.ndarray], t: np.ndarray
+                       ) -> np.ndarray: ...
 
 
 class Response:
@@ -31,7 +48,7 @@ class Response:
     fit compares with the data. No bias or noise: those belong to a plant's thermocouples.
     """
 
-    def __init__(self, t: np.ndarray, zones: np.ndarray, structure: ModelStructure,
+    def __init__(self, t: np.ndarray, zones: np.ndarray, structure: Simulated,
                  values: Mapping[str, np.ndarray], states: np.ndarray | None = None,
                  recompute_states: Callable[[], np.ndarray] | None = None):
         self.t = np.asarray(t, dtype=float)

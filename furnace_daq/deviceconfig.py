@@ -1,0 +1,163 @@
+"""One device of the daemon's config: where it is (TCP host or serial line), how it is
+redialled, and the Telegraf workarounds it needs; read from a `plc:` section or one
+entry of `devices:`, every key checked, its defaults here."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from furnace_model.config import Node
+
+
+@dataclass(frozen=True)
+class Backoff:
+    """When to redial the PLC (docs/reliability.md, "Reconnect").
+
+    A dial the PLC never accepted (refused, unreachable, no answer) costs it no session, so
+    for the first `fast_for_s` of an outage those are retried every `retry_s`: a restarted
+    PLC is found within that interval. Everything else (a PLC that accepts and hangs up, an
+    outage longer than `fast_for_s`) backs off exponentially from `initial_s` to `max_s`."""
+
+    initial_s: float = 0.5
+    max_s: float = 5.0
+    factor: float = 2.0
+    retry_s: float = 0.5
+    fast_for_s: float = 120.0
+
+    def delay(self, attempt: int) -> float:
+        """Wait before reconnect attempt number `attempt` (0 = first retry)."""
+        return min(self.max_s, self.initial_s * self.factor ** min(attempt, 64))
+
+    @property
+    def fast_s(self) -> float:
+        """The fixed interval in use: `retry_s`, never longer than the backoff cap."""
+        return min(self.retry_s, self.max_s)
+
+
+TRANSPORTS = ("tcp", "rtu-over-tcp", "rtu")
+"""Modbus TCP; RTU frames over a TCP socket (a serial-to-Ethernet converter in transparent
+mode); RTU on a serial line."""
+PARITIES = ("N", "E", "O")
+
+
+@dataclass(frozen=True)
+class SerialConfig:
+    """A serial line, as pyserial opens it."""
+
+    port: str = "/dev/ttyUSB0"
+    baudrate: int = 19200
+    parity: str = "N"
+    stopbits: int = 1
+    bytesize: int = 8
+
+
+@dataclass(frozen=True)
+class Workarounds:
+    """Telegraf's Modbus `workarounds`, for devices that need them: a gateway that drops
+    the first request after a connect, a slow RTU slave behind a converter, a device that
+    allows only one connection and keeps it busy, one that refuses reads of more than a
+    few registers or over unmapped holes."""
+
+    pause_after_connect_s: float = 0.0
+    pause_between_requests_s: float = 0.0
+    close_connection_after_gather: bool = False
+    one_request_per_field: bool = False
+    max_registers_per_request: int = 125
+
+
+@dataclass(frozen=True)
+class PlcConfig:
+    """One Modbus device (the only one when the config has no `devices:` list)."""
+
+    host: str = "127.0.0.1"
+    port: int = 502
+    device_id: int = 1
+    timeout_s: float = 1.0
+    max_gap_registers: int = 8
+    max_gap_bits: int = 64
+    max_consecutive_errors: int = 3
+    reconnect: Backoff = field(default_factory=Backoff)
+    name: str = "plc"
+    transport: str = "tcp"
+    serial: SerialConfig | None = None
+    workarounds: Workarounds = field(default_factory=Workarounds)
+
+    @property
+    def where(self) -> str:
+        """host:port, or the serial port: what an engineer finds the device by."""
+        if self.transport == "rtu" and self.serial is not None:
+            return self.serial.port
+        return f"{self.host}:{self.port}"
+
+
+PLC_KEYS = {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
+            "max_consecutive_errors", "reconnect"}
+DEVICE_KEYS = PLC_KEYS | {"name", "transport", "serial", "workarounds"}
+
+
+def parse_device(node: Node, name: str = "plc") -> PlcConfig:
+    """A `plc:` section, or one entry of `devices:` (which adds name, transport, serial
+    line and workarounds)."""
+    rc = node.child("reconnect", {}).mapping({"initial_s", "max_s", "factor", "retry_s",
+                                              "fast_for_s"})
+    backoff = Backoff(rc.get_number("initial_s", 0.5, lo=0.01, hi=3600.0),
+                      rc.get_number("max_s", 5.0, lo=0.01, hi=86400.0),
+                      rc.get_number("factor", 2.0, lo=1.0, hi=10.0),
+                      rc.get_number("retry_s", 0.5, lo=0.01, hi=3600.0),
+                      rc.get_number("fast_for_s", 120.0, lo=0.0, hi=86400.0))
+    if backoff.max_s < backoff.initial_s:
+        raise rc.child("max_s").error(f"must be at least initial_s ({backoff.initial_s:g})")
+    transport = node.get_string("transport", "tcp", choices=TRANSPORTS)
+    serial = None
+    if transport == "rtu":
+        for key in ("host", "port"):
+            if node.has(key):
+                raise node.child(key).error("a serial device has no host or port: its line "
+                                            "is under serial: (port, baudrate, parity, stopbits)")
+        sn = node.child("serial").mapping({"port", "baudrate", "parity", "stopbits", "bytesize"})
+        serial = SerialConfig(port=sn.get_string("port"),
+                              baudrate=sn.get_integer("baudrate", 19200, lo=50, hi=4_000_000),
+                              parity=sn.get_string("parity", "N", choices=PARITIES),
+                              stopbits=sn.get_integer("stopbits", 1, lo=1, hi=2),
+                              bytesize=sn.get_integer("bytesize", 8, lo=7, hi=8))
+    elif node.has("serial"):
+        raise node.child("serial").error(f"applies to transport: rtu only (transport is "
+                                         f"{transport})")
+    wn = node.child("workarounds", {}).mapping(
+        {"pause_after_connect_s", "pause_between_requests_s", "close_connection_after_gather",
+         "one_request_per_field", "max_registers_per_request"})
+    workarounds = Workarounds(
+        pause_after_connect_s=wn.get_number("pause_after_connect_s", 0.0, lo=0.0, hi=60.0),
+        pause_between_requests_s=wn.get_number("pause_between_requests_s", 0.0, lo=0.0, hi=60.0),
+        close_connection_after_gather=wn.get_bool("close_connection_after_gather", False),
+        one_request_per_field=wn.get_bool("one_request_per_field", False),
+        max_registers_per_request=wn.get_integer("max_registers_per_request", 125, lo=1,
+                                                 hi=125))
+    return PlcConfig(
+        host=node.get_string("host", "127.0.0.1"),
+        port=node.get_integer("port", 502, lo=1, hi=65535),
+        device_id=node.get_integer("device_id", 1, lo=0, hi=255),
+        timeout_s=node.get_number("timeout_s", 1.0, lo=0.01, hi=60.0),
+        max_gap_registers=node.get_integer("max_gap_registers", 8, lo=0, hi=124),
+        max_gap_bits=node.get_integer("max_gap_bits", 64, lo=0, hi=1999),
+        max_consecutive_errors=node.get_integer("max_consecutive_errors", 3, lo=1, hi=1000),
+        reconnect=backoff, name=name, transport=transport, serial=serial,
+        workarounds=workarounds)
+
+
+def parse_devices(root: Node) -> tuple[PlcConfig, ...]:
+    if not root.has("devices"):
+        return ()
+    if root.has("plc"):
+        raise root.child("plc").error("give either plc: (one device) or devices: (a list), "
+                                      "not both")
+    out: list[PlcConfig] = []
+    for dn in root.child("devices").elements(1, 64):
+        dn.mapping(DEVICE_KEYS)
+        name = dn.get_string("name")
+        if not name or any(c.isspace() for c in name):
+            raise dn.child("name").error("expected a name without spaces")
+        if any(d.name == name for d in out):
+            raise dn.child("name").error(f"device {name} is listed twice")
+        out.append(parse_device(dn, name))
+    return tuple(out)

@@ -29,16 +29,15 @@ a long curved valley, are not to be trusted for an alarm. A reference that was i
 determined is replaced by the next value.
 
 Recent drift. A window much longer than the period moves only as the share of the window
-after a change grows (with 24 h every 15 min, f of a fuel switch took 1.5 h to alarm). So each
-fitted window also judges its newest `RECENT_PERIODS` periods alone: f re-estimated on them
-with the window model's a..e held (and the temperatures at the span's start; see
-`recent_f`), against
-f's reference: outside its interval, beyond the two uncertainties combined and by at least
-twice `drift_min_change` (RECENT_MIN_CHANGE_FACTOR). `drift_windows` such refits in a row moving the same way raise one event
-(`basis: recent`) and move f's reference to the recent value. A span in which no burner fires
-is not judged (f is seen only with heat input), nor is one longer than the window.
-Only the paper's structure has this one heat per burner; another furnace's network is judged
-on its windows alone.
+after a change grows (with 24 h every 15 min, f of a fuel switch needs hours to move beyond
+its interval). So each fitted window also judges its newest `RECENT_PERIODS` periods alone:
+f re-estimated on them with the window model's a..e held (and the temperatures at the span's
+start; see `recent_f`), against f's reference: outside its interval, beyond the two
+uncertainties combined and by at least twice `drift_min_change` (RECENT_MIN_CHANGE_FACTOR).
+`drift_windows` such refits in a row moving the same way raise one event (`basis: recent`)
+and move f's reference to the recent value. A span in which no burner fires is not judged (f
+is seen only with heat input), nor is one longer than the window. Only the paper's structure
+has this one heat per burner; another furnace's network is judged on its windows alone.
 
 Any furnace. The windows are of the furnace the daemon's config describes, and the model is
 its thermal network: /model/parameters carries the network's parameters (a..f for the

@@ -157,9 +157,8 @@ def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
     """The fit polished again from the effects' further starts (`Effect.starts`), the best
     kept. On a network, a thermocouple's error from a start is also taken off the readings
     and the network started where the equations' least squares fit what is left: a large
-    drift bends the baseline so far that from its rates the drift's fit finds only side
-    valleys (six-zone selfcheck drift row, draw 7: 57 °C on one of a pair, the baseline's
-    fitted error 6-17 °C in every zone)."""
+    drift (tens of degrees on one of a pair) bends the baseline so far that from its rates
+    the drift's fit finds only side valleys."""
     given = {**structure.defaults(), **init}
     tried, placed = [], [given]
     for e in structure.effects:

@@ -117,9 +117,9 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         # valley (seen: strong radiation, a held at its bound): search it from scratch too,
         # with a short evolutionary search (each generation is a batch). One that fits worse
         # than the baseline only when no candidate alone explains the gap: on a bent baseline
-        # that is radiation in most diagnoses, and searching it always took the paper's pair
-        # from 47 to 190 s for a verdict it did not change. Linear candidates are searched
-        # from scratch in their own task.
+        # that is radiation in most diagnoses, and searching it always would cost several
+        # times the whole diagnosis for a verdict it does not change. Linear candidates are
+        # searched from scratch in their own task.
         stuck = not any(credited(c) and near_floor(c, near) for c in fitted)
         off = [i for i, c in enumerate(fitted)
                if not structure_of(c.effects, c.options, furnace).linear
@@ -227,8 +227,8 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         if not good:
             # No further effect earns its place, but a combination's fit may have taken the
             # kept effects out of the side valley their own fit stopped in, the added effect
-            # doing nothing (six-zone lag draw 2: the lag alone left 8-9 °C of held-out error
-            # in every zone; beside an undetermined drift, 1-1.5 °C). The kept set refitted
+            # doing nothing (a one-zone lag on a network of many zones can stop where it
+            # leaves the held-out error of every zone high). The kept set refitted
             # from the combination that fits best replaces it when it fits the fitted data
             # better: the same model at a lower criterion.
             lowest = min((c for c in step if np.isfinite(c.sse_fit)),

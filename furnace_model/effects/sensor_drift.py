@@ -18,9 +18,9 @@ MAX_RATE = 0.2
 """°C/min: a drift faster than 12 °C an hour is a broken thermocouple, not a drift."""
 
 ONSET_STARTS = 8
-"""Onsets a lone thermocouple's drift is started from, evenly over the fitted records. On the
-six-zone selfcheck's drift row, draw 9, two of eight reached the true onset's valley; the
-start from the baseline reached a side valley that closed a tenth of the gap."""
+"""Onsets a lone thermocouple's drift is started from, evenly over the fitted records: an
+onset nothing places has a side valley wherever it meets a step of the record, and the
+start from the baseline alone can stop in one that closes little of the gap."""
 
 
 class SensorDrift(Effect):

@@ -26,8 +26,8 @@ class SensorLag(Effect):
 
     @classmethod
     def specs(cls, furnace):
-        """Eq. 11's network: every zone lags (its options and JSON as they always were on
-        the paper's furnace); any other: `zones`, whose thermocouples lag."""
+        """Eq. 11's network: every zone lags, with the options and JSON of the contract;
+        any other: `zones`, whose thermocouples lag."""
         if furnace.paper_structure:
             return cls.option_specs
         z = furnace.zones

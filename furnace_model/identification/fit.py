@@ -44,16 +44,17 @@ GA_DEFAULTS = {"fast": (32, 30), "ga": (20, 2000)}
 cycles; 2000 generations already take seconds per run here."""
 PROFILE_WIDE = 0.25
 """A linearised 95% half-width (search scale: about +-25% for a rate) beyond which the
-interval is profiled instead: nearer, the criterion is close enough to quadratic (b and c of
-a 1-minute heat-up, +-8%, held the truth in 57-59 of 60 draws linearised)."""
+interval is profiled instead: nearer, the criterion is close enough to quadratic for the
+linearised interval to hold the truth as often as it says (docs/identification.md,
+coverage)."""
 PROFILE_GAIN_TOL = 1e-7
 """A profile's refit is converged to this share of the criterion: its rise is wanted to a
 few percent, and it is thousands of times smaller than the criterion."""
 WARM_DAMPING = 1e-7
 """The first Levenberg-Marquardt damping of a sliding window's refit (`WarmStart`): the
-previous window's optimum is next to this one's, where Gauss-Newton steps converge in two or
-three; the general warm start's 1e-3 took eight or nine to walk the last millionths of the
-criterion down the d/e valley (the same optimum, to a few millionths of d and e)."""
+previous window's optimum is next to this one's, where undamped Gauss-Newton steps converge
+in a few; a larger first damping spends its steps walking the last millionths of the
+criterion down the d/e valley to the same optimum."""
 
 
 

@@ -202,7 +202,7 @@ _GRAM_ROWS = 256
 def gram(J: np.ndarray, blocked: bool = False) -> np.ndarray:
     """J'J. `blocked`: summed over blocks of rows. A Jacobian with a few dozen columns (a
     network of many zones) crosses OpenBLAS's threshold for threads, and on a machine whose
-    cores are busy its threads wait on each other: one product took 0.8 s instead of 5 ms.
+    cores are busy its threads wait on each other, a hundred times slower than one thread.
     The blocks stay below the threshold; the sum differs from the plain product by rounding."""
     if not blocked:
         return J.T @ J

@@ -7,8 +7,8 @@ producers build a message and write its `to_json()`, readers turn a decoded dict
 with `from_json()` at the boundary, and both sides meet the schema of schema.py, which stays
 the one place the schemas are built (`topic()` delegates to `schema.topics(furnace)`).
 
-Reading is lenient as the readers always were: logs written before the schema declared
-every field carry null for a missing reading, and a field of the wrong type reads as absent
+Reading is lenient: logs written before the schema declared every field carry null for a
+missing reading, and a field of the wrong type reads as absent
 rather than stopping an export. A value that is absent is None here and left out of the
 JSON (`schema.absent`), which is what the schemas accept and Foxglove plots as a gap.
 

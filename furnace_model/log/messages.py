@@ -8,9 +8,9 @@ with `from_json()` at the boundary, and both sides meet the schema of schema.py,
 the one place the schemas are built (`topic()` delegates to `schema.topics(furnace)`).
 
 Reading is lenient: logs written before the schema declared every field carry null for a
-missing reading, and a field of the wrong type reads as absent
-rather than stopping an export. A value that is absent is None here and left out of the
-JSON (`schema.absent`), which is what the schemas accept and Foxglove plots as a gap.
+missing reading, and a field of the wrong type reads as absent rather than stopping an
+export. A value that is absent is None here and left out of the JSON (`schema.absent`),
+which is what the schemas accept and Foxglove plots as a gap.
 
 Light at import like schema.py: a command's --help imports the topics without numpy.
 """

@@ -90,8 +90,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     noise = {"record_floors": floors, "noise_floor_fit_c": pooled_floor(fit_floors),
              "gap_limit_c": base.allowed(gap_limit), "sensor_noise_c": _pooled_tc(floors)}
 
-    clues = Clues(fit_data, every, faults, baseline_on=lambda heads: _determined(heads, seed),
-                  residuals=base_res, furnace=furnace)
+    clues = Clues(fit_data, every, baseline_on=lambda heads: _determined(heads, seed),
+                  predictions=base.fit_pred + base.holdout_pred, furnace=furnace)
     if not gap:
         # Nothing to explain: no extension can beat the noise on held-out data.
         verdict = judge(base, None, [], floor, near, gap, where, furnace=furnace)

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..identification.noisefloor import record_floor
 from ..simulation.furnace import Furnace
 from ..simulation.parameters import Param
 from .base import Effect, Option
@@ -54,7 +55,7 @@ class TriedSensorDrift(Tried):
         """On the thermocouple found drifting, from the onset and rate of the hinge fitted to
         its pair's difference; else on the one whose pair's difference changes most (or, in
         a zone of one thermocouple, whose residual against the baseline does)."""
-        for f in clues.faults:
+        for f in pair_faults(clues):
             if f.kind == "drift":
                 exp = clues.records[f.experiment]
                 t0, t1 = float(exp.t_min[f.i0]), float(exp.t_min[-1])
@@ -111,6 +112,21 @@ class SensorDrift(Effect):
         ramp = np.maximum(t[None, :] - theta["t_drift"][:, None], 0.0)
         out[:, :, sensors.index(self.options["sensor"])] = theta["drift_rate"][:, None] * ramp
         return out
+
+
+def pair_faults(clues: Clues) -> list:
+    """The thermocouples departing from their partner against the baseline, as the
+    diagnosis reads them to locate its error (`diagnosis.residuals.sensor_faults`, with
+    each record's thermocouple noise from its own pairs); none without the baseline's
+    predictions."""
+    if not clues.predictions:
+        return []
+    # imported here: the diagnosis imports the effects, and this is its reading of the pairs
+    from ..diagnosis.residuals import sensor_faults
+
+    zones = clues.furnace.zones
+    tc_noise = [{z: f.zones[z].tc_sd_c for z in zones} for f in map(record_floor, clues.records)]
+    return sensor_faults(clues.records, clues.predictions, tc_noise)
 
 
 def default_sensor(furnace: Furnace) -> str:

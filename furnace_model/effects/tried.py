@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -25,22 +26,28 @@ if TYPE_CHECKING:
 
 @dataclass
 class Clues:
-    """What the diagnosis has read off the data before it tries the candidates: an effect
-    may start its search from them (a drifting thermocouple's onset) or choose its form."""
+    """What the diagnosis has read off the data before it tries the candidates, for any
+    effect to use: an effect may start its search from them (a drifting thermocouple's
+    onset) or choose its form. What only one effect reads (a thermocouple departing from
+    its partner) its part works out from these, so that nothing here serves one effect."""
 
     fit_data: list[Experiment]
     records: list[Experiment]
     """The fitted records, then the held-out ones."""
-    faults: list = field(default_factory=list)
-    """Thermocouples found departing from their partner (residuals.SensorFault)."""
     bent: bool = False
     """The baseline fits the fitted data worse than their noise allows: it has bent to
     absorb something, and a warm start from it may sit in a side valley."""
     baseline_on: Callable[[list[Experiment]], dict[str, float]] | None = None
     """The baseline fitted on other records (parts of these), with what they determine."""
-    residuals: list[np.ndarray] = field(default_factory=list)
-    """The baseline's zone residuals on `records` (N, zones) each."""
+    predictions: list[np.ndarray] = field(default_factory=list)
+    """The baseline's zone predictions on `records` (N, zones) each, as the thermocouples
+    read them (its offsets included)."""
     furnace: Furnace = field(kw_only=True)
+
+    @cached_property
+    def residuals(self) -> list[np.ndarray]:
+        """The baseline's zone residuals on `records` (N, zones) each."""
+        return [e.zone_temp - p for e, p in zip(self.records, self.predictions, strict=True)]
 
 
 @dataclass

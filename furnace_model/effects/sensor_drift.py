@@ -15,6 +15,7 @@ from .drawn import Drawn
 from .tried import Clues, Trial, Tried
 
 if TYPE_CHECKING:
+    from ..diagnosis.residuals import SensorFault
     from ..experiment import Experiment
 
 MAX_RATE = 0.2
@@ -114,7 +115,7 @@ class SensorDrift(Effect):
         return out
 
 
-def pair_faults(clues: Clues) -> list:
+def pair_faults(clues: Clues) -> list[SensorFault]:
     """The thermocouples departing from their partner against the baseline, as the
     diagnosis reads them to locate its error (`diagnosis.residuals.sensor_faults`, with
     each record's thermocouple noise from its own pairs); none without the baseline's

@@ -179,9 +179,9 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
     case = draw_case("zone_burners", case_rng(0, "zone_burners", 3), furnace=PAPER)
     base = run_task(Task((), {}, case.fit, case.holdout, [None], None, 0))
     assert abs(np.log(base.params["f"] / PAPER_TABLE_V["f"])) > np.log(10.0), base.params
-    trial = ZoneBurners.trial(Clues(case.fit, case.fit + case.holdout, bent=True,
-                                    baseline_on=lambda heads: _determined(heads, 0),
-                                    furnace=PAPER))
+    trial = ZoneBurners.tried.trial(Clues(case.fit, case.fit + case.holdout, bent=True,
+                                          baseline_on=lambda heads: _determined(heads, 0),
+                                          furnace=PAPER))
     start = trial.start
     assert not trial.from_baseline and set(start) == {"a", "f"}
     for k in start:
@@ -197,9 +197,9 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
     soak_only = Experiment("soak_only", case.fit[0].t_min, case.fit[0].tc,
                            case.fit[0].burners * [1, 0, 0], case.fit[0].t_air, furnace=PAPER)
     assert soak_only_heads([soak_only]) is None
-    assert ZoneBurners.trial(Clues([soak_only], [soak_only], bent=True,
-                                   baseline_on=lambda heads: _determined(heads, 0),
-                                   furnace=PAPER)).from_baseline
+    assert ZoneBurners.tried.trial(Clues([soak_only], [soak_only], bent=True,
+                                         baseline_on=lambda heads: _determined(heads, 0),
+                                         furnace=PAPER)).from_baseline
 
 
 @pytest.mark.slow  # a cold GA search of a nonlinear candidate: the selfcheck's radiation rows cover it
@@ -246,7 +246,7 @@ def test_further_laws_only_for_a_candidate_that_helps():
                          cand("wall_storage", 60.0, 5.0),  # closes, but costs BIC
                          cand("burner_nonlinearity", 0.0, -10.0),  # closes nothing
                          cand("dead_time", 90.0, -900.0)], PAPER)  # has one law
-    assert [(c.effects[0], o) for c, o in laws] == [("radiation", o) for o in Radiation.further_laws]
+    assert [(c.effects[0], o) for c, o in laws] == [("radiation", o) for o in Radiation.tried.further_laws]
     walls = further_laws([cand("wall_storage", 60.0, -50.0)], PAPER)
     assert [o["zones"] for _, o in walls] == [(z,) for z in PAPER.zones]
 
@@ -408,4 +408,5 @@ def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_dat
 
 
 def _bounds(fit_data):
-    return {**FuelChange.search_bounds(fit_data), **SensorDrift.search_bounds(fit_data)}
+    return {**FuelChange.tried.search_bounds(fit_data),
+            **SensorDrift.tried.search_bounds(fit_data)}

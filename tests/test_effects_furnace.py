@@ -101,8 +101,9 @@ def test_on_a_network_the_further_laws_place_an_effect_in_one_place_at_a_time():
     of its own, fitted whatever the effect everywhere at once does; the paper's furnace keeps
     its laws."""
     def places(name, furnace):
-        cls = EFFECTS[name]
-        return cls.laws_always(furnace), [next(iter(o.values())) for o in cls.laws_for(furnace)]
+        tried = EFFECTS[name].tried
+        return tried.laws_always(furnace), [next(iter(o.values()))
+                                            for o in tried.laws_for(furnace)]
 
     every = [(z,) for z in SIX.zones]
     assert places("wall_storage", SIX) == (True, every)
@@ -242,9 +243,9 @@ def test_a_lone_thermocouples_drift_is_started_across_the_record():
     truth = case.truth["sensor_drift"]
     assert truth["sensor"] == "soak_bottom_1"
     fit_data, hold, tail_of, _ = split(case.fit, case.holdout)
-    box = EFFECTS["sensor_drift"].search_bounds(fit_data)
-    onsets = [s["t_drift"] for s in EFFECTS["sensor_drift"](
-        sensor="soak_bottom_1", furnace=SIX).starts({}, box)]
+    box = EFFECTS["sensor_drift"].tried.search_bounds(fit_data)
+    drift = EFFECTS["sensor_drift"](sensor="soak_bottom_1", furnace=SIX)
+    onsets = [s["t_drift"] for s in drift.tried.starts(drift, {}, box)]
     assert len(onsets) == 8 and box["t_drift"][0] < min(onsets) < max(onsets) < box["t_drift"][1]
     base = run_task(Task((), {}, fit_data, hold, tail_of, None, 0))
     drift = run_task(Task(("sensor_drift",), {"sensor_drift": {"sensor": "soak_bottom_1"}},
@@ -275,7 +276,7 @@ def test_a_large_drift_of_one_of_a_pair_is_found_whichever_its_partner_blamed():
     rising = {"t_drift": 668.0, "drift_rate": 57.3 / (3216.0 - 668.0)}  # as the trial has it
     drift = run_task(Task(("sensor_drift",), {"sensor_drift": {"sensor": "soak_top_2"}},
                           fit_data, hold, tail_of, {**base.params, **rising}, 0,
-                          bounds=EFFECTS["sensor_drift"].search_bounds(fit_data)))
+                          bounds=EFFECTS["sensor_drift"].tried.search_bounds(fit_data)))
     assert drift.params["t_drift"] == pytest.approx(truth["t_drift"], abs=60)
     assert drift.params["drift_rate"] == pytest.approx(truth["drift_rate"], rel=0.1)
     assert max(drift.rmse_holdout_c.values()) < 2.0

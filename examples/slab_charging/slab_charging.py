@@ -14,10 +14,17 @@ examples/slab_charging/slab_charging.py`.
 
 import numpy as np
 
-from furnace_model.effects import Effect, Option
+from furnace_model.effects import Drawn, Effect, Option, Tried
 from furnace_model.simulation.lti import Drive
 from furnace_model.simulation.network import terms
 from furnace_model.simulation.parameters import Param
+
+
+class DrawnSlabCharging(Drawn):
+    """How the selfcheck draws it: a strength from `ranges`, the schedule at its defaults."""
+
+    def draw(self, rng, form, duration_min, furnace):
+        return self.effect(furnace=furnace), {"q_charge": self.uniform(rng, "q_charge")}
 
 
 class SlabCharging(Effect):
@@ -29,8 +36,8 @@ class SlabCharging(Effect):
         "first_min": Option(20.0, "number", lo=0.0, hi=1e5, doc="the first charge"),
         "last_min": Option(6000.0, "number", lo=0.0, hi=1e6, doc="no charge after this"),
     }
-    null = {"q_charge": 0.0}  # no heat drawn: no effect
-    ranges = {"q_charge": (6.0, 14.0)}  # what the selfcheck draws
+    tried = Tried(null={"q_charge": 0.0})  # no heat drawn: no effect
+    drawn = DrawnSlabCharging(ranges={"q_charge": (6.0, 14.0)})
 
     @classmethod
     def refusal(cls, furnace):
@@ -63,7 +70,3 @@ class SlabCharging(Effect):
             s = np.concatenate([s, np.broadcast_to(times, (s.shape[0], times.size))], axis=1)
         old = np.broadcast_to(drive.du, (P,) + drive.du.shape[1:])
         return Drive(drive.t0, drive.u0, s, np.concatenate([old, du], axis=1))
-
-    @classmethod
-    def draw(cls, rng, form, duration_min, furnace):
-        return cls(furnace=furnace), {"q_charge": cls.uniform(rng, "q_charge")}

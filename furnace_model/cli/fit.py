@@ -160,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
 
     furnace = furnace_of(args)
     try:
-        structure = ModelStructure([EFFECTS[n](**EFFECTS[n].candidate_for(furnace),
+        structure = ModelStructure([EFFECTS[n](**EFFECTS[n].tried.candidate_for(furnace),
                                                furnace=furnace)
                                     for n in args.effects or ()], furnace=furnace)
     except ValueError as exc:

@@ -73,7 +73,8 @@ def labels_of(args: argparse.Namespace) -> list[str]:
     if args.effects:
         for name in {n for label in args.effects for n in label.split("+")} - drawable:
             raise FurnaceError(f"effect {name} has no `draw`: the selfcheck cannot make a "
-                               "furnace with it at random (give its class a draw classmethod)")
+                               "furnace with it at random (give its class a `drawn` part, a "
+                               "furnace_model.effects.Drawn with a draw)")
         for name in sorted({n for label in args.effects for n in label.split("+")}):
             if name in refused:
                 raise FurnaceError(f"{name} does not apply to furnace '{furnace.name}': "
@@ -92,7 +93,7 @@ def _refused(furnace) -> dict[str, str]:
     out = {}
     for n, cls in EFFECTS.items():
         why = cls.refusal(furnace)
-        if why and cls.check_furnace(furnace) == furnace:
+        if why and cls.drawn.check_furnace(furnace) == furnace:
             out[n] = why
     return out
 
@@ -153,10 +154,9 @@ def report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool)
 def _drawable() -> set[str]:
     """Effects the selfcheck can draw, with the built-in perturbations and 'none'; a plug-in
     without a `draw` is left out of the default rows and refused by name."""
-    from ..effects import EFFECTS, Effect
+    from ..effects import EFFECTS
 
-    return {"none", *OUT_OF_LIBRARY,
-            *(n for n, cls in EFFECTS.items() if cls.draw.__func__ is not Effect.draw.__func__)}
+    return {"none", *OUT_OF_LIBRARY, *(n for n, cls in EFFECTS.items() if cls.drawn.drawable)}
 
 
 def _label(text: str) -> str:

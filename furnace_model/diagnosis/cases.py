@@ -13,8 +13,8 @@ preheating-zone burners fire for part of the run, so that an effect tied to them
 The effect belongs to the furnace, so its parameters are the same in both experiments; times
 (a fuel switch, the start of a drift) count from each heat-up's start: the switch comes at
 the same point of the heat-up procedure. Strengths are drawn from physically meaningful
-ranges (each effect's `ranges`), not from what the diagnosis finds easy: a draw whose effect the baseline
-absorbs is the selfcheck's to report, not to avoid.
+ranges (each effect's `drawn.ranges`), not from what the diagnosis finds easy: a draw whose
+effect the baseline absorbs is the selfcheck's to report, not to avoid.
 
 `form="other"` draws the effect in a formulation the diagnosis's candidate does not use (a
 second- or third-order sensor lag, radiation with an emissivity that changes with temperature
@@ -27,13 +27,13 @@ intermittently reads low; `furnace_model.diagnosis.faults`) no candidate can exp
 honest verdict for them is `unexplained`, with the zone or sensor located.
 
 Any furnace description (`furnace`): the cases are heat-ups of its network, with its zones,
-burners and thermocouples, and every effect made for it (`Effect.draw(..., furnace)`). The
+burners and thermocouples, and every effect made for it (`Drawn.draw(..., furnace)`). The
 paper's furnace runs on Table V; any other on `network_truth`: the network's default rates
 (network.parameters) with one heat per burner for every heated zone, set so that every
 burner firing would hold the hottest zone 3000 °C above ambient, as Table V's would
 (3387 °C): the schedules then heat it as the paper's heat-ups do. Own-zone burners on a
 furnace whose description has each zone's burners heat their own (`burner_heat: own_zone`)
-are checked on the same description read the paper's way (`ZoneBurners.check_furnace`):
+are checked on the same description read the paper's way (`ZoneBurners.drawn`):
 the plant is the description itself, the records are given to the diagnosis as of the
 furnace with every burner heating the first zone, whose model lacks what the plant does.
 """
@@ -41,7 +41,6 @@ furnace with every burner heating the first zone, whose model lacks what the pla
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import zlib
 from dataclasses import dataclass, field
 
@@ -151,7 +150,7 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
     for name in names:
         if name not in EFFECTS:
             continue
-        other = EFFECTS[name].check_furnace(furnace)
+        other = EFFECTS[name].drawn.check_furnace(furnace)
         if other != furnace:
             # the plant is the description itself; the model reads it another way
             seen_as = other
@@ -208,17 +207,8 @@ def _short(info: dict, lists: bool = False) -> str:
 
 def _draw_effect(name: str, rng: np.random.Generator, form: str, duration: float,
                  furnace: Furnace) -> tuple[Effect, dict[str, float], dict]:
-    """The effect object, its parameter values and its options (for the truth record). A
-    plug-in whose `draw` takes no furnace draws on eq. 11's network alone."""
-    cls = EFFECTS[name]
-    params = inspect.signature(cls.draw).parameters.values()
-    if any(p.name == "furnace" or p.kind is p.VAR_KEYWORD for p in params):
-        eff, vals = cls.draw(rng, form, duration, furnace=furnace)
-    elif furnace.paper_structure:
-        eff, vals = cls.draw(rng, form, duration)
-    else:
-        raise ValueError(f"{name}: its draw takes no furnace, so the selfcheck cannot draw it "
-                         f"on furnace '{furnace.name}'")
+    """The effect object, its parameter values and its options (for the truth record)."""
+    eff, vals = EFFECTS[name].drawn.draw(rng, form, duration, furnace)
     info = {k: (list(v) if isinstance(v, tuple) else v) for k, v in eff.options.items()}
     return eff, {k: float(v) for k, v in vals.items()}, info
 

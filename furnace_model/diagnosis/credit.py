@@ -77,7 +77,7 @@ def identifiable(fr: FitResult, effects: tuple[str, ...]) -> tuple[bool, str]:
         effect = next(e for e in fr.structure.effects if e.name == name)
         box = {p.name: p for p in effect.params}
         ok_any, why = False, []
-        for pname, null in effect.nulls.items():
+        for pname, null in effect.tried.nulls(effect).items():
             if pname not in box:
                 continue
             # Under the candidate's own noise (white): whether the records pin its strength

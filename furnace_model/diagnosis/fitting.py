@@ -154,23 +154,23 @@ def _with_carried_offsets(fr: FitResult, task: Task, hold_pred: list[np.ndarray]
 
 def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[str, float],
                bounds: dict[str, tuple[float, float]]) -> FitResult:
-    """The fit polished again from the effects' further starts (`Effect.starts`), the best
+    """The fit polished again from the effects' further starts (`Tried.starts`), the best
     kept. On a network, a thermocouple's error from a start is also taken off the readings
     and the network started where the equations' least squares fit what is left: a large
     drift (tens of degrees on one of a pair) bends the baseline so far that from its rates
     the drift's fit finds only side valleys."""
     given = {**structure.defaults(), **init}
-    tried, placed = [], [given]
+    restarts, placed = [], [given]
     for e in structure.effects:
-        for s in e.starts(init, bounds):
-            tried.append({**given, **s})
-            if set(s) <= set(e.nulls):  # a strength alone (a drift's sign): still placed
-                placed.append(tried[-1])
+        for s in e.tried.starts(e, init, bounds):
+            restarts.append({**given, **s})
+            if set(s) <= set(e.tried.nulls(e)):  # a strength alone (a drift's sign): still placed
+                placed.append(restarts[-1])
     if structure.has_sensor_offsets and not structure.furnace.paper_structure:
         # not for a spread of onsets: an error not placed would be taken off at random
-        tried += [{**v, **_network_without_sensor_error(structure, v, task.fit_data)}
-                  for v in placed]
-    for values in tried:
+        restarts += [{**v, **_network_without_sensor_error(structure, v, task.fit_data)}
+                     for v in placed]
+    for values in restarts:
         other = fit(task.fit_data, structure, init=values, seed=task.seed, zone_offsets=True,
                     bounds=bounds, profile=False)
         if other.sse < fr.sse:

@@ -15,19 +15,19 @@ from .fitting import rmse_per_zone
 
 def further_laws(fitted: list[CandidateResult], furnace: Furnace
                  ) -> list[tuple[CandidateResult, dict]]:
-    """The further laws to fit (`Effect.further_laws`), each with the candidate it starts
+    """The further laws to fit (`Tried.further_laws`), each with the candidate it starts
     from: only for a candidate that helps in its first law, since the nonlinear ones are
     slow. A furnace's radiation exponent, burner curve or storing walls are its own: the
     laws are fitted warm from the effect's first law (and from scratch on a bent baseline,
     see `diagnose`), and the best kept, or a blend of two (`between_laws`). An effect whose
-    laws put it elsewhere, not in another form (`Effect.laws_always`: one zone's wall or lag
+    laws put it elsewhere, not in another form (`Tried.laws_always`: one zone's wall or lag
     on a furnace of many zones, a drifting thermocouple of a zone of one), has them fitted
     whatever its first law does."""
     out = []
     for c in fitted:
-        cls = EFFECTS[c.effects[0]]
-        if helps(c) or (cls.laws_always(furnace) and not c.note.startswith("fit failed")):
-            out += [(c, dict(opts)) for opts in cls.laws_for(furnace)
+        tried = EFFECTS[c.effects[0]].tried
+        if helps(c) or (tried.laws_always(furnace) and not c.note.startswith("fit failed")):
+            out += [(c, dict(opts)) for opts in tried.laws_for(furnace)
                     if dict(opts) != c.options.get(c.effects[0])]
     return out
 

@@ -90,8 +90,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     noise = {"record_floors": floors, "noise_floor_fit_c": pooled_floor(fit_floors),
              "gap_limit_c": base.allowed(gap_limit), "sensor_noise_c": _pooled_tc(floors)}
 
-    clues = Clues(fit_data, every, faults, baseline_on=lambda heads: _determined(heads, seed),
-                  residuals=base_res, furnace=furnace)
+    clues = Clues(fit_data, every, baseline_on=lambda heads: _determined(heads, seed),
+                  predictions=base.fit_pred + base.holdout_pred, furnace=furnace)
     if not gap:
         # Nothing to explain: no extension can beat the noise on held-out data.
         verdict = judge(base, None, [], floor, near, gap, where, furnace=furnace)
@@ -100,12 +100,12 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                          time.perf_counter() - t_start, gap, **noise)
     clues.bent = bent = any(base.rmse_fit_c[z] > fit_limit[z] for z in zones)
     say("candidates", 0.1)
-    trials = {n: EFFECTS[n].trial(clues) for n in names}
+    trials = {n: EFFECTS[n].tried.trial(clues) for n in names}
     options = {n: t.options for n, t in trials.items()}
     starts = {n: t.start for n, t in trials.items() if t.from_baseline}
     inits = {n: {**base.params, **t.start} if t.from_baseline else t.start
              for n, t in trials.items()}
-    bounds = {k: v for n in names for k, v in EFFECTS[n].search_bounds(fit_data).items()}
+    bounds = {k: v for n in names for k, v in EFFECTS[n].tried.search_bounds(fit_data).items()}
     tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of, inits[n], seed, bent,
                   bounds, fit_limit)
              for n in names]
@@ -150,7 +150,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         same = sorted((c for c in fitted if c.effects == (n,)), key=rank)
         if len(same) > 1:
             options[n] = same[0].options[n]  # combinations are simulated in one law
-            mix = between_laws(same, fit_data, hold) if EFFECTS[n].blends else None
+            mix = between_laws(same, fit_data, hold) if EFFECTS[n].tried.blends else None
             if mix is not None:
                 score_against(mix, base, floor)
             if mix is not None and rank(mix) < rank(same[0]):

@@ -5,7 +5,7 @@ read. A furnace's own effect is written the same way in the user's file and regi
 
 from __future__ import annotations
 
-from .base import KELVIN, Clues, Effect, Option, Theta, Trial
+from .base import KELVIN, Clues, Drawn, Effect, Option, Theta, Trial, Tried
 from .burner_nonlinearity import BurnerNonlinearity
 from .dead_time import DeadTime
 from .fuel_change import FuelChange
@@ -39,6 +39,7 @@ def __getattr__(name: str) -> object:
         return _PAPER_CHANNELS[name]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-__all__ = ["BUILT_IN", "EFFECTS", "KELVIN", "Clues", "Effect", "Option", "Theta", "Trial",
+__all__ = ["BUILT_IN", "EFFECTS", "KELVIN", "Clues", "Drawn", "Effect", "Option", "Theta",
+           "Trial", "Tried",
            "BurnerNonlinearity", "DeadTime", "FuelChange",
            "Radiation", "SensorDrift", "SensorLag", "WallStorage", "ZoneBurners", "ZoneLosses"]

@@ -11,12 +11,16 @@ nowhere else. Its physics hooks may
 - add a term that is not linear in the state (`nonlinear_rhs`; radiation),
 - offset individual thermocouples (`sensor_offsets`).
 
-Beside the physics, a class says how the diagnosis tries it (`null`, `candidate_options`,
-`further_laws`, `blends`, `trial`, `search_bounds`), how the selfcheck draws it at random
-in the candidate's form and in another one (`ranges`, `draw`), and its words (`physics`).
-The diagnosis, the plant simulator, the scenario loader and the selfcheck loop over the
-registered effects (`registry.EFFECTS`) and never name one: a furnace's own physics is one
-class in one file, ours or the user's.
+Beside the physics and its words (`physics`), a class has two optional parts, each with a
+default: how the diagnosis tries it (`tried`, a `tried.Tried`: the strengths that vanish
+with it, its first form and further laws, where the search starts) and how the selfcheck
+draws it at random in the candidate's form and in another one (`drawn`, a `drawn.Drawn`).
+The diagnosis and the selfcheck ask the part, so that the effect says what it is and the
+parts say how it is tried and drawn. A class written before the parts, with their
+attributes on itself (`null`, `ranges`, `draw`, ...), gets parts made from them
+(`legacy`). The diagnosis, the plant simulator, the scenario loader and the selfcheck loop
+over the registered effects (`registry.EFFECTS`) and never name one: a furnace's own
+physics is one class in one file, ours or the user's.
 
 Options (which zone, which sensor, which law) are chosen, not fitted, and declared as
 `Option`s, which the scenario loader reads from YAML; parameters are fitted. Options that
@@ -36,18 +40,20 @@ to a furnace says why (`refusal`), and making it there is a ValueError with that
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ..simulation.furnace import PAPER, Furnace
 from ..simulation.lti import Drive
 from ..simulation.parameters import Param
+from .drawn import Drawn
+from .legacy import old_part
+from .part import Part
+from .tried import Clues, Trial, Tried
 
-if TYPE_CHECKING:
-    from ..experiment import Experiment
+__all__ = ["KELVIN", "Clues", "Drawn", "Effect", "Option", "Theta", "Trial", "Tried"]
 
 KELVIN = 273.15
 
@@ -69,37 +75,6 @@ class Option:
     doc: str = ""
 
 
-@dataclass
-class Clues:
-    """What the diagnosis has read off the data before it tries the candidates: an effect
-    may start its search from them (a drifting thermocouple's onset) or choose its form."""
-
-    fit_data: list[Experiment]
-    records: list[Experiment]
-    """The fitted records, then the held-out ones."""
-    faults: list = field(default_factory=list)
-    """Thermocouples found departing from their partner (residuals.SensorFault)."""
-    bent: bool = False
-    """The baseline fits the fitted data worse than their noise allows: it has bent to
-    absorb something, and a warm start from it may sit in a side valley."""
-    baseline_on: Callable[[list[Experiment]], dict[str, float]] | None = None
-    """The baseline fitted on other records (parts of these), with what they determine."""
-    residuals: list[np.ndarray] = field(default_factory=list)
-    """The baseline's zone residuals on `records` (N, zones) each."""
-    furnace: Furnace = field(kw_only=True)
-
-
-@dataclass
-class Trial:
-    """How the diagnosis tries an effect: in which form, and from where."""
-
-    options: dict[str, Any] = field(default_factory=dict)
-    start: dict[str, float] = field(default_factory=dict)
-    """Starting values of parameters, over the fitted baseline's."""
-    from_baseline: bool = True
-    """False: start from `start` alone, the rest of the parameters searched."""
-
-
 class Effect:
     name: ClassVar[str]
     """Its name in scenarios, the CLI, and the diagnosis's JSON."""
@@ -108,30 +83,25 @@ class Effect:
     linear: ClassVar[bool] = True
     """False when `nonlinear_rhs` is used: the model is integrated, not solved in closed form."""
     option_specs: ClassVar[dict[str, Option]] = {}
-    null: ClassVar[dict[str, float]] = {}
-    """Strength parameters and the value at which the effect vanishes (NaN: the parameter
-    must merely be determined, either because the baseline is not nested in the extension
-    or because it is felt only where the effect is). A candidate earns credit only when one
-    of them is determined away from its null."""
-    candidate_options: ClassVar[dict[str, Any]] = {}
-    """The diagnosis's own formulation (its first law)."""
-    further_laws: ClassVar[tuple[dict[str, Any], ...]] = ()
-    """Other forms the diagnosis fits when the first law removes part of the gap."""
-    zone_affine: ClassVar[bool] = False
-    """Its parameters enter the zones' equations linearly and it adds no state, no input
-    change and no sensor error: the integrated equations' least squares (equationerror)
-    estimate them with the network's."""
-    one_place_at_a_time: ClassVar[bool] = False
-    """On any network but eq. 11's, the further laws put the effect in one place at a time
-    (one zone of its `zones` option, unless `laws_for` says otherwise) and are fitted even
-    when the first law, the effect everywhere at once, does not help: on a network of many
-    zones an effect in one of them may leave the candidate no better than the baseline."""
-    blends: ClassVar[bool] = False
-    """The further laws lie on one scale, so that a blend of two stands for a law between."""
     drive_stage: ClassVar[int] = 0
     """Order among effects that transform the drive: lower acts first (nearer the burner)."""
-    ranges: ClassVar[dict[str, tuple[float, float]]] = {}
-    """Ranges the selfcheck draws strengths and timings from (`draw`)."""
+    tried: ClassVar[Tried] = Tried()
+    """How the diagnosis tries it; by default in its first form from the fitted baseline."""
+    drawn: ClassVar[Drawn] = Drawn()
+    """How the selfcheck draws it; by default it cannot."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Bind each part to the class; one the class does not declare is made from the
+        attributes it has of the API before the parts (`legacy.old_part`), else inherited."""
+        super().__init_subclass__(**kwargs)
+        for slot in ("tried", "drawn"):
+            part = vars(cls).get(slot)
+            if part is None:
+                part = old_part(cls, slot)
+            if part is None:
+                part = getattr(cls, slot)
+            if isinstance(part, Part):  # anything else is refused by plugins.check
+                setattr(cls, slot, part.bound(cls))
 
     def __init__(self, *, furnace: Furnace | None = None, **options: Any):
         if furnace is None:  # a plug-in written when every effect was of the paper's furnace
@@ -162,43 +132,9 @@ class Effect:
         return cls.option_specs
 
     @classmethod
-    def candidate_for(cls, furnace: Furnace) -> dict[str, Any]:
-        """The diagnosis's own formulation on this furnace (`candidate_options`)."""
-        return dict(cls.candidate_options)
-
-    @classmethod
-    def laws_for(cls, furnace: Furnace) -> tuple[dict[str, Any], ...]:
-        """The further laws on this furnace: `further_laws`, or with `one_place_at_a_time`
-        on a network other than eq. 11's, each zone of the `zones` option's default."""
-        if furnace.paper_structure or not cls.one_place_at_a_time:
-            return cls.further_laws
-        return tuple({"zones": (z,)} for z in cls.specs(furnace)["zones"].default)
-
-    @classmethod
-    def laws_always(cls, furnace: Furnace) -> bool:
-        """Whether the further laws are fitted even when the first law does not help: where
-        each puts the effect somewhere else (one zone's wall, one thermocouple), not in
-        another form, the first law need not show it at all."""
-        return cls.one_place_at_a_time and not furnace.paper_structure
-
-    @classmethod
     def physics_for(cls, furnace: Furnace) -> str:
         """`physics` in this furnace's words."""
         return cls.physics
-
-    def starts(self, given: dict[str, float], bounds: dict[str, tuple[float, float]]
-               ) -> list[dict[str, float]]:
-        """Further starts of this form's own parameters where the data leave them ambiguous
-        (an onset nothing places has a side valley wherever it meets a step of the record);
-        `given`: the start the diagnosis has (what the data placed, or a fit's values),
-        `bounds`: the search box. The candidate is polished from each too and the best fit
-        kept."""
-        return []
-
-    @property
-    def nulls(self) -> dict[str, float]:
-        """`null` for this effect's own parameters (their names may follow its zones)."""
-        return type(self).null
 
     @property
     def n_zones(self) -> int:
@@ -263,35 +199,8 @@ class Effect:
         says which zones lose heat), where the options themselves are not given."""
         return {}
 
-    # -- diagnosis -----------------------------------------------------------------------------
-    @classmethod
-    def trial(cls, clues: Clues) -> Trial:
-        """How the diagnosis tries the effect on these data."""
-        return Trial(cls.candidate_for(clues.furnace))
-
-    @classmethod
-    def search_bounds(cls, fit_data: Sequence[Experiment]) -> dict[str, tuple[float, float]]:
-        """Search boxes narrower than the parameters' own, where the data set them (a time
-        within the fitted records, not 0-1e6 min)."""
-        return {}
-
-    # -- selfcheck -----------------------------------------------------------------------------
-    @classmethod
-    def draw(cls, rng: np.random.Generator, form: str, duration_min: float,
-             furnace: Furnace) -> tuple[Effect, dict[str, float]]:
-        """A furnace with the effect, at random: the effect (in the diagnosis's form, or with
-        form "other" in a formulation its candidate does not use) and its parameter values,
-        drawn from `ranges`; times within a heat-up of `duration_min`."""
-        raise NotImplementedError(f"{cls.name} has no random draw for the selfcheck")
-
-    @classmethod
-    def check_furnace(cls, furnace: Furnace) -> Furnace:
-        """The furnace the selfcheck diagnoses this effect on, given the one it checks: the
-        same, unless the effect is the other side of a convention the description fixes
-        (zone_burners on a furnace whose burners heat their own zones)."""
-        return furnace
-
+    # -- the selfcheck ------------------------------------------------------------------------
     @classmethod
     def uniform(cls, rng: np.random.Generator, key: str) -> float:
-        lo, hi = cls.ranges[key]
-        return float(rng.uniform(lo, hi))
+        """A value from `drawn.ranges[key]`: for a `draw` written on the class itself."""
+        return cls.drawn.uniform(rng, key)

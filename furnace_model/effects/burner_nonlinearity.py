@@ -6,8 +6,17 @@ import numpy as np
 
 from ..simulation.parameters import Param
 from .base import Effect, Option
+from .drawn import Drawn
+from .tried import Tried
 
 FORMS = ("linear", "power", "exponential", "quadratic")
+
+
+class DrawnBurnerNonlinearity(Drawn):
+    def draw(self, rng, form, duration_min, furnace):
+        effect = self.effect(form="quadratic" if form == "other" else "linear", furnace=furnace)
+        sign = -1.0 if rng.uniform() < 0.75 else 1.0
+        return effect, {"k_nl": sign * self.uniform(rng, "k_nl")}
 
 
 class BurnerNonlinearity(Effect):
@@ -15,14 +24,13 @@ class BurnerNonlinearity(Effect):
     physics = "heat per burner falls (or rises) as more burners fire"
     option_specs = {"form": Option("linear", "choice", choices=FORMS,
                                        doc="the curve of heat per burner against burners on")}
-    null = {"k_nl": 0.0}
-    candidate_options = {"form": "linear"}
-    further_laws = ({"form": "power"}, {"form": "exponential"})
-    """A burner curve fitted on few burners is extrapolated to the held-out data's many,
-    where the laws part (seen: 3 °C held out against a floor of 1 after a straight-line fit
-    to a power-law furnace)."""
-    blends = True
-    ranges = {"k_nl": (0.01, 0.03)}  # magnitude; the sign is drawn (mostly falling)
+    # A burner curve fitted on few burners is extrapolated to the held-out data's many,
+    # where the laws part (seen: 3 °C held out against a floor of 1 after a straight-line
+    # fit to a power-law furnace): further laws, and a blend of two.
+    tried = Tried(null={"k_nl": 0.0}, candidate_options={"form": "linear"},
+                  further_laws=({"form": "power"}, {"form": "exponential"}), blends=True)
+    drawn = DrawnBurnerNonlinearity(ranges={"k_nl": (0.01, 0.03)})
+    """`k_nl` is drawn as a magnitude; its sign is drawn (mostly falling)."""
 
     def _params(self):
         return (Param("k_nl", -0.01, -0.035, 0.1, log=False, unit="1/burner",
@@ -46,9 +54,3 @@ class BurnerNonlinearity(Effect):
         out = np.array(np.broadcast_to(u, (k.shape[0],) + u.shape[1:]))
         out[..., self.u_burners] *= factor[..., None]
         return out
-
-    @classmethod
-    def draw(cls, rng, form, duration_min, furnace):
-        effect = cls(form="quadratic" if form == "other" else "linear", furnace=furnace)
-        sign = -1.0 if rng.uniform() < 0.75 else 1.0
-        return effect, {"k_nl": sign * cls.uniform(rng, "k_nl")}

@@ -7,13 +7,20 @@ import numpy as np
 from ..simulation.lti import Drive
 from ..simulation.parameters import Param
 from .base import Effect
+from .drawn import Drawn
+from .tried import Tried
+
+
+class DrawnDeadTime(Drawn):
+    def draw(self, rng, form, duration_min, furnace):
+        return self.effect(furnace=furnace), {"theta_dead": self.uniform(rng, "theta_dead")}
 
 
 class DeadTime(Effect):
     name = "dead_time"
     physics = "burner heat reaches the zone only after a transport delay"
-    null = {"theta_dead": 0.0}
-    ranges = {"theta_dead": (5.0, 45.0)}
+    tried = Tried(null={"theta_dead": 0.0})
+    drawn = DrawnDeadTime(ranges={"theta_dead": (5.0, 45.0)})
     drive_stage = 1  # carries to the zone whatever the burners give, a fuel switch included
 
     def _params(self):
@@ -28,7 +35,3 @@ class DeadTime(Effect):
         s_new = np.concatenate([s + theta["theta_dead"][:, None], s], axis=1)
         du_new = np.concatenate([du * burners, du * (1.0 - burners)], axis=1)
         return Drive(drive.t0, drive.u0, s_new, du_new)
-
-    @classmethod
-    def draw(cls, rng, form, duration_min, furnace):
-        return cls(furnace=furnace), {"theta_dead": cls.uniform(rng, "theta_dead")}

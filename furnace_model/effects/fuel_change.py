@@ -7,13 +7,29 @@ import numpy as np
 from ..simulation.lti import Drive
 from ..simulation.parameters import Param
 from .base import Effect
+from .drawn import Drawn
+from .tried import Tried
+
+
+class TriedFuelChange(Tried):
+    def search_bounds(self, fit_data):
+        """The switch lies within the fitted records (minutes from each record's start)."""
+        return {"t_fuel": (min(float(e.t_min[0]) for e in fit_data),
+                           max(float(e.t_min[-1]) for e in fit_data))}
+
+
+class DrawnFuelChange(Drawn):
+    def draw(self, rng, form, duration_min, furnace):
+        return self.effect(furnace=furnace), {
+            "t_fuel": round(self.uniform(rng, "t_fuel_frac") * duration_min),
+            "fuel_ratio": self.uniform(rng, "fuel_ratio")}
 
 
 class FuelChange(Effect):
     name = "fuel_change"
     physics = "heat per burner changes at one instant (a fuel switch, e.g. natural gas to biogas)"
-    null = {"fuel_ratio": 1.0}
-    ranges = {"t_fuel_frac": (0.3, 0.8), "fuel_ratio": (0.65, 0.9)}
+    tried = TriedFuelChange(null={"fuel_ratio": 1.0})
+    drawn = DrawnFuelChange(ranges={"t_fuel_frac": (0.3, 0.8), "fuel_ratio": (0.65, 0.9)})
     drive_stage = 0  # at the burner: a transport delay then carries it to the zone
 
     def _params(self):
@@ -34,14 +50,3 @@ class FuelChange(Effect):
         jump[:, 0, self.u_burners] = (rho - 1.0)[:, None] * u_at[:, self.u_burners]
         return Drive(drive.t0, drive.u0, np.concatenate([s, tc[:, None]], axis=1),
                      np.concatenate([du, jump], axis=1))
-
-    @classmethod
-    def search_bounds(cls, fit_data):
-        """The switch lies within the fitted records (minutes from each record's start)."""
-        return {"t_fuel": (min(float(e.t_min[0]) for e in fit_data),
-                           max(float(e.t_min[-1]) for e in fit_data))}
-
-    @classmethod
-    def draw(cls, rng, form, duration_min, furnace):
-        return cls(furnace=furnace), {"t_fuel": round(cls.uniform(rng, "t_fuel_frac") * duration_min),
-                       "fuel_ratio": cls.uniform(rng, "fuel_ratio")}

@@ -23,7 +23,7 @@ from ..errors import FurnaceError
 from ..simulation.furnace import PAPER
 from ..simulation.parameters import BASELINE, PAPER_TABLE_V, Param
 from . import BUILT_IN, EFFECTS
-from .base import Effect, Option
+from .base import Drawn, Effect, Option, Tried
 
 ENTRY_POINT_GROUP = "furnace_model.effects"
 RESERVED = ("none", "baseline", "door_open", "tc_reads_low")
@@ -167,8 +167,12 @@ def check(cls: type[Effect]) -> str | None:
     for key, spec in cls.option_specs.items():
         if not isinstance(spec, Option) or spec.kind not in OPTION_KINDS:
             return f"option {key!r} must be an Option of kind {', '.join(OPTION_KINDS)}"
-    for forms in ({"candidate_options": cls.candidate_options},
-                  *({"further_laws": f} for f in cls.further_laws)):
+    tried, drawn = cls.tried, cls.drawn
+    if not isinstance(tried, Tried) or not isinstance(drawn, Drawn):
+        return ("`tried` must be a furnace_model.effects.Tried and `drawn` a "
+                "furnace_model.effects.Drawn")
+    for forms in ({"candidate_options": tried.candidate_options},
+                  *({"further_laws": f} for f in tried.further_laws)):
         (what, opts), = forms.items()
         if set(opts) - set(cls.option_specs):
             return f"`{what}` sets undeclared option(s) {sorted(set(opts) - set(cls.option_specs))}"
@@ -183,12 +187,12 @@ def check(cls: type[Effect]) -> str | None:
     if problem:
         return problem
     names = {p.name for p in params}
-    if not cls.null:
+    if not tried.null:
         return ("`null` must name at least one strength parameter and the value at which the "
                 "effect vanishes (the diagnosis credits an effect only away from it)")
-    if set(cls.null) - names:
-        return f"`null` names {sorted(set(cls.null) - names)}, which are not its parameters"
-    for key, bounds in cls.ranges.items():
+    if set(tried.null) - names:
+        return f"`null` names {sorted(set(tried.null) - names)}, which are not its parameters"
+    for key, bounds in drawn.ranges.items():
         if not (isinstance(bounds, tuple) and len(bounds) == 2 and bounds[0] <= bounds[1]):
             return f"`ranges[{key!r}]` must be a (low, high) pair with low <= high"
     return _check_physics(effect, getattr(sys.modules.get(cls.__module__), "__file__", None))

@@ -6,6 +6,22 @@ import numpy as np
 
 from ..simulation.parameters import Param
 from .base import KELVIN, Effect, Option
+from .drawn import Drawn
+from .tried import Tried
+
+
+class DrawnRadiation(Drawn):
+    def draw(self, rng, form, duration_min, furnace):
+        effect = self.effect(furnace=furnace)
+        if form == "other":
+            # No other exponent: the candidate fits its own. An emissivity that rises or
+            # falls with temperature is no power law at all (its local exponent at the
+            # reference is 4 + s); another reference temperature alone is no other law (the
+            # fitted exchange rates absorb it).
+            slope = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.4, 0.8))
+            effect = self.effect(emissivity_slope=slope,
+                                 t_ref_c=float(rng.uniform(600.0, 1100.0)), furnace=furnace)
+        return effect, {"rad_share": self.uniform(rng, "rad_share")}
 
 
 class Radiation(Effect):
@@ -20,13 +36,11 @@ class Radiation(Effect):
         "emissivity_slope": Option(0.0, "number", lo=-1.0, hi=1.0,
                                    doc="emissivity change with temperature: no power law"),
     }
-    null = {"rad_share": 0.0}
-    candidate_options = {"exponent": 4.0}
-    further_laws = ({"exponent": None},)
-    """A furnace's effective exponent depends on its gas and walls, not only on
-    Stefan-Boltzmann: fitted too."""
-    blends = True
-    ranges = {"rad_share": (0.2, 0.8)}
+    # A furnace's effective exponent depends on its gas and walls, not only on
+    # Stefan-Boltzmann: fitted too, as a further law.
+    tried = Tried(null={"rad_share": 0.0}, candidate_options={"exponent": 4.0},
+                  further_laws=({"exponent": None},), blends=True)
+    drawn = DrawnRadiation(ranges={"rad_share": (0.2, 0.8)})
 
     def _params(self):
         share = Param("rad_share", 0.5, 0.0, 1.0, log=False, unit="-",
@@ -67,16 +81,3 @@ class Radiation(Effect):
         dx = np.zeros_like(x)
         dx[:, :nz] = w * (np.einsum("pij,pj->pi", K, r) - K.sum(axis=2) * r + k_air * (r_air - r))
         return dx
-
-    @classmethod
-    def draw(cls, rng, form, duration_min, furnace):
-        effect = cls(furnace=furnace)
-        if form == "other":
-            # No other exponent: the candidate fits its own. An emissivity that rises or
-            # falls with temperature is no power law at all (its local exponent at the
-            # reference is 4 + s); another reference temperature alone is no other law (the
-            # fitted exchange rates absorb it).
-            slope = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.4, 0.8))
-            effect = cls(emissivity_slope=slope, t_ref_c=float(rng.uniform(600.0, 1100.0)),
-                         furnace=furnace)
-        return effect, {"rad_share": cls.uniform(rng, "rad_share")}

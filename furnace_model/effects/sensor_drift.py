@@ -7,11 +7,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..identification.noisefloor import record_floor
 from ..simulation.furnace import Furnace
 from ..simulation.parameters import Param
-from .base import Clues, Effect, Option, Trial
+from .base import Effect, Option
+from .drawn import Drawn
+from .tried import Clues, Trial, Tried
 
 if TYPE_CHECKING:
+    from ..diagnosis.residuals import SensorFault
     from ..experiment import Experiment
 
 MAX_RATE = 0.2
@@ -23,12 +27,65 @@ onset nothing places has a side valley wherever it meets a step of the record, a
 start from the baseline alone can stop in one that closes little of the gap."""
 
 
+class TriedSensorDrift(Tried):
+    def laws_for(self, furnace):
+        """Each thermocouple of a zone of one: with no partner to show it, a drift of one is
+        found only by fitting it there (a baseline bent to absorb it spreads its error over
+        every zone). None on the paper's furnace, whose pairs show a drift."""
+        return tuple({"sensor": f"{z}_1"}
+                     for z, k in zip(furnace.zones, furnace.thermocouples, strict=True) if k == 1)
+
+    def starts(self, effect, given, bounds):
+        """A thermocouple alone in its zone: no partner's difference shows where its drift
+        starts, and a baseline bent to absorb the drift hides it from the residual, so the
+        onset is started across the fitted records. One of a pair whose difference placed
+        the drift (`trial`): the difference cannot say which of the two drifts, and on the
+        zone's mean the other drifting the other way is the same drift with the opposite
+        sign, so that sign is started too."""
+        furnace = effect.furnace
+        zone = furnace.sensor_zone[furnace.sensors.index(effect.options["sensor"])]
+        if furnace.thermocouples[zone] == 1 and "t_drift" in bounds:
+            lo, hi = bounds["t_drift"]
+            return [{"t_drift": lo + (i + 0.5) / ONSET_STARTS * (hi - lo)}
+                    for i in range(ONSET_STARTS)]
+        if "t_drift" in given and given.get("drift_rate"):
+            return [{"drift_rate": -given["drift_rate"]}]
+        return []
+
+    def trial(self, clues: Clues) -> Trial:
+        """On the thermocouple found drifting, from the onset and rate of the hinge fitted to
+        its pair's difference; else on the one whose pair's difference changes most (or, in
+        a zone of one thermocouple, whose residual against the baseline does)."""
+        for f in pair_faults(clues):
+            if f.kind == "drift":
+                exp = clues.records[f.experiment]
+                t0, t1 = float(exp.t_min[f.i0]), float(exp.t_min[-1])
+                return Trial({"sensor": f.sensor},
+                             {"t_drift": t0, "drift_rate": f.size_c / max(t1 - t0, 1.0)})
+        return Trial({"sensor": most_changed_pair(clues.records, clues.furnace,
+                                                  clues.residuals)})
+
+    def search_bounds(self, fit_data):
+        """The onset lies within the fitted records (minutes from each record's start)."""
+        return {"t_drift": (min(float(e.t_min[0]) for e in fit_data),
+                            max(float(e.t_min[-1]) for e in fit_data)),
+                "drift_rate": (-MAX_RATE, MAX_RATE)}
+
+
+class DrawnSensorDrift(Drawn):
+    def draw(self, rng, form, duration_min, furnace):
+        sensors = furnace.sensors
+        effect = self.effect(sensor=sensors[int(rng.integers(len(sensors)))], furnace=furnace)
+        sign = 1.0 if rng.uniform() < 0.5 else -1.0
+        return effect, {"drift_rate": sign * self.uniform(rng, "drift_rate"),
+                        "t_drift": round(self.uniform(rng, "t_drift_frac") * duration_min)}
+
+
 class SensorDrift(Effect):
     name = "sensor_drift"
     physics = "one thermocouple of a pair drifts away from its partner"
-    null = {"drift_rate": 0.0}
-    ranges = {"drift_rate": (0.005, 0.03), "t_drift_frac": (0.15, 0.6)}
-    one_place_at_a_time = True
+    tried = TriedSensorDrift(null={"drift_rate": 0.0}, one_place_at_a_time=True)
+    drawn = DrawnSensorDrift(ranges={"drift_rate": (0.005, 0.03), "t_drift_frac": (0.15, 0.6)})
 
     @classmethod
     def specs(cls, furnace):
@@ -42,36 +99,12 @@ class SensorDrift(Effect):
         return ("one thermocouple drifts away from the gas temperature it reads (from its "
                 "zone's other thermocouples, where the zone has more than one)")
 
-    @classmethod
-    def laws_for(cls, furnace):
-        """Each thermocouple of a zone of one: with no partner to show it, a drift of one is
-        found only by fitting it there (a baseline bent to absorb it spreads its error over
-        every zone). None on the paper's furnace, whose pairs show a drift."""
-        return tuple({"sensor": f"{z}_1"}
-                     for z, k in zip(furnace.zones, furnace.thermocouples, strict=True) if k == 1)
-
     def _params(self):
         return (
             Param("drift_rate", 0.01, -1.0, 1.0, log=False, unit="°C/min",
                   doc="rate at which the sensor's error grows"),
             Param("t_drift", 0.0, 0.0, 1e6, log=False, unit="min", doc="when the drift starts"),
         )
-
-    def starts(self, given, bounds):
-        """A thermocouple alone in its zone: no partner's difference shows where its drift
-        starts, and a baseline bent to absorb the drift hides it from the residual, so the
-        onset is started across the fitted records. One of a pair whose difference placed
-        the drift (`trial`): the difference cannot say which of the two drifts, and on the
-        zone's mean the other drifting the other way is the same drift with the opposite
-        sign, so that sign is started too."""
-        zone = self.furnace.sensor_zone[self.furnace.sensors.index(self.options["sensor"])]
-        if self.furnace.thermocouples[zone] == 1 and "t_drift" in bounds:
-            lo, hi = bounds["t_drift"]
-            return [{"t_drift": lo + (i + 0.5) / ONSET_STARTS * (hi - lo)}
-                    for i in range(ONSET_STARTS)]
-        if "t_drift" in given and given.get("drift_rate"):
-            return [{"drift_rate": -given["drift_rate"]}]
-        return []
 
     def sensor_offsets(self, theta, t):
         P = theta["drift_rate"].shape[0]
@@ -81,34 +114,20 @@ class SensorDrift(Effect):
         out[:, :, sensors.index(self.options["sensor"])] = theta["drift_rate"][:, None] * ramp
         return out
 
-    @classmethod
-    def trial(cls, clues: Clues) -> Trial:
-        """On the thermocouple found drifting, from the onset and rate of the hinge fitted to
-        its pair's difference; else on the one whose pair's difference changes most (or, in
-        a zone of one thermocouple, whose residual against the baseline does)."""
-        for f in clues.faults:
-            if f.kind == "drift":
-                exp = clues.records[f.experiment]
-                t0, t1 = float(exp.t_min[f.i0]), float(exp.t_min[-1])
-                return Trial({"sensor": f.sensor},
-                             {"t_drift": t0, "drift_rate": f.size_c / max(t1 - t0, 1.0)})
-        return Trial({"sensor": most_changed_pair(clues.records, clues.furnace,
-                                                  clues.residuals)})
 
-    @classmethod
-    def search_bounds(cls, fit_data):
-        """The onset lies within the fitted records (minutes from each record's start)."""
-        return {"t_drift": (min(float(e.t_min[0]) for e in fit_data),
-                            max(float(e.t_min[-1]) for e in fit_data)),
-                "drift_rate": (-MAX_RATE, MAX_RATE)}
+def pair_faults(clues: Clues) -> list[SensorFault]:
+    """The thermocouples departing from their partner against the baseline, as the
+    diagnosis reads them to locate its error (`diagnosis.residuals.sensor_faults`, with
+    each record's thermocouple noise from its own pairs); none without the baseline's
+    predictions."""
+    if not clues.predictions:
+        return []
+    # imported here: the diagnosis imports the effects, and this is its reading of the pairs
+    from ..diagnosis.residuals import sensor_faults
 
-    @classmethod
-    def draw(cls, rng, form, duration_min, furnace):
-        sensors = furnace.sensors
-        effect = cls(sensor=sensors[int(rng.integers(len(sensors)))], furnace=furnace)
-        sign = 1.0 if rng.uniform() < 0.5 else -1.0
-        return effect, {"drift_rate": sign * cls.uniform(rng, "drift_rate"),
-                        "t_drift": round(cls.uniform(rng, "t_drift_frac") * duration_min)}
+    zones = clues.furnace.zones
+    tc_noise = [{z: f.zones[z].tc_sd_c for z in zones} for f in map(record_floor, clues.records)]
+    return sensor_faults(clues.records, clues.predictions, tc_noise)
 
 
 def default_sensor(furnace: Furnace) -> str:

@@ -6,6 +6,25 @@ import numpy as np
 
 from ..simulation.parameters import Param
 from .base import Effect, Option
+from .drawn import Drawn
+from .tried import Tried
+
+
+class TriedSensorLag(Tried):
+    def candidate_for(self, furnace):
+        return {} if furnace.paper_structure else {"zones": furnace.zones}
+
+
+class DrawnSensorLag(Drawn):
+    def draw(self, rng, form, duration_min, furnace):
+        order = int(rng.integers(2, 4)) if form == "other" else 1
+        if furnace.paper_structure:
+            effect = self.effect(order=order, furnace=furnace)
+        else:
+            # one zone's thermocouples (a lagging thermocouple where the zone has one)
+            zone = furnace.zones[int(rng.integers(furnace.n_zones))]
+            effect = self.effect(order=order, zones=(zone,), furnace=furnace)
+        return effect, {"tau_lag": self.uniform(rng, "tau_lag")}
 
 
 class SensorLag(Effect):
@@ -18,11 +37,10 @@ class SensorLag(Effect):
     name = "sensor_lag"
     physics = "thermocouples read a first-order lag of the zone gas temperature"
     option_specs = {"order": Option(1, "integer", lo=1, hi=4, doc="cascaded stages")}
-    null = {"tau_lag": 0.0}
-    ranges = {"tau_lag": (4.0, 20.0)}
-    one_place_at_a_time = True
-    """A lag shared by the zones of a larger furnace does not fit one lagging zone (one time
-    constant for six zones that mostly have none)."""
+    # A lag shared by the zones of a larger furnace does not fit one lagging zone (one time
+    # constant for six zones that mostly have none): one place at a time.
+    tried = TriedSensorLag(null={"tau_lag": 0.0}, one_place_at_a_time=True)
+    drawn = DrawnSensorLag(ranges={"tau_lag": (4.0, 20.0)})
 
     @classmethod
     def specs(cls, furnace):
@@ -33,10 +51,6 @@ class SensorLag(Effect):
         z = furnace.zones
         return {**cls.option_specs,
                 "zones": Option(z, "choices", choices=z, doc="zones whose thermocouples lag")}
-
-    @classmethod
-    def candidate_for(cls, furnace):
-        return {} if furnace.paper_structure else {"zones": furnace.zones}
 
     @classmethod
     def physics_for(cls, furnace):
@@ -72,14 +86,3 @@ class SensorLag(Effect):
                 prev = i
             C[:, z, :] = 0.0
             C[:, z, prev] = 1.0
-
-    @classmethod
-    def draw(cls, rng, form, duration_min, furnace):
-        order = int(rng.integers(2, 4)) if form == "other" else 1
-        if furnace.paper_structure:
-            effect = cls(order=order, furnace=furnace)
-        else:
-            # one zone's thermocouples (a lagging thermocouple where the zone has one)
-            zone = furnace.zones[int(rng.integers(furnace.n_zones))]
-            effect = cls(order=order, zones=(zone,), furnace=furnace)
-        return effect, {"tau_lag": cls.uniform(rng, "tau_lag")}

@@ -6,6 +6,38 @@ import numpy as np
 
 from ..simulation.parameters import Param
 from .base import Effect, Option
+from .drawn import Drawn
+from .tried import Tried
+
+
+class TriedWallStorage(Tried):
+    def candidate_for(self, furnace):
+        return {"zones": furnace.zones}
+
+    def laws_for(self, furnace):
+        """A wall in each zone alone, on every network: a wall that stores much heat in one
+        zone only cannot be fitted by one exchange rate shared by all (seen on the paper's
+        furnace: a preheating-zone wall left 1.8 °C held out against a floor of 1.1 with
+        walls in all zones)."""
+        return tuple({"zones": (z,)} for z in furnace.zones)
+
+
+class DrawnWallStorage(Drawn):
+    def draw(self, rng, form, duration_min, furnace):
+        """On eq. 11's network the candidate's form is a wall in every zone; on any other,
+        a wall in one zone (the zone whose lining stores heat), which the candidate finds
+        among its further laws."""
+        wall = self.effect
+        values = {"k_gw": self.uniform(rng, "k_gw"), "k_wg": self.uniform(rng, "k_wg")}
+        zs = furnace.zones
+        if form != "other":
+            if furnace.paper_structure:
+                return wall(furnace=furnace), values
+            return wall(zones=(zs[int(rng.integers(len(zs)))],), furnace=furnace), values
+        # A wall of two layers, in every zone or in one: the candidate's walls have one.
+        zones = (zs, *((z,) for z in zs))[int(rng.integers(len(zs) + 1))]
+        values |= {"k_wb": self.uniform(rng, "k_wb"), "k_bw": self.uniform(rng, "k_bw")}
+        return wall(zones=zones, layers=2, furnace=furnace), values
 
 
 class WallStorage(Effect):
@@ -16,28 +48,16 @@ class WallStorage(Effect):
                          doc="2: a hot face and a slower back layer behind it")}
     # The release rate stays determined when the exchange rate trades with the zone's own
     # rates (seen with a preheating-zone wall): either shows the wall.
-    null = {"k_gw": 0.0, "k_wg": float("nan")}
-    one_place_at_a_time = True
-    ranges = {"k_gw": (0.02, 0.2), "k_wg": (0.001, 0.01), "k_wb": (0.002, 0.02),
-              "k_bw": (0.0003, 0.003)}
+    tried = TriedWallStorage(null={"k_gw": 0.0, "k_wg": float("nan")},
+                             one_place_at_a_time=True)
+    drawn = DrawnWallStorage(ranges={"k_gw": (0.02, 0.2), "k_wg": (0.001, 0.01),
+                                     "k_wb": (0.002, 0.02), "k_bw": (0.0003, 0.003)})
 
     @classmethod
     def specs(cls, furnace):
         z = furnace.zones
         return {"zones": Option(z, "choices", choices=z, doc="zones with a storing wall"),
                 **cls.option_specs}
-
-    @classmethod
-    def candidate_for(cls, furnace):
-        return {"zones": furnace.zones}
-
-    @classmethod
-    def laws_for(cls, furnace):
-        """A wall in each zone alone, on every network: a wall that stores much heat in one
-        zone only cannot be fitted by one exchange rate shared by all (seen on the paper's
-        furnace: a preheating-zone wall left 1.8 °C held out against a floor of 1.1 with
-        walls in all zones)."""
-        return tuple({"zones": (z,)} for z in furnace.zones)
 
     def _params(self):
         face = (Param("k_gw", 0.05, 1e-5, 10.0, doc="gas-to-wall exchange rate, seen from the gas"),
@@ -60,22 +80,6 @@ class WallStorage(Effect):
             exchange(A, z, face, theta["k_gw"], theta["k_wg"])
             if self.options["layers"] == 2:
                 exchange(A, face, face + len(zones), theta["k_wb"], theta["k_bw"])
-
-    @classmethod
-    def draw(cls, rng, form, duration_min, furnace):
-        """On eq. 11's network the candidate's form is a wall in every zone; on any other,
-        a wall in one zone (the zone whose lining stores heat), which the candidate finds
-        among its further laws."""
-        values = {"k_gw": cls.uniform(rng, "k_gw"), "k_wg": cls.uniform(rng, "k_wg")}
-        zs = furnace.zones
-        if form != "other":
-            if furnace.paper_structure:
-                return cls(furnace=furnace), values
-            return cls(zones=(zs[int(rng.integers(len(zs)))],), furnace=furnace), values
-        # A wall of two layers, in every zone or in one: the candidate's walls have one.
-        zones = (zs, *((z,) for z in zs))[int(rng.integers(len(zs) + 1))]
-        values |= {"k_wb": cls.uniform(rng, "k_wb"), "k_bw": cls.uniform(rng, "k_bw")}
-        return cls(zones=zones, layers=2, furnace=furnace), values
 
 
 def exchange(A: np.ndarray, i: int, j: int, k_ij: np.ndarray, k_ji: np.ndarray) -> None:

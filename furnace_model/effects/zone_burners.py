@@ -14,7 +14,9 @@ import numpy as np
 
 from ..simulation.furnace import Furnace
 from ..simulation.parameters import Param
-from .base import Clues, Effect, Trial
+from .base import Effect
+from .drawn import Drawn
+from .tried import Clues, Trial, Tried
 
 if TYPE_CHECKING:
     from ..experiment import Experiment
@@ -29,14 +31,52 @@ MIN_HEAD_SAMPLES = 100
 """A record's soaking-burners-only start is fitted only when it is at least this long."""
 
 
+class TriedZoneBurners(Tried):
+    def nulls(self, effect):
+        return {f"f_{effect.furnace.zones[i]}": float("nan") for i in effect.own}
+
+    def trial(self, clues: Clues) -> Trial:
+        """Where the model errs because the heating- and preheating-zone burners heat their
+        own zones, it is still right while only soaking-zone burners fire: on a bent
+        baseline, start from the baseline fitted on each record up to the first other burner,
+        keeping what those data determine (a and f; the rest, like the effect's own
+        strengths, are searched). The baseline fitted on everything has bent to absorb the
+        other burners (seen: f at its bound), a start from which the zone-burner fit stays
+        in a side valley."""
+        heads = soak_only_heads(clues.fit_data) if clues.bent else None
+        start = clues.baseline_on(heads) if heads and clues.baseline_on else None
+        return Trial(start=start, from_baseline=False) if start else Trial()
+
+
+class DrawnZoneBurners(Drawn):
+    def check_furnace(self, furnace: Furnace) -> Furnace:
+        """A furnace described with own-zone burners is checked as its first-zone reading:
+        the model counts every burner as first-zone input, the truth heats each zone with
+        its own (this effect), which the diagnosis must find."""
+        if furnace.burner_heat == "first_zone":
+            return furnace
+        return dataclasses.replace(furnace, name=f"{furnace.name}-first-zone",
+                                   burner_heat="first_zone")
+
+    def draw(self, rng, form, duration_min, furnace):
+        """Each own-burner zone's heat per burner: from `ranges` on eq. 11's network, whose
+        true values are Table V's; elsewhere from `OTHER_RANGE`, around the network's
+        default gain."""
+        effect = self.effect(furnace=furnace)
+        if furnace.paper_structure:
+            return effect, {p.name: self.uniform(rng, "f") for p in effect.params}
+        return effect, {p.name: float(rng.uniform(*OTHER_RANGE)) for p in effect.params}
+
+
 class ZoneBurners(Effect):
     name = "zone_burners"
     physics = ("heating- and preheating-zone burners heat their own zone, with their own heat "
                "per burner, instead of counting as zone-1 input")
-    null = {"f_heat": float("nan"), "f_preheat": float("nan")}
-    ranges = {"f": (0.5, 5.0)}
-    """Eq. 11's network: each own-burner zone's heat per burner, on Table V's scale."""
-    zone_affine = True
+    tried = TriedZoneBurners(null={"f_heat": float("nan"), "f_preheat": float("nan")},
+                             zone_affine=True)
+    drawn = DrawnZoneBurners(ranges={"f": (0.5, 5.0)})
+    """`f`, on eq. 11's network: each own-burner zone's heat per burner, on Table V's
+    scale."""
 
     @classmethod
     def refusal(cls, furnace):
@@ -57,59 +97,22 @@ class ZoneBurners(Effect):
                 f"their own heat per burner, instead of counting as {furnace.zones[0]}-zone "
                 "input")
 
-    @classmethod
-    def check_furnace(cls, furnace: Furnace) -> Furnace:
-        """A furnace described with own-zone burners is checked as its first-zone reading:
-        the model counts every burner as first-zone input, the truth heats each zone with
-        its own (this effect), which the diagnosis must find."""
-        if furnace.burner_heat == "first_zone":
-            return furnace
-        return dataclasses.replace(furnace, name=f"{furnace.name}-first-zone",
-                                   burner_heat="first_zone")
-
     @property
-    def _own(self) -> list[int]:
+    def own(self) -> list[int]:
         """Zones after the first with burners of their own."""
         return [i for i in range(1, self.n_zones) if self.furnace.burners[i] > 0]
-
-    @property
-    def nulls(self):
-        return {f"f_{self.furnace.zones[i]}": float("nan") for i in self._own}
 
     def _params(self):
         zones = self.furnace.zones
         words = PAPER_DOCS if self.furnace.paper_structure else {}
         return tuple(Param(f"f_{zones[i]}", 0.15, 1e-4, 10.0, unit="°C/min per burner",
                            doc=words.get(i, f"{zones[i]}-zone rise rate per own burner on"))
-                     for i in self._own)
+                     for i in self.own)
 
     def extend(self, A, B, C, theta, first):
         B[:, 0, 1:self.n_zones] = 0.0
-        for p, i in zip(self.params, self._own, strict=True):
+        for p, i in zip(self.params, self.own, strict=True):
             B[:, i, i] = theta[p.name]
-
-    @classmethod
-    def trial(cls, clues: Clues) -> Trial:
-        """Where the model errs because the heating- and preheating-zone burners heat their
-        own zones, it is still right while only soaking-zone burners fire: on a bent
-        baseline, start from the baseline fitted on each record up to the first other burner,
-        keeping what those data determine (a and f; the rest, like the effect's own
-        strengths, are searched). The baseline fitted on everything has bent to absorb the
-        other burners (seen: f at its bound), a start from which the zone-burner fit stays
-        in a side valley."""
-        heads = soak_only_heads(clues.fit_data) if clues.bent else None
-        start = clues.baseline_on(heads) if heads and clues.baseline_on else None
-        return Trial(start=start, from_baseline=False) if start else Trial()
-
-    @classmethod
-    def draw(cls, rng, form, duration_min, furnace):
-        """Each own-burner zone's heat per burner: from `ranges` on eq. 11's network, whose
-        true values are Table V's; elsewhere from `OTHER_RANGE`, around the network's
-        default gain."""
-        effect = cls(furnace=furnace)
-        if furnace.paper_structure:
-            return effect, {p.name: cls.uniform(rng, "f") for p in effect.params}
-        return effect, {p.name: float(rng.uniform(*OTHER_RANGE)) for p in effect.params}
 
 
 def soak_only_heads(fit_data: Sequence[Experiment]) -> list[Experiment] | None:

@@ -6,6 +6,8 @@ from __future__ import annotations
 from ..simulation.furnace import Furnace
 from ..simulation.parameters import Param
 from .base import Effect, Option
+from .drawn import Drawn
+from .tried import Tried
 
 
 def losing(furnace: Furnace) -> tuple[str, ...]:
@@ -14,16 +16,34 @@ def losing(furnace: Furnace) -> tuple[str, ...]:
     return tuple(z for i, z in enumerate(furnace.zones) if i not in furnace.ambient)
 
 
+class TriedZoneLosses(Tried):
+    def nulls(self, effect):
+        return {f"g_{z}": 0.0 for z in effect.options["zones"]}
+
+
+class DrawnZoneLosses(Drawn):
+    def draw(self, rng, form, duration_min, furnace):
+        """Eq. 11's network: both zones that might lose heat in the candidate's form (its
+        first law), one in the other; any other network: one zone (the one whose walls lose
+        heat), which the candidate finds among its further laws."""
+        can = losing(furnace)
+        if furnace.paper_structure and form != "other":
+            zones = can
+        else:
+            zones = (can[int(rng.integers(len(can)))],)
+        return self.effect(zones=zones, furnace=furnace), {f"g_{z}": self.uniform(rng, "g")
+                                                           for z in zones}
+
+
 class ZoneLosses(Effect):
     name = "zone_losses"
     physics = "a zone besides preheating loses heat to ambient through its walls"
-    null = {"g_soak": 0.0, "g_heat": 0.0}
-    ranges = {"g": (0.002, 0.01)}
-    zone_affine = True
-    one_place_at_a_time = True
-    """On a larger furnace one zone's wall loss, fitted as a loss in every zone that might
-    lose heat, spreads over zones that do not and is not found (seen on the six-zone
-    furnace: losses on all four, the gap left unexplained)."""
+    # On a larger furnace one zone's wall loss, fitted as a loss in every zone that might
+    # lose heat, spreads over zones that do not and is not found (seen on the six-zone
+    # furnace: losses on all four, the gap left unexplained): one place at a time.
+    tried = TriedZoneLosses(null={"g_soak": 0.0, "g_heat": 0.0}, zone_affine=True,
+                            one_place_at_a_time=True)
+    drawn = DrawnZoneLosses(ranges={"g": (0.002, 0.01)})
 
     @classmethod
     def refusal(cls, furnace):
@@ -46,10 +66,6 @@ class ZoneLosses(Effect):
         return (f"a zone besides {' and '.join(ambient)} loses heat to ambient through its "
                 "walls")
 
-    @property
-    def nulls(self):
-        return {f"g_{z}": 0.0 for z in self.options["zones"]}
-
     def _params(self):
         allowed = losing(self.furnace)
         bad = [z for z in self.options["zones"] if z not in allowed]
@@ -69,16 +85,3 @@ class ZoneLosses(Effect):
             i, g = self.furnace.zones.index(z), theta[f"g_{z}"]
             A[:, i, i] -= g
             B[:, i, self.u_air] += g
-
-    @classmethod
-    def draw(cls, rng, form, duration_min, furnace):
-        """Eq. 11's network: both zones that might lose heat in the candidate's form (its
-        first law), one in the other; any other network: one zone (the one whose walls lose
-        heat), which the candidate finds among its further laws."""
-        can = losing(furnace)
-        if furnace.paper_structure and form != "other":
-            zones = can
-        else:
-            zones = (can[int(rng.integers(len(can)))],)
-        return cls(zones=zones, furnace=furnace), {f"g_{z}": cls.uniform(rng, "g")
-                                                    for z in zones}

@@ -3,7 +3,7 @@ a many-zone network, with or without an effect, starts.
 
 Every zone is measured, so each zone's equation is linear in the parameters that enter it
 affinely: the network's exchanges, losses and heats per burner, and an effect's own where
-it only changes those (`Effect.zone_affine`: a loss to ambient from another zone, burners
+it only changes those (`Tried.zone_affine`: a loss to ambient from another zone, burners
 heating their own zone). Integrated from a record's start,
 T_i(t) = T_i(t0) + sum_p theta_p int (dA_p[i] T + dB_p[i] u),
 where dA_p, dB_p are how the parameter moves zone i's row of the system. The integrals of
@@ -31,7 +31,7 @@ def equation_error(structure: ModelStructure, records: list[Experiment]) -> dict
     furnace = structure.furnace
     nz = furnace.n_zones
     affine = set(parameter_names(furnace)) | {
-        p.name for e in structure.effects if type(e).zone_affine for p in e.params}
+        p.name for e in structure.effects if e.tried.zone_affine for p in e.params}
     box = {p.name: p for p in structure.params}
     names = [n for n in structure.names if n in affine]
     rows = _rows(structure, names)

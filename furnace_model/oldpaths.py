@@ -40,7 +40,7 @@ MOVED: dict[str, str] = {
     "autoregression": "identification.autoregression",
     "plausible": "identification.plausible",
     "noisefloor": "identification.noisefloor",
-    "residuals": "diagnosis.residuals",
+    "residuals": "identification.residuals",
     "selfcheck": "diagnosis.selfcheck",
 }
 """Old name under `furnace_model` -> new name under it."""

@@ -19,8 +19,8 @@ from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
 
 from .diagnosis import MIN_GAP_CLOSED, RULE, CandidateResult, Diagnosis, shortfall, where_lines
-from .diagnosis.residuals import ZONE_WORDS
 from .experiment import Experiment
+from .identification.residuals import ZONE_WORDS
 
 STATUS_WORDS = {"no_gap": "no gap", "explained": "explained", "unexplained": "unexplained"}
 STATUS_COLOURS = {"no_gap": "#2e7d32", "explained": "#1565c0", "unexplained": "#c62828"}

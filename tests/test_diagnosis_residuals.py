@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 
 from furnace_model.diagnosis import Located, locate, where_lines
-from furnace_model.diagnosis.residuals import (
+from furnace_model.experiment import Experiment
+from furnace_model.identification.noisefloor import record_floor
+from furnace_model.identification.residuals import (
     error_spans,
     regime,
     residual_tests,
     sensor_faults,
     sudden_change,
 )
-from furnace_model.experiment import Experiment
-from furnace_model.identification.noisefloor import record_floor
 from furnace_model.simulation.furnace import PAPER
 
 

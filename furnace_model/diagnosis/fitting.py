@@ -16,12 +16,12 @@ from ..identification.equationerror import equation_error
 from ..identification.fit import fit
 from ..identification.model import Refinement
 from ..identification.noisefloor import pooled_floor, record_floor
+from ..identification.residuals import lag1
 from ..identification.result import FitResult
 from ..simulation.furnace import Furnace
 from ..simulation.structure import ModelStructure
 from .candidate import CandidateResult
 from .credit import CARRIED_Z, identifiable
-from .residuals import lag1
 
 
 @dataclass

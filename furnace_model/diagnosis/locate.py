@@ -10,7 +10,14 @@ import numpy as np
 
 from ..experiment import Experiment
 from ..identification.noisefloor import RecordFloor
-from .residuals import SUDDEN_WINDOW_MIN, ZONE_WORDS, error_spans, iso, regime, sudden_change
+from ..identification.residuals import (
+    SUDDEN_WINDOW_MIN,
+    ZONE_WORDS,
+    error_spans,
+    iso,
+    regime,
+    sudden_change,
+)
 from .words import and_words, zones_words
 
 MIN_SHARE = 0.02

@@ -14,6 +14,7 @@ from ..errors import FurnaceError
 from ..experiment import Experiment
 from ..identification.fit import fit
 from ..identification.noisefloor import RecordFloor, limits, pooled_floor, record_floor
+from ..identification.residuals import residual_tests, sensor_faults
 from .candidate import CandidateResult
 from .credit import (
     GAP_RATIO,
@@ -33,7 +34,6 @@ from .holdout import split, uncovered
 from .laws import between_laws, further_laws, opts_text
 from .locate import locate
 from .pool import run_all
-from .residuals import residual_tests, sensor_faults
 from .result import Diagnosis
 from .verdict import judge
 

@@ -7,12 +7,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ..effects import EFFECTS
+from ..identification.residuals import ZONE_WORDS
 from ..simulation.furnace import Furnace
 from ..simulation.structure import ModelStructure
 from .candidate import CandidateResult
 from .credit import near_floor
 from .locate import Located, where_lines
-from .residuals import ZONE_WORDS
 from .words import zones_words
 
 

@@ -3,7 +3,7 @@ error and the verdict, so that they name zones alike."""
 
 from __future__ import annotations
 
-from .residuals import ZONE_WORDS
+from ..identification.residuals import ZONE_WORDS
 
 
 def zones_words(zones: list[str]) -> str:

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..identification.noisefloor import record_floor
+from ..identification.residuals import SensorFault, sensor_faults
 from ..simulation.furnace import Furnace
 from ..simulation.parameters import Param
 from .base import Effect, Option
@@ -15,7 +16,6 @@ from .drawn import Drawn
 from .tried import Clues, Trial, Tried
 
 if TYPE_CHECKING:
-    from ..diagnosis.residuals import SensorFault
     from ..experiment import Experiment
 
 MAX_RATE = 0.2
@@ -117,14 +117,11 @@ class SensorDrift(Effect):
 
 def pair_faults(clues: Clues) -> list[SensorFault]:
     """The thermocouples departing from their partner against the baseline, as the
-    diagnosis reads them to locate its error (`diagnosis.residuals.sensor_faults`, with
+    diagnosis reads them to locate its error (`identification.residuals.sensor_faults`, with
     each record's thermocouple noise from its own pairs); none without the baseline's
     predictions."""
     if not clues.predictions:
         return []
-    # imported here: the diagnosis imports the effects, and this is its reading of the pairs
-    from ..diagnosis.residuals import sensor_faults
-
     zones = clues.furnace.zones
     tc_noise = [{z: f.zones[z].tc_sd_c for z in zones} for f in map(record_floor, clues.records)]
     return sensor_faults(clues.records, clues.predictions, tc_noise)

@@ -1,6 +1,7 @@
 """Where a model's error lies, measured against each record's noise floor
-(furnace_model.identification.noisefloor): the time spans and operating regimes that hold the error, thermocouples that disagree with their partner, and the
-whiteness and input cross-correlation tests of the residual (as MATLAB's `resid` draws them).
+(furnace_model.identification.noisefloor): the time spans and operating regimes that hold
+the error, thermocouples that disagree with their partner, and the whiteness and input
+cross-correlation tests of the residual (as MATLAB's `resid` draws them).
 
 Everything here reads measured data and a model's predictions; nothing is fitted except
 straight lines and hinges to the difference of a thermocouple pair.
@@ -15,7 +16,7 @@ import pandas as pd
 from scipy.ndimage import median_filter
 
 from ..experiment import Experiment
-from ..identification.noisefloor import RecordFloor
+from .noisefloor import RecordFloor
 
 Z99 = 2.5758293035489004
 MAX_LAG = 25

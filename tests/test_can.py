@@ -76,7 +76,9 @@ def test_frames_sent_on_the_bus_reach_the_log_and_disagreements_are_events(tmp_p
     flipped = [m for m, _ in flame if m["soak"][3] != m["soak"][2]]
     assert flipped, "the test's frames reached the log"
     assert any(s[3] != s[2] for s in sent)
-    events = [m for t, m, _ in messages(tmp_path) if t == DAQ_EVENTS]
+    # a busy host may also skip a poll tick (a missed_tick event): not what this test is about
+    events = [m for t, m, _ in messages(tmp_path)
+              if t == DAQ_EVENTS and m["kind"].startswith("burner_")]
     kinds = [e["kind"] for e in events]
     assert kinds == ["burner_disagreement", "burner_agreement"], events
     assert events[0]["burners"] == ["soak[3]"]

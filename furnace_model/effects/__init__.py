@@ -25,8 +25,8 @@ plug-ins in the order they were loaded."""
 BUILT_IN: tuple[str, ...] = tuple(EFFECTS)
 
 _PAPER_CHANNELS = {"U_BURNERS": slice(0, 3), "U_AIR": 3, "N_INPUTS": 4}
-"""The paper's furnace's input channels, for plug-ins written before an effect read its own
-furnace's (`Effect.u_burners`, `u_air`, `n_inputs`)."""
+"""The paper's furnace's input channels, for plug-ins that address them by number; an effect
+reads its own furnace's from `Effect.u_burners`, `u_air`, `n_inputs`."""
 
 
 def __getattr__(name: str) -> object:

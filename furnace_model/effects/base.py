@@ -16,8 +16,8 @@ default: how the diagnosis tries it (`tried`, a `tried.Tried`: the strengths tha
 with it, its first form and further laws, where the search starts) and how the selfcheck
 draws it at random in the candidate's form and in another one (`drawn`, a `drawn.Drawn`).
 The diagnosis and the selfcheck ask the part, so that the effect says what it is and the
-parts say how it is tried and drawn. A class written before the parts, with their
-attributes on itself (`null`, `ranges`, `draw`, ...), gets parts made from them
+parts say how it is tried and drawn. A class that keeps those attributes on itself
+(`null`, `ranges`, `draw`, ...), as the plug-in API also allows, gets parts made from them
 (`legacy`). The diagnosis, the plant simulator, the scenario loader and the selfcheck loop
 over the registered effects (`registry.EFFECTS`) and never name one: a furnace's own
 physics is one class in one file, ours or the user's.
@@ -104,7 +104,7 @@ class Effect:
                 setattr(cls, slot, part.bound(cls))
 
     def __init__(self, *, furnace: Furnace | None = None, **options: Any):
-        if furnace is None:  # a plug-in written when every effect was of the paper's furnace
+        if furnace is None:  # a plug-in that names no furnace knows only the paper's
             warnings.warn(f"{type(self).__name__}() without a furnace is the paper's furnace's "
                           "effect; pass furnace=", DeprecationWarning, stacklevel=2)
             furnace = PAPER

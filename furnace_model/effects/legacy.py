@@ -1,5 +1,5 @@
-"""Parts made from an effect class written before the parts: the attributes and
-classmethods the plug-in API had on the class itself (`null`, `candidate_options`,
+"""Parts made from an effect class that declares no parts but the attributes and
+classmethods the plug-in API also allows on the class itself (`null`, `candidate_options`,
 `further_laws`, `zone_affine`, `one_place_at_a_time`, `blends`, `candidate_for`,
 `laws_for`, `laws_always`, `trial`, `search_bounds`, `starts`, `nulls`; `ranges`, `draw`,
 `check_furnace`), so that such a plug-in keeps working unchanged.
@@ -75,8 +75,7 @@ class OldTried(Tried):
 
 class OldDrawn(Drawn):
     """A `Drawn` that asks the effect class's own `draw` and `check_furnace`. A `draw`
-    written when every effect was of the paper's furnace takes no furnace: it draws on eq.
-    11's network alone."""
+    that takes no furnace knows only the paper's: it draws on eq. 11's network alone."""
 
     @property
     def drawable(self) -> bool:

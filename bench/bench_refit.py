@@ -52,8 +52,8 @@ def refits(name: str, duration_min: float | None, config: RefitConfig,
     params: list[dict] = []
     events: list[dict] = []
 
-    def emit(topic: str, msg: dict, _pub_ns: int) -> None:
-        (params if topic == MODEL_PARAMETERS else events).append(msg)
+    def emit(topic: str, msg, _pub_ns: int) -> None:
+        (params if topic == MODEL_PARAMETERS else events).append(msg.to_json())
         assert topic in (MODEL_PARAMETERS, MODEL_EVENTS)
 
     runner = RefitRunner(config, emit, max_queue=None, furnace=PAPER)

@@ -67,7 +67,7 @@ def main() -> None:
 
     t0, c0 = time.perf_counter(), time.process_time()
     w0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    msgs = replay(files, None, args.cache / "replay-out.mcap")
+    msgs = [m.to_json() for m in replay(files, None, args.cache / "replay-out.mcap")]
     t_replay, c_replay = time.perf_counter() - t0, time.process_time() - c0
     w1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     c_worker = (w1.ru_utime + w1.ru_stime) - (w0.ru_utime + w0.ru_stime)

@@ -39,7 +39,7 @@ import pandas as pd
 
 from ..errors import DataError
 from ..simulation.furnace import Furnace
-from .messages import Ambient, Burners, FurnaceMessage, Thermocouples, as_message, number, typed
+from .messages import Ambient, Burners, FurnaceMessage, Thermocouples, as_message, number
 from .read import iso_time, log_furnace, read_messages
 from .schema import AMBIENT, BURNERS, THERMOCOUPLES
 
@@ -94,10 +94,23 @@ class Resampler:
             True: ([], []), False: ([], [])}
         self._unsorted = False
         self._last_burner_msg: Burners | None = None
+        self._last_burner_raw: dict | None = None
         self._last_burner_pub: int | None = None
 
     def add(self, topic: str, msg: FurnaceMessage | dict, pub_ns: int) -> None:
-        """One furnace message (a decoded dict is read as its topic's class)."""
+        """One furnace message (a decoded dict is read as its topic's class). A decoded
+        reading with every thermocouple ok and a number is binned as it is: that is nearly
+        every message of a log, and building its object would double the cost of reading."""
+        raw = msg if type(msg) is dict else None
+        if raw is not None:
+            if topic == THERMOCOUPLES and raw.get("quality") == self._all_ok:
+                values = [raw.get(s) for s in self._sensors]
+                if all(type(v) is float for v in values):
+                    self._tc_t.append(pub_ns)
+                    self._tc_v.append(values)
+                    return
+            if raw is self._last_burner_raw:  # read_messages hands repeats over as one
+                msg = self._last_burner_msg
         msg = as_message(topic, msg, self.furnace)
         if isinstance(msg, Thermocouples):
             self._tc_t.append(pub_ns)
@@ -114,6 +127,7 @@ class Resampler:
             counts = tuple(_counts(msg, self.furnace))
             times, states = self._burners[msg.source == "modbus"]
             self._last_burner_msg, self._last_burner_pub = msg, pub_ns
+            self._last_burner_raw = raw
             if times and pub_ns >= times[-1]:
                 if states[-1] == counts:
                     return
@@ -248,7 +262,7 @@ def resample_logs(paths: Iterable[str | Path], period_s: float = DEFAULT_PERIOD_
         furnace = log_furnace(paths, where)
     binner = Resampler(period_ns, lo if lo is not None else 0, furnace)
     records = read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT))
-    for topic, msg, _log_ns, pub_ns in typed(records, furnace):
+    for topic, msg, _log_ns, pub_ns in records:
         if topic == BURNERS or ((lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)):
             try:
                 binner.add(topic, msg, pub_ns)

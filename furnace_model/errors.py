@@ -23,6 +23,15 @@ class DataError(FurnaceError):
         super().__init__(f"{', '.join(where)}: {message}")
 
 
+class DataWarning(UserWarning):
+    """Data that is read but is not what its description promises (a thermocouple column
+    the furnace names and the file lacks): said once on stderr, the rest read as given."""
+
+    def __init__(self, file: str, message: str, column: str | None = None):
+        where = [str(file)] + ([f"column '{column}'"] if column is not None else [])
+        super().__init__(f"{', '.join(where)}: {message}")
+
+
 class ConfigError(FurnaceError):
     """A YAML file (scenario, daemon config) has a wrong key, type or value."""
 

@@ -2,7 +2,9 @@
 
 Everything that breaks the contract is refused with the file, the column and the row (CSV:
 the line number as an editor shows it) and nothing is guessed: an empty thermocouple cell is
-a missing reading, not a zero, and a burner count must be a whole number within the zone.
+a missing reading, not a zero, a burner count must be a whole number within the zone, a
+pulse-fired zone's mean count and a modulated zone's rate must lie within 0 and the zone's
+maximum, and a measured disturbance within its declared range.
 MCAP logs become the same table through `furnace_model.log.experiment` (the resampling of
 `logs export`) and are checked here like any file; `furnace_model.records` reads either.
 """
@@ -11,14 +13,15 @@ from __future__ import annotations
 
 import contextlib
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from .errors import DataError
-from .simulation.furnace import Furnace
+from .errors import DataError, DataWarning
+from .simulation.furnace import Disturbance, Furnace, HeatInput
 
 TIME_COLUMNS = ("timestamp", "t_min")
 DEFAULT_T_AIR_C = 30.0
@@ -34,11 +37,24 @@ class Experiment:
     name: str
     t_min: np.ndarray  # (N,) strictly increasing
     tc: np.ndarray  # (N, thermocouples) NaN = missing reading
-    burners: np.ndarray  # (N, zones) burners on per zone
+    burners: np.ndarray  # (N, zones) each zone's heat input: burners on, or its rate
     t_air: np.ndarray  # (N,)
     start_time: pd.Timestamp | None = None
     source: str = ""
     furnace: Furnace = field(kw_only=True)
+    disturbances: np.ndarray | None = field(default=None, kw_only=True)
+    """(N, disturbances) the furnace's measured disturbances, in its order."""
+
+    def __post_init__(self) -> None:
+        k = len(self.furnace.disturbances)
+        if self.disturbances is None:
+            if k:
+                raise ValueError(f"furnace '{self.furnace.name}' declares disturbances "
+                                 f"({', '.join(self.furnace.disturbance_columns)}): a record "
+                                 "of it needs their values")
+            self.disturbances = np.zeros((self.t_min.size, 0))
+        self.disturbances = np.asarray(self.disturbances, dtype=float).reshape(
+            self.t_min.size, k)
 
     def __len__(self) -> int:
         return self.t_min.size
@@ -53,14 +69,18 @@ class Experiment:
         """How many times the burner pattern changes: the excitation the data carry."""
         return int(np.any(np.diff(self.burners, axis=0) != 0, axis=1).sum())
 
+    def rows(self, mask: np.ndarray) -> Experiment:
+        """The samples `mask` selects, times kept as they are."""
+        return Experiment(self.name, self.t_min[mask], self.tc[mask], self.burners[mask],
+                          self.t_air[mask], self.start_time, self.source,
+                          furnace=self.furnace, disturbances=self.disturbances[mask])
+
     def sample_period_min(self) -> float:
         return float(np.median(np.diff(self.t_min))) if len(self) > 1 else float("nan")
 
     def between(self, lo: float, hi: float) -> Experiment:
         """The samples with lo <= t_min < hi, times kept as they are."""
-        m = (self.t_min >= lo) & (self.t_min < hi)
-        return Experiment(self.name, self.t_min[m], self.tc[m], self.burners[m], self.t_air[m],
-                          self.start_time, self.source, furnace=self.furnace)
+        return self.rows((self.t_min >= lo) & (self.t_min < hi))
 
     def to_frame(self) -> pd.DataFrame:
         cols: dict[str, object] = {}
@@ -71,9 +91,12 @@ class Experiment:
             cols["t_min"] = self.t_min
         for i, c in enumerate(self.furnace.tc_columns):
             cols[c] = self.tc[:, i]
-        for i, c in enumerate(self.furnace.burner_columns):
-            cols[c] = self.burners[:, i].astype(int)
+        for i, (c, h) in enumerate(zip(self.furnace.burner_columns,
+                                       self.furnace.heat_inputs, strict=True)):
+            cols[c] = self.burners[:, i].astype(int) if h.whole else self.burners[:, i]
         cols["t_air"] = self.t_air
+        for i, c in enumerate(self.furnace.disturbance_columns):
+            cols[c] = self.disturbances[:, i]
         return pd.DataFrame(cols)
 
 
@@ -166,7 +189,7 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
     if unknown:
         raise err(f"unknown column(s) {', '.join(unknown)}: furnace '{furnace.name}' has "
                   f"{', '.join(tc_columns + burner_columns)}", unknown[0])
-    missing = [c for c in burner_columns if c not in cols]
+    missing = [c for c in (*burner_columns, *furnace.disturbance_columns) if c not in cols]
     if missing:
         raise err(f"missing required column(s): {', '.join(missing)} "
                   f"(furnace '{furnace.name}')")
@@ -174,6 +197,11 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         if not any(f"tc_{z}_{i}" in cols for i in range(1, n + 1)):
             need = " or ".join(f"tc_{z}_{i}" for i in range(1, n + 1))
             raise err(f"zone '{z}' has no thermocouple column (need {need})")
+    absent = [c for c in tc_columns if c not in cols]
+    if absent:
+        warnings.warn(DataWarning(file, f"furnace '{furnace.name}' has thermocouple(s) "
+                                        f"{', '.join(absent)} that the file lacks: their zones "
+                                        "are read from the others"), stacklevel=2)
     if len(frame) == 0:
         raise err("no data rows")
 
@@ -201,20 +229,14 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         if c in cols:
             tc[:, j] = _temperatures(_numbers(frame[c], c, err, allow_empty=True), c, err)
 
-    burners = np.empty((len(frame), furnace.n_zones), dtype=int)
-    for j, c in enumerate(burner_columns):
-        v = _numbers(frame[c], c, err, allow_empty=False)
-        frac = np.nonzero(v != np.round(v))[0]
-        if frac.size:
-            raise err(f"burner count must be a whole number, got {v[frac[0]]:g}", c, int(frac[0]))
-        neg = np.nonzero(v < 0)[0]
-        if neg.size:
-            raise err(f"burner count cannot be negative, got {v[neg[0]]:g}", c, int(neg[0]))
-        over = np.nonzero(v > furnace.burners[j])[0]
-        if over.size:
-            raise err(f"the {furnace.zones[j]} zone has {furnace.burners[j]} burners, got "
-                      f"{v[over[0]]:g}", c, int(over[0]))
-        burners[:, j] = v.astype(int)
+    burners = np.empty((len(frame), furnace.n_zones))
+    for j, (c, heat) in enumerate(zip(burner_columns, furnace.heat_inputs, strict=True)):
+        burners[:, j] = _heat_input(_numbers(frame[c], c, err, allow_empty=False), heat,
+                                    furnace.zones[j], c, err)
+    disturbances = np.empty((len(frame), len(furnace.disturbances)))
+    for j, d in enumerate(furnace.disturbances):
+        disturbances[:, j] = _disturbance(_numbers(frame[d.column], d.column, err,
+                                                   allow_empty=True), d, err)
 
     if "t_air" in cols:
         t_air = _temperatures(_numbers(frame["t_air"], "t_air", err, allow_empty=True),
@@ -234,13 +256,50 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         if not keep.any():
             raise err(f"no rows in the window {window_words(start, end)}")
         stamps, tc, burners, t_air = stamps[keep], tc[keep], burners[keep], t_air[keep]
+        disturbances = disturbances[keep]
         start_time = stamps[0]
         t_min = (stamps - start_time).total_seconds().to_numpy() / 60.0
 
     # Ambient changes slowly: an empty cell holds the last reading (the default before any).
     t_air = pd.Series(t_air).ffill().fillna(t_air_default).to_numpy()
     return Experiment(Path(file).stem, t_min, tc, burners, t_air, start_time, file,
-                      furnace=furnace)
+                      furnace=furnace, disturbances=disturbances)
+
+
+def _heat_input(v: np.ndarray, heat: HeatInput, zone: str, column: str, err) -> np.ndarray:
+    """A zone's heat-input column checked against how the zone is fired."""
+    if heat.whole:
+        frac = np.nonzero(v != np.round(v))[0]
+        if frac.size:
+            raise err(f"burner count must be a whole number, got {v[frac[0]]:g} (a zone "
+                      "fired by modulated or pulse-fired burners says so in the furnace "
+                      "description: heat: {kind: rate} or {kind: pulse})", column,
+                      int(frac[0]))
+    what = "burner count" if heat.kind != "rate" else f"heat input ({heat.unit})"
+    neg = np.nonzero(v < 0)[0]
+    if neg.size:
+        raise err(f"{what} cannot be negative, got {v[neg[0]]:g}", column, int(neg[0]))
+    over = np.nonzero(v > heat.max * (1 + 1e-9))[0]
+    if over.size:
+        most = (f"has {heat.max:g} burners" if heat.kind != "rate"
+                else f"fires at most {heat.max:g} {heat.unit}")
+        raise err(f"the {zone} zone {most}, got {v[over[0]]:g}", column, int(over[0]))
+    return v
+
+
+def _disturbance(v: np.ndarray, d: Disturbance, err) -> np.ndarray:
+    """A measured disturbance: within its declared range; an empty cell holds the last
+    reading (a slow signal logged less often than the rest), but the first must be given."""
+    if v.size and np.isnan(v[0]):
+        raise err(f"the first row has no value for disturbance '{d.name}' ({d.unit}): "
+                  "nothing to hold", d.column, 0)
+    if d.range is not None:
+        lo, hi = d.range
+        out = np.nonzero((v < lo) | (v > hi))[0]
+        if out.size:
+            raise err(f"{v[out[0]]:g} {d.unit} is outside the declared range of "
+                      f"'{d.name}' ({lo:g} to {hi:g})", d.column, int(out[0]))
+    return pd.Series(v).ffill().to_numpy()
 
 
 def window_words(start: pd.Timestamp | None, end: pd.Timestamp | None) -> str:

@@ -8,8 +8,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
-from ..errors import FurnaceError
+from ..errors import DataWarning, FurnaceError
 from .arguments import CommandParser, add_version, preload_effects
 from .names import sync_plugins
 
@@ -37,7 +38,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"furnace-model: error: {exc}", file=sys.stderr)
         return exc.exit_code
     args = build_parser().parse_args(argv)
+    show = warnings.showwarning
+
+    def say(message, category, *rest) -> None:
+        if issubclass(category, DataWarning):
+            print(f"furnace-model {args.command}: warning: {message}", file=sys.stderr)
+        else:
+            show(message, category, *rest)
+
     try:
+        warnings.showwarning = say
         sync_plugins(installed=True)
         return int(args.run(args) or 0)
     except FurnaceError as exc:
@@ -46,6 +56,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"furnace-model {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = show
 
 
 if __name__ == "__main__":

@@ -254,7 +254,8 @@ def join(head: Experiment, tail: Experiment) -> Experiment:
                       np.concatenate([head.tc, tail.tc]),
                       np.concatenate([head.burners, tail.burners]),
                       np.concatenate([head.t_air, tail.t_air]), head.start_time, head.source,
-                      furnace=head.furnace)
+                      furnace=head.furnace,
+                      disturbances=np.concatenate([head.disturbances, tail.disturbances]))
 
 
 def rmse_per_zone(data: list[Experiment], preds: list[np.ndarray],

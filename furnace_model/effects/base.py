@@ -142,7 +142,8 @@ class Effect:
 
     @property
     def u_burners(self) -> slice:
-        """The input channels of the burner counts, one per zone."""
+        """The input channels of the zones' heat inputs, one per zone (burners on, or a
+        rate: `Furnace.burner_equivalents` reads a rate in burners)."""
         return slice(0, self.furnace.n_zones)
 
     @property
@@ -151,7 +152,8 @@ class Effect:
 
     @property
     def n_inputs(self) -> int:
-        return self.furnace.n_zones + 1
+        """Heat inputs, ambient, then the furnace's measured disturbances."""
+        return self.furnace.n_inputs
 
     def __repr__(self) -> str:
         opts = ", ".join(f"{k}={v!r}" for k, v in self.options.items())

@@ -38,7 +38,8 @@ class BurnerNonlinearity(Effect):
 
     def transform_levels(self, theta, u):
         k = theta["k_nl"][:, None]
-        n = u[..., self.u_burners].sum(axis=-1)  # (P|1, J)
+        # Burners firing, a modulated zone's rate counted as the burners it stands for.
+        n = u[..., self.u_burners] @ self.furnace.burner_equivalents  # (P|1, J)
         # Curves of the same trend: a straight line, a power of n (steepest at few burners),
         # the same fraction lost (or gained) with each further burner, and the square of a
         # straight line of half the slope (between the first and the third).

@@ -41,11 +41,13 @@ def equation_error(structure: ModelStructure, records: list[Experiment]) -> dict
         y = _filled(r.zone_temp, t)
         dt = np.diff(t)
         state = cumulative_trapezoid(y, t, axis=0, initial=0.0)  # (N, zones)
-        heat = np.concatenate([np.zeros((1, nz)),
-                               np.cumsum(r.burners[:-1].astype(float) * dt[:, None], axis=0)])
+        held = np.concatenate([r.burners, r.disturbances], axis=1).astype(float)
+        heat = np.concatenate([np.zeros((1, held.shape[1])),
+                               np.cumsum(held[:-1] * dt[:, None], axis=0)])
         air = cumulative_trapezoid(np.asarray(r.t_air, dtype=float)[:, None], t, axis=0,
                                    initial=0.0)
-        u = np.concatenate([heat, air], axis=1)  # burners hold between samples; ambient moves
+        # Heat inputs and disturbances hold between samples; ambient moves.
+        u = np.concatenate([heat[:, :nz], air, heat[:, nz:]], axis=1)
         X = np.einsum("pij,nj->inp", rows[0], state) + np.einsum("pij,nj->inp", rows[1], u)
         blocks.append((X, t - t[0], y))
     k, R = len(names), len(blocks)

@@ -18,6 +18,51 @@ BURNER_HEAT = ("first_zone", "own_zone")
 """Where burner heat enters: the paper's convention (every burner heats the first zone,
 q1 = the total count) or each zone's burners their own zone."""
 
+HEAT_KINDS = ("burners", "pulse", "rate")
+"""How a zone is fired, and so what its heat-input column holds: whole burners switched on
+and off (a count), pulse-fired burners (the count's time mean over each row: duty times
+burners, a fraction), or a modulated firing rate or fuel flow (a number in its own unit,
+from 0 to a maximum)."""
+
+
+@dataclass(frozen=True)
+class HeatInput:
+    """A zone's heat input as its PLC reports it. `max` is the largest value the input can
+    take: the zone's burner count for burners and pulse firing, the declared maximum of a
+    rate (100 for a firing rate in %, the fuel flow at full fire in Nm3/h)."""
+
+    kind: str = "burners"
+    unit: str = "burners"
+    max: float = 0.0
+
+    @property
+    def whole(self) -> bool:
+        """Whether the column holds whole numbers (burners switched on and off)."""
+        return self.kind == "burners"
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    """A measured input that is not a burner (slab throughput, charging, door openings,
+    combustion-air temperature): logged by the PLC, entering the heat balance of `zones`
+    with one fitted gain per zone. `column` is its name in a table and on the log;
+    `range` the values it can take (a reading outside is refused with its row)."""
+
+    name: str
+    unit: str
+    zones: tuple[int, ...]
+    column: str = ""
+    range: tuple[float, float] | None = None
+
+    @property
+    def scale(self) -> float:
+        """The largest magnitude the input takes (1 when no range is declared): it sets the
+        search box of the gains, so that a gain per tonne and one per degree are searched
+        alike."""
+        if self.range is None:
+            return 1.0
+        return max(abs(self.range[0]), abs(self.range[1]), 1e-12)
+
 
 @dataclass(frozen=True)
 class Furnace:
@@ -35,6 +80,38 @@ class Furnace:
     max_bias_c: tuple[float | None, ...] = ()
     """Per thermocouple (`sensors` order), the largest bias it can have, °C; None (or an
     empty tuple: every one) takes the default of `furnace_model.identification.plausible`."""
+    heat: tuple[HeatInput, ...] = ()
+    """Per zone, how it is fired; empty: every zone by whole burners (the paper's)."""
+    disturbances: tuple[Disturbance, ...] = ()
+
+    @property
+    def heat_inputs(self) -> tuple[HeatInput, ...]:
+        """Each zone's heat input, whole burners where the description says nothing."""
+        if self.heat:
+            return self.heat
+        return tuple(HeatInput("burners", "burners", float(n)) for n in self.burners)
+
+    @property
+    def modulated(self) -> bool:
+        """Whether some zone's input is not a whole burner count."""
+        return any(not h.whole for h in self.heat_inputs)
+
+    @property
+    def burner_equivalents(self) -> np.ndarray:
+        """Per zone, the burners one unit of its input stands for (1 for burner counts,
+        burners / max for a rate): effects written for burner counts (a nonlinearity in the
+        number firing) read every zone in burners through it."""
+        return np.array([1.0 if h.kind != "rate" else n / h.max
+                         for h, n in zip(self.heat_inputs, self.burners, strict=True)])
+
+    @property
+    def n_inputs(self) -> int:
+        """Model input channels: each zone's heat input, ambient, each disturbance."""
+        return self.n_zones + 1 + len(self.disturbances)
+
+    @property
+    def disturbance_columns(self) -> tuple[str, ...]:
+        return tuple(d.column for d in self.disturbances)
 
     @property
     def n_zones(self) -> int:
@@ -57,7 +134,10 @@ class Furnace:
 
     @property
     def burner_columns(self) -> tuple[str, ...]:
-        return tuple(f"burners_{z}" for z in self.zones)
+        """Each zone's heat-input column: `burners_<zone>` for burners switched on and off
+        or pulse-fired, `heat_<zone>` for a modulated rate (in the input's own unit)."""
+        return tuple(f"heat_{z}" if h.kind == "rate" else f"burners_{z}"
+                     for z, h in zip(self.zones, self.heat_inputs, strict=True))
 
     @property
     def heated(self) -> tuple[int, ...]:
@@ -69,15 +149,18 @@ class Furnace:
     @property
     def paper_structure(self) -> bool:
         """Eq. 11's network: three zones in a chain, the last losing heat, every burner into
-        the first. Its parameters keep the paper's names a..f, whatever the zones are
+        the first, heat counted in burners. Its parameters keep the paper's names a..f, whatever the zones are
         called."""
         return (self.n_zones == 3 and self.links == ((0, 1), (1, 2))
-                and self.ambient == (2,) and self.burner_heat == "first_zone")
+                and self.ambient == (2,) and self.burner_heat == "first_zone"
+                and all(h.kind != "rate" for h in self.heat_inputs))
 
     @property
     def model_label(self) -> str:
-        """The model's name in a fit's JSON: the paper's for its structure."""
-        return "paper-3zone" if self.paper_structure else f"network-{self.name}"
+        """The model's name in a fit's JSON: the paper's for its structure and inputs."""
+        if self.paper_structure and not self.disturbances and not self.modulated:
+            return "paper-3zone"
+        return f"network-{self.name}"
 
     def weights(self, good: np.ndarray) -> np.ndarray:
         """How each thermocouple enters its zone's reading (N, n_tc), from which read: the
@@ -107,14 +190,22 @@ class Furnace:
     def describe(self) -> dict:
         """The description as plain data (a log's metadata, a fit's JSON)."""
         return {"name": self.name,
-                "zones": [{"name": z, "burners": b, "thermocouples": t}
-                          for z, b, t in zip(self.zones, self.burners, self.thermocouples,
-                                             strict=True)],
+                "zones": [{"name": z, "burners": b, "thermocouples": t,
+                           **({"heat": {"kind": h.kind} | ({"unit": h.unit, "max": h.max}
+                                                           if h.kind == "rate" else {})}
+                              if not h.whole else {})}
+                          for z, b, t, h in zip(self.zones, self.burners, self.thermocouples,
+                                                self.heat_inputs, strict=True)],
                 "links": [[self.zones[i], self.zones[j]] for i, j in self.links],
                 "ambient": [self.zones[i] for i in self.ambient],
                 "burner_heat": self.burner_heat,
                 **({"max_bias_c": list(self.max_bias_c)} if any(
-                    b is not None for b in self.max_bias_c) else {})}
+                    b is not None for b in self.max_bias_c) else {}),
+                **({"disturbances": [
+                    {"name": d.name, "unit": d.unit, "column": d.column,
+                     "zones": [self.zones[i] for i in d.zones],
+                     **({"range": list(d.range)} if d.range is not None else {})}
+                    for d in self.disturbances]} if self.disturbances else {})}
 
 
 PAPER = Furnace(

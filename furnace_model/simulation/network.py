@@ -3,12 +3,15 @@
 One temperature per zone. A link between zones i and j carries heat both ways, and each
 side has its own rate: zone i's temperature moves at k_ij (T_j - T_i) (k_ij = 1/(R_ij C_i)),
 zone j's at k_ji (T_i - T_j). An ambient zone loses heat at loss_i (T_air - T_i), and a
-heated zone gains gain_i per burner firing (1/C_i in burner units). The paper's eq. 11 is
-the three-zone chain of this network, and its parameters keep their names a..f.
+heated zone gains gain_i per unit of its heat input (per burner firing: 1/C_i in burner
+units). A measured disturbance d enters each zone it names with a gain of its own sign
+(a throughput of cold slabs cools, a hot charge heats). The paper's eq. 11 is the
+three-zone chain of this network, and its parameters keep their names a..f.
 
 Naming rule for any other furnace: `k_<to>_<from>` for the exchange rate of zone <to> from
-zone <from>, `loss_<zone>`, `gain_<zone>`; in that order (each link's two sides in the
-order the link is written, then the losses, then the gains, zones in their order).
+zone <from>, `loss_<zone>`, `gain_<zone>`, `gain_<disturbance>_<zone>`; in that order (each
+link's two sides in the order the link is written, then the losses, then the gains, zones
+in their order, then each disturbance's gains, disturbances in their order).
 """
 
 from __future__ import annotations
@@ -24,12 +27,16 @@ EXCHANGE = Param("k", 0.05, 1e-4, 50.0, doc="exchange rate of a zone from a link
 LOSS = Param("loss", 0.01, 1e-5, 50.0, doc="loss rate of a zone to ambient")
 GAIN = Param("gain", 0.1, 1e-4, 10.0, unit="°C/min per burner",
              doc="heating rate of a zone per burner firing")
+DISTURBANCE_RATE = 100.0
+"""°C/min: the largest heating or cooling rate a disturbance at its largest declared value
+can bring a zone, which bounds its gain's search box."""
 
 
 @dataclass(frozen=True)
 class Term:
     """Where one parameter enters: `kind` exchange (zone `to` from zone `src`), loss (zone
-    `to` to ambient) or gain (zone `to` per burner)."""
+    `to` to ambient), gain (zone `to` per unit of heat input) or disturbance (zone `to` per
+    unit of disturbance `src`)."""
 
     name: str
     kind: str
@@ -48,6 +55,8 @@ def terms(furnace: Furnace) -> tuple[Term, ...]:
     out += [Term(f"gain_{z[i]}", "gain", i) for i in furnace.heated]
     if furnace.paper_structure:
         out = [Term(p.name, t.kind, t.to, t.src) for p, t in zip(BASELINE, out, strict=True)]
+    out += [Term(f"gain_{d.name}_{z[i]}", "disturbance", i, k)
+            for k, d in enumerate(furnace.disturbances) for i in d.zones]
     return tuple(out)
 
 
@@ -57,13 +66,29 @@ def parameter_names(furnace: Furnace) -> list[str]:
 
 def parameters(furnace: Furnace) -> tuple[Param, ...]:
     """The network's parameters with their defaults and search boxes: the paper's a..f
-    (Table V defaults) for its structure, generic ones otherwise."""
-    if furnace.paper_structure:
-        return BASELINE
+    (Table V defaults) for its structure, generic ones otherwise. A gain per unit of a rate
+    is searched in the box of a gain per burner scaled to the rate's maximum; a disturbance's
+    gain around zero (either sign), in a box scaled to the disturbance's declared range."""
+    out = list(BASELINE) if furnace.paper_structure else []
     proto = {"exchange": EXCHANGE, "loss": LOSS, "gain": GAIN}
-    out = []
-    for t in terms(furnace):
+    for t in terms(furnace)[len(out):]:
+        if t.kind == "disturbance":
+            d = furnace.disturbances[t.src]
+            box = DISTURBANCE_RATE / d.scale
+            out.append(Param(t.name, 0.0, -box, box, log=False,
+                             unit=f"°C/min per {d.unit}",
+                             doc=f"heating rate of zone {furnace.zones[t.to]} per {d.unit} "
+                                 f"of {d.name}"))
+            continue
         p = proto[t.kind]
+        heat = furnace.heat_inputs[t.to]
+        if t.kind == "gain" and heat.kind == "rate":
+            per = furnace.burners[t.to] / heat.max  # burners one unit stands for
+            out.append(Param(t.name, p.default * per, p.lo * per, p.hi * per, p.log,
+                             f"°C/min per {heat.unit}",
+                             f"heating rate of a zone per {heat.unit} of its firing: zone "
+                             f"{furnace.zones[t.to]}"))
+            continue
         what = {"exchange": f"zone {furnace.zones[t.to]} from zone "
                             f"{furnace.zones[t.src] if t.src >= 0 else ''}",
                 "loss": f"zone {furnace.zones[t.to]} to ambient",
@@ -74,7 +99,7 @@ def parameters(furnace: Furnace) -> tuple[Param, ...]:
 
 def fill(furnace: Furnace, A: np.ndarray, B: np.ndarray, theta: dict[str, np.ndarray]) -> None:
     """Write the network into A (P, n, n) and B (P, n, m), zeros on entry; inputs are the
-    burner counts per zone, then ambient (m >= n_zones + 1).
+    heat inputs per zone, then ambient, then the disturbances (m = `furnace.n_inputs`).
 
     Each rate is added where it acts and subtracted from its own zone's diagonal, in the
     order of `terms`: for the paper's structure this is eq. 11 to the last bit."""
@@ -88,6 +113,8 @@ def fill(furnace: Furnace, A: np.ndarray, B: np.ndarray, theta: dict[str, np.nda
         elif t.kind == "loss":
             A[:, t.to, t.to] -= v
             B[:, t.to, air] += v
+        elif t.kind == "disturbance":
+            B[:, t.to, air + 1 + t.src] = v
         elif furnace.burner_heat == "first_zone":
             B[:, t.to, :nz] = v[:, None]
         else:

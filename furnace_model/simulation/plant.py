@@ -27,14 +27,16 @@ class PlantRun:
     t_min: np.ndarray  # (N,)
     zone_true: np.ndarray  # (N, zones) gas temperature of each zone
     tc: np.ndarray  # (N, thermocouples) thermocouple readings
-    burners: np.ndarray  # (N, zones) burners on per zone
+    burners: np.ndarray  # (N, zones) each zone's heat input: burners on, or its rate
     t_air: np.ndarray  # (N,)
     start_time: pd.Timestamp | None = None
     furnace: Furnace = field(kw_only=True)
+    disturbances: np.ndarray | None = field(default=None, kw_only=True)  # (N, k)
 
     def to_experiment(self, name: str = "simulated") -> Experiment:
-        return Experiment(name, self.t_min, self.tc, self.burners.astype(int), self.t_air,
-                          self.start_time, name, furnace=self.furnace)
+        return Experiment(name, self.t_min, self.tc, self.burners, self.t_air,
+                          self.start_time, name, furnace=self.furnace,
+                          disturbances=self.disturbances)
 
     def to_frame(self) -> pd.DataFrame:
         """The run as the tabular contract (CONTRACTS.md section 1)."""
@@ -107,16 +109,42 @@ class Plant:
         run = self.structure.simulate(self.values, inputs, t, x0_zone, states=True)
         j = np.searchsorted(inputs.t, t, side="right") - 1
         nz = self.structure.n_zones
-        return PlantRun(t, run.states[0, :, :nz], self.read(run.zones[0], t), inputs.burners[j],
-                        inputs.t_air[j], start_time, furnace=self.furnace)
+        # Whole burners are logged as they stand at the sample; an analog input (a rate, a
+        # pulse-fired zone's count, a disturbance) as its mean over the row.
+        burners = inputs.burners[j].astype(float)
+        analog = [i for i, h in enumerate(self.furnace.heat_inputs) if not h.whole]
+        if analog:
+            burners[:, analog] = row_means(inputs.t, inputs.burners[:, analog], t)
+        dist = row_means(inputs.t, inputs.disturbances, t)
+        return PlantRun(t, run.states[0, :, :nz], self.read(run.zones[0], t), burners,
+                        inputs.t_air[j], start_time, furnace=self.furnace, disturbances=dist)
 
     def run_scenario(self, scenario: Scenario) -> PlantRun:
-        return self.run(scenario.inputs(), scenario.sample_times(), scenario.initial_c,
+        return self.run(scenario.plant_inputs(), scenario.sample_times(), scenario.initial_c,
                         scenario.start_time)
 
     def stepper(self, x0_zone: np.ndarray, burners: np.ndarray, t_air: float,
-                t0: float = 0.0) -> PlantStepper:
-        return PlantStepper(self, x0_zone, burners, t_air, t0)
+                t0: float = 0.0, disturbances: np.ndarray | None = None) -> PlantStepper:
+        return PlantStepper(self, x0_zone, burners, t_air, t0, disturbances)
+
+
+def row_means(t_in: np.ndarray, levels: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The mean of piecewise-constant `levels` (J, m), level j from t_in[j], over each row
+    [t[i], t[i+1]) (the last row as long as the one before): what a logger resampling to
+    the rows records of an analog input."""
+    levels = np.asarray(levels, dtype=float).reshape(np.size(t_in), -1)
+    t = np.asarray(t, dtype=float)
+    if t.size == 0 or levels.shape[1] == 0:
+        return np.zeros((t.size, levels.shape[1]))
+    edges = np.append(t, t[-1] + (t[-1] - t[-2] if t.size > 1 else 1.0))
+    area = np.concatenate([np.zeros((1, levels.shape[1])),
+                           np.cumsum(levels[:-1] * np.diff(t_in)[:, None], axis=0)])
+
+    def integral(x: np.ndarray) -> np.ndarray:
+        j = np.clip(np.searchsorted(t_in, x, side="right") - 1, 0, None)
+        return area[j] + levels[j] * (x - t_in[j])[:, None]
+
+    return np.diff(integral(edges), axis=0) / np.diff(edges)[:, None]
 
 
 class PlantStepper:
@@ -128,41 +156,56 @@ class PlantStepper:
     """
 
     def __init__(self, plant: Plant, x0_zone: np.ndarray, burners: np.ndarray, t_air: float,
-                 t0: float = 0.0):
+                 t0: float = 0.0, disturbances: np.ndarray | None = None):
         self.plant = plant
         self.t = float(t0)
         self.x = plant.structure.full_state(np.asarray(x0_zone, dtype=float))[0]
         self._t = [self.t]
         self._burners = [np.asarray(burners, dtype=float)]
         self._air = [float(t_air)]
+        k = len(plant.furnace.disturbances)
+        self._dist = [np.zeros(k) if disturbances is None
+                      else np.asarray(disturbances, dtype=float).reshape(k)]
         C = plant.structure.system(plant.structure.theta(plant.values)).C[0]
         self._C = C
 
     @property
     def burners(self) -> np.ndarray:
+        """Heat input per zone: whole burners as integers, a rate as it is."""
+        if self.plant.furnace.modulated:
+            return self._burners[-1].copy()
         return self._burners[-1].astype(int)
 
     @property
     def t_air(self) -> float:
         return self._air[-1]
 
-    def set_inputs(self, burners: np.ndarray | None = None, t_air: float | None = None) -> None:
-        """Change burner counts per zone and/or ambient from the current time on."""
+    @property
+    def disturbances(self) -> np.ndarray:
+        return self._dist[-1].copy()
+
+    def set_inputs(self, burners: np.ndarray | None = None, t_air: float | None = None,
+                   disturbances: np.ndarray | None = None) -> None:
+        """Change heat inputs per zone, ambient and/or disturbances from now on."""
         b = self._burners[-1] if burners is None else np.asarray(burners, dtype=float)
         a = self._air[-1] if t_air is None else float(t_air)
-        if np.array_equal(b, self._burners[-1]) and a == self._air[-1]:
+        d = self._dist[-1] if disturbances is None else np.asarray(disturbances, dtype=float)
+        if (np.array_equal(b, self._burners[-1]) and a == self._air[-1]
+                and np.array_equal(d, self._dist[-1])):
             return
         if self._t[-1] == self.t:
-            self._burners[-1], self._air[-1] = b, a
+            self._burners[-1], self._air[-1], self._dist[-1] = b, a, d
         else:
             self._t.append(self.t)
             self._burners.append(b)
             self._air.append(a)
+            self._dist.append(d)
 
     def advance(self, t_new: float) -> None:
         if t_new <= self.t:
             return
-        inputs = Inputs(np.array(self._t), np.array(self._burners), np.array(self._air))
+        inputs = Inputs(np.array(self._t), np.array(self._burners), np.array(self._air),
+                        np.array(self._dist))
         self.x = self.plant.structure.simulate(self.plant.values, inputs, np.array([t_new]),
                                                self.x[None], t0=self.t,
                                                states=True).final_state[0]

@@ -1,10 +1,15 @@
-"""Scenarios: a plant (parameters, effects, sensors) and a burner schedule, read from YAML.
+"""Scenarios: a plant (parameters, effects, sensors) and a schedule of its inputs (each
+zone's burners or firing rate, the measured disturbances), read from YAML.
 
 config/scenarios/paper_exp1.yaml is the reference: the paper's first experiment with its
 Table V parameters. Every key is checked; an error names the file and the key path. A
 scenario is of the paper's furnace unless its `furnace` key names a description
 (config/furnaces/), by a path relative to the scenario file or by a name in
 config/furnaces/ (`six-zone`).
+
+A pulse-fired zone's schedule gives its mean count (duty times burners); the plant fires
+it as pulse firing does, every burner on for its duty of each `pulse_cycle_min`, and what is
+logged of it is the mean over each row, as `logs export` resamples it.
 """
 
 from __future__ import annotations
@@ -52,7 +57,7 @@ class Scenario:
     initial_c: np.ndarray
     params: dict[str, float]
     steps_t: np.ndarray  # (J,) minutes
-    steps_burners: np.ndarray  # (J, 3) counts per zone
+    steps_burners: np.ndarray  # (J, zones) heat input per zone: burners on, or a rate
     effects: list[Effect] = field(default_factory=list)
     effect_values: dict[str, float] = field(default_factory=dict)
     sensors: SensorSpec = field(default_factory=SensorSpec)
@@ -60,6 +65,13 @@ class Scenario:
     start_time: pd.Timestamp | None = None
     file: str = ""
     furnace: Furnace = field(kw_only=True)
+    steps_disturbances: np.ndarray | None = field(default=None, kw_only=True)  # (J, k)
+    pulse_cycle_min: float = field(default=1.0, kw_only=True)
+
+    def __post_init__(self) -> None:
+        if self.steps_disturbances is None:
+            self.steps_disturbances = np.zeros((np.size(self.steps_t),
+                                                len(self.furnace.disturbances)))
 
     def structure(self) -> ModelStructure:
         return ModelStructure(self.effects, furnace=self.furnace)
@@ -68,17 +80,62 @@ class Scenario:
         return {**self.params, **self.effect_values}
 
     def inputs(self) -> Inputs:
+        """The schedule as the model takes it: pulse-fired zones at their mean count."""
         return Inputs(self.steps_t.astype(float), self.steps_burners.astype(float),
-                      np.full(self.steps_t.size, self.t_air_c))
+                      np.full(self.steps_t.size, self.t_air_c),
+                      self.steps_disturbances.astype(float))
+
+    def plant_inputs(self) -> Inputs:
+        """The schedule as the plant is fired: pulse-fired zones burner by burner."""
+        return pulse_fired(self.inputs(), self.furnace, self.pulse_cycle_min,
+                           self.duration_min)
 
     def burners_at(self, t_min: float) -> np.ndarray:
-        """Counts per zone (zones,) the schedule asks for at time t_min."""
-        j = max(int(np.searchsorted(self.steps_t, t_min, side="right")) - 1, 0)
-        return self.steps_burners[j].copy()
+        """Heat input per zone (zones,) the schedule asks for at time t_min."""
+        return self.steps_burners[self._step(t_min)].copy()
+
+    def disturbances_at(self, t_min: float) -> np.ndarray:
+        return self.steps_disturbances[self._step(t_min)].copy()
+
+    def _step(self, t_min: float) -> int:
+        return max(int(np.searchsorted(self.steps_t, t_min, side="right")) - 1, 0)
 
     def sample_times(self) -> np.ndarray:
         n = int(np.floor(self.duration_min / self.sample_min + 1e-9))
         return np.arange(n + 1) * self.sample_min
+
+
+def pulse_fired(inputs: Inputs, furnace: Furnace, cycle_min: float,
+                end_min: float) -> Inputs:
+    """Inputs with each pulse-fired zone's mean count m fired as pulses: in every cycle,
+    floor(m) + 1 burners for the fraction m - floor(m) of it and floor(m) for the rest, so
+    that the count's mean over a cycle is m. Other zones and inputs are held as given."""
+    pulsed = [i for i, h in enumerate(furnace.heat_inputs) if h.kind == "pulse"]
+    if not pulsed:
+        return inputs
+    t = np.asarray(inputs.t, dtype=float)
+    end = max(end_min, float(t[-1]))
+    ends = np.append(t[1:], end)
+    cuts = [t]
+    for lo, hi, level in zip(t, ends, inputs.burners, strict=True):
+        starts = np.arange(lo, hi, cycle_min)
+        cuts.append(starts)
+        for i in pulsed:
+            if level[i] % 1.0 > 0:
+                cuts.append(np.minimum(starts + (level[i] % 1.0) * cycle_min, hi))
+    grid = np.unique(np.concatenate(cuts))
+    grid = grid[grid < end] if end > t[-1] else grid
+    j = np.searchsorted(t, grid, side="right") - 1
+    burners = inputs.burners[j].astype(float)
+    mid = grid + np.diff(grid, append=end if end > grid[-1] else grid[-1] + cycle_min) / 2
+    for i in pulsed:
+        mean = burners[:, i]
+        base = np.floor(mean)
+        # Judged at the middle of each interval of the grid, away from its cut points.
+        since = mid - t[j]
+        phase = since - np.floor(since / cycle_min) * cycle_min
+        burners[:, i] = base + (phase < (mean - base) * cycle_min)
+    return Inputs(grid, burners, inputs.t_air[j], inputs.disturbances[j])
 
 
 def split_total(total: int, fill_order: tuple[str, ...], furnace: Furnace) -> np.ndarray:
@@ -98,7 +155,8 @@ def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
     a scenario of another furnace is an error on its `furnace` key."""
     root = load_yaml(path).mapping({
         "name", "description", "duration_min", "sample_min", "start_time", "t_air_c",
-        "initial_c", "model", "burners", "sensors", "effects", "furnace"})
+        "initial_c", "model", "burners", "sensors", "effects", "furnace", "disturbances",
+        "pulse_cycle_min"})
     own = (named_furnace(root.child("furnace"), Path(path).parent, "the scenario")
            if root.has("furnace") else PAPER)
     if furnace is not None and furnace != own:
@@ -140,14 +198,21 @@ def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
         if step.has("total"):
             if any(step.has(z) for z in zones):
                 raise step.error("give either 'total' or per-zone counts, not both")
+            if furnace.modulated:
+                raise step.child("total").error("a total of burners needs every zone fired "
+                                                "by whole burners: give each zone's input")
             total = step.get_integer("total", lo=0, hi=sum(furnace.burners))
             counts.append(split_total(total, fill, furnace))
         else:
-            counts.append(np.array([step.get_integer(z, 0, lo=0, hi=furnace.burners[i])
-                                    for i, z in enumerate(zones)]))
+            counts.append(np.array([
+                step.get_integer(z, 0, lo=0, hi=furnace.burners[i]) if h.whole
+                else step.get_number(z, 0.0, lo=0.0, hi=h.max)
+                for i, (z, h) in enumerate(zip(zones, furnace.heat_inputs, strict=True))]))
         times.append(at)
     if times[0] != 0.0:
         raise burners.child("steps").error("the first step must be at_min: 0")
+    times, counts, dist = _with_disturbances(root, furnace, duration, times, counts)
+    cycle = root.get_number("pulse_cycle_min", 1.0, lo=1e-3, hi=60.0)
 
     sensors_node = root.child("sensors", {}).mapping(
         {"noise_sd_c", "bias_sd_c", "bias_c", "noise_ar_per_min", "white_sd_c"})
@@ -180,11 +245,49 @@ def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
 
     return Scenario(
         name=name, duration_min=duration, sample_min=sample, t_air_c=t_air, initial_c=initial,
-        params=params, steps_t=np.array(times), steps_burners=np.array(counts),
+        params=params, steps_t=np.array(times), steps_burners=np.array(counts, dtype=float),
+        steps_disturbances=dist, pulse_cycle_min=cycle,
         effects=effects, effect_values=values, sensors=sensors,
         description=root.get_string("description", ""), start_time=start_time, file=str(path),
         furnace=furnace,
     )
+
+
+def _with_disturbances(root: Node, furnace: Furnace, duration: float, times: list[float],
+                       counts: list[np.ndarray]
+                       ) -> tuple[list[float], list[np.ndarray], np.ndarray]:
+    """`disturbances`: per declared disturbance, `steps` of {at_min, value} (the first at 0),
+    within its range. The burner steps and every disturbance's steps are merged onto one
+    time line, each holding its last value."""
+    declared = {d.name: d for d in furnace.disturbances}
+    node = root.child("disturbances", {})
+    node.mapping(set(declared))
+    missing = [n for n in declared if not node.has(n)]
+    if missing:
+        raise node.error(f"furnace '{furnace.name}' declares disturbance(s) "
+                         f"{', '.join(missing)}: give each its steps")
+    series = []
+    for name, d in declared.items():
+        steps = node.child(name).mapping({"steps"}).child("steps")
+        lo, hi = d.range if d.range is not None else (-1e12, 1e12)
+        at, val = [], []
+        for step in steps.elements(min_len=1):
+            step.mapping({"at_min", "value"})
+            t = step.get_number("at_min", lo=0.0, hi=duration)
+            if at and t <= at[-1]:
+                raise step.child("at_min").error(f"steps must be in time order; {t:g} "
+                                                 f"follows {at[-1]:g}")
+            at.append(t)
+            val.append(step.get_number("value", lo=lo, hi=hi))
+        if at[0] != 0.0:
+            raise steps.error("the first step must be at_min: 0")
+        series.append((np.array(at), np.array(val)))
+    if not series:
+        return times, counts, np.zeros((len(times), 0))
+    grid = np.unique(np.concatenate([np.array(times)] + [a for a, _ in series]))
+    held = np.array(counts)[np.searchsorted(times, grid, side="right") - 1]
+    dist = np.column_stack([v[np.searchsorted(a, grid, side="right") - 1] for a, v in series])
+    return grid.tolist(), list(held), dist
 
 
 def effect_from_yaml(cls: type[Effect], node: Node, furnace: Furnace

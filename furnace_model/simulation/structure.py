@@ -32,44 +32,61 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Inputs:
-    """Piecewise-constant inputs: burner counts per zone and ambient temperature.
+    """Piecewise-constant inputs: heat input per zone, ambient temperature, and the measured
+    disturbances.
 
-    Level j holds from t[j] until t[j+1] (and after the last). `burners` is (J, zones),
-    `t_air` (J,). This is the paper's input with more detail: the baseline adds the three
-    counts into q1, an extended model (or a furnace whose burners heat their own zone) uses
-    them apart. The input channels are the burner counts zone by zone, then ambient.
+    Level j holds from t[j] until t[j+1] (and after the last). `burners` is (J, zones) (each
+    zone's heat input: burners on, or its rate), `t_air` (J,), `disturbances` (J, k). This is
+    the paper's input with more detail: the baseline adds the three counts into q1, an
+    extended model (or a furnace whose burners heat their own zone) uses them apart. The
+    input channels are the zones' heat inputs zone by zone, then ambient, then the
+    disturbances (`Furnace.n_inputs`).
     """
 
     t: np.ndarray
     burners: np.ndarray
     t_air: np.ndarray
+    disturbances: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.disturbances is None:
+            object.__setattr__(self, "disturbances", np.zeros((np.size(self.t), 0)))
 
     def levels(self) -> np.ndarray:
         nz = self.burners.shape[1]
-        u = np.empty((1, self.t.size, nz + 1))
+        k = self.disturbances.shape[1]
+        u = np.empty((1, self.t.size, nz + 1 + k))
         u[0, :, :nz] = self.burners
         u[0, :, nz] = self.t_air
+        u[0, :, nz + 1:] = self.disturbances
         return u
 
     @classmethod
     def of(cls, record: Experiment) -> Inputs:
-        """A record's logged burners and ambient, as the model takes them."""
-        return cls.from_samples(record.t_min, record.burners, record.t_air)
+        """A record's logged heat inputs, ambient and disturbances, as the model takes them."""
+        return cls.from_samples(record.t_min, record.burners, record.t_air,
+                                disturbances=record.disturbances)
 
     @classmethod
     def from_samples(cls, t: np.ndarray, burners: np.ndarray, t_air: np.ndarray,
-                     air_deadband_c: float = 0.5) -> Inputs:
+                     air_deadband_c: float = 0.5,
+                     disturbances: np.ndarray | None = None) -> Inputs:
         """Hold each sample's inputs until the next sample; keep only the changes.
 
         Ambient readings jitter from sample to sample; a change smaller than the deadband is
         not a step of the input (it moves zone 3 by far less than the sensor noise), and
         keeping them all would turn a handful of burner steps into thousands of segments.
+        Every change of a heat input or a disturbance is kept: the model sees what was
+        logged.
         """
         t = np.asarray(t, dtype=float)
         burners = np.asarray(burners, dtype=float)
         t_air = np.asarray(t_air, dtype=float)
-        # Every burner change is kept, so the pattern last kept is the previous sample's.
-        changed = [False, *np.any(burners[1:] != burners[:-1], axis=1).tolist()]
+        dist = (np.zeros((t.size, 0)) if disturbances is None
+                else np.asarray(disturbances, dtype=float).reshape(t.size, -1))
+        # Every input change is kept, so the pattern last kept is the previous sample's.
+        both = np.concatenate([burners, dist], axis=1)
+        changed = [False, *np.any(both[1:] != both[:-1], axis=1).tolist()]
         air = t_air.tolist()
         keep = [0]
         held_air = air[0] if air else 0.0
@@ -78,7 +95,7 @@ class Inputs:
                 keep.append(i)
                 held_air = air[i]
         idx = np.array(keep)
-        return cls(t[idx], burners[idx], t_air[idx])
+        return cls(t[idx], burners[idx], t_air[idx], dist[idx])
 
 
 @dataclass(frozen=True)
@@ -142,7 +159,7 @@ class ModelStructure:
     def system(self, theta: Theta) -> System:
         P, n, nz = next(iter(theta.values())).shape[0], self.n_states, self.n_zones
         A = np.zeros((P, n, n))
-        B = np.zeros((P, n, nz + 1))
+        B = np.zeros((P, n, self.furnace.n_inputs))
         fill(self.furnace, A, B, theta)  # eq. 11 for the paper's furnace
         C = np.zeros((P, nz, n))
         C[:, :, :nz] = np.eye(nz)

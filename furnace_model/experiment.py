@@ -44,6 +44,10 @@ class Experiment:
     furnace: Furnace = field(kw_only=True)
     disturbances: np.ndarray | None = field(default=None, kw_only=True)
     """(N, disturbances) the furnace's measured disturbances, in its order."""
+    signals: dict[str, np.ndarray] = field(default_factory=dict, kw_only=True)
+    """Further logged numbers the model does not use (O2, pressure, a door switch, a
+    disturbance nobody declared), by column: what the diagnosis asks the model's error to
+    follow."""
 
     def __post_init__(self) -> None:
         k = len(self.furnace.disturbances)
@@ -73,7 +77,8 @@ class Experiment:
         """The samples `mask` selects, times kept as they are."""
         return Experiment(self.name, self.t_min[mask], self.tc[mask], self.burners[mask],
                           self.t_air[mask], self.start_time, self.source,
-                          furnace=self.furnace, disturbances=self.disturbances[mask])
+                          furnace=self.furnace, disturbances=self.disturbances[mask],
+                          signals={k: v[mask] for k, v in self.signals.items()})
 
     def sample_period_min(self) -> float:
         return float(np.median(np.diff(self.t_min))) if len(self) > 1 else float("nan")
@@ -97,6 +102,7 @@ class Experiment:
         cols["t_air"] = self.t_air
         for i, c in enumerate(self.furnace.disturbance_columns):
             cols[c] = self.disturbances[:, i]
+        cols.update(self.signals)
         return pd.DataFrame(cols)
 
 
@@ -238,6 +244,7 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         disturbances[:, j] = _disturbance(_numbers(frame[d.column], d.column, err,
                                                    allow_empty=True), d, err)
 
+    signals = _signals(frame, cols, furnace)
     if "t_air" in cols:
         t_air = _temperatures(_numbers(frame["t_air"], "t_air", err, allow_empty=True),
                               "t_air", err)
@@ -257,13 +264,39 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
             raise err(f"no rows in the window {window_words(start, end)}")
         stamps, tc, burners, t_air = stamps[keep], tc[keep], burners[keep], t_air[keep]
         disturbances = disturbances[keep]
+        signals = {k: v[keep] for k, v in signals.items()}
         start_time = stamps[0]
         t_min = (stamps - start_time).total_seconds().to_numpy() / 60.0
 
     # Ambient changes slowly: an empty cell holds the last reading (the default before any).
     t_air = pd.Series(t_air).ffill().fillna(t_air_default).to_numpy()
     return Experiment(Path(file).stem, t_min, tc, burners, t_air, start_time, file,
-                      furnace=furnace, disturbances=disturbances)
+                      furnace=furnace, disturbances=disturbances, signals=signals)
+
+
+def _signals(frame: pd.DataFrame, cols: list[str], furnace: Furnace) -> dict[str, np.ndarray]:
+    """The other columns that hold numbers (empty cells allowed), as signals: left alone by
+    the model, offered to the diagnosis. A column of anything else is not a signal and is
+    left alone as before."""
+    used = {*TIME_COLUMNS, "t_air", *furnace.tc_columns, *furnace.burner_columns,
+            *furnace.disturbance_columns}
+    out = {}
+    for c in cols:
+        if c in used or c.startswith(("tc_", "burners_", "heat_")):
+            continue
+        col = frame[c]
+        if pd.api.types.is_bool_dtype(col.dtype):
+            v = col.to_numpy(dtype=float)
+        elif pd.api.types.is_numeric_dtype(col.dtype):
+            v = col.to_numpy(dtype=float, na_value=np.nan)
+        else:
+            text = col.astype(str).str.strip()
+            v = pd.to_numeric(text.where(text != "", None), errors="coerce").to_numpy(float)
+            if (np.isnan(v) & (text != "").to_numpy()).any():
+                continue
+        if np.isfinite(v).any() and not np.isinf(v).any():
+            out[c] = v
+    return out
 
 
 def _heat_input(v: np.ndarray, heat: HeatInput, zone: str, column: str, err) -> np.ndarray:

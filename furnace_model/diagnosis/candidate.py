@@ -47,9 +47,14 @@ class CandidateResult:
     flags: list[str] = field(default_factory=list)
     """Offsets and initial temperatures of the fitted and held-out records on their
     physical bounds (`furnace_model.identification.plausible`)."""
+    signal: str = ""
+    """A logged signal the baseline does not use, entered as an input
+    (`furnace_model.diagnosis.signals`); empty for an effect."""
 
     @property
     def label(self) -> str:
+        if self.signal:
+            return f"unmodelled input: {self.signal}"
         return "+".join(self.effects) or "baseline"
 
     def allowed(self, limit: dict[str, float]) -> dict[str, float]:

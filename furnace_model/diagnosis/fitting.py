@@ -255,7 +255,9 @@ def join(head: Experiment, tail: Experiment) -> Experiment:
                       np.concatenate([head.burners, tail.burners]),
                       np.concatenate([head.t_air, tail.t_air]), head.start_time, head.source,
                       furnace=head.furnace,
-                      disturbances=np.concatenate([head.disturbances, tail.disturbances]))
+                      disturbances=np.concatenate([head.disturbances, tail.disturbances]),
+                      signals={k: np.concatenate([v, tail.signals[k]])
+                               for k, v in head.signals.items() if k in tail.signals})
 
 
 def rmse_per_zone(data: list[Experiment], preds: list[np.ndarray],

@@ -12,6 +12,7 @@ from ..identification.noisefloor import RecordFloor
 from .candidate import CandidateResult
 from .credit import credited
 from .locate import Located
+from .signals import UNMODELLED_INPUT
 from .verdict import Verdict
 
 
@@ -66,7 +67,9 @@ class Diagnosis:
     def to_json(self) -> dict:
         """CONTRACTS.md section 6, plus the detail behind it."""
         def cand(c: CandidateResult) -> dict:
-            return {"effect": "+".join(c.effects), "effects": list(c.effects),
+            return {"effect": UNMODELLED_INPUT if c.signal else "+".join(c.effects),
+                    **({"signal": c.signal} if c.signal else {}),
+                    "effects": list(c.effects),
                     "params": _round(c.params), "ci95": {k: [_r(v[0]), _r(v[1])]
                                                          for k, v in c.ci95.items()},
                     "options": _plain(c.options),
@@ -104,6 +107,7 @@ class Diagnosis:
             "verdict": {"status": self.verdict.status, "effects": list(self.verdict.effects),
                         "shrink_pct": _r(self.verdict.shrink_pct),
                         "gap_closed_pct": _r(self.verdict.gap_closed_pct),
+                        "unmodelled_inputs": list(self.verdict.unmodelled_inputs),
                         "sentence": self.verdict.sentence},
             "holdout_how": self.holdout_how,
             "data": [e.source or e.name for e in self.fit_data],

@@ -35,6 +35,7 @@ from .laws import between_laws, further_laws, opts_text
 from .locate import locate
 from .pool import run_all
 from .result import Diagnosis
+from .signals import prefer_signal, signal_candidates, unused_signals
 from .verdict import judge
 
 MAX_EFFECTS = 3
@@ -163,9 +164,13 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     combos, kept = stepwise(singles, base, floor, gap_limit, fit_data, hold, tail_of, seed,
                             options, bounds, starts, gap,
                             lambda f: say("combinations", 0.7 + 0.3 * f))
-    candidates = sorted(singles + combos, key=rank)
+    signals = unused_signals(fit_data + hold)
+    followed = signal_candidates(signals, base, fit_data, hold, tail_of, seed, floor,
+                                 lambda f: say("signals", 0.95 + 0.05 * f)) if signals else []
+    candidates = sorted(singles + combos + followed, key=rank)
     verdict = judge(base, kept, candidates, floor, near, gap, where, uncovered(fit_data, hold),
                     furnace=furnace)
+    verdict = prefer_signal(verdict, followed, kept, base, floor, near, gap, furnace)
     say("done", 1.0)
     return Diagnosis(fit_data, hold, how, base, floor, where, tests, candidates, verdict,
                      time.perf_counter() - t_start, gap, **noise)

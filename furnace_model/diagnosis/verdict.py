@@ -4,7 +4,7 @@ candidates brings down to the noise, with where it lies."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ..effects import EFFECTS
 from ..identification.residuals import ZONE_WORDS
@@ -26,6 +26,9 @@ class Verdict:
     """Share of the baseline's held-out squared error above the noise floor that the kept
     effects remove: 100 when they explain it all, whatever the noise level (shrink_pct, the
     plain RMSE reduction, cannot pass 1 - floor / baseline RMSE)."""
+    unmodelled_inputs: list[str] = field(default_factory=list)
+    """Logged signals the model does not use that the error follows
+    (`furnace_model.diagnosis.signals`)."""
 
 
 def judge(base: CandidateResult, kept: CandidateResult | None,

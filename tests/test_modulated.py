@@ -171,3 +171,19 @@ def test_frame_of_modulated_record_is_csv_readable(record, tmp_path):
     record.to_frame().to_csv(tmp_path / "x.csv", index=False)
     frame = pd.read_csv(tmp_path / "x.csv")
     assert frame["heat_soak"].dtype == float
+
+
+def test_selfcheck_cases_fire_the_furnace_as_it_is_fired():
+    """The selfcheck's drawn heat-ups of the modulated furnace: rates in their units within
+    their maxima, a pulse-fired zone at fractions of burners, the throughput in its range,
+    and a truth that holds a disturbance gain for each zone it enters."""
+    from furnace_model.diagnosis.cases import draw_case, network_truth
+    f = load_furnace(FURNACE)
+    truth = network_truth(f)
+    assert truth["gain_throughput_heat"] < 0 and truth["gain_throughput_preheat"] < 0
+    case = draw_case(None, np.random.default_rng(4), furnace=f)
+    for rec in case.fit + case.holdout:
+        assert np.all(rec.burners <= [h.max for h in f.heat_inputs])
+        assert rec.burners[:, 0].max() > 10.0  # percent, not burners
+        assert np.all((0 <= rec.disturbances) & (rec.disturbances <= 250))
+        assert np.ptp(rec.disturbances) > 10.0

@@ -100,6 +100,9 @@ class Case:
         return tuple(e for e in self.effects if e in EFFECTS)
 
 
+DISTURBANCE_SHARE = 0.1
+"""`network_truth`: a disturbance's pull at its largest, as a share of the strongest zone's
+heating rate at full fire."""
 TARGET_RISE_C = 3000.0
 """`network_truth`: the hottest zone's steady rise above ambient with every burner firing."""
 
@@ -109,16 +112,25 @@ def network_truth(furnace: Furnace) -> dict[str, float]:
     network's defaults with one heat per burner (every heated zone alike) scaled so that all
     burners firing would hold the hottest zone `TARGET_RISE_C` above ambient. Eq. 11's
     network has Table V, whatever its zones are called."""
-    if furnace.paper_structure:
-        return dict(PAPER_TABLE_V)
     values = {p.name: p.default for p in parameters(furnace)}
-    structure = ModelStructure(furnace=furnace)
-    system = structure.system(structure.theta(values))
-    u = np.array([*furnace.burners, 0.0], dtype=float)
-    rise = float(np.max(-np.linalg.solve(system.A[0], system.B[0] @ u)))
+    if furnace.paper_structure:
+        values.update(PAPER_TABLE_V)
+    else:
+        structure = ModelStructure(furnace=furnace)
+        system = structure.system(structure.theta(values))
+        u = np.zeros(furnace.n_inputs)
+        u[:furnace.n_zones] = [h.max for h in furnace.heat_inputs]  # every zone at full fire
+        rise = float(np.max(-np.linalg.solve(system.A[0], system.B[0] @ u)))
+        for t in terms(furnace):
+            if t.kind == "gain":
+                values[t.name] *= TARGET_RISE_C / rise
+    # A disturbance at its largest takes from each zone it enters a tenth of the heating
+    # rate of the furnace's strongest zone at full fire: a sink, as charged slabs are.
+    full = max(values[t.name] * furnace.heat_inputs[t.to].max for t in terms(furnace)
+               if t.kind == "gain")
     for t in terms(furnace):
-        if t.kind == "gain":
-            values[t.name] *= TARGET_RISE_C / rise
+        if t.kind == "disturbance":
+            values[t.name] = -DISTURBANCE_SHARE * full / furnace.disturbances[t.src].scale
     return values
 
 
@@ -244,11 +256,39 @@ def _draw_schedule(rng: np.random.Generator, structure: ModelStructure, values: 
             counts[i] = c
         if spread and not _others_fire(counts, furnace):
             continue
-        inputs = Inputs(times, counts, np.full(k, t_air))
+        inputs = _in_units(rng, times, counts, t_air, furnace, float(t[-1]))
         y = structure.simulate(values, inputs, t, x0).zones[0]
         if np.nanmax(y) < T_MAX_C:
             return inputs
     raise RuntimeError("no burner schedule below the temperature limit was found")
+
+
+def _in_units(rng: np.random.Generator, times: np.ndarray, counts: np.ndarray, t_air: float,
+              furnace: Furnace, end: float) -> Inputs:
+    """The drawn burner counts as each zone is fired (a rate in its unit, a pulse-fired zone
+    at a fraction of a burner more or less), and each disturbance drawn as steps every one
+    to three hours within its range (0 to 1 where none is declared), merged onto one time
+    line."""
+    if not furnace.modulated and not furnace.disturbances:
+        return Inputs(times, counts, np.full(times.size, t_air))
+    heat = counts / furnace.burner_equivalents
+    for i, h in enumerate(furnace.heat_inputs):
+        if h.kind == "pulse":
+            heat[:, i] = np.clip(heat[:, i] + rng.uniform(-0.5, 0.5, len(times)), 0.0, h.max)
+    if not furnace.disturbances:
+        return Inputs(times, heat, np.full(times.size, t_air))
+    grid = [times]
+    series = []
+    for d in furnace.disturbances:
+        lo, hi = d.range if d.range is not None else (0.0, 1.0)
+        at = np.concatenate(([0.0], np.cumsum(rng.uniform(60.0, 180.0, 64))))
+        at = at[at < end]
+        series.append((at, rng.uniform(lo, hi, at.size)))
+        grid.append(at)
+    t = np.unique(np.concatenate(grid))
+    j = np.searchsorted(times, t, side="right") - 1
+    dist = np.column_stack([v[np.searchsorted(a, t, side="right") - 1] for a, v in series])
+    return Inputs(t, heat[j], np.full(t.size, t_air), dist)
 
 
 def _others_fire(counts: np.ndarray, furnace: Furnace) -> bool:

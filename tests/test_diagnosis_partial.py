@@ -3,10 +3,8 @@ noise floor are named, each with the share of the gap it closes, beside what rem
 where it lies; a gap no candidate touches stays unexplained.
 
 The known-truth cases are the selfcheck's wall draw with a disturbance no candidate can
-represent: the held-out heat-up's ambient temperature wanders slowly (a few degrees over
-hours, as an unlogged draught or a neighbouring furnace would make it) while the record
-says it is constant. Through the preheating zone's loss to ambient that is a slow random
-heat input into that zone, which the data never show."""
+represent (tests/wandering.py): the held-out heat-up's ambient wanders slowly while the
+record says it is constant, a slow random heat input into the preheating zone."""
 
 from __future__ import annotations
 
@@ -14,49 +12,14 @@ import dataclasses
 import json
 from types import SimpleNamespace
 
-import numpy as np
 import pytest
+from wandering import wandering_holdout
 
 from furnace_model.cli.diagnose import summary
 from furnace_model.diagnosis import CandidateResult, credited, diagnose, judge
-from furnace_model.diagnosis.cases import SENSORS_SPEC, Case, case_rng, draw_case
+from furnace_model.diagnosis.cases import Case, case_rng, draw_case
 from furnace_model.diagnosis.selfcheck import Outcome, judge_case, summarize, table
-from furnace_model.effects import EFFECTS
-from furnace_model.experiment import Experiment
 from furnace_model.simulation.furnace import PAPER
-from furnace_model.simulation.parameters import PAPER_TABLE_V
-from furnace_model.simulation.plant import Plant
-from furnace_model.simulation.structure import Inputs, ModelStructure
-
-WANDER_RMS_C = 6.0
-"""The ambient's unlogged wander (RMS, °C): it moves the preheating zone by about 3 °C held
-out, three times the noise floor, while a wall draw's own gap is several times larger."""
-
-
-def _wandering_holdout(case: Case, effect: str | None, seed: int = 7) -> Experiment:
-    """The case's held-out heat-up run again on the same plant and burners, with an ambient
-    that wanders slowly about the logged one (four sines of 5-25 hour periods); the record
-    keeps the constant ambient it logged."""
-    exp = case.holdout[0]
-    rng = np.random.default_rng(seed)
-    t = exp.t_min
-    wander = np.zeros_like(t)
-    for period in rng.uniform(300.0, 1500.0, 4):
-        wander += np.sin(2 * np.pi * t / period + rng.uniform(0, 2 * np.pi))
-    wander *= WANDER_RMS_C / np.sqrt(np.mean(wander ** 2))
-    effects, values = [], dict(PAPER_TABLE_V)
-    if effect is not None:
-        cls, truth = EFFECTS[effect], case.truth[effect]
-        effects = [cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in truth.items()
-                          if k in cls.specs(PAPER)}, furnace=PAPER)]
-        values.update({p.name: truth[p.name] for p in effects[0].params})
-    air = float(exp.t_air[0])
-    run = Plant(ModelStructure(effects, furnace=PAPER), values, SENSORS_SPEC,
-                seed=seed).run(Inputs.from_samples(t, exp.burners, air + wander), t,
-                               np.full(PAPER.n_zones, air))
-    run.t_air = np.full(t.size, air)  # what the record logged
-    run.start_time = exp.start_time
-    return run.to_experiment(exp.name)
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +27,7 @@ def wall_and_wander():
     """Selfcheck wall draw 2 (a wall behind every zone, the baseline 7.2/5.5/2.9 °C held
     out against a floor of 1.1) with the wandering ambient in its held-out heat-up."""
     case = draw_case("wall_storage", case_rng(0, "wall_storage", 2), furnace=PAPER)
-    case = dataclasses.replace(case, holdout=[_wandering_holdout(case, "wall_storage")])
+    case = dataclasses.replace(case, holdout=[wandering_holdout(case, "wall_storage")])
     return case, diagnose(case.fit, case.holdout, effects=("wall_storage",))
 
 
@@ -117,7 +80,7 @@ def test_a_gap_no_candidate_touches_stays_unexplained():
     """The wandering ambient alone, on a furnace without a wall: the wall candidate cannot
     follow it and earns no credit, so nothing is named."""
     case = draw_case(None, case_rng(0, "wall_storage", 2), furnace=PAPER)
-    case = dataclasses.replace(case, holdout=[_wandering_holdout(case, None)])
+    case = dataclasses.replace(case, holdout=[wandering_holdout(case, None)])
     d = diagnose(case.fit, case.holdout, effects=("wall_storage",))
     assert d.verdict.status == "unexplained", d.verdict.sentence
     assert d.verdict.effects == [] and not any(credited(c) for c in d.candidates)

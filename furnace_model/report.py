@@ -14,16 +14,25 @@ import re
 from pathlib import Path
 
 import matplotlib
+import matplotlib.dates as mdates
 import numpy as np
+import pandas as pd
 from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
 
 from .diagnosis import MIN_GAP_CLOSED, RULE, CandidateResult, Diagnosis, shortfall, where_lines
+from .diagnosis.words import baseline_label, model_words, paper_like, temp_c
 from .experiment import Experiment
 from .identification.residuals import ZONE_WORDS
 
-STATUS_WORDS = {"no_gap": "no gap", "explained": "explained", "unexplained": "unexplained"}
-STATUS_COLOURS = {"no_gap": "#2e7d32", "explained": "#1565c0", "unexplained": "#c62828"}
+STATUS_WORDS = {"no_gap": "no gap", "explained": "explained",
+                "explained_in_part": "explained in part", "unexplained": "unexplained"}
+STATUS_COLOURS = {"no_gap": "#2e7d32", "explained": "#1565c0", "explained_in_part": "#ef6c00",
+                  "unexplained": "#c62828"}
+NAMING = ("explained", "explained_in_part")
+"""The verdicts that name effects: the report shows the kept model beside the baseline."""
+LONG_RECORD_MIN = 3 * 24 * 60.0
+"""A record longer than this is plotted in days, not minutes, when it has no start time."""
 
 CSS = """
 body { font-family: system-ui, -apple-system, "Segoe UI", Helvetica, Arial, sans-serif;
@@ -57,8 +66,24 @@ def write_report(diagnosis: Diagnosis, path: str | Path) -> Path:
 
 def render(d: Diagnosis) -> str:
     v = d.verdict
-    best = d.best() if v.status == "explained" else None
+    furnace = d.fit_data[0].furnace
+    best = d.best() if v.status in NAMING else None
+    drawn = best if best is not None else _partial_candidate(d)
     colour = STATUS_COLOURS.get(v.status, "#555")
+    model = model_words(furnace)
+    base = baseline_label(furnace)
+    pairs = ("the two thermocouples of a zone" if paper_like(furnace) else
+             "the thermocouples of a zone against each other; a zone of one thermocouple "
+             "borrows the record's pairs, or reads its own second differences")
+    if drawn is None:
+        extension = ("no extension (none closes any of the gap)" if d.candidates
+                     else "no extension (none was tried)")
+    elif drawn is best and v.status == "explained":
+        extension = f"the model with {_e(drawn.label)} (blue)"
+    else:
+        extension = (f"the model with {_e(drawn.label)} (blue), which closes "
+                     f"{drawn.gap_closed_pct:.0f}% of the held-out gap above the noise floor, "
+                     "not all of it")
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
@@ -73,24 +98,31 @@ def render(d: Diagnosis) -> str:
         _section("Error per zone, before and after", _rmse_table(d, best) + _floor_table(d)
                  + "".join(f"<p>{_e(line)}</p>" for line in d.offset_lines()),
                  _figure(_fig_noise(d, best), "noise",
-                         "Held-out RMSE per zone against the noise floor the thermocouple pairs "
-                         "allow: the baseline (paper's model), the best extension, and the floor."),
+                         "Held-out RMSE per zone against the noise floor the thermocouples "
+                         f"allow: the {_e(base)}, the best extension, and the floor."),
                  "Fit: the data the model was fitted to. Held out: data it never saw, scored "
                  "with the model's parameters fixed. The noise floor is estimated from the "
-                 "data themselves, record by record (the two thermocouples of a zone); an "
+                 f"data themselves, record by record ({pairs}); an "
                  "RMSE near it is as good as the sensors allow, and a zone has a gap when "
                  "its held-out RMSE passes the limit shown (1.25 floors, or more where the "
                  "record holds few independent samples, and beyond what the fitted "
                  "parameters' own uncertainty carries onto the held-out data)."),
+        *([_section("What the kept effects explain, and what remains", _parts_tables(d),
+                    _figure(_fig_parts(d), "parts",
+                            "The baseline's held-out gap above the noise floor (100%), and the "
+                            "share each kept effect closes, in the order they were added; the "
+                            "grey rest is what none of the candidates closes."),
+                    "Each step is one effect added to those before it; its share is of the "
+                    "baseline's held-out squared error above the floor, so that the steps "
+                    "add up to the whole closed.")]
+          if v.status == "explained_in_part" else []),
         _section("Measured and modelled temperatures", "",
-                 _figure(_fig_traces(d, best), "traces",
-                         "Zone temperature measured (grey), the paper's model (red) and "
-                         + (f"the model with {_e(best.label)} (blue)" if best else
-                            "no extension (none explains the gap)")
-                         + "; fitted experiments first, held-out ones after."), ""),
-        _section("Where the error lies", _where_table(d),
+                 _figure(_fig_traces(d, drawn), "traces",
+                         f"Zone temperature measured (grey), {_e(model)} (red) and "
+                         + extension + "; fitted experiments first, held-out ones after."), ""),
+        _section("Where the error lies", _where_table(d.where, _zones(d)),
                  _figure(_fig_residuals(d), "residuals",
-                         "The paper's model's error over time per zone (measured minus model), "
+                         f"The error of {_e(model)} over time per zone (measured minus model), "
                          "with the spans that hold most of it shaded (orange: the furnace; "
                          "purple: a thermocouple) and the noise floor as dashed lines; an error "
                          "that runs throughout a record is listed, not shaded."), ""),
@@ -113,6 +145,15 @@ def render(d: Diagnosis) -> str:
     return "\n".join(parts) + "\n"
 
 
+def _partial_candidate(d: Diagnosis) -> CandidateResult | None:
+    """With no effect named, the best-ranked candidate if it closes part of the held-out gap:
+    drawn beside the baseline, it shows how far the nearest candidate gets."""
+    c = d.candidates[0] if d.candidates else None
+    if c is None or not np.isfinite(c.gap_closed_pct) or c.gap_closed_pct <= 0:
+        return None
+    return c
+
+
 # --- text --------------------------------------------------------------------------------
 
 def _e(text: object) -> str:
@@ -133,6 +174,11 @@ def _f(x: float, digits: int = 2) -> str:
     return f"{x:.{digits}f}" if np.isfinite(x) else "-"
 
 
+def _c(x: float) -> str:
+    """A temperature in a table: two decimals, more below 0.1 °C (`temp_c`)."""
+    return temp_c(x, 2)
+
+
 def _g(x: float) -> str:
     return f"{x:.4g}" if np.isfinite(x) else "-"
 
@@ -148,11 +194,11 @@ def _rmse_table(d: Diagnosis, best: CandidateResult | None) -> str:
     rows = []
     fit_floor, limit = d.noise_floor_fit_c or {}, d.gap_limit_c or {}
     for z in zone_names:
-        cells = [ZONE_WORDS[z], _f(fit_floor.get(z, np.nan)), _f(b.rmse_fit_c[z]),
-                 _f(d.noise_floor_c[z]), _f(b.rmse_holdout_c[z])]
+        cells = [ZONE_WORDS[z], _c(fit_floor.get(z, np.nan)), _c(b.rmse_fit_c[z]),
+                 _c(d.noise_floor_c[z]), _c(b.rmse_holdout_c[z])]
         if best is not None:
-            cells += [_f(best.rmse_fit_c[z]), _f(best.rmse_holdout_c[z])]
-        cells += [_f(limit.get(z, np.nan)), "yes" if z in d.gap_zones else "no"]
+            cells += [_c(best.rmse_fit_c[z]), _c(best.rmse_holdout_c[z])]
+        cells += [_c(limit.get(z, np.nan)), "yes" if z in d.gap_zones else "no"]
         rows.append(cells)
     caption = "RMSE per zone (°C)"
     if best is not None:
@@ -171,21 +217,46 @@ def _floor_table(d: Diagnosis) -> str:
         role = "fitted" if i < len(d.fit_data) else "held out"
         for z in zone_names:
             zf = f.zones[z]
-            rows.append([f.record, role, ZONE_WORDS[z], _f(zf.floor_c), _f(zf.tc_sd_c),
+            rows.append([f.record, role, ZONE_WORDS[z], _c(zf.floor_c), _c(zf.tc_sd_c),
                          zf.words()])
     return _table(["record", "role", "zone", "noise floor (°C)", "one thermocouple (°C)",
                    "estimated"], rows, "Noise floor per record and zone")
 
 
-def _where_table(d: Diagnosis) -> str:
-    if not d.where:
+def _where_table(where, zones: tuple[str, ...], caption: str = "") -> str:
+    if not where:
         return "<p>No span holds a notable share of the error.</p>"
     rows = [[w.who, w.experiment,
              (f"throughout ({w.span})" if w.kind == "throughout" else w.span)
              + (f" ({w.clock})" if w.clock else ""), w.share, w.regime]
-            for w in where_lines(d.where, _zones(d))]
+            for w in where_lines(where, zones)]
     return _table(["where", "experiment", "when", "share of the zone's squared error",
-                   "operating regime"], rows)
+                   "operating regime"], rows, caption)
+
+
+def _parts_tables(d: Diagnosis) -> str:
+    """A partial explanation: each kept effect's step, what remains per zone against the
+    floor, and where the remaining error lies."""
+    v, zones = d.verdict, _zones(d)
+    rows = [[p.effect, _f(p.gap_closed_pct, 0), _f(p.shrink_pct, 0),
+             " / ".join(_c(p.rmse_holdout_c[z]) for z in zones)] for p in v.parts]
+    rows.append(["together", _f(v.gap_closed_pct, 0), _f(v.shrink_pct, 0), ""])
+    out = _table(["effect, in the order added", "gap closed %", "shrink %",
+                  f"held out after, {' / '.join(zones)} (°C)"], rows,
+                 "The kept effects, step by step: each one's share of the baseline's held-out "
+                 "gap above the noise floor")
+    rest = v.remaining
+    if rest is None:
+        return out
+    out += _table(["zone", "held out with the kept effects (°C)", "noise floor held out (°C)"],
+                  [[ZONE_WORDS[z], _c(rest.rmse_holdout_c[z]), _c(rest.noise_floor_c[z])]
+                   for z in zones], "What remains")
+    return out + _where_table(
+        rest.where, zones,
+        "Where what remains lies, on the kept model's held-out residual"
+        if rest.where_from == "kept" else
+        "Where what remains lies: not found on the kept model's residual; the baseline's "
+        "error, as located below")
 
 
 def _tests_table(d: Diagnosis) -> str:
@@ -217,7 +288,7 @@ def _candidate_table(d: Diagnosis) -> str:
     zone_names = _zones(d)
     if not d.candidates:
         return "<p>No candidate was tried: there is no gap to explain.</p>"
-    kept = set(d.verdict.effects) if d.verdict.status == "explained" else set()
+    kept = set(d.verdict.effects) if d.verdict.status in NAMING else set()
     head = ["effect(s)", "gap closed", f"held-out RMSE {' / '.join(zone_names)} (°C)", "shrink %",
             "gap closed %", "dBIC", "credit", "note"]
     rows = []
@@ -269,7 +340,7 @@ def _bar(c: CandidateResult, credited: bool, chosen: bool) -> str:
 
 
 def _param_table(d: Diagnosis, best: CandidateResult | None) -> str:
-    models = [("paper's model (baseline)", d.baseline)]
+    models = [(baseline_label(d.fit_data[0].furnace), d.baseline)]
     if best is not None:
         models.append((f"with {best.label}", best))
     out = []
@@ -332,36 +403,74 @@ def _pred(c: CandidateResult | None, kind: str, j: int) -> np.ndarray | None:
     return preds[j] if j < len(preds) else None
 
 
+def _time(exp: Experiment, t_min) -> np.ndarray:
+    """Where minutes of a record lie on its plots' time axis: dates (UTC) for a record with
+    a start time, days for a long one without, else the minutes themselves. A plant's record
+    is read against its calendar; 40,000 minutes say nothing to the crew that ran them."""
+    t = np.atleast_1d(np.asarray(t_min, dtype=float))
+    if exp.start_time is not None:
+        start = pd.Timestamp(exp.start_time)
+        start = start.tz_convert("UTC").tz_localize(None) if start.tzinfo else start
+        return (start + pd.to_timedelta(t, unit="min")).to_numpy()
+    if _span_min(exp) > LONG_RECORD_MIN:
+        return t / 1440.0
+    return t
+
+
+def _span_min(exp: Experiment) -> float:
+    return float(exp.t_min[-1] - exp.t_min[0]) if len(exp) else 0.0
+
+
+def _time_label(exp: Experiment) -> str:
+    if exp.start_time is not None:
+        return "time (UTC)"
+    return "time (days)" if _span_min(exp) > LONG_RECORD_MIN else "time (min)"
+
+
+def _date_axis(ax, exp: Experiment) -> None:
+    """Concise date ticks on a record with a start time (the year and month said once)."""
+    if exp.start_time is not None:
+        locator = mdates.AutoDateLocator(minticks=2, maxticks=5)
+        ax.xaxis.set_major_locator(locator)
+        ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(locator))
+
+
 def _fig_traces(d: Diagnosis, best: CandidateResult | None) -> Figure:
     zone_names = _zones(d)
     recs = _records(d)
+    base_name = baseline_label(d.fit_data[0].furnace)
     fig, axes = _new(len(zone_names), len(recs), 4.2 * len(recs) + 0.8, 8.0 * len(zone_names) / 3,
                      sharex="col")
     for k, (exp, kind, j) in enumerate(recs):
         base, ext = _pred(d.baseline, kind, j), _pred(best, kind, j)
+        x = _time(exp, exp.t_min)
         for w, z in enumerate(zone_names):
             ax = axes[w, k]
-            ax.plot(exp.t_min, exp.zone_temp[:, w], "-", lw=2.2, color="0.7", label="measured")
+            ax.plot(x, exp.zone_temp[:, w], "-", lw=2.2, color="0.7", label="measured")
             if base is not None:
-                ax.plot(exp.t_min, base[:, w], "-", lw=1.0, color="C3", label="paper's model")
+                ax.plot(x, base[:, w], "-", lw=1.0, color="C3", label=base_name)
             if ext is not None:
-                ax.plot(exp.t_min, ext[:, w], "--", lw=1.0, color="C0",
-                        label=f"with {best.label}")
-            _frame(ax, w, k, f"{exp.name} ({kind})", f"{ZONE_WORDS[z]} (°C)", len(zone_names))
+                ax.plot(x, ext[:, w], "--", lw=1.0, color="C0", label=f"with {best.label}")
+            _frame(ax, w, k, f"{exp.name} ({kind})", f"{ZONE_WORDS[z]} (°C)", len(zone_names),
+                   exp)
     axes[0, 0].legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     return fig
 
 
-def _frame(ax, row: int, col: int, title: str, ylabel: str, rows: int = 3) -> None:
-    """Grid, and the labels only on the panel edges of a zones-by-records grid."""
+def _frame(ax, row: int, col: int, title: str, ylabel: str, rows: int = 3,
+           exp: Experiment | None = None) -> None:
+    """Grid, and the labels only on the panel edges of a zones-by-records grid; the time
+    axis as the record's (`_time`)."""
     ax.grid(alpha=0.3)
+    if exp is not None:
+        _date_axis(ax, exp)
     if row == 0:
         ax.set_title(title, fontsize=10)
     if col == 0:
         ax.set_ylabel(ylabel)
     if row == rows - 1:
-        ax.set_xlabel("time (min)")
+        ax.set_xlabel("time (min)" if exp is None else _time_label(exp))
 
 
 def _fig_residuals(d: Diagnosis) -> Figure:
@@ -371,10 +480,11 @@ def _fig_residuals(d: Diagnosis) -> Figure:
                      sharex="col")
     for k, (exp, kind, j) in enumerate(recs):
         base = _pred(d.baseline, kind, j)
+        x = _time(exp, exp.t_min)
         for w, z in enumerate(zone_names):
             ax = axes[w, k]
             if base is not None:
-                ax.plot(exp.t_min, exp.zone_temp[:, w] - base[:, w], "-", lw=0.6, color="C3")
+                ax.plot(x, exp.zone_temp[:, w] - base[:, w], "-", lw=0.6, color="C3")
             floors = d.record_floors or []
             at = k if k < len(floors) else None  # records in the same order: fit, held out
             fl = floors[at].zones[z].floor_c if at is not None else d.noise_floor_c.get(z, np.nan)
@@ -383,10 +493,36 @@ def _fig_residuals(d: Diagnosis) -> Figure:
                     ax.axhline(s * fl, color="k", lw=0.7, ls="--")
             for loc in d.where:
                 if loc.experiment == exp.name and loc.zone == z and loc.kind != "throughout":
-                    ax.axvspan(loc.start_min, max(loc.end_min, loc.start_min + 1),
-                               color="C4" if loc.sensor else "C1", alpha=0.3, lw=0)
+                    lo, hi = _time(exp, [loc.start_min, max(loc.end_min, loc.start_min + 1)])
+                    ax.axvspan(lo, hi, color="C4" if loc.sensor else "C1", alpha=0.3, lw=0)
             ax.axhline(0.0, color="0.3", lw=0.6)
-            _frame(ax, w, k, f"{exp.name} ({kind})", f"{ZONE_WORDS[z]} error (°C)", len(zone_names))
+            _frame(ax, w, k, f"{exp.name} ({kind})", f"{ZONE_WORDS[z]} error (°C)",
+                   len(zone_names), exp)
+    fig.tight_layout()
+    return fig
+
+
+def _fig_parts(d: Diagnosis) -> Figure | None:
+    """The baseline's held-out gap above the floor as one bar of 100%: each kept effect's
+    share in the order added, then the rest none closes."""
+    v = d.verdict
+    if not v.parts:
+        return None
+    fig, axes = _new(1, 1, 6.5, 2.2)
+    ax = axes[0, 0]
+    left = 0.0
+    for i, p in enumerate(v.parts):
+        width = float(np.clip(p.gap_closed_pct, 0.0, 100.0 - left)) if np.isfinite(
+            p.gap_closed_pct) else 0.0
+        ax.barh(0, width, left=left, color=f"C{i}", label=f"{p.effect} ({p.gap_closed_pct:.0f}%)")
+        left += width
+    ax.barh(0, max(100.0 - left, 0.0), left=left, color="0.8",
+            label=f"remains ({max(100.0 - left, 0.0):.0f}%)")
+    ax.set_xlim(0, 100)
+    ax.set_yticks([])
+    ax.set_xlabel("share of the held-out gap above the noise floor (%)")
+    ax.legend(fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.02), ncol=len(v.parts) + 1,
+              frameon=False)
     fig.tight_layout()
     return fig
 
@@ -418,7 +554,7 @@ def _fig_noise(d: Diagnosis, best: CandidateResult | None) -> Figure:
     fig, axes = _new(1, 1, 6.5, 2.8)
     ax = axes[0, 0]
     x = np.arange(len(zone_names))
-    series = [("paper's model", d.baseline.rmse_holdout_c, "C3")]
+    series = [(baseline_label(d.fit_data[0].furnace), d.baseline.rmse_holdout_c, "C3")]
     if best is not None:
         series.append((f"with {best.label}", best.rmse_holdout_c, "C0"))
     series.append(("noise floor", d.noise_floor_c, "0.6"))

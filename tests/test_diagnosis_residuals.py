@@ -169,3 +169,45 @@ def test_whiteness_and_input_correlation():
     assert not out["heat"]["white"]
     assert not out["heat"]["xcorr"]["d_burners_heat"]["independent"]
     assert out["heat"]["xcorr"]["d_burners_heat"]["at_lag"] >= 0
+
+
+def test_a_change_that_holds_none_of_the_error_is_not_listed_first():
+    """A half-hour spike of the soaking zone's residual in the first record is the sharpest
+    step anywhere, but the zone's error lies in the second record (a slow swing of 20 °C):
+    the spike holds 0% of it and is listed after the stretches, which come by share."""
+    rng = np.random.default_rng(8)
+    exps = [_experiment(rng), _experiment(rng)]
+    n = len(exps[0])
+    floors = _unit_floors(exps)
+    r0, r1 = rng.normal(0, 1.0, (n, 3)), rng.normal(0, 1.0, (n, 3))
+    r0[1500:1530, 0] += 8.0
+    r1[:, 0] += 20.0 * np.sin(2 * np.pi * np.arange(n) / 500.0)
+    r1[1000:1600, 1] += 5.0 * np.sin(np.linspace(0, np.pi, 600))
+    where = locate(exps, [r0, r1], floors, [])
+    change = next(w for w in where if w.kind == "change")
+    assert change.zone == "soak" and round(100 * change.share_of_error) == 0
+    assert where[0] is not change and round(100 * where[0].share_of_error) > 0
+    shares = [w.share_of_error for w in where]
+    assert shares == sorted(shares, reverse=True)
+
+
+def test_a_change_spans_the_error_it_opens_and_leads():
+    """A loss entering the heating zone at minute 2000 (as above): the sharpest step leads
+    the list, and its entry runs on to the end of the stretch of error the step opens, so
+    that its share is that error's, not the half hour's."""
+    rng = np.random.default_rng(5)
+    e = _experiment(rng)
+    floors = _unit_floors([e])
+    r = rng.normal(0, 1.0, (len(e), 3))
+    t = np.arange(len(e), dtype=float) - 2000.0
+    on = t >= 0
+    r[on, 1] -= 30.0 * (1 - np.exp(-t[on] / 5.0))
+    r[on, 0] -= 60.0 * (1 - np.exp(-t[on] / 400.0))
+    where = locate([e], [r], floors, [])
+    first = where[0]
+    assert (first.kind, first.zone) == ("change", "heat")
+    assert first.start_min <= 2000 and first.end_min == float(len(e) - 1)
+    assert first.share_of_error > 0.9
+    assert "the sharpest change in any zone: -" in first.regime
+    assert [w.share_of_error for w in where[1:]] == sorted(
+        (w.share_of_error for w in where[1:]), reverse=True)

@@ -185,5 +185,5 @@ def test_selfcheck_cases_fire_the_furnace_as_it_is_fired():
     for rec in case.fit + case.holdout:
         assert np.all(rec.burners <= [h.max for h in f.heat_inputs])
         assert rec.burners[:, 0].max() > 10.0  # percent, not burners
-        assert np.all((0 <= rec.disturbances) & (rec.disturbances <= 250))
+        assert np.all((rec.disturbances >= 0) & (rec.disturbances <= 250))
         assert np.ptp(rec.disturbances) > 10.0

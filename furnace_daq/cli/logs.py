@@ -8,7 +8,7 @@ from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from furnace_model.cli.arguments import LOG_PERIOD_S, output_file
+from furnace_model.cli.arguments import LOG_PERIOD_S, CommandParser, output_file
 from furnace_model.errors import DataError
 from furnace_model.log.schema import DAQ_STATUS, THERMOCOUPLES
 
@@ -38,6 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="resampling period in seconds (default 60)")
     exp.add_argument("--start", help="first time exported, ISO 8601 with Z or an offset")
     exp.add_argument("--end", help="end of the export (exclusive), ISO 8601 with Z or an offset")
+    if isinstance(exp, CommandParser):  # a window given backwards is an argument error
+        exp.add_window("start", "end", "--start", "--end")
     exp.set_defaults(run=run_export)
 
     rec = lsub.add_parser("recover", help="rewrite a log whose writer died into a complete file",

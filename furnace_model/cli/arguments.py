@@ -35,7 +35,10 @@ class CommandParser(argparse.ArgumentParser):
     """A command's parser on which files may follow options: `diagnose a.csv --holdout b.csv
     c.csv` fits c.csv. argparse takes a command's positional files in one run, so the plain
     parser refuses c.csv; its intermixed parsing (options first, then the files left over)
-    does not, but cannot parse a level that has subcommands, which keeps the plain one."""
+    does not, but cannot parse a level that has subcommands, which keeps the plain one.
+
+    It also checks the time windows its command declares (`add_window`) once every option
+    is read: a window given backwards is an argument error, answered before any data is."""
 
     _intermixed = False
 
@@ -44,9 +47,52 @@ class CommandParser(argparse.ArgumentParser):
             return super().parse_known_args(args, namespace)
         self._intermixed = True  # parse_known_intermixed_args calls back here, twice
         try:
-            return self.parse_known_intermixed_args(args, namespace)
+            namespace, extras = self.parse_known_intermixed_args(args, namespace)
         finally:
             self._intermixed = False
+        for window in getattr(self, "_windows", ()):
+            message = window.backwards(namespace)
+            if message:
+                self.error(message)
+        return namespace, extras
+
+    def add_window(self, start: str, end: str, start_option: str, end_option: str) -> None:
+        """Declare two options as a window's start and end: `start` must come before `end`
+        (dests; values are datetimes or ISO 8601 texts)."""
+        self._windows = (*getattr(self, "_windows", ()),
+                         TimeWindow(start, end, start_option, end_option))
+
+
+class TimeWindow:
+    """Two options bounding a window of time, as a command line gives them."""
+
+    def __init__(self, start: str, end: str, start_option: str, end_option: str):
+        self.start, self.end = start, end
+        self.start_option, self.end_option = start_option, end_option
+
+    def backwards(self, args: argparse.Namespace) -> str:
+        """The argument error of a window whose start is not before its end; empty when it
+        is, when either is missing, or when a text is not a time (the command's own reading
+        of it says so)."""
+        a, b = (_when(getattr(args, dest, None)) for dest in (self.start, self.end))
+        if a is None or b is None or a < b:
+            return ""
+        return (f"argument {self.end_option}: {self.end_option} {b.isoformat()} is not later "
+                f"than {self.start_option} {a.isoformat()}: the window would be empty "
+                f"(give {self.start_option} before {self.end_option})")
+
+
+def _when(value: object) -> datetime | None:
+    """A window bound as a datetime with its time zone; None for none, or for a text that is
+    not an ISO 8601 time with an offset."""
+    if isinstance(value, datetime):
+        return value if value.tzinfo is not None else None
+    if isinstance(value, str):
+        try:
+            return plc_time(value)
+        except argparse.ArgumentTypeError:
+            return None
+    return None
 
 
 class _Version(argparse.Action):
@@ -184,11 +230,14 @@ def add_data_window(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--period", type=positive_seconds, metavar="S",
                    help=f"resampling period of MCAP logs in seconds (default {LOG_PERIOD_S:g}, as "
                         "`logs export`)")
+    if isinstance(parser, CommandParser):
+        parser.add_window("window_from", "window_to", "--from", "--to")
 
 
 def data_window(args: argparse.Namespace) -> dict:
     """The keyword arguments of `records.load_experiments` that add_data_window's options
-    give; --from must come before --to."""
+    give; --from must come before --to (the command line refuses it first, `CommandParser`;
+    this holds for arguments built in code)."""
     import pandas as pd
 
     from ..errors import FurnaceError

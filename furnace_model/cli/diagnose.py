@@ -93,14 +93,23 @@ def _write(path: Path, text: str) -> None:
 
 def summary(d: Diagnosis) -> str:
     """The verdict first, then the evidence behind it, in the report's order and words."""
-    from ..diagnosis import RULE, shortfall, where_lines
+    from ..diagnosis import RULE, shortfall
+    from ..diagnosis.words import paper_like, temp_c
 
     b, v = d.baseline, d.verdict
     furnace = d.fit_data[0].furnace
     zone_names = furnace.zones
     per_zone = "/".join(zone_names)
-    model = ("the paper's model, eq. 11" if furnace.paper_structure
-             else f"the thermal network of furnace '{furnace.name}'")
+
+    def c2(x: float) -> str:
+        return temp_c(x, 2)
+
+    if paper_like(furnace):
+        model = "the paper's model, eq. 11"
+    elif furnace.paper_structure:
+        model = f"eq. 11 on furnace '{furnace.name}'"
+    else:
+        model = f"the thermal network of furnace '{furnace.name}'"
     lines = [f"Verdict: {v.status}" + (f" ({', '.join(v.effects)})" if v.effects else ""),
              v.sentence, "",
              f"Fitted: {', '.join(e.name for e in d.fit_data)}; held out: {d.holdout_how}", "",
@@ -110,14 +119,14 @@ def summary(d: Diagnosis) -> str:
              "|---|---|---|---|---|---|"]
     limit = d.gap_limit_c or {}
     for z in zone_names:
-        lines.append(f"| {z} | {b.rmse_fit_c[z]:.2f} | {b.rmse_holdout_c[z]:.2f} | "
-                     f"{d.noise_floor_c[z]:.2f} | {limit.get(z, float('nan')):.2f} | "
+        lines.append(f"| {z} | {c2(b.rmse_fit_c[z])} | {c2(b.rmse_holdout_c[z])} | "
+                     f"{c2(d.noise_floor_c[z])} | {c2(limit.get(z, float('nan')))} | "
                      f"{'yes' if z in d.gap_zones else 'no'} |")
     carried = b.carried_c or {}
     if max(carried.values(), default=0.0) >= 0.05:
         lines += ["", "The limit includes what the fitted parameters' own uncertainty carries "
                   "onto the held-out data (°C per zone, " + per_zone + "): "
-                  + "/".join(f"{carried.get(z, 0.0):.2f}" for z in zone_names)]
+                  + "/".join(c2(carried.get(z, 0.0)) for z in zone_names)]
     offsets = d.offset_lines()
     if offsets:
         lines += ["", *offsets]
@@ -126,20 +135,31 @@ def summary(d: Diagnosis) -> str:
                   "RMSE is judged against the held-out records'):"]
         for i, f in enumerate(d.record_floors):
             role = "fitted" if i < len(d.fit_data) else "held out"
-            floors = "/".join(f"{f.zones[z].floor_c:.2f}" for z in zone_names)
+            floors = "/".join(c2(f.zones[z].floor_c) for z in zone_names)
             hows = {f.zones[z].words() for z in zone_names}
             lines.append(f"- {f.record} ({role}): {floors}; "
                          + ("; ".join(f"{z}: {f.zones[z].words()}" for z in zone_names)
                             if len(hows) > 1 else hows.pop()))
     if d.where:
-        lines += ["", "Where the error lies:"]
-        for w in where_lines(d.where, zone_names):
-            when = (f"throughout {w.experiment} ({w.span})" if w.kind == "throughout"
-                    else f"{w.experiment} {w.span}")
-            lines.append(f"- {w.who}, {when}"
-                         + (f" ({w.clock})" if w.clock else "")
-                         + f": {w.share} of {'each' if ' and ' in w.share else 'the'} "
-                         f"zone's squared error; {w.regime}")
+        lines += ["", "Where the error lies:", *_where_text(d.where, zone_names)]
+    rest = v.remaining
+    if v.status == "explained_in_part" and rest is not None:
+        lines += ["", "The kept effects, in the order they were added (each one's share of "
+                  "the baseline's held-out gap above the noise floor):",
+                  f"| effect | gap closed % | shrink % | held out after, {per_zone} (°C) |",
+                  "|---|---|---|---|"]
+        for p in v.parts:
+            lines.append(f"| {p.effect} | {p.gap_closed_pct:.0f} | {p.shrink_pct:.0f} | "
+                         + "/".join(c2(p.rmse_holdout_c[z]) for z in zone_names) + " |")
+        lines += ["", f"What remains, held out (°C per zone, {per_zone}): "
+                  + "/".join(c2(rest.rmse_holdout_c[z]) for z in zone_names)
+                  + " against a noise floor of "
+                  + "/".join(c2(rest.noise_floor_c[z]) for z in zone_names)]
+        if rest.where:
+            lines += [("Where it lies, on the kept model's held-out residual:"
+                       if rest.where_from == "kept" else
+                       "Where it lies: not found on the kept model's residual; the baseline's "
+                       "error, as above:"), *_where_text(rest.where, zone_names)]
     if d.candidates:
         lines += ["", f"Candidates, best first (held-out RMSE per zone {per_zone}; "
                   f"credit: {RULE}):",
@@ -147,7 +167,7 @@ def summary(d: Diagnosis) -> str:
                   "strength determined | credit |",
                   "|---|---|---|---|---|---|---|"]
         for c in d.candidates:
-            ho = "/".join(f"{c.rmse_holdout_c[z]:.2f}" for z in zone_names)
+            ho = "/".join(c2(c.rmse_holdout_c[z]) for z in zone_names)
             determined = "yes" if c.identifiable else "no"
             short = shortfall(c)
             credit = "no: " + "; ".join(short) if short else "yes"
@@ -157,3 +177,17 @@ def summary(d: Diagnosis) -> str:
         if notes:
             lines += ["", "Notes:", *notes]
     return "\n".join(lines)
+
+
+def _where_text(where, zones: tuple[str, ...]) -> list[str]:
+    """One line per entry of 'where the error lies', as the report's table has them."""
+    from ..diagnosis import where_lines
+
+    out = []
+    for w in where_lines(where, zones):
+        when = (f"throughout {w.experiment} ({w.span})" if w.kind == "throughout"
+                else f"{w.experiment} {w.span}")
+        out.append(f"- {w.who}, {when}" + (f" ({w.clock})" if w.clock else "")
+                   + f": {w.share} of {'each' if ' and ' in w.share else 'the'} "
+                   f"zone's squared error; {w.regime}")
+    return out

@@ -118,6 +118,17 @@ def gap_closed_pct(c: CandidateResult, ref: CandidateResult, floor: dict[str, fl
     return float(100.0 * (rr * rr - rc * rc) / excess) if excess > 0 else 0.0
 
 
+def step_closed_pct(c: CandidateResult, prev: CandidateResult, base: CandidateResult,
+                    floor: dict[str, float]) -> float:
+    """Percent of the *baseline's* held-out squared error above the noise floor that c
+    removes beyond prev (c extends prev by one effect): the steps of a stepwise combination,
+    each against the one before, add up to the combination's `gap_closed_pct`, so that a
+    partial explanation can say how much of the gap each kept effect closes."""
+    rb, rp, rc = (x.rmse_holdout_pooled() for x in (base, prev, c))
+    excess = rb * rb - float(np.mean([f ** 2 for f in floor.values()]))
+    return float(100.0 * (rp * rp - rc * rc) / excess) if excess > 0 else 0.0
+
+
 def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, float]) -> None:
     """Fill the candidate's comparison with the baseline: held-out RMSE shrink (pooled over
     zones), the share of the baseline's held-out gap above the noise floor it closes, and

@@ -18,7 +18,7 @@ from ..identification.residuals import (
     regime,
     sudden_change,
 )
-from .words import and_words, zones_words
+from .words import and_words, temp_c, zones_words
 
 MIN_SHARE = 0.02
 """A located span holds at least this share of its zone's squared error."""
@@ -45,7 +45,7 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
            floors: list[RecordFloor], faults) -> list[Located]:
     """The located error: thermocouples at fault first, then the residual's sharpest step if
     it stands out of the noise (where a disturbance entered), then the spans that hold most
-    of the baseline's squared error above the floor."""
+    of the residual's squared error above the floor, by their share of it (`ordered`)."""
     zones = experiments[0].furnace.zones if experiments else ()
     total = {z: 0.0 for z in zones}
     for r in residuals:
@@ -57,30 +57,52 @@ def locate(experiments: list[Experiment], residuals: list[np.ndarray],
         sse = float(np.nansum(residuals[j][i0:i1, zones.index(z)] ** 2))
         return sse / total[z] if total[z] > 0 else 0.0
 
-    out: list[Located] = []
+    causes: list[Located] = []
     for f in faults:
         exp = experiments[f.experiment]
         z = f.sensor.rsplit("_", 1)[0]
-        what = (f"{f.sensor} drifts {f.size_c:+.1f} °C from its partner" if f.kind == "drift"
-                else f"{f.sensor} departs by about {f.size_c:.0f} °C from its partner at times")
-        out.append(_located(exp, z, f.sensor, f.i0, f.i1, share(f.experiment, z, f.i0, f.i1),
-                            what, "sensor"))
+        what = (f"{f.sensor} drifts {temp_c(f.size_c, sign=True)} °C from its partner"
+                if f.kind == "drift" else
+                f"{f.sensor} departs by about {temp_c(f.size_c, 0)} °C from its partner at times")
+        causes.append(_located(exp, z, f.sensor, f.i0, f.i1,
+                               share(f.experiment, z, f.i0, f.i1), what, "sensor"))
+    spans = [s for s in error_spans(experiments, residuals, [f.floor_c for f in floors])
+             if total[s.zone] > 0 and s.sse / total[s.zone] >= MIN_SHARE]  # else a burst of noise
     change = sudden_change(experiments, residuals, floors)
     if change is not None:
         exp = experiments[change.experiment]
-        what = (f"the sharpest change in any zone: {change.size_c:+.0f} °C within "
-                f"{SUDDEN_WINDOW_MIN:g} min; {regime(exp, change.i0, change.i1, change.zone)}")
-        out.append(_located(exp, change.zone, None, change.i0, change.i1,
-                            share(change.experiment, change.zone, change.i0, change.i1),
-                            what, "change"))
-    for s in error_spans(experiments, residuals, [f.floor_c for f in floors]):
-        exp = experiments[s.experiment]
-        part = s.sse / total[s.zone] if total[s.zone] > 0 else 0.0
-        if part < MIN_SHARE:
-            continue  # a burst of noise, not where the error lies
-        out.append(_located(exp, s.zone, None, s.i0, s.i1, part, regime(exp, s.i0, s.i1, s.zone),
-                            "throughout" if s.throughout else "span"))
-    return out
+        # The step is where a disturbance entered; the error it opens runs on to the end of
+        # the stretch of its zone's error that the step's window reaches into. The entry
+        # spans both, so that its share of the error is the error the step starts, not the
+        # fraction of it within the step's own half hour (a slow zone's step holds well
+        # under 1%).
+        i1 = max([change.i1, *(s.i1 for s in spans if s.experiment == change.experiment
+                               and s.zone == change.zone
+                               and s.i0 < change.i1 and change.i0 < s.i1)])
+        what = (f"the sharpest change in any zone: {temp_c(change.size_c, 0, sign=True)} °C "
+                f"within {SUDDEN_WINDOW_MIN:g} min at its start; "
+                f"{regime(exp, change.i0, change.i1, change.zone)}")
+        causes.append(_located(exp, change.zone, None, change.i0, i1,
+                               share(change.experiment, change.zone, change.i0, i1),
+                               what, "change"))
+    out = [_located(experiments[s.experiment], s.zone, None, s.i0, s.i1, s.sse / total[s.zone],
+                    regime(experiments[s.experiment], s.i0, s.i1, s.zone),
+                    "throughout" if s.throughout else "span") for s in spans]
+    return ordered(causes, out)
+
+
+def ordered(causes: list[Located], spans: list[Located]) -> list[Located]:
+    """The located causes (a thermocouple at fault, then the sharpest change) lead, since
+    they say what the error's size alone would blame on the wrong zone (a door's zone against
+    the slower zones it drains); then every other entry by its share of the error, largest
+    first. An entry whose share rounds to 0% is never first: a cause that holds none of the
+    error joins the rest in its place by share."""
+    lead: list[Located] = []
+    rest: list[Located] = []
+    for c in causes:
+        (lead if round(100 * c.share_of_error) >= 1 else rest).append(c)
+    return (sorted(lead, key=lambda w: (w.kind != "sensor", -w.share_of_error))
+            + sorted(rest + spans, key=lambda w: -w.share_of_error))
 
 
 def _located(exp: Experiment, zone: str, sensor: str | None, i0: int, i1: int, share: float,

@@ -14,6 +14,7 @@ from .credit import credited
 from .locate import Located
 from .signals import UNMODELLED_INPUT
 from .verdict import Verdict
+from .words import temp_c
 
 
 @dataclass
@@ -35,6 +36,8 @@ class Diagnosis:
     noise_floor_fit_c: dict[str, float] | None = None
     gap_limit_c: dict[str, float] | None = None
     """Held-out RMSE per zone above which the zone has a gap."""
+    kept: CandidateResult | None = None
+    """The model the verdict judged: the effects the stepwise search kept, as fitted."""
 
     def offset_lines(self) -> list[str]:
         """The baseline's thermocouple offsets, fitted and carried to the held-out records,
@@ -45,7 +48,7 @@ class Diagnosis:
         zones = list(b.offsets_c)
 
         def values(d: dict[str, float]) -> str:
-            return "/".join(f"{d[z]:+.2f}" for z in zones)
+            return "/".join(temp_c(d[z], 2, sign=True) for z in zones)
 
         out = [f"Zone offsets the baseline carries ({'/'.join(zones)}): {values(b.offsets_c)} "
                "°C, a thermocouple's bias at most"]
@@ -53,12 +56,16 @@ class Diagnosis:
             out.append(f"- {e.name} (held out): {values(o)} °C")
         if b.rmse_holdout_carried_c is not None:
             out.append("Held-out RMSE with the carried offsets held: "
-                       + "/".join(f"{b.rmse_holdout_carried_c[z]:.2f}" for z in zones) + " °C")
+                       + "/".join(temp_c(b.rmse_holdout_carried_c[z], 2) for z in zones) + " °C")
         out += [f"- flagged: {f}" for f in b.flags]
         return out
 
     def best(self) -> CandidateResult | None:
-        if self.verdict.status == "explained":
+        """The kept effects' model when the verdict names effects (wholly or in part); else
+        the best-ranked candidate, if any was tried."""
+        if self.verdict.status in ("explained", "explained_in_part"):
+            if self.kept is not None and list(self.kept.effects) == self.verdict.effects:
+                return self.kept
             for c in self.candidates:
                 if list(c.effects) == self.verdict.effects:
                     return c
@@ -99,16 +106,9 @@ class Diagnosis:
                          "params": _round(b.params),
                          "ci95": {k: [_r(v[0]), _r(v[1])] for k, v in b.ci95.items()},
                          "gap_zones": list(self.gap_zones)},
-            "where": [{"zone": w.zone, "sensor": w.sensor, "start": w.start, "end": w.end,
-                       "share_of_error": _r(w.share_of_error), "regime": w.regime,
-                       "experiment": w.experiment, "start_min": _r(w.start_min),
-                       "end_min": _r(w.end_min), "kind": w.kind} for w in self.where],
+            "where": [_where(w) for w in self.where],
             "candidates": [cand(c) for c in self.candidates],
-            "verdict": {"status": self.verdict.status, "effects": list(self.verdict.effects),
-                        "shrink_pct": _r(self.verdict.shrink_pct),
-                        "gap_closed_pct": _r(self.verdict.gap_closed_pct),
-                        "unmodelled_inputs": list(self.verdict.unmodelled_inputs),
-                        "sentence": self.verdict.sentence},
+            "verdict": _verdict(self.verdict),
             "holdout_how": self.holdout_how,
             "data": [e.source or e.name for e in self.fit_data],
             "holdout": [e.source or e.name for e in self.holdout],
@@ -118,6 +118,30 @@ class Diagnosis:
             "residual_tests": self.residual_tests,
             "elapsed_s": _r(self.elapsed_s),
         }
+
+
+def _where(w: Located) -> dict:
+    return {"zone": w.zone, "sensor": w.sensor, "start": w.start, "end": w.end,
+            "share_of_error": _r(w.share_of_error), "regime": w.regime,
+            "experiment": w.experiment, "start_min": _r(w.start_min),
+            "end_min": _r(w.end_min), "kind": w.kind}
+
+
+def _verdict(v: Verdict) -> dict:
+    """The verdict's JSON; a partial explanation adds its parts and what remains."""
+    out = {"status": v.status, "effects": list(v.effects), "shrink_pct": _r(v.shrink_pct),
+           "gap_closed_pct": _r(v.gap_closed_pct),
+           "unmodelled_inputs": list(v.unmodelled_inputs), "sentence": v.sentence}
+    if v.status == "explained_in_part":
+        rest = v.remaining
+        out["parts"] = [{"effect": p.effect, "gap_closed_pct": _r(p.gap_closed_pct),
+                         "shrink_pct": _r(p.shrink_pct),
+                         "rmse_holdout_c": _round(p.rmse_holdout_c)} for p in v.parts]
+        out["remaining"] = None if rest is None else {
+            "rmse_holdout_c": _round(rest.rmse_holdout_c),
+            "noise_floor_c": _round(rest.noise_floor_c),
+            "where": [_where(w) for w in rest.where], "where_from": rest.where_from}
+    return out
 
 
 def _r(x: float) -> float | None:

@@ -32,7 +32,7 @@ from .credit import (
 from .fitting import Task, run_task, structure_of
 from .holdout import split, uncovered
 from .laws import between_laws, further_laws, opts_text
-from .locate import locate
+from .locate import Located, locate
 from .pool import run_all
 from .result import Diagnosis
 from .signals import prefer_signal, signal_candidates, unused_signals
@@ -161,19 +161,30 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                     opts_text(c.options[n]) for c in same)) if x)
         singles.append(same[0])
     singles.sort(key=rank)
-    combos, kept = stepwise(singles, base, floor, gap_limit, fit_data, hold, tail_of, seed,
-                            options, bounds, starts, gap,
-                            lambda f: say("combinations", 0.7 + 0.3 * f))
+    combos, kept, steps = stepwise(singles, base, floor, gap_limit, fit_data, hold, tail_of,
+                                   seed, options, bounds, starts, gap,
+                                   lambda f: say("combinations", 0.7 + 0.3 * f))
     signals = unused_signals(fit_data + hold)
     followed = signal_candidates(signals, base, fit_data, hold, tail_of, seed, floor,
                                  lambda f: say("signals", 0.95 + 0.05 * f)) if signals else []
     candidates = sorted(singles + combos + followed, key=rank)
+
+    def remaining(c: CandidateResult) -> list[Located] | None:
+        """Where c's held-out residual lies, as the baseline's is located; None without
+        its predictions."""
+        if len(c.holdout_pred) != len(hold):
+            return None
+        faults = sensor_faults(hold, c.holdout_pred, tc_noise[len(fit_data):])
+        return locate(hold, [e.zone_temp - p for e, p in zip(hold, c.holdout_pred, strict=True)],
+                      hold_floors, faults)
+
     verdict = judge(base, kept, candidates, floor, near, gap, where, uncovered(fit_data, hold),
-                    furnace=furnace)
-    verdict = prefer_signal(verdict, followed, kept, base, floor, near, gap, furnace)
+                    furnace=furnace, steps=steps, locate_remaining=remaining)
+    verdict = prefer_signal(verdict, followed, kept, base, floor, near, gap, where, furnace,
+                            remaining)
     say("done", 1.0)
     return Diagnosis(fit_data, hold, how, base, floor, where, tests, candidates, verdict,
-                     time.perf_counter() - t_start, gap, **noise)
+                     time.perf_counter() - t_start, gap, **noise, kept=kept)
 
 
 def _pooled_tc(floors: list[RecordFloor]) -> dict[str, float]:
@@ -192,13 +203,15 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
              gap_limit: dict[str, float], fit_data, hold, tail_of, seed: int, options: dict, bounds: dict, starts: dict,
              gap: tuple[str, ...],
              progress: Callable[[float], None]
-             ) -> tuple[list[CandidateResult], CandidateResult | None]:
-    """Combinations tried, and the set kept: the best single with credit, then one effect
-    added at a time while the kept set leaves a clear gap and a further effect removes most
-    of what is left (and is itself determined by the data)."""
+             ) -> tuple[list[CandidateResult], CandidateResult | None, list[CandidateResult]]:
+    """Combinations tried, the set kept, and the kept set after each effect was added (the
+    last is the set kept): the best single with credit, then one effect added at a time
+    while the kept set leaves a clear gap and a further effect removes most of what is left
+    (and is itself determined by the data)."""
     if not gap or not singles or not credited(singles[0]):
-        return [], None
+        return [], None, []
     kept = singles[0]
+    steps = [kept]
     tried: list[CandidateResult] = []
 
     def refit(kept: CandidateResult, combination: CandidateResult) -> CandidateResult:
@@ -242,7 +255,7 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
             if again is not None and again.sse_fit < (1 - SSE_GAIN) * kept.sse_fit \
                     and credited(again):
                 tried.append(again)
-                kept = again
+                kept = steps[-1] = again
                 continue
             break
         best = min(good, key=lambda c: c.evidence)
@@ -254,16 +267,17 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         if np.isfinite(again.rmse_holdout_pooled()) and \
                 again.rmse_holdout_pooled() < kept.rmse_holdout_pooled() and credited(again):
             tried.append(again)
-            kept = again
+            kept = steps[-1] = again
             if not closes(best, kept, floor):
                 break
         kept = best
+        steps.append(best)
     # A combination earns credit against the baseline on the strength of the effects it
     # extends; say why one with credit is not the set kept.
     for c in tried:
         if len(c.effects) > 1 and c.effects != kept.effects and credited(c):
             c.note = "; ".join(x for x in (c.note, _not_kept(kept)) if x)
-    return tried, kept
+    return tried, kept, steps
 
 
 def _not_kept(kept: CandidateResult) -> str:

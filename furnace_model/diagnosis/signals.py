@@ -12,6 +12,7 @@ the data determine.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -22,9 +23,10 @@ from ..simulation.furnace import Disturbance, Furnace
 from .candidate import CandidateResult
 from .credit import credited, near_floor, rank, score_against
 from .fitting import Task
+from .locate import Located
 from .pool import run_all
-from .verdict import Verdict
-from .words import temperature
+from .verdict import Part, Remaining, Verdict
+from .words import temp_c
 
 UNMODELLED_INPUT = "unmodelled_input"
 """The candidate's name in the JSON (`effect`), with the signal in `signal`."""
@@ -105,10 +107,13 @@ def signal_candidates(names: tuple[str, ...], base: CandidateResult,
 def prefer_signal(verdict: Verdict, followed: list[CandidateResult],
                   kept: CandidateResult | None, base: CandidateResult,
                   floor: dict[str, float], near: dict[str, float], gap: tuple[str, ...],
-                  furnace: Furnace) -> Verdict:
+                  where: list[Located], furnace: Furnace,
+                  locate_remaining: Callable[[CandidateResult], list[Located] | None]
+                  ) -> Verdict:
     """The verdict, or, when a logged signal earns credit and ranks ahead of the effects
     kept (or none is kept), the signal's: the model's error follows an input it does not
-    have, which the furnace description should declare."""
+    have, which the furnace description should declare. Short of the floor, it is a partial
+    explanation like an effect's, with its one part and where what it leaves lies."""
     best = min((c for c in followed if credited(c)), key=rank, default=None)
     if not gap or best is None or (kept is not None and rank(kept) <= rank(best)):
         return verdict
@@ -116,19 +121,28 @@ def prefer_signal(verdict: Verdict, followed: list[CandidateResult],
     gains = {z: best.params[f"gain_{best.signal}_{z}"] for z in furnace.zones}
     most = max(gains, key=lambda z: abs(gains[z]))
     full = near_floor(best, near)
+    parts, remaining = [], None
+    if not full:
+        parts = [Part(best.label, best.gap_closed_pct, best.shrink_pct,
+                      dict(best.rmse_holdout_c))]
+        left = locate_remaining(best)
+        remaining = Remaining(dict(best.rmse_holdout_c), dict(floor),
+                              where if left is None else left,
+                              "baseline" if left is None else "kept")
     return Verdict(
         "explained" if full else "explained_in_part", [], best.shrink_pct,
         gap_closed_pct=best.gap_closed_pct, unmodelled_inputs=[best.signal],
+        parts=parts, remaining=remaining,
         sentence=
         f"The model's error follows the logged signal '{best.signal}', which the model does "
         f"not use: entered as a measured input of each zone (strongest in the "
         f"{ZONE_WORDS[most]} zone, {gains[most]:+.3g} °C/min per unit), it cuts the held-out "
-        f"error in the {ZONE_WORDS[worst]} zone from {temperature(base.rmse_holdout_c[worst])}"
-        f" to {temperature(best.rmse_holdout_c[worst])} °C and closes "
+        f"error in the {ZONE_WORDS[worst]} zone from {temp_c(base.rmse_holdout_c[worst])}"
+        f" to {temp_c(best.rmse_holdout_c[worst])} °C and closes "
         f"{best.gap_closed_pct:.0f}% of the gap above the noise floor"
         + (", down to about the thermocouple noise." if full else
-           f"; {temperature(best.rmse_holdout_c[worst])} °C against a floor of "
-           f"{temperature(floor[worst])} °C remains.")
+           f"; {temp_c(best.rmse_holdout_c[worst])} °C against a floor of "
+           f"{temp_c(floor[worst])} °C remains.")
         + f" No effect of the library explains it better. Declare it as a disturbance in the "
           f"furnace description (disturbances: name {best.signal}, its unit, the zones it "
           f"enters) so that the model fits its gains.")

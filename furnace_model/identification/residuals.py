@@ -177,30 +177,40 @@ def _max_subarray(g: np.ndarray) -> tuple[int, int, float]:
 
 def regime(exp: Experiment, i0: int, i1: int, zone: str) -> str:
     """The operating regime of samples i0:i1 in plain words: which zones' burners fire,
-    burner steps inside, and the zone's temperature band."""
+    burner steps inside (or, on a furnace fired by rates, each fired zone's mean input in its
+    unit), and the zone's temperature band, in steps its span can tell apart."""
     b = exp.burners[i0:i1]
-    zones = exp.furnace.zones
+    furnace = exp.furnace
+    zones = furnace.zones
     firing = [ZONE_WORDS[z] for k, z in enumerate(zones) if np.mean(b[:, k] > 0) >= 0.5]
+    fired = "burners firing" if not furnace.modulated else "fired"
     if not firing:
-        words = ["no burners firing"]
+        words = ["no burners firing" if not furnace.modulated else "no zone fired"]
     elif len(firing) == 1:
-        words = [f"{firing[0]}-zone burners firing"]
+        words = [f"{firing[0]}-zone {fired}"]
     else:
-        words = [f"{', '.join(firing[:-1])} and {firing[-1]}-zone burners firing"]
-    total = b.sum(axis=1)
-    steps = np.nonzero(np.diff(total) != 0)[0]
-    if steps.size:
-        k = steps[0]
-        words.append(f"burners {int(total[k])} -> {int(total[k + 1])} at "
-                     f"{exp.t_min[i0 + k + 1]:.0f} min"
-                     + (f" (+{steps.size - 1} more step{'s' if steps.size > 2 else ''})"
-                        if steps.size > 1 else ""))
+        words = [f"{', '.join(firing[:-1])} and {firing[-1]}-zone {fired}"]
+    if furnace.modulated:
+        means = [f"{ZONE_WORDS[z]} {np.mean(b[:, k]):.3g} {h.unit}"
+                 for k, (z, h) in enumerate(zip(zones, furnace.heat_inputs, strict=True))
+                 if b.size and np.mean(b[:, k]) > 0]
+        words.append("mean input " + ", ".join(means) if means else "")
     else:
-        words.append(f"{int(total[0])} burners on" if total.size else "")
+        total = b.sum(axis=1)
+        steps = np.nonzero(np.diff(total) != 0)[0]
+        if steps.size:
+            k = steps[0]
+            words.append(f"burners {int(total[k])} -> {int(total[k + 1])} at "
+                         f"{exp.t_min[i0 + k + 1]:.0f} min"
+                         + (f" (+{steps.size - 1} more step{'s' if steps.size > 2 else ''})"
+                            if steps.size > 1 else ""))
+        else:
+            words.append(f"{int(total[0])} burners on" if total.size else "")
     y = exp.zone_temp[i0:i1, zones.index(zone)]
     if np.isfinite(y).any():
         lo, hi = np.nanmin(y), np.nanmax(y)
-        band = 100.0 if hi - lo > 150 else 50.0
+        span = hi - lo
+        band = 100.0 if span > 150 else 50.0 if span > 40 else 10.0 if span > 8 else 1.0
         words.append(f"{np.floor(lo / band) * band:.0f}-{np.ceil(hi / band) * band:.0f} °C")
     return "; ".join(w for w in words if w)
 

@@ -28,7 +28,8 @@ table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; vertical-align: top; }
 th:first-child, td:first-child, td.text { text-align: left; }
 th { background: #eee; }
-.no_gap { color: #2e7d32; } .explained { color: #1565c0; } .unexplained { color: #c62828; }
+.no_gap { color: #2e7d32; } .explained { color: #1565c0; } .explained_in_part { color: #ef6c00; }
+.unexplained { color: #c62828; }
 .failed { color: #c62828; font-weight: bold; }
 .meta { color: #666; font-size: 0.9em; }
 img { max-width: 100%; }
@@ -109,9 +110,11 @@ def _verdict_words(v: pd.DataFrame | None) -> str:
     items = []
     for r in v.itertuples():
         effects = f" ({_e(r.effects)})" if r.effects else ""
-        shrink = f", held-out RMSE -{r.shrink_pct:.0f}%" if r.status == "explained" else ""
+        shrink = (f", held-out RMSE -{r.shrink_pct:.0f}%"
+                  if r.status in ("explained", "explained_in_part") else "")
         items.append(f'{_e(r.fit_campaign)} &rarr; {_e(r.holdout_campaign)}: '
-                     f'<span class="{_e(r.status)}">{_e(r.status)}</span>{effects}{shrink}')
+                     f'<span class="{_e(r.status)}">{_e(r.status.replace("_", " "))}</span>'
+                     f'{effects}{shrink}')
     return "<br>".join(items)
 
 

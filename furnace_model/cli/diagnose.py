@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -45,6 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_furnace(p)
     add_data_window(p)
     p.add_argument("--seed", type=int, default=0, help="random seed of the searches (default 0)")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress lines on stderr (each stage of the search as it starts)")
     p.set_defaults(run=run)
 
 
@@ -59,6 +62,29 @@ def effect_list(text: str, what: str = "effect") -> tuple[str, ...]:
     return names
 
 
+STAGES = {"baseline": "fitting the baseline", "candidates": "fitting the candidate effects",
+          "combinations": "trying combinations of the effects that earn credit",
+          "signals": "trying the logged signals the model does not use as inputs",
+          "done": "judging"}
+
+
+def stage_lines(stream=None):
+    """A line on stderr as each stage of the search starts, with the time so far: a
+    diagnosis of a long record takes minutes, and silence looks like a hang."""
+    stream = stream or sys.stderr
+    t0 = time.monotonic()
+    seen: set[str] = set()
+
+    def say(stage: str, _fraction: float) -> None:
+        if stage in seen:
+            return
+        seen.add(stage)
+        print(f"furnace-model diagnose: {STAGES.get(stage, stage)} "
+              f"({time.monotonic() - t0:.0f} s so far)", file=stream, flush=True)
+
+    return say
+
+
 def run(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose
     from ..records import load_experiments
@@ -67,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
     furnace = furnace_of(args)
     data = load_experiments(args.data, **window, furnace=furnace)
     hold = load_experiments(args.holdout, **window, furnace=furnace) if args.holdout else None
-    result = diagnose(data, hold, effects=args.effects, seed=args.seed)
+    result = diagnose(data, hold, effects=args.effects, seed=args.seed,
+                      progress=None if args.quiet else stage_lines())
     print(summary(result))
     if args.json:
         _write(args.json, json.dumps(result.to_json(), indent=1, allow_nan=False) + "\n")

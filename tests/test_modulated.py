@@ -187,3 +187,16 @@ def test_selfcheck_cases_fire_the_furnace_as_it_is_fired():
         assert rec.burners[:, 0].max() > 10.0  # percent, not burners
         assert np.all((rec.disturbances >= 0) & (rec.disturbances <= 250))
         assert np.ptp(rec.disturbances) > 10.0
+
+
+def test_burner_nonlinearity_reads_rates_as_the_burners_they_stand_for():
+    """Half the soaking zone's rate stands for 5 of its 10 burners, 300 Nm3/h for 4 of the
+    heating zone's 8, and the pulse-fired zone counts its burners: 5 + 4 + 2 = 11 firing."""
+    from furnace_model.effects import EFFECTS
+    f = load_furnace(FURNACE)
+    effect = EFFECTS["burner_nonlinearity"](form="linear", furnace=f)
+    u = np.array([[[50.0, 300.0, 2.0, 25.0, 80.0]]])
+    out = effect.transform_levels({"k_nl": np.array([-0.01])}, u)
+    factor = 1.0 - 0.01 * 11
+    assert np.allclose(out[0, 0, :3], u[0, 0, :3] * factor)
+    assert np.allclose(out[0, 0, 3:], u[0, 0, 3:])  # ambient and throughput untouched

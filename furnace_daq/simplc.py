@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -63,7 +64,9 @@ def pulse_states(mean: float, burners: int, since_min: float, cycle_min: float) 
     fraction mean - floor(mean) of each cycle (from its start) and floor(mean) for the rest:
     the count `furnace_model.simulation.scenario.pulse_fired` fires the plant with."""
     duty = min(max(float(mean) / burners, 0.0), 1.0) if burners else 0.0
-    phase = (float(since_min) % cycle_min) / cycle_min
+    cycles = float(since_min) / cycle_min
+    # an instant at a cycle's start may come out a hair short of it: count it in
+    phase = max(cycles - math.floor(cycles + 1e-9), 0.0)
     if duty >= 1.0:
         return [True] * burners
     return [bool((phase - k * duty) % 1.0 < duty) for k in range(burners)]
@@ -212,10 +215,13 @@ class PlantSource:
 
     def _states(self, levels: np.ndarray, t: float) -> list[bool]:
         """Every burner of the zones fired by burners at the schedule's `levels`: whole
-        burners the first ones of their zone, a pulse-fired zone's pulsing."""
+        burners the first ones of their zone, a pulse-fired zone's pulsing as it fires in
+        the middle of the second shown (pulses of a few seconds, judged at the second's
+        start, would show the zone's extra burner for the whole second its pulse begins in:
+        a duty too high by half a second per cycle on average)."""
         scenario, furnace = self.scenario, self.furnace
         steps = scenario.steps_t
-        since = t - steps[max(int(np.searchsorted(steps, t, side="right")) - 1, 0)]
+        since = t + 0.5 / 60.0 - steps[max(int(np.searchsorted(steps, t, side="right")) - 1, 0)]
         out: list[bool] = []
         for i in self._switched:
             n = furnace.burners[i]

@@ -67,9 +67,17 @@ def pulse_states(mean: float, burners: int, since_min: float, cycle_min: float) 
     cycles = float(since_min) / cycle_min
     # an instant at a cycle's start may come out a hair short of it: count it in
     phase = max(cycles - math.floor(cycles + 1e-9), 0.0)
-    if duty >= 1.0:
-        return [True] * burners
-    return [bool((phase - k * duty) % 1.0 < duty) for k in range(burners)]
+    on = [False] * burners
+    if duty <= 0.0:
+        return on
+    # Lap j of the windows laid end to end passes the phase in burner floor((phase + j) /
+    # duty)'s window: one burner per lap, so a window's edge is never counted twice.
+    for lap in range(burners):
+        k = math.floor((phase + lap) / duty)
+        if k >= burners:
+            break
+        on[k] = True
+    return on
 
 
 def simulated_signal(signal: Signal, firing: float, plc_seconds: int,

@@ -224,14 +224,14 @@ class Resampler:
 
     def _first_known(self) -> int | None:
         """The time from which every heat input and disturbance has a value (the burner
-        state, each rate, each disturbance); None while one has none yet."""
+        state, each rate, each disturbance); None while one has none yet. Every furnace has
+        a heat input (its description refuses one without)."""
         firsts = [one.first for one in (*self._heat.values(), *self._disturbances.values())]
         if self.furnace.switched:
             times = self._burners[True][0] or self._burners[False][0]
             firsts.append(min(times) if times else None)
-        if any(f is None for f in firsts):
-            return None
-        return max((f for f in firsts if f is not None), default=-(2**62))
+        known = [f for f in firsts if f is not None]
+        return max(known) if len(known) == len(firsts) else None
 
     def table(self, lo_ns: int | None = None, hi_ns: int | None = None) -> Binned:
         """The rows of the logged bins whose start lies in [lo_ns, hi_ns) and whose inputs
@@ -418,8 +418,8 @@ def resample_logs(paths: Iterable[str | Path], period_s: float = DEFAULT_PERIOD_
     records = read_messages(paths, FURNACE_TOPICS)
     for topic, msg, _log_ns, pub_ns in records:
         # inputs are held: their last value before the range counts in its first row
-        if topic != THERMOCOUPLES and topic != AMBIENT or (
-                (lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)):
+        held = topic not in (THERMOCOUPLES, AMBIENT)
+        if held or ((lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)):
             try:
                 binner.add(topic, msg, pub_ns)
             except DataError as exc:  # the message's fault: say in which log and when

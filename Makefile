@@ -23,7 +23,8 @@ system-deps:
 	    $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$tool >/dev/null; }; \
 	done
 
-# `make demo FURNACE=config/furnaces/six-zone.yaml`: the same chain on another furnace.
+# `make demo FURNACE=config/furnaces/six-zone.yaml` (or a name in config/furnaces/, e.g.
+# FURNACE=modulated): the same chain on another furnace.
 demo: $(STAMP)
 	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo$(if $(FURNACE), --furnace $(FURNACE))
 

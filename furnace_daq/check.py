@@ -14,7 +14,7 @@ import asyncio
 import time
 from dataclasses import dataclass, field
 
-from .daqconfig import DaqConfig
+from .daqconfig import SIGNALS_KEY, DaqConfig
 from .deviceconfig import PlcConfig
 from .registers import BIT_TABLES, COMM_ERROR, OK, BitRange, Image, Point, ReadRequest, span
 from .sources import CanSource, ModbusSource, SourceError, exception_text
@@ -27,7 +27,8 @@ class PointCheck:
     """One configured point as read: the row of the table."""
 
     key: str
-    """Key path in the config file (thermocouples.soak_1, burners.modbus.heat)."""
+    """Key path in the config file (thermocouples.soak_1, burners.modbus.heat, heat.soak,
+    signals.o2_pct)."""
     where: str
     """Table and address(es), or the CAN frame and bits."""
     raw: str = ""
@@ -72,6 +73,13 @@ def _block_of(item: Point | BitRange, refused: dict[ReadRequest, int | None]) ->
     return None
 
 
+def _states_text(key: str, states: list[bool]) -> str:
+    """A signal's bit as on/off; a zone's burners as how many of them are on."""
+    if key.startswith(f"{SIGNALS_KEY}."):
+        return "on" if states[0] else "off"
+    return f"{sum(states)} of {len(states)} on"
+
+
 def _row(item: Point | BitRange, key: str, image: Image,
          refused: dict[ReadRequest, int | None]) -> PointCheck:
     row = PointCheck(key, _where(item))
@@ -87,13 +95,13 @@ def _row(item: Point | BitRange, key: str, image: Image,
         assert isinstance(item, BitRange)
         states = item.states([bool(b) for b in words])
         row.raw = "".join(str(int(b)) for b in words)
-        row.value = f"{sum(states)} of {len(states)} on"
+        row.value = _states_text(key, states)
         row.quality = OK
         return row
     if isinstance(item, BitRange):  # packed in registers
         states = item.states(words)
         row.raw = " ".join(f"0x{w:04x}" for w in words)
-        row.value = f"{sum(states)} of {len(states)} on"
+        row.value = _states_text(key, states)
         row.quality = OK
         return row
     assert isinstance(item, Point)

@@ -55,6 +55,8 @@ from furnace_model.log.messages import (
     Burners,
     DaqEvent,
     DaqEventKind,
+    Disturbances,
+    Heat,
     Thermocouples,
 )
 from furnace_model.log.schema import DAQ_EVENTS
@@ -124,7 +126,8 @@ class Daemon:
         self.plc_clock = PlcClock(None if config.clock is None or config.clock.epoch is None
                                   else config.clock.epoch.value)
         self.messages = MessageBuilder(config)
-        self.flame_comparison = FlameComparison(config.furnace.zones, config.disagreement_polls)
+        self.flame_comparison = FlameComparison(config.furnace.switched_zones,
+                                                config.disagreement_polls)
         self.refit: RefitPump | None = None
         if config.refit is not None:
             self.refit = RefitPump(
@@ -275,7 +278,8 @@ class Daemon:
         if good:
             if len(good) == len(self.links):
                 c.ok_polls += 1
-            merged = merge(good, missing, self.config.furnace.zones, self.config.burner_source)
+            merged = merge(good, missing, self.config.furnace.switched_zones,
+                           self.config.burner_source)
             self._log_plc(merged, log_ns)
             for link, sample in good:
                 self.reporter.tell_sample(link, sample)
@@ -334,7 +338,8 @@ class Daemon:
         self.log.write(message.TOPIC, message.to_json(), log_ns, pub_ns)
         if isinstance(message, DaqEvent):
             self.reporter.tell_event(message)
-        if self.refit is not None and isinstance(message, Thermocouples | Burners | Ambient):
+        if self.refit is not None and isinstance(message, Thermocouples | Burners | Ambient
+                                                 | Heat | Disturbances):
             self.refit.feed(message, pub_ns)
 
     def _event(self, message: DaqEvent, now_ns: int) -> None:

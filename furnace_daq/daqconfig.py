@@ -1,5 +1,6 @@
-"""The daemon's YAML config: where the PLC is, its register map, the CAN flame signals, the
-log. Checked in full at load, so a typo stops the service at start with the key path
+"""The daemon's YAML config: where the PLC is, its register map (thermocouples, burners,
+the heat inputs of rate-fired zones, measured disturbances, extra signals), the CAN flame
+signals, the log. Checked in full at load, so a typo stops the service at start with the key path
 (exit code 2) rather than hours later as a silent gap. Defaults live here and only here
 (a device's in furnace_daq.deviceconfig).
 """
@@ -7,6 +8,7 @@ log. Checked in full at load, so a typo stops the service at start with the key 
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,6 +50,37 @@ class ClockConfig:
     point: Point
     epoch: pd.Timestamp | None = None
     """PLC second 0 in UTC; when absent it is anchored at the first reading."""
+
+
+@dataclass(frozen=True)
+class Signal:
+    """An extra named point of the map (O2, furnace pressure, fuel flow, a door switch),
+    logged on /furnace/signals with its unit and exported as a column of its name: an
+    analog point, or one bit."""
+
+    name: str
+    unit: str
+    item: Point | BitRange
+
+    @property
+    def bit(self) -> bool:
+        return isinstance(self.item, BitRange)
+
+
+HEAT_KEY = "heat"
+DISTURBANCES_KEY = "disturbances"
+SIGNALS_KEY = "signals"
+RESERVED_FIELDS = ("quality", "unit", "plc_time", "plc_seconds", "error")
+"""Fields the reading topics carry beside the values they name: no zone, disturbance or
+signal may take one of these names, or its value and the field would be one key."""
+TABLE_COLUMNS = ("timestamp", "t_min", "t_air")
+TABLE_PREFIXES = ("tc_", "burners_", "heat_")
+
+
+def item_name(section: str, key: str) -> str:
+    """How a point of `heat:`, `disturbances:` or `signals:` is named among the map's items:
+    its key path, which no thermocouple, zone or other point can be."""
+    return f"{section}.{key}"
 
 
 @dataclass(frozen=True)
@@ -136,6 +169,12 @@ class DaqConfig:
     furnace: Furnace = field(kw_only=True)
     """The furnace the map reads (`furnace:`, default the paper's): its thermocouples and
     zones are the map's keys, the log's fields and the refit's model."""
+    heat: tuple[Point, ...] = field(default=(), kw_only=True)
+    """The heat input of each rate-fired zone (`heat:`), in the furnace's zone order."""
+    disturbances: tuple[Point, ...] = field(default=(), kw_only=True)
+    """Each measured disturbance the furnace declares (`disturbances:`), in its order."""
+    signals: tuple[Signal, ...] = field(default=(), kw_only=True)
+    """The map's extra named points (`signals:`), in the order of the file."""
 
     @property
     def devices(self) -> tuple[PlcConfig, ...]:
@@ -160,6 +199,7 @@ class DaqConfig:
         items += [p for p in (self.ambient, clock, self.heartbeat) if p is not None]
         if self.burner_source in ("modbus", "both"):
             items += self.burner_bits
+        items += [*self.heat, *self.disturbances, *(s.item for s in self.signals)]
         return items
 
     def key_paths(self) -> dict[str, str]:
@@ -167,8 +207,17 @@ class DaqConfig:
         `furnace-daq check` name the key an engineer edits."""
         where = {p.name: f"thermocouples.{p.name}" for p in self.thermocouples}
         where.update(t_air="ambient", clock="clock", heartbeat="heartbeat")
-        where.update({z: f"burners.modbus.{z}" for z in self.furnace.zones})
+        where.update({z: f"burners.modbus.{z}" for z in self.furnace.switched_zones})
+        where.update({it.name: it.name for it in (*self.heat, *self.disturbances,
+                                                  *(s.item for s in self.signals))})
         return where
+
+    def heat_point(self, zone: str) -> Point:
+        """The point a rate-fired zone's heat input is read from."""
+        return next(p for p in self.heat if p.name == item_name(HEAT_KEY, zone))
+
+    def disturbance_point(self, name: str) -> Point:
+        return next(p for p in self.disturbances if p.name == item_name(DISTURBANCES_KEY, name))
 
 
 def _orders(node: Node) -> tuple[str, str]:
@@ -227,9 +276,10 @@ def _device_of(node: Node, devices: tuple[str, ...]) -> str:
     return node.get_string("device", choices=devices)
 
 
-def _bits(node: Node, zone: str, n: int, devices: tuple[str, ...] = ()) -> BitRange:
-    node.mapping({"table", "address", "invert", "bit", "device"})
-    table = node.get_string("table", "discrete", choices=TABLES)
+def _bits(node: Node, zone: str, n: int, devices: tuple[str, ...] = (),
+          extra: tuple[str, ...] = (), table: str = "discrete") -> BitRange:
+    node.mapping({"table", "address", "invert", "bit", "device", *extra})
+    table = node.get_string("table", table, choices=TABLES)
     bit = 0
     if table in REGISTER_TABLES:
         bit = node.get_integer("bit", 0, lo=0, hi=15)
@@ -262,13 +312,98 @@ def _exact_keys(node: Node, names: tuple[str, ...], what: str, furnace: Furnace,
     return node
 
 
+def _no_rate_zones(node: Node, furnace: Furnace) -> None:
+    """A rate-fired zone under a burner section: its heat input is an analog point."""
+    for i in furnace.rated:
+        zone = furnace.zones[i]
+        if node.has(zone):
+            raise node.child(zone).error(
+                f"zone '{zone}' of furnace '{furnace.name}' is fired at a rate "
+                f"({furnace.heat_inputs[i].unit}), not by burners switched on and off: its "
+                f"heat input is read from heat.{zone}")
+
+
+def _zone_points(root: Node, furnace: Furnace, devices: tuple[str, ...]) -> tuple[Point, ...]:
+    """`heat:`: the analog point of each rate-fired zone, in the unit of its description.
+    A zone fired by burners (whole or pulse-fired) is read from its burner bits instead."""
+    rated = tuple(furnace.zones[i] for i in furnace.rated)
+    if not rated and not root.has(HEAT_KEY):
+        return ()
+    node = root.child(HEAT_KEY, {})
+    node.mapping()
+    for key in node.value:
+        if key in furnace.zones and key not in rated:
+            kind = furnace.heat_inputs[furnace.zones.index(key)].kind
+            how = "pulse-fired" if kind == "pulse" else "fired by burners switched on and off"
+            raise ConfigError(node.file, node._sub(key),
+                              f"zone '{key}' of furnace '{furnace.name}' is {how}: its heat "
+                              f"input is the count of its burners' bits under burners.modbus "
+                              f"(heat: holds the rate-fired zones: {', '.join(rated) or 'none'})")
+    _exact_keys(node, rated, "rate-fired zone", furnace)
+    return tuple(_point(node.child(z), item_name(HEAT_KEY, z), devices=devices) for z in rated)
+
+
+def _disturbance_points(root: Node, furnace: Furnace, devices: tuple[str, ...]
+                        ) -> tuple[Point, ...]:
+    """`disturbances:`: the analog point of each measured disturbance the furnace declares,
+    in the unit of its description."""
+    names = tuple(d.name for d in furnace.disturbances)
+    if not names and not root.has(DISTURBANCES_KEY):
+        return ()
+    node = _exact_keys(root.child(DISTURBANCES_KEY, {}), names, "disturbance", furnace)
+    return tuple(_point(node.child(d), item_name(DISTURBANCES_KEY, d), devices=devices)
+                 for d in names)
+
+
+_SIGNAL_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+
+
+def _signals(node: Node, furnace: Furnace, devices: tuple[str, ...]) -> tuple[Signal, ...]:
+    """`signals:`: extra named points, each with its `unit`: an analog point as a
+    thermocouple's (any table and type), or one bit (table discrete or coil, or `bit` of a
+    holding or input register; `invert` for an active-low signal). A name is a field of
+    /furnace/signals and a column of the export, so it may not be one the contract uses."""
+    node.mapping()
+    taken = {c: "a column of the tabular contract" for c in TABLE_COLUMNS}
+    taken.update({f: "a field the reading topics carry" for f in RESERVED_FIELDS})
+    taken.update({d.column: f"the column of disturbance '{d.name}'"
+                  for d in furnace.disturbances})
+    taken.update({d.name: f"disturbance '{d.name}' of furnace '{furnace.name}'"
+                  for d in furnace.disturbances})
+    out: list[Signal] = []
+    for name, sn in node.items():
+        if not _SIGNAL_NAME.match(name):
+            raise sn.error(f"'{name}' is not a signal name: letters, digits and _, starting "
+                           "with a letter")
+        clash = taken.get(name) or next(
+            (f"the {prefix}* columns of the tabular contract" for prefix in TABLE_PREFIXES
+             if name.startswith(prefix)), None)
+        if clash is None:
+            clash = next((f"signal '{s.name}' (names differ only in case)" for s in out
+                          if s.name.lower() == name.lower()), None)
+        if clash is not None:
+            raise sn.error(f"signal '{name}' collides with {clash}: name it otherwise")
+        sn.mapping()
+        table = sn.get_string("table", "input", choices=TABLES)
+        key = item_name(SIGNALS_KEY, name)
+        if table in BIT_TABLES or sn.has("bit"):
+            item: Point | BitRange = _bits(sn, key, 1, devices, extra=("unit",), table=table)
+        else:
+            item = _point(sn, key, extra=("unit",), devices=devices)
+        out.append(Signal(name, sn.get_string("unit"), item))
+    return tuple(out)
+
+
 def _can(node: Node, furnace: Furnace) -> CanConfig:
-    _exact_keys(node, furnace.zones, "zone", furnace, required=False,
+    zones = furnace.switched_zones
+    _no_rate_zones(node, furnace)
+    _exact_keys(node, zones, "zone", furnace, required=False,
                 also=("interface", "channel", "bitrate", "timeout_s"))
     frames = {}
-    for i, zone in enumerate(furnace.zones):
+    for k, i in enumerate(furnace.switched):
+        zone = zones[k]
         # default: one frame, the zones' burners in order (CONTRACTS.md: soak 0, heat 10, ...)
-        default_start = sum(furnace.burners[:i])
+        default_start = sum(furnace.burners[j] for j in furnace.switched[:k])
         f = node.child(zone, {"id": 0x180, "start_bit": default_start}).mapping(
             {"id", "start_bit", "extended"})
         extended = f.get_bool("extended", False)
@@ -378,7 +513,7 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
     root.mapping({"plc", "devices", "poll_period_s", "thermocouples", "ambient",
                   "ambient_default_c", "clock", "heartbeat", "stale_after_s", "burners",
                   "status_interval_s", "stderr_interval_s", "log", "refit", "write_back",
-                  "live_view", "furnace"})
+                  "live_view", "furnace", HEAT_KEY, DISTURBANCES_KEY, SIGNALS_KEY})
     if furnace is None:
         furnace = config_furnace(root)
     elif root.has("furnace"):
@@ -397,6 +532,14 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
         raise root.child("furnace", "").error(
             f"furnace '{furnace.name}' names a zone or thermocouple {', '.join(sorted(clash))}, "
             "which the map uses for its own points; rename it in the description")
+    # /furnace/heat and /furnace/disturbances carry their values by name beside their fields
+    named = {furnace.zones[i] for i in furnace.rated} | {d.name for d in furnace.disturbances}
+    clash = named & set(RESERVED_FIELDS)
+    if clash:
+        raise root.child("furnace", "").error(
+            f"furnace '{furnace.name}' names a rate-fired zone or disturbance "
+            f"{', '.join(sorted(clash))}, which its log topic carries as a field of its own; "
+            "rename it in the description")
     thermocouples = tuple(_point(tc_node.child(s), s, devices=names) for s in sensors)
     ambient = _point(root.child("ambient"), "t_air", devices=names) if root.has("ambient") \
         else None
@@ -409,16 +552,24 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
     heartbeat = _point(root.child("heartbeat"), "heartbeat", numeric=False, devices=names) \
         if root.has("heartbeat") else None
 
-    bn = root.child("burners").mapping({"source", "modbus", "can", "disagreement_polls"})
+    # A furnace every zone of which is fired at a rate has no burner bits to read.
+    bn = root.child("burners", None if furnace.switched else {}).mapping(
+        {"source", "modbus", "can", "disagreement_polls"})
     source = bn.get_string("source", "modbus", choices=BURNER_SOURCES)
     bits: tuple[BitRange, ...] = ()
     # A block the chosen source does not use is still checked: a typo there would bite later.
-    if source in ("modbus", "both") or bn.has("modbus"):
-        mb = _exact_keys(bn.child("modbus"), furnace.zones, "zone", furnace)
-        bits = tuple(_bits(mb.child(z), z, furnace.burners[i], names)
-                     for i, z in enumerate(furnace.zones))
-    can = _can(bn.child("can"), furnace) if source in ("can", "both") or bn.has("can") \
-        else None
+    if furnace.switched and (source in ("modbus", "both") or bn.has("modbus")):
+        mb = bn.child("modbus")
+        _no_rate_zones(mb, furnace)
+        _exact_keys(mb, furnace.switched_zones, "zone", furnace)
+        bits = tuple(_bits(mb.child(furnace.zones[i]), furnace.zones[i], furnace.burners[i],
+                           names) for i in furnace.switched)
+    can = _can(bn.child("can"), furnace) if furnace.switched and (
+        source in ("can", "both") or bn.has("can")) else None
+    heat = _zone_points(root, furnace, names)
+    disturbances = _disturbance_points(root, furnace, names)
+    signals = _signals(root.child(SIGNALS_KEY), furnace, names) if root.has(SIGNALS_KEY) \
+        else ()
 
     poll = root.get_number("poll_period_s", 1.0, lo=0.01, hi=3600.0)
     config = DaqConfig(
@@ -434,7 +585,8 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
         refit=parse_refit(root.child("refit")) if root.has("refit") else None,
         write_back=parse_write_back(root.child("write_back", None)),
         device_list=device_list, live_view=_live_view(root.child("live_view", {})),
-        document=root.value, furnace=furnace)
+        document=root.value, furnace=furnace, heat=heat, disturbances=disturbances,
+        signals=signals)
     if config.write_back is not None:
         names = parameter_names(furnace)
         for point in config.write_back.points:

@@ -8,11 +8,13 @@ simulated time, the logged temperatures and burners, and each refit. At the end 
 online model is printed next to the simulator's truth and next to one fit of the whole run
 from the exported log, with what 1-minute data do and do not determine.
 
-Another furnace: `--furnace F` (`make demo FURNACE=F`) runs the same chain on the furnace
-description F: a scenario of that furnace from config/scenarios/ (or `--scenario`), the
-default register map derived from F served by the simulated PLC and read by the daemon
-(a config written by `furnace-daq config` unless `--config` is given), and the furnace's
-thermal network identified online and from the export.
+Another furnace: `--furnace F` (`make demo FURNACE=F`; F a description file or the name of
+one in config/furnaces/) runs the same chain on the furnace description F: a scenario of
+that furnace from config/scenarios/ (or `--scenario`), the default register map derived
+from F served by the simulated PLC and read by the daemon (a config written by
+`furnace-daq config`, with two extra signals, unless `--config` is given), and the
+furnace's thermal network identified online and from the export: for a furnace fired at
+modulated rates and with measured disturbances (`modulated`), their gains too.
 """
 
 from __future__ import annotations
@@ -36,9 +38,9 @@ from furnace_model.experiment import experiment_from_frame, write_table
 from furnace_model.identification.fit import fit
 from furnace_model.identification.model import Model
 from furnace_model.identification.result import FitResult
-from furnace_model.log.messages import Burners, ModelParameters, Thermocouples, number
+from furnace_model.log.messages import Burners, Heat, ModelParameters, Thermocouples, number
 from furnace_model.log.resample import resample_logs
-from furnace_model.log.schema import BURNERS, THERMOCOUPLES, param_names
+from furnace_model.log.schema import BURNERS, HEAT, THERMOCOUPLES, param_names
 from furnace_model.simulation.furnace import PAPER, Furnace
 from furnace_model.simulation.furnacefile import load_furnace
 from furnace_model.simulation.scenario import Scenario, load_scenario
@@ -46,20 +48,22 @@ from furnace_model.simulation.structure import ModelStructure
 
 from .daemon import EVENT_PRIORITY, Daemon
 from .daqconfig import RefitConfig, load_config
-from .logmeta import build_metadata
+from .logmeta import build_metadata, signal_fields
 from .mcaplog import LogWriter
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SCENARIO = ROOT / "config" / "scenarios" / "paper_exp1.yaml"
 DEFAULT_CONFIG = ROOT / "config" / "gateway.yaml"
 SCENARIOS = ROOT / "config" / "scenarios"
+FURNACES = ROOT / "config" / "furnaces"
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="furnace-demo", description=__doc__)
     ap.add_argument("--furnace", type=Path,
-                    help="furnace description (default the paper's furnace); the scenario "
-                         "and the register map are then that furnace's")
+                    help="furnace description, a file or a name in config/furnaces/ "
+                         "(default the paper's furnace); the scenario and the register map "
+                         "are then that furnace's")
     ap.add_argument("--scenario", type=Path)
     ap.add_argument("--config", type=Path)
     ap.add_argument("--out", type=Path, default=Path("out/demo"))
@@ -87,9 +91,42 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+DEMO_SIGNALS = (("o2_pct", "%", "int16, scale: 0.01, range: [0, 21]"), ("door_open", "", None))
+"""Extra signals the demo's written config reads (name, unit, encoding; None: a bit), after
+the default map's points: the simulated PLC makes them up (`simplc.simulated_signal`)."""
+
+
+def _signals_yaml(furnace: Furnace) -> str:
+    """The `signals:` section of DEMO_SIGNALS, placed after the furnace's default map."""
+    from .servedmap import ServedMap
+
+    size = ServedMap.default(furnace).sizes()
+    register, bit = size["input"], size["discrete"]
+    lines = ["", "# Extra named points, logged on /furnace/signals and exported as columns.",
+             "signals:"]
+    for name, unit, encoding in DEMO_SIGNALS:
+        if encoding is None:
+            lines.append(f'  {name}: {{table: discrete, address: {bit}, unit: "{unit}"}}')
+            bit += 1
+        else:
+            lines.append(f'  {name}: {{table: input, address: {register}, type: {encoding}, '
+                         f'unit: "{unit}"}}')
+            register += 1
+    return "\n".join(lines) + "\n"
+
+
+def _description(path: Path) -> Path:
+    """A furnace description by its file, or by its name in config/furnaces/."""
+    if path.is_file() or path.suffix or len(path.parts) > 1:
+        return path
+    return FURNACES / f"{path}.yaml"
+
+
 def _of_furnace(args: argparse.Namespace) -> Furnace:
     """Fill in --scenario and --config for the furnace asked for: the paper's defaults, or a
     scenario of that furnace from config/scenarios/ and its derived map's config."""
+    if args.furnace is not None:
+        args.furnace = _description(args.furnace)
     furnace = PAPER if args.furnace is None else load_furnace(args.furnace)
     if args.scenario is None:
         if furnace == PAPER:
@@ -110,7 +147,8 @@ def _of_furnace(args: argparse.Namespace) -> Furnace:
 
             args.out.mkdir(parents=True, exist_ok=True)
             args.config = args.out / "gateway.yaml"
-            args.config.write_text(gateway_yaml(furnace, str(args.furnace.resolve())))
+            args.config.write_text(gateway_yaml(furnace, str(args.furnace.resolve()))
+                                   + _signals_yaml(furnace))
     return furnace
 
 
@@ -131,9 +169,16 @@ def run(args: argparse.Namespace) -> int:
                 args.out / "state" / "refit_chain.json"]:
         old.unlink(missing_ok=True)  # a previous run's results must not pass for this one's
     print(f"1. Simulated PLC: {scenario.name}: {scenario.description}")
-    steps = ", ".join(f"{int(n.sum())} from {t / 60:g} h"
-                      for t, n in zip(scenario.steps_t, scenario.steps_burners, strict=True))
-    print(f"   burners on: {steps}; {scenario.duration_min / 60:.1f} simulated hours at "
+    if furnace.modulated or furnace.disturbances:
+        inputs = ", ".join([f"{z} ({h.unit})" for z, h in zip(furnace.zones,
+                                                              furnace.heat_inputs, strict=True)]
+                           + [f"{d.name} ({d.unit})" for d in furnace.disturbances])
+        steps = f"{scenario.steps_t.size} steps of {inputs}"
+    else:
+        steps = "burners on: " + ", ".join(
+            f"{int(n.sum())} from {t / 60:g} h"
+            for t, n in zip(scenario.steps_t, scenario.steps_burners, strict=True))
+    print(f"   {steps}; {scenario.duration_min / 60:.1f} simulated hours at "
           f"{args.speed:g}x ({scenario.duration_min * 60 / args.speed:.0f} s)")
     refits = asyncio.run(_acquire(scenario, args, log_dir))
     logs = sorted(log_dir.glob("*.mcap"))
@@ -185,7 +230,7 @@ class _Tap:
     def __init__(self, log: LogWriter, furnace: Furnace):
         self.inner = log
         self.furnace = furnace
-        self.latest: dict[str, Thermocouples | Burners] = {}
+        self.latest: dict[str, Thermocouples | Burners | Heat] = {}
 
     @property
     def error(self) -> str | None:
@@ -199,6 +244,8 @@ class _Tap:
                 self.latest[topic] = tc
         elif topic == BURNERS:
             self.latest[topic] = Burners.from_json(message, self.furnace)
+        elif topic == HEAT:
+            self.latest[topic] = Heat.from_json(message, self.furnace)
         self.inner.write(topic, message, log_time_ns, publish_time_ns)
 
     def maybe_flush(self, now_monotonic: float) -> None:
@@ -214,7 +261,8 @@ async def _start_plc(args: argparse.Namespace, scan_s: float
     furnace = [] if args.furnace is None else ["--furnace", str(args.furnace)]
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "furnace_daq.cli", "sim-plc", "--scenario", str(args.scenario),
-        *furnace, "--speed", f"{args.speed:g}", "--seed", str(args.seed), "--scan-s",
+        *furnace, "--config", str(args.config), "--speed", f"{args.speed:g}", "--seed",
+        str(args.seed), "--scan-s",
         f"{scan_s:g}", "--port", "0", stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE)
     try:
@@ -247,7 +295,8 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
     log_dir.mkdir(parents=True, exist_ok=True)
     log = _Tap(LogWriter(log_dir, prefix=config.log.prefix, flush_interval_s=1.0,
                          file_mode=config.log.file_mode, metadata=build_metadata(config),
-                         event_priority=EVENT_PRIORITY), config.furnace)
+                         event_priority=EVENT_PRIORITY, signals=signal_fields(config)),
+               config.furnace)
     refits: list[ModelParameters] = []
 
     def on_model(message: dict) -> None:
@@ -263,7 +312,8 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
     zones = config.furnace.zones
     columns = _columns(config.furnace)
     what = "thermocouples, °C" if _each_tc(config.furnace) else "zone means, °C"
-    print(f"   {'PLC time':>7}  {what:^{9 * len(columns) - 1}}  burners")
+    fired = "heat inputs" if config.furnace.modulated else "burners"
+    print(f"   {'PLC time':>7}  {what:^{9 * len(columns) - 1}}  {fired}")
     print(f"   {'':7}  " + " ".join(f"{s:>8}" for s in columns) + "  " + "/".join(zones))
     duration = scenario.duration_min * 60.0 / args.speed + 3 * poll_s
 
@@ -305,8 +355,9 @@ def _columns(furnace: Furnace) -> tuple[str, ...]:
     return furnace.sensors if _each_tc(furnace) else furnace.zones
 
 
-def _progress_line(latest: dict[str, Thermocouples | Burners], furnace: Furnace) -> str:
-    tc, burners = latest.get(THERMOCOUPLES), latest.get(BURNERS)
+def _progress_line(latest: dict[str, Thermocouples | Burners | Heat], furnace: Furnace
+                   ) -> str:
+    tc, burners, heat = latest.get(THERMOCOUPLES), latest.get(BURNERS), latest.get(HEAT)
     if not isinstance(tc, Thermocouples):
         return "   (no reading yet)"
     hours = (math.nan if tc.plc_seconds is None else tc.plc_seconds) / 3600.0
@@ -318,9 +369,15 @@ def _progress_line(latest: dict[str, Thermocouples | Burners], furnace: Furnace)
                   for v in furnace.zone_means(readings[None, :])[0]]
     temps = " ".join(f"{v:8.1f}" if isinstance(v, int | float) else f"{'-':>8}"
                      for v in values)
-    fired = "/".join(str(burners.counts[z]) for z in furnace.zones) \
-        if isinstance(burners, Burners) else "?"
-    return f"   {hours:5.1f} h  {temps}  {fired}"
+    inputs = []  # each zone's: burners firing, or its rate as last read
+    for z in furnace.zones:
+        if isinstance(burners, Burners) and z in burners.counts:
+            inputs.append(str(burners.counts[z]))
+        elif isinstance(heat, Heat) and z in heat.values:
+            inputs.append(f"{heat.values[z]:.4g}")
+        else:
+            inputs.append("?")
+    return f"   {hours:5.1f} h  {temps}  {'/'.join(inputs)}"
 
 
 def _hours(iso: str, start: pd.Timestamp | None) -> str:
@@ -429,7 +486,8 @@ def plot_refits(refits: list[ModelParameters], scenario: Scenario, path: Path) -
             lo, hi = c["ci95"]
             x.append(end + 0.25 * (k - (len(shown) - 1) / 2))
             y.append(100 * (c["value"] / want - 1))
-            err.append([100 * (c["value"] - lo) / want, 100 * (hi - c["value"]) / want])
+            err.append([100 * (c["value"] - lo) / abs(want),
+                        100 * (hi - c["value"]) / abs(want)])
         if x:
             ax.errorbar(x, y, yerr=np.array(err).T, fmt="o", ms=4, capsize=2, label=name)
     for t in scenario.steps_t[1:]:
@@ -448,7 +506,7 @@ def plot_refits(refits: list[ModelParameters], scenario: Scenario, path: Path) -
 
 def _cell(value: float, truth: float, lo: float, hi: float) -> str:
     """Value, error against the truth in %, and the 95% interval's half-width in %."""
-    half = 50.0 * (hi - lo) / value if value else math.nan
+    half = 50.0 * (hi - lo) / abs(value) if value else math.nan
     return f"{value:10.5g} {100 * (value / truth - 1):+7.2f}% (±{half:.2g}%)".rjust(28)
 
 

@@ -35,6 +35,17 @@ def gateway_yaml(furnace: Furnace, furnace_ref: str, *, port: int = 5020) -> str
         can_lines.append(f"    {b.name + ':':<{zw}} {{id: 0x180, start_bit: {b.address}}}")
     assert served.ambient is not None and served.clock is not None \
         and served.heartbeat is not None
+    burner_lines = [
+        "burners:",
+        "  source: modbus         # modbus, can, or both",
+        "  modbus:                # burner flame-on states, one bit per burner, 1 = firing",
+        *mb_lines,
+        "  can:                   # flame scanners: bit n of the frame = burner n - start_bit",
+        "    interface: virtual",
+        "    channel: furnace",
+        *can_lines,
+        "",
+    ] if served.burners else []
     lines = [
         "# furnace-daq run --config THIS_FILE   (written by `furnace-daq config`)",
         "#",
@@ -68,15 +79,8 @@ def gateway_yaml(furnace: Furnace, furnace_ref: str, *, port: int = 5020) -> str
         "word_order: big}",
         f"heartbeat: {{table: input, address: {served.heartbeat.address}, type: uint16}}",
         "",
-        "burners:",
-        "  source: modbus         # modbus, can, or both",
-        "  modbus:                # burner flame-on states, one bit per burner, 1 = firing",
-        *mb_lines,
-        "  can:                   # flame scanners: bit n of the frame = burner n - start_bit",
-        "    interface: virtual",
-        "    channel: furnace",
-        *can_lines,
-        "",
+        *_analog_lines(served),
+        *burner_lines,
         "log:",
         "  prefix: furnace",
         "  flush_interval_s: 5.0",
@@ -92,3 +96,29 @@ def gateway_yaml(furnace: Furnace, furnace_ref: str, *, port: int = 5020) -> str
         "",
     ]
     return "\n".join(lines)
+
+
+def _analog_lines(served: ServedMap) -> list[str]:
+    """The `heat:` and `disturbances:` sections of a furnace that has rate-fired zones or
+    declares disturbances (none otherwise), each point with the range of its description."""
+    furnace = served.furnace
+    out: list[str] = []
+    sections = (
+        ("heat", "# The heat input of each zone fired at a modulated rate, FLOAT32 in the unit "
+                 "of the description.", served.heat,
+         [(furnace.zones[i], furnace.heat_inputs[i].unit, (0.0, furnace.heat_inputs[i].max))
+          for i in furnace.rated]),
+        ("disturbances", "# The measured disturbances the description declares, FLOAT32 in "
+                         "their units.", served.disturbances,
+         [(d.name, d.unit, d.range) for d in furnace.disturbances]))
+    for key, comment, points, named in sections:
+        if not points:
+            continue
+        width = max(len(name) for name, _, _ in named) + 1
+        out += [comment, f"{key}:"]
+        for p, (name, unit, span) in zip(points, named, strict=True):
+            rng = "" if span is None else f", range: [{span[0]:g}, {span[1]:g}]"
+            out.append(f"  {name + ':':<{width}} {{table: input, address: {p.address}, "
+                       f"type: float32, word_order: big{rng}}}   # {unit}")
+        out.append("")
+    return out

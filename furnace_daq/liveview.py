@@ -17,7 +17,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from furnace_model.errors import FurnaceError
-from furnace_model.log.schema import MESSAGE_ENCODING, SCHEMA_ENCODING, topic, topics
+from furnace_model.log.schema import (
+    MESSAGE_ENCODING,
+    SCHEMA_ENCODING,
+    SignalField,
+    topic,
+    topics,
+)
 from furnace_model.simulation.furnace import Furnace
 
 
@@ -34,10 +40,11 @@ class LiveView:
     """A running server and its channels, one per log topic."""
 
     def __init__(self, config: LiveViewConfig, name: str = "furnace-daq", where: str = "",
-                 *, furnace: Furnace):
+                 *, furnace: Furnace, signals: tuple[SignalField, ...] = ()):
         import foxglove
 
         self.furnace = furnace
+        self.signals = signals
 
         self._foxglove = foxglove
         # A context of its own: the server sees only these channels, and nothing else in the
@@ -56,7 +63,8 @@ class LiveView:
                                f"{config.host}:{config.port}: {_reason(exc)}") from None
         self.host = config.host
         self.port = int(self._server.port)
-        for name_ in topics(furnace):  # every topic of the contract, even one not yet written
+        # every topic of the contract, even one not yet written
+        for name_ in topics(furnace, signals):
             self._channel(name_)
 
     @property
@@ -84,7 +92,7 @@ class LiveView:
     def _channel(self, name: str):
         channel = self._channels.get(name)
         if channel is None:
-            t = topic(name, self.furnace)
+            t = topic(name, self.furnace, self.signals)
             schema = self._foxglove.Schema(name=t.schema_name, encoding=SCHEMA_ENCODING,
                                            data=t.schema_bytes())
             channel = self._foxglove.Channel(name, schema=schema,

@@ -15,10 +15,18 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from furnace_model.log.read import METADATA_NAME, furnace_record, read_metadata, recorded_furnace
+from furnace_model.log.read import (
+    METADATA_NAME,
+    furnace_record,
+    read_metadata,
+    recorded_furnace,
+    recorded_signals,
+)
+from furnace_model.log.schema import SignalField
 from furnace_model.simulation.furnace import Furnace
 
-__all__ = ["METADATA_NAME", "build_metadata", "read_metadata", "recorded_furnace"]
+__all__ = ["METADATA_NAME", "build_metadata", "read_metadata", "recorded_furnace",
+           "recorded_signals"]
 SECRET_WORDS = ("password", "secret", "token")
 """A config key containing one of these is left out of the recorded config."""
 
@@ -63,7 +71,7 @@ def build_metadata(config: Any = None, *, furnace: Furnace | None = None,
     if furnace is None:
         raise ValueError("the metadata record needs the furnace: give `furnace` or a config "
                          "with one")
-    return {
+    record = {
         "software_version": software_version,
         "furnace": json.dumps(furnace_record(furnace)),
         "config": json.dumps(settings),
@@ -72,6 +80,16 @@ def build_metadata(config: Any = None, *, furnace: Furnace | None = None,
         "host": host if host is not None else socket.gethostname(),
         "refit": json.dumps(plain(refit)),
     }
+    signals = signal_fields(config)
+    if signals:  # /furnace/signals's schema and the export's columns are read from here
+        record["signals"] = json.dumps([dataclasses.asdict(s) for s in signals])
+    return record
+
+
+def signal_fields(config: Any) -> tuple[SignalField, ...]:
+    """The `signals:` of a daemon config as /furnace/signals carries them (none without a
+    config)."""
+    return tuple(SignalField(s.name, s.unit, s.bit) for s in getattr(config, "signals", ()))
 
 
 def recorded_refit(metadata: Mapping[str, str] | None) -> dict | None:

@@ -9,7 +9,8 @@ polling at the recorded PLC seconds returns exactly the recorded values.
 What is served: each thermocouple's recorded number (a `stale` reading keeps its number); a
 reading logged as null (open circuit, out of range) as the open-circuit sentinel. Polls that
 failed in the recording (every quality `comm_error`) carry no PLC values and are skipped: the
-values before them hold. Burner states are the PLC's (`source: modbus`) when the log has them,
+values before them hold. The heat inputs of rate-fired zones, the disturbances and the
+signals are served as recorded, each `ok` value held until the next. Burner states are the PLC's (`source: modbus`) when the log has them,
 else the flame scanners' (`source: can`, time-stamped by the gateway clock and moved onto the
 PLC clock with the offset of the nearest thermocouple reading).
 
@@ -26,13 +27,28 @@ from pathlib import Path
 import numpy as np
 
 from furnace_model.errors import DataError
-from furnace_model.log.messages import Ambient, Burners, Thermocouples, number, typed
-from furnace_model.log.read import iso_time, log_furnace, read_messages
+from furnace_model.log.messages import (
+    Ambient,
+    Burners,
+    Disturbances,
+    Heat,
+    NamedReadings,
+    Thermocouples,
+    number,
+    typed,
+)
+from furnace_model.log.read import (
+    iso_time,
+    log_furnace,
+    read_messages,
+    read_metadata,
+    recorded_signals,
+)
 from furnace_model.log.schema import FURNACE_TOPICS, THERMOCOUPLES
 from furnace_model.simulation.furnace import Furnace
 
 from .registers import COMM_ERROR
-from .simplc import PlcValues, states_from_counts
+from .simplc import PlcValues, n_states, states_from_counts
 
 _NS = 1_000_000_000
 
@@ -48,7 +64,9 @@ class LogPlayer:
         files = sorted(f for p in self.paths for f in ([p] if not p.is_dir() else p.glob("*.mcap*")))
         self.furnace = log_furnace(files, names)
         """The furnace of the log, from its metadata record."""
-        tc, air, burners = _read(self.paths, names, self.furnace)
+        self.signals = recorded_signals(read_metadata(files))
+        """The extra signals of the recording's map, from its metadata record."""
+        tc, air, burners, named = _read(self.paths, names, self.furnace)
         if not tc:
             raise DataError(names, f"no thermocouple readings on {THERMOCOUPLES}: "
                                    "not a furnace acquisition log")
@@ -60,6 +78,8 @@ class LogPlayer:
         self._tc_t, self._tc = self._tc_t[order], self._tc[order]
         self._air_t, self._air = _series(air, self.origin_ns)
         self._burner_t, self._burners = _series(burners, self.origin_ns)
+        self._named = {key: {n: _series(r, self.origin_ns) for n, r in by_name.items()}
+                       for key, by_name in named.items()}
         last_ns = max(int(t[-1]) for t in (self._tc_t, self._air_t, self._burner_t) if t.size)
         self.last_s = -(-last_ns // _NS)
         """The PLC second of the last recorded value (rounded up)."""
@@ -91,8 +111,18 @@ class LogPlayer:
         if self._burner_t.size:
             states = [bool(v) for v in self._burners[_held(self._burner_t, t)]]
         else:
-            states = [False] * sum(self.furnace.burners)
-        return PlcValues([float(v) for v in tc], air, states)
+            states = [False] * n_states(self.furnace)
+        held = {key: {n: v[_held(times, t)][0] for n, (times, v) in by_name.items()}
+                for key, by_name in self._named.items()}
+        return PlcValues([float(v) for v in tc], air, states, held["heat"],
+                         held["disturbances"],
+                         {n: bool(v) if n in self._bits else float(v)
+                          for n, v in held["signals"].items()})
+
+    @property
+    def _bits(self) -> set[str]:
+        """The signals the recording's map reads as bits."""
+        return {s.name for s in self.signals if s.bit}
 
 
 def _held(times: np.ndarray, t: int) -> int:
@@ -109,16 +139,26 @@ def _series(records: list[tuple[int, list]], origin_ns: int) -> tuple[np.ndarray
             np.array([r[1] for r in records], dtype=float))
 
 
-def _read(paths: Iterable[Path], names: str, furnace: Furnace) -> tuple[list, list, list]:
-    """(publish ns, values) per topic, failed polls left out; burner states of one source."""
+def _read(paths: Iterable[Path], names: str, furnace: Furnace
+          ) -> tuple[list, list, list, dict[str, dict[str, list]]]:
+    """(publish ns, values) per topic, failed polls left out; burner states of one source;
+    the `ok` values of heat inputs, disturbances and signals by name."""
     tc: list[tuple[int, list[float]]] = []
     tc_offsets: list[tuple[int, int]] = []  # (log ns, publish - log ns) of PLC readings
     air: list[tuple[int, list[float]]] = []
     plc_burners: list[tuple[int, list[bool]]] = []
     can_burners: list[tuple[int, list[bool]]] = []
+    named: dict[str, dict[str, list]] = {"heat": {}, "disturbances": {}, "signals": {}}
     for topic, msg, log_ns, pub_ns in typed(read_messages(paths, FURNACE_TOPICS), furnace):
         where = f"{names}: {topic} at {iso_time(log_ns)}"
-        if isinstance(msg, Thermocouples):
+        if isinstance(msg, NamedReadings):
+            key = ("heat" if isinstance(msg, Heat)
+                   else "disturbances" if isinstance(msg, Disturbances) else "signals")
+            for n in msg.values:
+                value = msg.reading(n)
+                if math.isfinite(value):
+                    named[key].setdefault(n, []).append((pub_ns, [value]))
+        elif isinstance(msg, Thermocouples):
             if all(msg.quality.get(s) == COMM_ERROR for s in furnace.sensors):
                 continue
             tc.append((pub_ns, [number(msg.values.get(s)) for s in furnace.sensors]))
@@ -137,7 +177,7 @@ def _read(paths: Iterable[Path], names: str, furnace: Furnace) -> tuple[list, li
         offsets = [o for _, o in tc_offsets]
         burners = [(t + offsets[max(int(np.searchsorted(logs, t, side="right")) - 1, 0)], s)
                    for t, s in can_burners]
-    return tc, air, burners
+    return tc, air, burners, named
 
 
 def _states(msg: Burners, where: str, furnace: Furnace) -> list[bool]:

@@ -44,7 +44,7 @@ from typing import Any, BinaryIO, NamedTuple
 from mcap.writer import CompressionType, Writer
 
 from furnace_model.log.messages import DaqEvent, DaqEventKind, DaqStatus, LogLine, ModelEvent
-from furnace_model.log.read import PART_SUFFIX, iso_time, recorded_furnace
+from furnace_model.log.read import PART_SUFFIX, iso_time, recorded_furnace, recorded_signals
 from furnace_model.log.schema import (
     DAQ_EVENTS,
     DAQ_STATUS,
@@ -53,6 +53,7 @@ from furnace_model.log.schema import (
     MESSAGE_ENCODING,
     MODEL_EVENTS,
     SCHEMA_ENCODING,
+    SignalField,
     topic,
 )
 from furnace_model.simulation.furnace import Furnace
@@ -94,7 +95,7 @@ class LogWriter:
                  max_buffered: int = 20000, retry_s: float = 5.0,
                  metadata: Mapping[str, str] | None = None,
                  event_priority: Mapping[str, int] | None = None,
-                 furnace: Furnace | None = None):
+                 furnace: Furnace | None = None, signals: tuple[SignalField, ...] | None = None):
         if not re.fullmatch(r"[A-Za-z0-9_.-]+", prefix):
             raise ValueError(f"log file prefix {prefix!r}: use letters, digits, '_', '.', '-'")
         self.log_dir = Path(log_dir)
@@ -112,6 +113,9 @@ class LogWriter:
             else recorded_furnace(self.metadata, str(log_dir))
         """The furnace the readings are of: the furnace topics' schemas list its fields. By
         default the one the metadata record describes (the paper's without one)."""
+        self.signals = signals if signals is not None else recorded_signals(self.metadata)
+        """The register map's extra points, the fields of /furnace/signals: by default
+        those the metadata record lists."""
         self.event_priority = dict(event_priority or {})
         """Journal (sd-daemon) priority of each event kind: the level of its /log line."""
         self.listeners: list[Callable[[str, bytes, int], None]] = []
@@ -226,7 +230,7 @@ class LogWriter:
             try:
                 channel = f.channels.get(rec.topic)
                 if channel is None:
-                    t = topic(rec.topic, self.furnace)
+                    t = topic(rec.topic, self.furnace, self.signals)
                     schema_id = f.writer.register_schema(t.schema_name, SCHEMA_ENCODING,
                                                          t.schema_bytes())
                     channel = f.writer.register_channel(rec.topic, MESSAGE_ENCODING, schema_id)

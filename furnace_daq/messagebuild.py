@@ -10,26 +10,44 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from furnace_model.log.messages import Ambient, Burners, DaqEvent, DaqEventKind, Thermocouples
+from furnace_model.log.messages import (
+    Ambient,
+    Burners,
+    DaqEvent,
+    DaqEventKind,
+    Disturbances,
+    Heat,
+    NamedReadings,
+    Signals,
+    Thermocouples,
+)
 
-from .daqconfig import DaqConfig
+from .daqconfig import DISTURBANCES_KEY, HEAT_KEY, DaqConfig, item_name
 from .registers import COMM_ERROR, OK
 from .sources import Sample
 
-Reading = Thermocouples | Ambient | Burners
+Reading = Thermocouples | Ambient | Burners | Heat | Disturbances | Signals
 
 
 class MessageBuilder:
     def __init__(self, config: DaqConfig):
-        self.sensors = config.furnace.sensors
-        self.zones = config.furnace.zones
+        furnace = config.furnace
+        self.sensors = furnace.sensors
+        self.zones = furnace.switched_zones
         self.ambient_measured = config.ambient is not None
         self.ambient_default_c = config.ambient_default_c
+        # (name in the message, item name in the sample, unit) of each value carried by name
+        self.heat = [(furnace.zones[i], item_name(HEAT_KEY, furnace.zones[i]),
+                      furnace.heat_inputs[i].unit) for i in furnace.rated]
+        self.disturbances = [(d.name, item_name(DISTURBANCES_KEY, d.name), d.unit)
+                             for d in furnace.disturbances]
+        self.signals = [(s.name, s.item.name, s.unit) for s in config.signals]
 
     def readings(self, sample: Sample, pub_ns: int) -> list[Reading]:
-        """The thermocouples, the ambient and (when the sample has them) the burner states
-        of a merged PLC sample; `pub_ns` is the PLC clock's time, written into each when the
-        sample carries that clock."""
+        """The thermocouples, the ambient, the rate-fired zones' heat inputs, the
+        disturbances and the signals the map has, and (when the sample has them) the burner
+        states of a merged PLC sample; `pub_ns` is the PLC clock's time, written into each
+        when the sample carries that clock."""
         quality = sample.quality  # each device's staleness is in its qualities already (merge)
         tc = Thermocouples({s: v for s in self.sensors if (v := sample.values.get(s)) is not None},
                            {s: quality.get(s, COMM_ERROR) for s in self.sensors})
@@ -45,6 +63,10 @@ class MessageBuilder:
         else:
             amb = Ambient(self.ambient_default_c, OK, True, stamp)
         out: list[Reading] = [tc, amb]
+        for cls, named in ((Heat, self.heat), (Disturbances, self.disturbances),
+                           (Signals, self.signals)):
+            if named:
+                out.append(_named(cls, named, sample, stamp))
         if sample.burners is not None:
             out.append(self.burners(sample, "modbus", stamp))
         return out
@@ -57,6 +79,15 @@ class MessageBuilder:
         assert sample.burners is not None
         states = {z: sample.burners[z] for z in self.zones}
         return Burners.from_states(states, source, sample.burner_quality, stamp)
+
+
+def _named(cls: type[NamedReadings], named: list[tuple[str, str, str]], sample: Sample,
+           stamp: int | None) -> NamedReadings:
+    """A message of values carried by name: a value that is not there is left out, its
+    quality says why (comm_error when its device gave nothing)."""
+    return cls({n: v for n, item, _ in named if (v := sample.values.get(item)) is not None},
+               {n: sample.quality.get(item, COMM_ERROR) for n, item, _ in named},
+               {n: unit for n, _, unit in named}, stamp)
 
 
 class FlameComparison:

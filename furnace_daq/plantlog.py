@@ -1,9 +1,11 @@
 """A simulated plant run as the daemon would have logged it, without Modbus: the messages of
-/furnace/thermocouples, /furnace/burners and /furnace/ambient at every sample.
+/furnace/thermocouples, /furnace/burners and /furnace/ambient at every sample (and
+/furnace/heat, /furnace/disturbances for a furnace with rate-fired zones, disturbances).
 
 Long runs (a week at 1 Hz) cannot go through the simulated PLC in test or benchmark time;
 this writes the same topics and fields from the plant simulator directly, for the refit
-tests and the replay benchmark.
+tests and the replay benchmark. A pulse-fired zone cannot be written so: its burners pulse
+within a sample, and a run holds only their mean; it goes through the simulated PLC.
 """
 
 from __future__ import annotations
@@ -13,8 +15,15 @@ from collections.abc import Iterator
 import numpy as np
 import pandas as pd
 
-from furnace_model.log.messages import Ambient, Burners, FurnaceMessage, Thermocouples
-from furnace_model.log.schema import AMBIENT, BURNERS, THERMOCOUPLES
+from furnace_model.log.messages import (
+    Ambient,
+    Burners,
+    Disturbances,
+    FurnaceMessage,
+    Heat,
+    Thermocouples,
+)
+from furnace_model.log.schema import AMBIENT, BURNERS, DISTURBANCES, HEAT, THERMOCOUPLES
 from furnace_model.simulation.plant import PlantRun
 
 from .mcaplog import LogWriter
@@ -29,7 +38,13 @@ def run_messages(run: PlantRun, start: pd.Timestamp | None = None
     pub = t0 + np.round(run.t_min * 60e9).astype(np.int64)
     tc = np.round(run.tc * 10.0) / 10.0
     furnace = run.furnace
+    if any(h.kind == "pulse" for h in furnace.heat_inputs):
+        raise ValueError(f"furnace '{furnace.name}' has pulse-fired zones: their burners "
+                         "pulse within a sample; log the run through the simulated PLC")
     ok = {s: "ok" for s in furnace.sensors}
+    zones = furnace.switched_zones
+    rated = [furnace.zones[i] for i in furnace.rated]
+    names = [d.name for d in furnace.disturbances]
     last_counts = None
     burner_msg: Burners | None = None
     for i in range(run.t_min.size):
@@ -38,13 +53,24 @@ def run_messages(run: PlantRun, start: pd.Timestamp | None = None
                                                     strict=True)),
                                            ok, float(run.t_min[i] * 60.0)), t
         yield AMBIENT, Ambient(float(run.t_air[i]), "ok"), t
-        counts = tuple(int(n) for n in run.burners[i])
+        if rated:
+            yield HEAT, Heat({z: float(run.burners[i, j]) for z, j in zip(
+                rated, furnace.rated, strict=True)}, dict.fromkeys(rated, "ok"),
+                {z: furnace.heat_inputs[j].unit for z, j in zip(rated, furnace.rated,
+                                                               strict=True)}), t
+        if names:
+            assert run.disturbances is not None
+            yield DISTURBANCES, Disturbances(
+                dict(zip(names, run.disturbances[i].tolist(), strict=True)),
+                dict.fromkeys(names, "ok"), {d.name: d.unit for d in furnace.disturbances}), t
+        if not zones:
+            continue
+        counts = tuple(int(run.burners[i, j]) for j in furnace.switched)
         if counts != last_counts or burner_msg is None:
             states = states_from_counts(np.array(counts), furnace)
-            burner_msg = Burners({z: states[k] for z, k in zip(furnace.zones,
-                                                               zone_slices(furnace),
+            burner_msg = Burners({z: states[k] for z, k in zip(zones, zone_slices(furnace),
                                                                strict=True)},
-                                 dict(zip(furnace.zones, counts, strict=True)), "modbus", "ok")
+                                 dict(zip(zones, counts, strict=True)), "modbus", "ok")
             last_counts = counts
         yield BURNERS, burner_msg, t
 

@@ -77,6 +77,7 @@ from furnace_model.log.read import iso_time
 from furnace_model.log.resample import Resampler
 from furnace_model.log.schema import param_names
 from furnace_model.simulation.furnace import Furnace
+from furnace_model.simulation.network import parameters
 from furnace_model.simulation.structure import ModelStructure
 
 from .daqconfig import RefitConfig
@@ -124,7 +125,8 @@ def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
     air = pd.Series(rows.t_air).ffill().fillna(t_air_default).to_numpy()
     t0 = int(rows.t[0])
     exp = Experiment(name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
-                     pd.Timestamp(t0, unit="ns", tz="UTC"), name, furnace=resampler.furnace)
+                     pd.Timestamp(t0, unit="ns", tz="UTC"), name, furnace=resampler.furnace,
+                     disturbances=rows.disturbances)
     complete = int((np.all(np.isfinite(exp.zone_temp), axis=1) & rows.reading).sum())
     return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps)
 
@@ -214,9 +216,13 @@ MODEL_KEYS = ("ci95", "rmse_c", "window_start", "window_end", "determined_combin
 """What the message of a window that keeps the model copies from it."""
 
 
-def _carries_model(model: ModelParameters, names: tuple[str, ...]) -> bool:
+def _carries_model(model: ModelParameters, names: tuple[str, ...],
+                   positive: frozenset[str]) -> bool:
     """Whether `model` is a fitted /model/parameters message: a window may keep it."""
-    return (model.fitted and all(model.params.get(p, 0) > 0 for p in names)
+    values = [model.params.get(p) for p in names]
+    return (model.fitted
+            and all(isinstance(v, int | float) and math.isfinite(v) and (v > 0 or p not in positive)
+                    for p, v in zip(names, values, strict=True))
             and all(getattr(model, k) not in (None, "") for k in MODEL_KEYS))
 
 
@@ -251,6 +257,12 @@ class RefitChain:
         """The parameters of the furnace's network, as /model/parameters carries them."""
         return param_names(self.furnace)
 
+    @property
+    def positive(self) -> frozenset[str]:
+        """The parameters that are positive by nature (rates, searched on a log scale); a
+        disturbance's gain takes either sign."""
+        return frozenset(p.name for p in parameters(self.furnace) if p.log)
+
     def state(self) -> dict:
         """What a restarted daemon needs to go on where this chain stopped: the model in force
         and the drift references, as plain JSON."""
@@ -270,7 +282,8 @@ class RefitChain:
             raw = state["model"]
             model = None if not isinstance(raw, dict) else \
                 ModelParameters.from_json(raw)
-            if raw is not None and (model is None or not _carries_model(model, self.names)):
+            if raw is not None and (model is None
+                                    or not _carries_model(model, self.names, self.positive)):
                 raise ValueError("its model is not a fitted /model/parameters message")
             refs = {p: _Reference(float(r["value"]), (float(r["ci95"][0]), float(r["ci95"][1])),
                                   str(r["window_end"]), bool(r["determined"]), int(r["streak"]),
@@ -353,7 +366,7 @@ class RefitChain:
     def accept(self, window: Window, outcome: dict
                ) -> tuple[ModelParameters, list[ModelEvent]]:
         """The worker's outcome for `window` -> (the /model/parameters message, events)."""
-        if outcome.get("status") != "ok" or not _finite(outcome, self.names):
+        if outcome.get("status") != "ok" or not _finite(outcome, self.names, self.positive):
             detail = outcome.get("detail") or "the fit returned non-finite values"
             msg = self.kept(window, "failed", detail)
             msg.elapsed_s, msg.search = outcome.get("elapsed_s"), outcome.get("search")
@@ -386,7 +399,8 @@ class RefitChain:
             if ref is None or not ref.determined:
                 self.references[p] = _Reference(new, (lo, hi), msg.window_end, determined)
                 continue
-            direction = _moved(ref, new, (lo, hi), cfg.drift_min_change) if determined else 0
+            direction = _moved(ref, new, (lo, hi), cfg.drift_min_change,
+                               p in self.positive) if determined else 0
             if direction == 0 or direction != ref.direction:
                 ref.streak = 0
             ref.direction = direction
@@ -395,10 +409,10 @@ class RefitChain:
             ref.streak += 1
             if ref.streak < cfg.drift_windows:
                 continue
-            change = new / ref.value - 1.0
+            change = new / ref.value - 1.0 if ref.value else math.copysign(math.inf, new)
             events.append(ModelEvent(
                 ModelEventKind.DRIFT, parameter=p,
-                detail=(f"{p} {'rose' if change > 0 else 'fell'} {100 * abs(change):.1f}% "
+                detail=(f"{p} {'rose' if new > ref.value else 'fell'} {100 * abs(change):.1f}% "
                            f"from {ref.value:.6g} [{ref.ci95[0]:.6g}, {ref.ci95[1]:.6g}] "
                            f"(window to {ref.window_end}) to {new:.6g} [{lo:.6g}, {hi:.6g}] "
                         f"over {ref.streak} windows"),
@@ -475,22 +489,28 @@ def _recent_moved(ref: _Reference, recent: dict, min_change: float) -> int:
     return 1 if distance > 0 else -1
 
 
-def _moved(ref: _Reference, new: float, ci: tuple[float, float], min_change: float) -> int:
-    """+1 / -1 when `new` has moved significantly up / down from the reference, else 0."""
-    if ref.ci95[0] <= new <= ref.ci95[1] or abs(new / ref.value - 1.0) < min_change:
+def _moved(ref: _Reference, new: float, ci: tuple[float, float], min_change: float,
+           positive: bool = True) -> int:
+    """+1 / -1 when `new` has moved significantly up / down from the reference, else 0. A
+    positive parameter is judged on the log scale it is searched on, a signed one (a
+    disturbance's gain) on the linear scale."""
+    if ref.ci95[0] <= new <= ref.ci95[1] or abs(new - ref.value) < min_change * abs(ref.value):
         return 0
-    half_ref = 0.5 * (math.log(ref.ci95[1]) - math.log(ref.ci95[0]))
-    half_new = 0.5 * (math.log(ci[1]) - math.log(ci[0]))
-    distance = math.log(new) - math.log(ref.value)
+    scale = math.log if positive else float
+    half_ref = 0.5 * (scale(ref.ci95[1]) - scale(ref.ci95[0]))
+    half_new = 0.5 * (scale(ci[1]) - scale(ci[0]))
+    distance = scale(new) - scale(ref.value)
     if abs(distance) <= WINDOW_INTERVAL_FACTOR * math.hypot(half_ref, half_new):
         return 0
     return 1 if distance > 0 else -1
 
 
-def _finite(outcome: dict, names: tuple[str, ...]) -> bool:
-    values = [outcome["params"][p] for p in names]
-    values += [v for p in names for v in outcome["ci95"][p]]
-    return all(isinstance(v, float | int) and math.isfinite(v) and v > 0 for v in values)
+def _finite(outcome: dict, names: tuple[str, ...], positive: frozenset[str]) -> bool:
+    """Every parameter and interval end a number, the positive ones above zero."""
+    values = [(p, outcome["params"][p]) for p in names]
+    values += [(p, v) for p in names for v in outcome["ci95"][p]]
+    return all(isinstance(v, float | int) and math.isfinite(v) and (v > 0 or p not in positive)
+               for p, v in values)
 
 
 @dataclass

@@ -50,7 +50,8 @@ def merge(good: Sequence[tuple[Device, Sample]], missing: Sequence[str], zones: 
           burner_source: str) -> Sample:
     """One sample from the devices that delivered, each device's staleness marking its own
     points only. `missing` is why the others gave nothing. Burner states are taken from the
-    devices only when `burner_source` includes Modbus, and only when every zone is there."""
+    devices only when `burner_source` includes Modbus, and only when every zone of `zones`
+    (those fired by burners) is there."""
     out = Sample()
     burners: dict[str, list[bool]] = {}
     burner_quality = OK
@@ -69,7 +70,7 @@ def merge(good: Sequence[tuple[Device, Sample]], missing: Sequence[str], zones: 
         out.errors += [device.named(e) for e in s.errors]
         out.refused.update(s.refused)
     out.errors += missing
-    if burner_source in ("modbus", "both"):
+    if burner_source in ("modbus", "both") and zones:
         if all(z in burners for z in zones):
             out.burners = burners
         else:

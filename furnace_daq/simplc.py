@@ -8,14 +8,21 @@ without hardware. Two sources feed the same server: the plant simulator running 
 `speed` times faster than the wall clock; the PLC clock registers hold whole simulated seconds
 and every value is the source's at exactly that second, so a client can recompute what it
 should have read.
+
+A furnace fired otherwise than by whole burners is served as its PLC would show it: a
+rate-fired zone's rate and each disturbance as the scenario sets them, a pulse-fired zone's
+burners each on for its duty of every pulse cycle (`pulse_states`), the plant fired by those
+very pulses. The map's extra signals that the source has no value for are simulated
+(`simulated_signal`), so that a config with signals can be tried end to end.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import can
@@ -26,10 +33,11 @@ from pymodbus.simulator import SimData, SimDevice
 from pymodbus.simulator.simdata import DataType
 
 from furnace_model.simulation.furnace import Furnace
-from furnace_model.simulation.plant import Plant
+from furnace_model.simulation.plant import Plant, PlantAhead
 from furnace_model.simulation.scenario import Scenario
 
-from .registers import FUNCTION_CODE
+from .daqconfig import Signal
+from .registers import FUNCTION_CODE, BitRange
 from .servedmap import ServedMap
 
 CAN_ID = 0x180
@@ -38,9 +46,54 @@ n (byte n // 8, LSB first) = burner n."""
 
 
 def zone_slices(furnace: Furnace) -> tuple[slice, ...]:
-    """Each zone's burners in the PLC's list of states: zone after zone."""
-    return tuple(slice(sum(furnace.burners[:i]), sum(furnace.burners[:i + 1]))
-                 for i in range(furnace.n_zones))
+    """Each zone's burners in the PLC's list of states, for the zones fired by burners
+    (`furnace.switched`): zone after zone."""
+    sizes = [furnace.burners[i] for i in furnace.switched]
+    return tuple(slice(sum(sizes[:k]), sum(sizes[:k + 1])) for k in range(len(sizes)))
+
+
+def n_states(furnace: Furnace) -> int:
+    """Burners whose states the PLC shows: those of the zones fired by burners."""
+    return sum(furnace.burners[i] for i in furnace.switched)
+
+
+def pulse_states(mean: float, burners: int, since_min: float, cycle_min: float) -> list[bool]:
+    """Each burner of a pulse-fired zone firing `mean` burners on average, `since_min` after
+    that level was set: burner k fires for its duty mean / burners of every cycle, the
+    burners' windows laid end to end around the cycle, so that floor(mean) + 1 fire for the
+    fraction mean - floor(mean) of each cycle (from its start) and floor(mean) for the rest:
+    the count `furnace_model.simulation.scenario.pulse_fired` fires the plant with."""
+    duty = min(max(float(mean) / burners, 0.0), 1.0) if burners else 0.0
+    cycles = float(since_min) / cycle_min
+    # an instant at a cycle's start may come out a hair short of it: count it in
+    phase = max(cycles - math.floor(cycles + 1e-9), 0.0)
+    on = [False] * burners
+    if duty <= 0.0:
+        return on
+    # Lap j of the windows laid end to end passes the phase in burner floor((phase + j) /
+    # duty)'s window: one burner per lap, so a window's edge is never counted twice.
+    for lap in range(burners):
+        k = math.floor((phase + lap) / duty)
+        if k >= burners:
+            break
+        on[k] = True
+    return on
+
+
+def simulated_signal(signal: Signal, firing: float, plc_seconds: int,
+                     rng: np.random.Generator) -> float | bool:
+    """A plausible value of an extra signal the source knows nothing of. A bit is on for
+    the first two minutes of every hour (a door opened to charge); a number lies in its
+    `range` (0 to 100 without one), at three quarters of it with nothing firing and one
+    quarter at full fire (as a flue's O2 falls when the burners fire harder), with noise of
+    half a percent of the range. `firing`: the furnace's heat input as a fraction of its
+    maximum."""
+    if isinstance(signal.item, BitRange):
+        return plc_seconds % 3600 < 120
+    lo = 0.0 if signal.item.lo is None else signal.item.lo
+    hi = 100.0 if signal.item.hi is None else signal.item.hi
+    value = lo + (hi - lo) * (0.75 - 0.5 * firing) + rng.normal(0.0, 0.005 * (hi - lo))
+    return float(min(max(value, lo), hi))
 
 
 def _padded(states: list[bool], n: int) -> list[bool]:
@@ -59,15 +112,27 @@ def _runs(cells: dict[int, int | bool]) -> list[tuple[int, list]]:
 
 
 def states_from_counts(counts: np.ndarray, furnace: Furnace) -> list[bool]:
-    """Burner on/off states when `counts` burners fire per zone: the first ones of each zone."""
+    """Burner on/off states when `counts` burners fire per zone fired by burners
+    (`furnace.switched`): the first ones of each zone."""
     out: list[bool] = []
-    for n, total in zip(counts, furnace.burners, strict=True):
-        out += [k < int(n) for k in range(total)]
+    for n, i in zip(counts, furnace.switched, strict=True):
+        out += [k < int(n) for k in range(furnace.burners[i])]
     return out
 
 
 def counts_from_states(states: list[bool], furnace: Furnace) -> np.ndarray:
+    """Burners on per zone fired by burners."""
     return np.array([sum(states[s]) for s in zone_slices(furnace)])
+
+
+def firing_fraction(values: PlcValues, furnace: Furnace) -> float:
+    """The furnace's heat input as a fraction of its maximum: each zone's share of its own
+    maximum, averaged over the zones."""
+    shares = [sum(values.burners[s]) / furnace.burners[i]
+              for s, i in zip(zone_slices(furnace), furnace.switched, strict=True)]
+    shares += [values.heat.get(furnace.zones[i], 0.0) / furnace.heat_inputs[i].max
+               for i in furnace.rated]
+    return float(np.clip(np.mean(shares), 0.0, 1.0)) if shares else 0.0
 
 
 def flame_frame(states: list[bool]) -> bytes:
@@ -84,8 +149,14 @@ class PlcValues:
     open circuit (served as 32767)."""
     t_air: float
     burners: list[bool]
-    """Flame-on state of every burner, zone after zone (the paper's: soak 0-9, heat 10-17,
-    preheat 18-25)."""
+    """Flame-on state of every burner of the zones fired by burners, zone after zone (the
+    paper's: soak 0-9, heat 10-17, preheat 18-25)."""
+    heat: dict[str, float] = field(default_factory=dict)
+    """The heat input of each rate-fired zone, by zone, in its unit."""
+    disturbances: dict[str, float] = field(default_factory=dict)
+    """Each disturbance the furnace declares, by name, in its unit."""
+    signals: dict[str, float | bool] = field(default_factory=dict)
+    """Extra signals the source has values for, by name (the others are simulated)."""
 
 
 class ValueSource(Protocol):
@@ -103,38 +174,70 @@ class ValueSource(Protocol):
 
 class PlantSource:
     """The plant simulator running a scenario: burners follow its schedule or, in manual
-    mode, the commands the server passes on from the coils."""
+    mode, the commands the server passes on from the coils (rate-fired zones and
+    disturbances keep the schedule's, taken at each scan)."""
 
     end_s: int | None = None
 
     def __init__(self, scenario: Scenario, *, seed: int = 0, manual: bool = False):
         self.scenario, self.manual = scenario, manual
-        self.furnace = scenario.furnace
+        self.furnace = furnace = scenario.furnace
         self.plant = Plant.from_scenario(scenario, seed=seed)
-        self.stepper = self.plant.stepper(scenario.initial_c, scenario.burners_at(0.0),
-                                          scenario.t_air_c)
         self._commands: list[bool] | None = None
+        self._switched = list(furnace.switched)
+        self._rated = list(furnace.rated)
+        if manual:  # the schedule is not known ahead: the plant is stepped as commands come
+            self.stepper = self.plant.stepper(scenario.initial_c, scenario.burners_at(0.0),
+                                              scenario.t_air_c,
+                                              disturbances=scenario.disturbances_at(0.0))
+        else:
+            self.ahead = PlantAhead(self.plant, scenario.plant_inputs(), scenario.initial_c)
 
     def command(self, states: list[bool]) -> None:
         """Burner commands written by a client, applied from the next second served."""
         self._commands = [bool(s) for s in states]
 
     def values_at(self, plc_seconds: int) -> PlcValues:
-        target = plc_seconds / 60.0
+        t = plc_seconds / 60.0
+        scenario, furnace = self.scenario, self.furnace
+        levels = scenario.burners_at(t)
+        disturbances = scenario.disturbances_at(t)
         if self.manual:
-            self.stepper.advance(target)
+            self.stepper.advance(t)
+            inputs = self.stepper.burners.astype(float)
             if self._commands is not None:
-                self.stepper.set_inputs(burners=counts_from_states(self._commands,
-                                                                   self.furnace))
+                inputs[self._switched] = counts_from_states(self._commands, furnace)
+            inputs[self._rated] = levels[self._rated]
+            self.stepper.set_inputs(burners=inputs, disturbances=disturbances)
+            readings = self.stepper.readings()
+            states = (list(self._commands) if self._commands is not None
+                      else states_from_counts(inputs[self._switched], furnace))
+            levels = inputs
         else:
-            steps = self.scenario.steps_t
-            for at in steps[(steps > self.stepper.t) & (steps <= target)]:
-                self.stepper.advance(float(at))
-                self.stepper.set_inputs(burners=self.scenario.burners_at(float(at)))
-            self.stepper.advance(target)
-        states = (list(self._commands) if self.manual and self._commands is not None
-                  else states_from_counts(self.stepper.burners, self.furnace))
-        return PlcValues(list(self.stepper.readings()), self.stepper.t_air, states)
+            readings = self.ahead.readings(plc_seconds)
+            states = self._states(levels, t)
+        return PlcValues(list(readings), scenario.t_air_c, states,
+                         {furnace.zones[i]: float(levels[i]) for i in self._rated},
+                         {d.name: float(v) for d, v in zip(furnace.disturbances, disturbances,
+                                                           strict=True)})
+
+    def _states(self, levels: np.ndarray, t: float) -> list[bool]:
+        """Every burner of the zones fired by burners at the schedule's `levels`: whole
+        burners the first ones of their zone, a pulse-fired zone's pulsing as it fires in
+        the middle of the second shown (pulses of a few seconds, judged at the second's
+        start, would show the zone's extra burner for the whole second its pulse begins in:
+        a duty too high by half a second per cycle on average)."""
+        scenario, furnace = self.scenario, self.furnace
+        steps = scenario.steps_t
+        since = t + 0.5 / 60.0 - steps[max(int(np.searchsorted(steps, t, side="right")) - 1, 0)]
+        out: list[bool] = []
+        for i in self._switched:
+            n = furnace.burners[i]
+            if furnace.heat_inputs[i].kind == "pulse":
+                out += pulse_states(float(levels[i]), n, since, scenario.pulse_cycle_min)
+            else:
+                out += [k < int(levels[i]) for k in range(n)]
+        return out
 
 
 class SimPLC:
@@ -182,6 +285,7 @@ class SimPLC:
         self.plc_seconds = 0
         self.heartbeat = 0
         self.scans = 0
+        self._rng = np.random.default_rng(seed)
         self._can_args = (can_channel, can_interface)
         self._bus: can.BusABC | None = None
         self._server: ModbusTcpServer | ModbusSerialServer | None = None
@@ -254,16 +358,23 @@ class SimPLC:
         if end is not None and sim_s >= end:
             sim_s = end
             self.ended.set()
+        furnace = self.served.furnace
         if self.manual:
             coils = await self._server.async_getValues(0, FUNCTION_CODE["coil"], 0,
-                                                       sum(self.served.furnace.burners))
+                                                       n_states(furnace))
             self.source.command([bool(c) for c in coils])
-        self.values = self.source.values_at(sim_s)
+        self.values = values = self.source.values_at(sim_s)
         self.plc_seconds = sim_s
         self.heartbeat = (self.heartbeat + 1) & 0xFFFF
-        states = list(self.values.burners)
-        image = self.served.image(self.values.thermocouples, self.values.t_air, sim_s,
-                                  self.heartbeat, states, self.open_sensors)
+        states = list(values.burners)
+        missing = [s for s in self.served.signals if s.name not in values.signals]
+        if missing:
+            firing = firing_fraction(values, furnace)
+            values.signals.update({s.name: simulated_signal(s, firing, sim_s, self._rng)
+                                   for s in missing})
+        image = self.served.image(values.thermocouples, values.t_air, sim_s,
+                                  self.heartbeat, states, self.open_sensors, heat=values.heat,
+                                  disturbances=values.disturbances, signals=values.signals)
         if self.manual:
             image["coil"] = {}  # the operator's commands stay on the coils
         elif not image["coil"]:

@@ -82,7 +82,9 @@ class SourceError(Exception):
 class Sample:
     """One read of a source; absent parts are None."""
 
-    values: dict[str, float | None] = field(default_factory=dict)
+    values: dict[str, float | bool | None] = field(default_factory=dict)
+    """By item name: thermocouples, `t_air`, and the points of `heat:`, `disturbances:` and
+    `signals:` by their key paths (a bit signal as a boolean)."""
     quality: dict[str, str] = field(default_factory=dict)
     plc_seconds: float | None = None
     heartbeat: float | str | None = None
@@ -284,11 +286,17 @@ class ModbusSource(Source):
         cfg = self.config
         mine = self._names
         sample = Sample()
-        for point in (*cfg.thermocouples, *([cfg.ambient] if cfg.ambient else [])):
+        for point in (*cfg.thermocouples, *([cfg.ambient] if cfg.ambient else []),
+                      *cfg.heat, *cfg.disturbances, *(s.item for s in cfg.signals)):
             if point.name not in mine:
                 continue  # another device's
             words = image.words(point)
-            value, quality = (None, COMM_ERROR) if words is None else point.value(words)
+            if words is None:
+                value, quality = None, COMM_ERROR
+            elif isinstance(point, BitRange):  # a bit signal
+                value, quality = point.states(words)[0], OK
+            else:
+                value, quality = point.value(words)
             sample.values[point.name] = value
             sample.quality[point.name] = quality
         if cfg.clock is not None and "clock" in mine:

@@ -70,6 +70,7 @@ def test_windows_follow_the_data_clock_and_a_static_window_keeps_the_model():
     s = scenario("week_steps", duration_min=20 * 60)
     keep = s.steps_t < 12 * 60
     s.steps_t, s.steps_burners = s.steps_t[keep], s.steps_burners[keep]
+    s.steps_disturbances = s.steps_disturbances[keep]
     cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR)
     cutter, chain = WindowCutter(cfg, furnace=PAPER), RefitChain(cfg, furnace=PAPER)
     out = []

@@ -71,14 +71,14 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:  # not fatal: the writer retries and /daq/status says why
         journal.say(ERR, f"log: {lc.dir}: {exc.strerror or exc}")
     from ..daemon import EVENT_PRIORITY
-    from ..logmeta import build_metadata
+    from ..logmeta import build_metadata, signal_fields
 
     try:
         log = LogWriter(lc.dir, prefix=lc.prefix, flush_interval_s=lc.flush_interval_s,
                         rotate_s=lc.rotate_s, rotate_bytes=lc.rotate_bytes,
                         retention_files=lc.retention_files, file_mode=lc.file_mode,
                         metadata=build_metadata(config), event_priority=EVENT_PRIORITY,
-                        furnace=config.furnace)
+                        furnace=config.furnace, signals=signal_fields(config))
         lock, recovered = _recover_at_start(lc.dir, lc.prefix)
     except (OSError, ValueError) as exc:
         raise FurnaceError(f"log directory {lc.dir}: {exc}") from None
@@ -92,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
         from ..liveview import LiveView
 
         try:
-            live = LiveView(config.live_view, where=config.file, furnace=config.furnace)
+            live = LiveView(config.live_view, where=config.file, furnace=config.furnace,
+                            signals=signal_fields(config))
         except FurnaceError:
             log.close()
             if lock is not None:

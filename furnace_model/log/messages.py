@@ -28,9 +28,13 @@ from .schema import (
     BURNERS,
     DAQ_EVENTS,
     DAQ_STATUS,
+    DISTURBANCES,
+    HEAT,
     LOG,
     MODEL_EVENTS,
     MODEL_PARAMETERS,
+    READING_FIELDS,
+    SIGNALS,
     THERMOCOUPLES,
     Topic,
     absent,
@@ -208,9 +212,9 @@ class Burners(Message):
 
     @classmethod
     def from_json(cls, message: dict, furnace: Furnace) -> Burners:
-        states = {z: [bool(b) for b in v] for z in furnace.zones
-                  if isinstance(v := message.get(z), list)}
-        counts = {z: n for z in furnace.zones if _is_number(n := message.get(f"count_{z}"))}
+        zones = furnace.switched_zones
+        states = {z: [bool(b) for b in v] for z in zones if isinstance(v := message.get(z), list)}
+        counts = {z: n for z in zones if _is_number(n := message.get(f"count_{z}"))}
         return cls(states, counts, _str(message.get("source")), _str(message.get("quality")),
                    _stamp(message))
 
@@ -222,10 +226,10 @@ class Burners(Message):
                    plc_time_ns)
 
     def zone_counts(self, furnace: Furnace) -> list[float]:
-        """Burners firing per zone: the logged count, else counted from the states; NaN
-        for a zone with neither."""
+        """Burners firing per zone fired by burners (`furnace.switched`): the logged count,
+        else counted from the states; NaN for a zone with neither."""
         out = []
-        for z in furnace.zones:
+        for z in furnace.switched_zones:
             n = self.counts.get(z)
             if n is None and z in self.states:
                 n = sum(self.states[z])
@@ -235,15 +239,16 @@ class Burners(Message):
     def flame_states(self, furnace: Furnace) -> list[bool] | None:
         """Every burner's state, zone after zone, when each zone's list is there and of
         its length; None otherwise (then only the counts say what fired)."""
-        lists = [self.states.get(z) for z in furnace.zones]
-        if all(v is not None and len(v) == n for v, n in zip(lists, furnace.burners,
-                                                                  strict=True)):
+        lists = [self.states.get(z) for z in furnace.switched_zones]
+        sizes = [furnace.burners[i] for i in furnace.switched]
+        if all(v is not None and len(v) == n for v, n in zip(lists, sizes, strict=True)):
             return [b for v in lists for b in v]  # type: ignore[union-attr]
         return None
 
     def integer_counts(self, furnace: Furnace) -> list[int] | None:
-        """The logged counts per zone when every zone has an integer one, else None."""
-        counts = [self.counts.get(z) for z in furnace.zones]
+        """The logged counts per zone fired by burners when every such zone has an integer
+        one, else None."""
+        counts = [self.counts.get(z) for z in furnace.switched_zones]
         if all(isinstance(n, int) for n in counts):
             return counts  # type: ignore[return-value]
         return None
@@ -275,6 +280,79 @@ class Ambient(Message):
     @property
     def usable(self) -> bool:
         return (self.quality or "ok") == "ok"
+
+
+@dataclass
+class NamedReadings(Message):
+    """One poll of values carried by name, each with its quality and its unit, as
+    /furnace/thermocouples carries its readings: `values` holds the readings present (one
+    that is not usable is left out), `quality` says why one is missing."""
+
+    values: dict[str, float | bool]
+    quality: dict[str, str]
+    unit: dict[str, str]
+    plc_time: int | None = None
+    """The PLC's clock at the reading, ns since the epoch."""
+
+    def to_json(self) -> dict:
+        out: dict[str, Any] = dict(self.values)
+        out["quality"], out["unit"] = self.quality, self.unit
+        if self.plc_time is not None:
+            out["plc_time"] = plc_time(self.plc_time)
+        return out
+
+    @classmethod
+    def _read(cls, message: dict, names: Iterable[str], bits: bool = False) -> NamedReadings:
+        names = tuple(names)
+        values = {n: v for n in names
+                  if _is_number(v := message.get(n)) or (bits and isinstance(v, bool))}
+        quality, unit = _dict(message.get("quality")) or {}, _dict(message.get("unit")) or {}
+        return cls(values, {n: str(q) for n, q in quality.items() if n in names},
+                   {n: str(u) for n, u in unit.items() if n in names}, _stamp(message))
+
+    def reading(self, name: str) -> float:
+        """The value when its quality is ok (a bit as 0 or 1), else NaN."""
+        if self.quality.get(name) != "ok":
+            return math.nan
+        v = self.values.get(name)
+        return float(v) if isinstance(v, bool) else number(v)
+
+
+@dataclass
+class Heat(NamedReadings):
+    """The heat input of each rate-fired zone (firing rate, fuel flow), by zone."""
+
+    TOPIC: ClassVar[str] = HEAT
+
+    @classmethod
+    def from_json(cls, message: dict, furnace: Furnace) -> Heat:
+        return cls._read(message, (furnace.zones[i] for i in furnace.rated))  # type: ignore[return-value]
+
+
+@dataclass
+class Disturbances(NamedReadings):
+    """The measured disturbances the furnace declares (throughput, charging, ...), by name."""
+
+    TOPIC: ClassVar[str] = DISTURBANCES
+
+    @classmethod
+    def from_json(cls, message: dict, furnace: Furnace) -> Disturbances:
+        return cls._read(message, (d.name for d in furnace.disturbances))  # type: ignore[return-value]
+
+
+@dataclass
+class Signals(NamedReadings):
+    """The register map's extra named points, by name: a number, or a bit as a boolean.
+    Which signals there are is the map's, not the furnace's: every message names them all
+    in `unit` (and `quality`), present or not."""
+
+    TOPIC: ClassVar[str] = SIGNALS
+
+    @classmethod
+    def from_json(cls, message: dict) -> Signals:
+        named = [*(_dict(message.get("unit")) or {}), *(_dict(message.get("quality")) or {})]
+        names = dict.fromkeys(n for n in named if n not in READING_FIELDS)
+        return cls._read(message, names, bits=True)  # type: ignore[return-value]
 
 
 @dataclass
@@ -500,12 +578,13 @@ class LogLine(Message):
 
 
 Event = DaqEvent | ModelEvent
-FurnaceMessage = Thermocouples | Burners | Ambient
-AnyMessage = Thermocouples | Burners | Ambient | DaqStatus | DaqEvent | ModelParameters | \
-    ModelEvent | LogLine
+FurnaceMessage = Thermocouples | Burners | Ambient | Heat | Disturbances | Signals
+AnyMessage = Thermocouples | Burners | Ambient | Heat | Disturbances | Signals | DaqStatus | \
+    DaqEvent | ModelParameters | ModelEvent | LogLine
 
 CLASSES: dict[str, type[Message]] = {c.TOPIC: c for c in (
-    Thermocouples, Burners, Ambient, DaqStatus, DaqEvent, ModelParameters, ModelEvent, LogLine)}
+    Thermocouples, Burners, Ambient, Heat, Disturbances, Signals, DaqStatus, DaqEvent,
+    ModelParameters, ModelEvent, LogLine)}
 """The message class of each topic of the contract."""
 
 
@@ -513,7 +592,7 @@ def from_json(topic: str, message: dict, furnace: Furnace) -> AnyMessage:
     """A decoded message of a topic of the contract as its class (KeyError for another
     topic)."""
     cls = CLASSES[topic]
-    if cls in (Thermocouples, Burners):
+    if cls in (Thermocouples, Burners, Heat, Disturbances):
         return cls.from_json(message, furnace)  # type: ignore[attr-defined]
     return cls.from_json(message)  # type: ignore[attr-defined]
 

@@ -36,6 +36,7 @@ from ..errors import ConfigError, DataError
 from ..simulation.furnace import PAPER, Furnace
 from ..simulation.furnacefile import furnace_from_node
 from .salvage import has_footer, salvage
+from .schema import SignalField
 
 LOG_SUFFIX = ".mcap"
 PART_SUFFIX = ".part"
@@ -112,6 +113,21 @@ def recorded_furnace(metadata: dict[str, str] | None, where: str) -> Furnace:
         raise DataError(where, "the recorded furnace's thermocouple names are not "
                                "<zone>_<k> of its zones")
     return furnace
+
+
+def recorded_signals(metadata: dict[str, str] | None) -> tuple[SignalField, ...]:
+    """The extra named points of the register map a log was written with, as its metadata
+    record lists them (none for a map without signals, and for a log without the record)."""
+    if not metadata or "signals" not in metadata:
+        return ()
+    try:
+        value = json.loads(metadata["signals"])
+    except ValueError:
+        return ()
+    if not isinstance(value, list):
+        return ()
+    return tuple(SignalField(str(v["name"]), str(v.get("unit", "")), bool(v.get("bit", False)))
+                 for v in value if isinstance(v, dict) and "name" in v)
 
 
 def log_furnace(paths: Iterable[str | Path], where: str | None = None) -> Furnace:

@@ -25,6 +25,21 @@ row (which put f 0.4-0.8% low). A change within 1 ms of a bin's row is carried b
 A row is written for every bin in which the daemon logged furnace data; a bin with nothing
 logged (daemon stopped, disk full) has no row at all, and a bin before the first known burner
 state has none either, since burner counts are required.
+
+Inputs that are not whole burners (a furnace description says how each zone is fired):
+- a rate-fired zone's heat input (/furnace/heat) and each measured disturbance
+  (/furnace/disturbances) are their time mean over each row, from the row's time to the
+  next row's (the last row as long as the one before), each `ok` reading held until the
+  next: the model holds a row's input until the next row, so the row carries what the
+  plant got meanwhile, and a row with no reading of its own holds the last one. A bin
+  before the first reading of every one of them has no row, as before the first burner
+  state;
+- a pulse-fired zone's burners (/furnace/burners, each burner on or off as it pulses) are
+  the mean count over each row in the same way, duty times burners: its pulses are not
+  changes of their own rows;
+- the register map's extra signals (/furnace/signals) are their time means too (a bit as
+  the fraction of the row it was on), in a column of each signal's name, empty before a
+  signal's first reading.
 """
 
 from __future__ import annotations
@@ -39,16 +54,28 @@ import pandas as pd
 
 from ..errors import DataError
 from ..simulation.furnace import Furnace
-from .messages import Ambient, Burners, FurnaceMessage, Thermocouples, as_message, number
+from .messages import (
+    Ambient,
+    Burners,
+    Disturbances,
+    FurnaceMessage,
+    Heat,
+    NamedReadings,
+    Signals,
+    Thermocouples,
+    as_message,
+    number,
+)
 from .read import iso_time, log_furnace, read_messages
-from .schema import AMBIENT, BURNERS, THERMOCOUPLES
+from .schema import AMBIENT, BURNERS, DISTURBANCES, FURNACE_TOPICS, HEAT, THERMOCOUPLES
 
 
 class Binned(NamedTuple):
     """Resampled rows in time order (see the module docstring): row time (ns), thermocouple
-    means (n, thermocouples), burner counts in force (n, zones), t_air mean (n,), the start
-    of the bin each row lies in (ns), and whether the row is a bin's readings (False: a
-    burner change)."""
+    means (n, thermocouples), each zone's heat input (n, zones: burner counts in force, a
+    pulse-fired zone's mean count, a rate's mean), t_air mean (n,), the start of the bin each
+    row lies in (ns), whether the row is a bin's readings (False: a burner change), the
+    disturbances' means (n, disturbances) and the signals' means by name."""
 
     t: np.ndarray
     tc: np.ndarray
@@ -56,6 +83,8 @@ class Binned(NamedTuple):
     t_air: np.ndarray
     bin_start: np.ndarray
     reading: np.ndarray
+    disturbances: np.ndarray
+    signals: dict[str, np.ndarray]
 
 
 MERGE_NS = 1_000_000
@@ -89,9 +118,14 @@ class Resampler:
         # columns: n thermocouples, t_air, time of the thermocouple messages within the bin
         self._sum = np.zeros((0, n + 2))
         self._cnt = np.zeros((0, n + 2))
-        # burner changes (time, counts) per source; unchanged repeats are not kept
+        # burner changes (time, counts of the zones fired by burners) per source; unchanged
+        # repeats are not kept
         self._burners: dict[bool, tuple[list[int], list[tuple[float, ...]]]] = {
             True: ([], []), False: ([], [])}
+        # ok readings (time, value) of each rate-fired zone, disturbance and signal by name
+        self._heat = {furnace.zones[i]: _Series() for i in furnace.rated}
+        self._disturbances = {d.name: _Series() for d in furnace.disturbances}
+        self._signals: dict[str, _Series] = {}
         self._unsorted = False
         self._last_burner_msg: Burners | None = None
         self._last_burner_raw: dict | None = None
@@ -138,6 +172,21 @@ class Resampler:
         elif isinstance(msg, Ambient):
             self._air_t.append(pub_ns)
             self._air_v.append(number(msg.t_air) if msg.usable else math.nan)
+        elif isinstance(msg, NamedReadings):
+            self._seen_t.append(pub_ns)
+            if isinstance(msg, Heat):
+                series = self._heat
+            elif isinstance(msg, Disturbances):
+                series = self._disturbances
+            else:
+                assert isinstance(msg, Signals)
+                series = self._signals
+                for name in (*msg.unit, *msg.quality):
+                    series.setdefault(name, _Series())
+            for name, one in series.items():
+                value = msg.reading(name)
+                if math.isfinite(value):
+                    one.add(pub_ns, value)
 
     def _consolidate(self) -> None:
         if not (self._tc_t or self._air_t or self._seen_t):
@@ -167,21 +216,35 @@ class Resampler:
     def _burner_timeline(self) -> tuple[np.ndarray, np.ndarray]:
         times, states = self._burners[True] if self._burners[True][0] else self._burners[False]
         bt = np.asarray(times, dtype=np.int64)
-        bc = np.asarray(states, dtype=float).reshape(-1, self.furnace.n_zones)
+        bc = np.asarray(states, dtype=float).reshape(-1, len(self.furnace.switched))
         if self._unsorted:
             order = np.argsort(bt, kind="stable")
             bt, bc = bt[order], bc[order]
         return bt, bc
 
+    def _first_known(self) -> int | None:
+        """The time from which every heat input and disturbance has a value (the burner
+        state, each rate, each disturbance); None while one has none yet. Every furnace has
+        a heat input (its description refuses one without)."""
+        firsts = [one.first for one in (*self._heat.values(), *self._disturbances.values())]
+        if self.furnace.switched:
+            times = self._burners[True][0] or self._burners[False][0]
+            firsts.append(min(times) if times else None)
+        known = [f for f in firsts if f is not None]
+        return max(known) if len(known) == len(firsts) else None
+
     def table(self, lo_ns: int | None = None, hi_ns: int | None = None) -> Binned:
-        """The rows of the logged bins whose start lies in [lo_ns, hi_ns) and whose burner
-        state is known by the bin's end, with the burner changes inside them (see Binned)."""
+        """The rows of the logged bins whose start lies in [lo_ns, hi_ns) and whose inputs
+        (burner state, rates, disturbances) are known by the bin's end, with the burner
+        changes inside them (see Binned)."""
         self._consolidate()
         m = self._in_range(lo_ns, hi_ns)
         starts = self.origin_ns + self._bins[m] * self.step_ns
         total, count = self._sum[m], self._cnt[m]
         bt, bc = self._burner_timeline()
-        known = np.searchsorted(bt, starts + self.step_ns, side="left") > 0
+        first = self._first_known()
+        known = np.zeros(starts.size, dtype=bool) if first is None \
+            else starts + self.step_ns > first
         starts, total, count = starts[known], total[known], count[known]
         means = np.full(total.shape, np.nan)
         np.divide(total, count, out=means, where=count > 0)
@@ -189,8 +252,15 @@ class Resampler:
         within = np.where(np.isfinite(means[:, ns + 1]), means[:, ns + 1] * 1e9,
                           self.step_ns / 2)
         t = starts + np.round(within).astype(np.int64)
-        # changes (not the first state) inside the rows' bins, unless a bin's row carries them
+        # changes (not the first state) inside the rows' bins, unless a bin's row carries them;
+        # with pulse-fired zones only the changes of whole burners: pulses are row means
+        furnace = self.furnace
+        kinds = [furnace.heat_inputs[i].kind for i in furnace.switched]
         ct, cb = bt[1:], bc[1:]
+        if "pulse" in kinds and ct.size:
+            whole = [k == "burners" for k in kinds]
+            moved = np.any(np.diff(bc[:, whole], axis=0) != 0, axis=1)
+            ct, cb = ct[moved], cb[moved]
         if ct.size and starts.size:
             key = (ct - self.origin_ns) // self.step_ns
             pos = np.searchsorted(starts, self.origin_ns + key * self.step_ns)
@@ -205,12 +275,27 @@ class Resampler:
         n, k = t.size, ct.size
         rows_t = np.concatenate([t, ct])
         order = np.argsort(rows_t, kind="stable")
+        rows_t = rows_t[order]
         tc = np.concatenate([means[:, :ns], np.full((k, ns), np.nan)])[order]
-        burners = np.concatenate([bc[state] if n else bc[:0], cb]).astype(int)[order]
+        held = np.concatenate([bc[state] if n and bt.size else np.zeros((n, bc.shape[1])),
+                               cb])[order]
         air = np.concatenate([means[:, ns], np.full(k, np.nan)])[order]
         reading = np.concatenate([np.ones(n, bool), np.zeros(k, bool)])[order]
-        return Binned(rows_t[order], tc, burners, air, np.concatenate([starts, cstart])[order],
-                      reading)
+        edges = _row_edges(rows_t, self.step_ns)
+        burners = np.zeros((rows_t.size, furnace.n_zones))
+        for col, (i, kind) in enumerate(zip(furnace.switched, kinds, strict=True)):
+            burners[:, i] = held[:, col] if kind == "burners" \
+                else held_means(bt, bc[:, col], edges)
+        if not furnace.modulated:
+            burners = burners.astype(int)
+        for i in furnace.rated:
+            burners[:, i] = self._heat[furnace.zones[i]].means(edges)
+        dist = np.column_stack([self._disturbances[d.name].means(edges)
+                                for d in furnace.disturbances]) if furnace.disturbances \
+            else np.zeros((rows_t.size, 0))
+        signals = {name: one.means(edges) for name, one in self._signals.items()}
+        return Binned(rows_t, tc, burners, air, np.concatenate([starts, cstart])[order],
+                      reading, dist, signals)
 
     def logged_bins(self, lo_ns: int | None = None, hi_ns: int | None = None) -> int:
         """How many bins in [lo_ns, hi_ns) hold any message, burner state known or not."""
@@ -238,6 +323,75 @@ class Resampler:
             if cut > 0:
                 del times[:cut]
                 del states[:cut]
+        for one in (*self._heat.values(), *self._disturbances.values(),
+                    *self._signals.values()):
+            one.forget(before_ns)
+
+
+class _Series:
+    """The `ok` readings of one analog input or signal, (time ns, value), held from each
+    reading until the next."""
+
+    def __init__(self) -> None:
+        self.t: list[int] = []
+        self.v: list[float] = []
+
+    @property
+    def first(self) -> int | None:
+        return min(self.t) if self.t else None
+
+    def add(self, t_ns: int, value: float) -> None:
+        self.t.append(t_ns)
+        self.v.append(value)
+
+    def means(self, edges: np.ndarray) -> np.ndarray:
+        """The time mean over each [edges[i], edges[i+1]); NaN for a row that ends before
+        the first reading."""
+        if not self.t:
+            return np.full(max(edges.size - 1, 0), np.nan)
+        t = np.asarray(self.t, dtype=np.int64)
+        order = np.argsort(t, kind="stable")
+        out = held_means(t[order], np.asarray(self.v, dtype=float)[order], edges)
+        return np.where(edges[1:] > t[order[0]], out, np.nan)
+
+    def forget(self, before_ns: int) -> None:
+        """Drop the readings before `before_ns` but the one in force then."""
+        if not self.t:
+            return
+        t = np.asarray(self.t, dtype=np.int64)
+        order = np.argsort(t, kind="stable")
+        cut = int(np.searchsorted(t[order], before_ns, "left")) - 1
+        if cut > 0:
+            self.t = t[order][cut:].tolist()
+            self.v = np.asarray(self.v, dtype=float)[order][cut:].tolist()
+
+
+def _row_edges(t: np.ndarray, step_ns: int) -> np.ndarray:
+    """Where each row's span ends: the next row's time; the last row as long as the one
+    before (a step with one row)."""
+    if t.size == 0:
+        return t.astype(np.int64)
+    last = t[-1] + (t[-1] - t[-2] if t.size > 1 else step_ns)
+    return np.append(t, last).astype(np.int64)
+
+
+def held_means(t: np.ndarray, values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """The time mean over each span [edges[i], edges[i+1]) of `values` held from each time
+    t[j] (ascending, ns) until the next, the first also before it; a span of no length
+    takes the value at its instant."""
+    values = np.asarray(values, dtype=float)
+    n = max(edges.size - 1, 0)
+    if t.size == 0:
+        return np.full(n, np.nan)
+    s = (t - t[0]) / 1e9  # seconds: the areas stay exact enough over years
+    x = (edges - t[0]) / 1e9
+    area = np.concatenate([[0.0], np.cumsum(values[:-1] * np.diff(s))])
+    j = np.clip(np.searchsorted(s, x, side="right") - 1, 0, None)
+    integral = area[j] + values[j] * (x - s[j])
+    width = np.diff(x)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(width > 0, np.diff(integral) / np.where(width > 0, width, 1.0),
+                        values[j[:-1]])
 
 
 DEFAULT_PERIOD_S = 60.0
@@ -261,9 +415,11 @@ def resample_logs(paths: Iterable[str | Path], period_s: float = DEFAULT_PERIOD_
     if furnace is None:
         furnace = log_furnace(paths, where)
     binner = Resampler(period_ns, lo if lo is not None else 0, furnace)
-    records = read_messages(paths, (THERMOCOUPLES, BURNERS, AMBIENT))
+    records = read_messages(paths, FURNACE_TOPICS)
     for topic, msg, _log_ns, pub_ns in records:
-        if topic == BURNERS or ((lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)):
+        # inputs are held: their last value before the range counts in its first row
+        held = topic not in (THERMOCOUPLES, AMBIENT)
+        if held or ((lo is None or pub_ns >= lo) and (hi is None or pub_ns < hi)):
             try:
                 binner.add(topic, msg, pub_ns)
             except DataError as exc:  # the message's fault: say in which log and when
@@ -273,22 +429,39 @@ def resample_logs(paths: Iterable[str | Path], period_s: float = DEFAULT_PERIOD_
         if binner.logged_bins(lo, hi) == 0:
             raise DataError(where, "no furnace data (thermocouples, burners, ambient) in the "
                                    "chosen time range")
-        raise DataError(where, "no burner state logged on /furnace/burners up to the chosen "
-                               "range")
-    return table_frame(rows.t, rows.tc, rows.burners, rows.t_air, furnace)
+        raise DataError(where, "no " + " and ".join(_inputs(furnace)) + " logged up to the "
+                               "chosen range")
+    return table_frame(rows.t, rows.tc, rows.burners, rows.t_air, furnace,
+                       rows.disturbances, rows.signals)
+
+
+def _inputs(furnace: Furnace) -> list[str]:
+    """The inputs a row needs, in words: where an export without rows missed them."""
+    out = [f"burner state on {BURNERS}"] if furnace.switched else []
+    if furnace.rated:
+        out.append(f"heat input on {HEAT}")
+    if furnace.disturbances:
+        out.append(f"disturbance on {DISTURBANCES}")
+    return out
 
 
 def table_frame(t: np.ndarray, tc: np.ndarray, burners: np.ndarray,
-                air: np.ndarray, furnace: Furnace) -> pd.DataFrame:
+                air: np.ndarray, furnace: Furnace, disturbances: np.ndarray | None = None,
+                signals: dict[str, np.ndarray] | None = None) -> pd.DataFrame:
     """Resampled arrays as the tabular contract (CONTRACTS.md section 1), in the furnace's
-    columns (`tc_<zone>_<k>`, `burners_<zone>`)."""
+    columns (`tc_<zone>_<k>`, each zone's heat input `burners_<zone>` or `heat_<zone>`,
+    `t_air`, the disturbances'), then a column per signal."""
     stamps = pd.to_datetime(np.round(t / 1e6).astype(np.int64), unit="ms", utc=True)
     frame = pd.DataFrame({"timestamp": stamps.strftime("%Y-%m-%dT%H:%M:%S.%f").str[:-3] + "Z"})
     for j, c in enumerate(furnace.tc_columns):
         frame[c] = tc[:, j]
-    for j, c in enumerate(furnace.burner_columns):
-        frame[c] = burners[:, j].astype(int)
+    for j, (c, h) in enumerate(zip(furnace.burner_columns, furnace.heat_inputs, strict=True)):
+        frame[c] = burners[:, j].astype(int) if h.whole else burners[:, j].astype(float)
     frame["t_air"] = air
+    for j, c in enumerate(furnace.disturbance_columns):
+        frame[c] = disturbances[:, j] if disturbances is not None else np.nan
+    for name, values in (signals or {}).items():
+        frame[name] = values
     return frame
 
 
@@ -296,7 +469,8 @@ def _counts(msg: Burners, furnace: Furnace) -> list[float]:
     out = msg.zone_counts(furnace)
     if any(math.isnan(v) for v in out):
         raise DataError(BURNERS, f"message without burner counts: {str(msg.to_json())[:200]}")
-    for z, v, n in zip(furnace.zones, out, furnace.burners, strict=True):
+    for i, v in zip(furnace.switched, out, strict=True):
+        z, n = furnace.zones[i], furnace.burners[i]
         if not 0 <= v <= n:
             raise DataError(BURNERS, f"burner count of zone {z} outside 0..{n}: {v:g}")
     return out

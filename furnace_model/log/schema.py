@@ -54,13 +54,31 @@ def param_names(furnace: Furnace) -> tuple[str, ...]:
 THERMOCOUPLES = "/furnace/thermocouples"
 BURNERS = "/furnace/burners"
 AMBIENT = "/furnace/ambient"
+HEAT = "/furnace/heat"
+DISTURBANCES = "/furnace/disturbances"
+SIGNALS = "/furnace/signals"
 DAQ_STATUS = "/daq/status"
 DAQ_EVENTS = "/daq/events"
 MODEL_PARAMETERS = "/model/parameters"
 MODEL_EVENTS = "/model/events"
 LOG = "/log"
-FURNACE_TOPICS: tuple[str, ...] = (THERMOCOUPLES, BURNERS, AMBIENT)
-"""The topics of the furnace's readings: what the resampler and the refit read."""
+FURNACE_TOPICS: tuple[str, ...] = (THERMOCOUPLES, BURNERS, AMBIENT, HEAT, DISTURBANCES,
+                                   SIGNALS)
+"""The topics of the furnace's readings: what the resampler and the refit read. The last
+three are in a log only when its furnace or register map has what they carry."""
+READING_FIELDS: tuple[str, ...] = ("quality", "unit", "plc_time")
+"""The fields of /furnace/heat, /furnace/disturbances and /furnace/signals beside the values
+they carry by name."""
+
+
+@dataclass(frozen=True)
+class SignalField:
+    """An extra named point of a register map as /furnace/signals carries it: a number in
+    its unit, or a bit (a boolean)."""
+
+    name: str
+    unit: str
+    bit: bool = False
 
 JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 """The draft every top-level schema declares (`$schema`); validators pick it from there."""
@@ -190,7 +208,8 @@ def _thermocouples(furnace: Furnace) -> dict:
 
 
 def _burners(furnace: Furnace) -> dict:
-    zones, counts = furnace.zones, furnace.burners
+    zones = furnace.switched_zones
+    counts = tuple(furnace.burners[i] for i in furnace.switched)
     return _object(
         {
             **{z: {"type": "array", "items": {"type": "boolean"}, "minItems": n, "maxItems": n,
@@ -207,6 +226,54 @@ def _burners(furnace: Furnace) -> dict:
         "burner flame-on states",
         (*zones, *(f"count_{z}" for z in zones), "source"),
     )
+
+
+def _named_readings(fields: dict[str, dict], units: dict[str, str], what: str,
+                    description: str) -> dict:
+    """A topic of values carried by name (rate-fired zones, disturbances, signals), each with
+    its quality and its unit, as /furnace/thermocouples carries its readings."""
+    names = tuple(fields)
+    return _object(
+        {
+            **fields,
+            "quality": _object({n: _string(f"quality of {n}", QUALITIES) for n in names},
+                               f"quality per {what}; only 'ok' readings are averaged", names),
+            "unit": _object({n: _string(f"the unit of {n}", (u,)) for n, u in units.items()},
+                            f"the unit of each {what}", names),
+            "plc_time": _PLC_TIME,
+        },
+        description,
+        ("quality", "unit"),
+    )
+
+
+def _heat(furnace: Furnace) -> dict:
+    zones = {furnace.zones[i]: furnace.heat_inputs[i] for i in furnace.rated}
+    return _named_readings(
+        {z: _number(f"heat input of the {z} zone in {h.unit} (0 to {h.max:g}); absent when "
+                    "the reading is not usable") for z, h in zones.items()},
+        {z: h.unit for z, h in zones.items()}, "zone",
+        "the heat input of each zone fired at a modulated rate (firing rate, fuel flow), one "
+        "poll; zones fired by burners switched on and off are on /furnace/burners")
+
+
+def _disturbances(furnace: Furnace) -> dict:
+    return _named_readings(
+        {d.name: _number(f"measured disturbance {d.name} in {d.unit}; absent when the reading "
+                         "is not usable") for d in furnace.disturbances},
+        {d.name: d.unit for d in furnace.disturbances}, "disturbance",
+        "the measured disturbances the furnace description declares, one poll")
+
+
+def _signals(signals: tuple[SignalField, ...]) -> dict:
+    return _named_readings(
+        {s.name: {"type": "boolean", "description": f"signal {s.name}, a bit; absent when "
+                  "the reading is not usable"} if s.bit else
+         _number(f"signal {s.name}" + (f" in {s.unit}" if s.unit else "") + "; absent when "
+                 "the reading is not usable") for s in signals},
+        {s.name: s.unit for s in signals}, "signal",
+        "the register map's extra named points (O2, pressure, fuel flow, a door switch), one "
+        "poll")
 
 
 _AMBIENT = _object(
@@ -244,7 +311,7 @@ _DAQ_STATUS = _object(
 
 
 def _daq_events(furnace: Furnace) -> dict:
-    zones = furnace.zones
+    zones = furnace.switched_zones
     return _object(
         {"kind": _string("what happened, e.g. burner_disagreement, missed_tick, log_gap"),
          "detail": _string("the event in words"),
@@ -394,20 +461,30 @@ _LOG = {
 }
 
 
-def topics(furnace: Furnace) -> dict[str, Topic]:
-    """Every topic of the contract for `furnace`, in the order the writer registers them:
-    the furnace topics' fields are its thermocouples and zones, /model/parameters its
-    network's parameters (CONTRACTS.md section 2). Same names and schema names for every
-    furnace, so a reader finds the topics of any log."""
-    return _topics(furnace)
+def topics(furnace: Furnace, signals: tuple[SignalField, ...] = ()) -> dict[str, Topic]:
+    """Every topic of the contract for `furnace` and the extra `signals` of its register
+    map, in the order the writer registers them: the furnace topics' fields are its
+    thermocouples and zones, /model/parameters its network's parameters (CONTRACTS.md
+    section 2). Same names and schema names for every furnace, so a reader finds the topics
+    of any log. /furnace/heat, /furnace/disturbances and /furnace/signals are topics only
+    of a furnace with rate-fired zones, with disturbances, and of a map with signals."""
+    return _topics(furnace, tuple(signals))
 
 
 @lru_cache(maxsize=16)
-def _topics(furnace: Furnace) -> dict[str, Topic]:
+def _topics(furnace: Furnace, signals: tuple[SignalField, ...]) -> dict[str, Topic]:
+    extra = []
+    if furnace.rated:
+        extra.append(Topic(HEAT, "furnace.Heat", _heat(furnace)))
+    if furnace.disturbances:
+        extra.append(Topic(DISTURBANCES, "furnace.Disturbances", _disturbances(furnace)))
+    if signals:
+        extra.append(Topic(SIGNALS, "furnace.Signals", _signals(signals)))
     return {t.name: t for t in (
         Topic(THERMOCOUPLES, "furnace.Thermocouples", _thermocouples(furnace)),
         Topic(BURNERS, "furnace.Burners", _burners(furnace)),
         Topic(AMBIENT, "furnace.Ambient", _AMBIENT),
+        *extra,
         Topic(DAQ_STATUS, "daq.Status", _DAQ_STATUS),
         Topic(DAQ_EVENTS, "daq.Event", _daq_events(furnace)),
         Topic(MODEL_PARAMETERS, "model.Parameters", _model_parameters(furnace)),
@@ -416,10 +493,10 @@ def _topics(furnace: Furnace) -> dict[str, Topic]:
     )}
 
 
-def topic(name: str, furnace: Furnace) -> Topic:
+def topic(name: str, furnace: Furnace, signals: tuple[SignalField, ...] = ()) -> Topic:
     """The contract's topic, or an open object schema for a topic the contract does not name
     yet (logged rather than lost; Foxglove shows its fields without autocompletion)."""
-    known = topics(furnace).get(name)
+    known = topics(furnace, signals).get(name)
     if known is not None:
         return known
     schema_name = "extra." + name.strip("/").replace("/", ".")

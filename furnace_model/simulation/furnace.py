@@ -97,6 +97,21 @@ class Furnace:
         return any(not h.whole for h in self.heat_inputs)
 
     @property
+    def switched(self) -> tuple[int, ...]:
+        """Zones fired by burners switched on and off, whole or pulse-fired: a PLC reports
+        each of their burners as one bit. A rate-fired zone reports its rate instead."""
+        return tuple(i for i, h in enumerate(self.heat_inputs) if h.kind != "rate")
+
+    @property
+    def switched_zones(self) -> tuple[str, ...]:
+        return tuple(self.zones[i] for i in self.switched)
+
+    @property
+    def rated(self) -> tuple[int, ...]:
+        """Zones fired at a modulated rate: a PLC reports the rate, an analog value."""
+        return tuple(i for i, h in enumerate(self.heat_inputs) if h.kind == "rate")
+
+    @property
     def burner_equivalents(self) -> np.ndarray:
         """Per zone, the burners one unit of its input stands for (1 for burner counts,
         burners / max for a rate): effects written for burner counts (a nonlinearity in the

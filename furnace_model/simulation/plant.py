@@ -218,3 +218,54 @@ class PlantStepper:
         """One scan of the thermocouples (noise drawn anew)."""
         sensed = (self._C @ self.x)[None]
         return self.plant.read(sensed, np.array([self.t]))[0]
+
+
+class PlantAhead:
+    """The plant over inputs known in full ahead (a scenario's schedule, pulse-fired zones
+    burner by burner), read at whole seconds in time order: a simulated PLC's scans.
+
+    Pulse firing switches a zone's inputs every few seconds, thousands of times a day; a
+    stepper advanced scan by scan would integrate its growing history at each scan. Here
+    each `span_min` is simulated once, exactly, at every second of it, so a scan costs a
+    lookup. Without effects the state at a span's start carries all of the past and the
+    span is simulated from the inputs since then; an effect may reach back (a transport
+    delay, a switch at an instant), and then the whole schedule up to the span goes in.
+    """
+
+    def __init__(self, plant: Plant, inputs: Inputs, x0_zone: np.ndarray,
+                 span_min: float = 60.0):
+        self.plant, self.inputs = plant, inputs
+        self.span_min = float(span_min)
+        self._t0 = float(inputs.t[0])
+        self._x = plant.structure.full_state(np.asarray(x0_zone, dtype=float))[0]
+        self._C = plant.structure.system(plant.structure.theta(plant.values)).C[0]
+        self._first_s = int(round(self._t0 * 60.0))
+        self._states = self._x[None]  # the span's states at each of its seconds
+
+    def _simulate(self, start_s: int) -> None:
+        """The span starting at second `start_s`, from the state there."""
+        inputs, t0 = self.inputs, start_s / 60.0
+        seconds = np.arange(start_s, start_s + int(round(self.span_min * 60.0)) + 1)
+        if not self.plant.structure.effects:
+            lo = max(int(np.searchsorted(inputs.t, t0, side="right")) - 1, 0)
+            hi = int(np.searchsorted(inputs.t, seconds[-1] / 60.0, side="right"))
+            inputs = Inputs(inputs.t[lo:hi], inputs.burners[lo:hi], inputs.t_air[lo:hi],
+                            inputs.disturbances[lo:hi])
+        run = self.plant.structure.simulate(self.plant.values, inputs, seconds / 60.0,
+                                            self._x[None], t0=t0, states=True)
+        self._first_s, self._states = start_s, run.states[0]
+
+    def state_at(self, second: int) -> np.ndarray:
+        """Every state of the plant at whole second `second` (from the first on, never
+        before the last one asked for)."""
+        last = self._first_s + self._states.shape[0] - 1
+        while second > last:
+            self._x = self._states[-1]
+            self._simulate(last)
+            last = self._first_s + self._states.shape[0] - 1
+        return self._states[second - self._first_s]
+
+    def readings(self, second: int) -> np.ndarray:
+        """One scan of the thermocouples at whole second `second` (noise drawn anew)."""
+        sensed = (self._C @ self.state_at(second))[None]
+        return self.plant.read(sensed, np.array([second / 60.0]))[0]

@@ -203,11 +203,6 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         if not any(f"tc_{z}_{i}" in cols for i in range(1, n + 1)):
             need = " or ".join(f"tc_{z}_{i}" for i in range(1, n + 1))
             raise err(f"zone '{z}' has no thermocouple column (need {need})")
-    absent = [c for c in tc_columns if c not in cols]
-    if absent:
-        warnings.warn(DataWarning(file, f"furnace '{furnace.name}' has thermocouple(s) "
-                                        f"{', '.join(absent)} that the file lacks: their zones "
-                                        "are read from the others"), stacklevel=2)
     if len(frame) == 0:
         raise err("no data rows")
 
@@ -268,6 +263,11 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         start_time = stamps[0]
         t_min = (stamps - start_time).total_seconds().to_numpy() / 60.0
 
+    absent = [c for c in tc_columns if c not in cols]
+    if absent:  # said once the file is known to be good: an error says all there is to say
+        warnings.warn(DataWarning(file, f"furnace '{furnace.name}' has thermocouple(s) "
+                                        f"{', '.join(absent)} that the file lacks: their zones "
+                                        "are read from the others"), stacklevel=2)
     # Ambient changes slowly: an empty cell holds the last reading (the default before any).
     t_air = pd.Series(t_air).ffill().fillna(t_air_default).to_numpy()
     return Experiment(Path(file).stem, t_min, tc, burners, t_air, start_time, file,

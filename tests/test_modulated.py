@@ -200,3 +200,13 @@ def test_burner_nonlinearity_reads_rates_as_the_burners_they_stand_for():
     factor = 1.0 - 0.01 * 11
     assert np.allclose(out[0, 0, :3], u[0, 0, :3] * factor)
     assert np.allclose(out[0, 0, 3:], u[0, 0, 3:])  # ambient and throughput untouched
+
+
+def test_commands_take_a_shipped_description_by_name(tmp_path, capsys):
+    from furnace_model.cli import main
+    out = tmp_path / "m.csv"
+    assert main(["simulate", "--scenario", SCENARIO, "--furnace", "modulated",
+                 "--out", str(out)]) == 0
+    assert main(["simulate", "--scenario", SCENARIO, "--furnace", "nosuch",
+                 "--out", str(out)]) == 2
+    assert "nosuch" in capsys.readouterr().err

@@ -148,18 +148,27 @@ def output_dir(text: str) -> Path:
 
 def add_furnace(parser: argparse.ArgumentParser) -> None:
     """--furnace: the furnace description the command works on (config/furnaces/)."""
-    parser.add_argument("--furnace", type=Path, metavar="FURNACE.yaml",
-                        help="furnace description (zones, links, burners, thermocouples; "
-                             "config/furnaces/); default the paper's three-zone furnace")
+    parser.add_argument("--furnace", metavar="FURNACE.yaml",
+                        help="furnace description (zones, links, burners, thermocouples): a "
+                             "YAML file, or the name of one in config/furnaces/ (six-zone, "
+                             "modulated); default the paper's three-zone furnace")
 
 
 def furnace_of(args: argparse.Namespace):
     """The furnace --furnace names, checked; the paper's when none is named."""
+    from ..errors import ConfigError
     from ..simulation.furnace import PAPER
-    from ..simulation.furnacefile import load_furnace
+    from ..simulation.furnacefile import FURNACES_DIR, load_furnace
 
-    path = getattr(args, "furnace", None)
-    return PAPER if path is None else load_furnace(path)
+    text = getattr(args, "furnace", None)
+    if text is None:
+        return PAPER
+    for candidate in (Path(text), FURNACES_DIR / text, FURNACES_DIR / f"{text}.yaml"):
+        if candidate.is_file():
+            return load_furnace(candidate)
+    names = ", ".join(sorted(p.stem for p in FURNACES_DIR.glob("*.yaml")))
+    raise ConfigError(str(text), "", f"file not found, nor a description's name in "
+                                     f"{FURNACES_DIR} ({names})")
 
 
 def add_effects_from(parser: argparse.ArgumentParser) -> None:

@@ -112,3 +112,18 @@ def test_unknown_effect_is_a_usage_error(case_files):
     fit, hold, _ = case_files
     r = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,warp_drive")
     assert r.returncode == 2 and "warp_drive" in r.stderr
+
+
+def test_progress_lines_on_stderr_unless_quiet(case_files):
+    fit, hold, _truth = case_files
+    r = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,sensor_lag")
+    assert r.returncode == 0, r.stderr
+    lines = [x for x in r.stderr.splitlines() if x.startswith("furnace-model diagnose: ")]
+    assert lines[0].startswith("furnace-model diagnose: fitting the baseline (")
+    assert any("zone_burners fitted in" in x for x in lines)
+    assert any("sensor_lag fitted in" in x for x in lines)
+    assert lines[-1].startswith("furnace-model diagnose: judging (")
+    quiet = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,sensor_lag",
+                "--quiet")
+    assert quiet.returncode == 0 and "furnace-model diagnose: " not in quiet.stderr
+    assert quiet.stdout == r.stdout

@@ -13,7 +13,12 @@ from .fitting import Task, run_task, structure_of
 WORKERS = 2
 
 
-def run_all(tasks: list[Task], progress: Callable[[float], None]) -> list[CandidateResult]:
+def run_all(tasks: list[Task], progress: Callable[[float], None],
+            finished: Callable[[CandidateResult], None] | None = None
+            ) -> list[CandidateResult]:
+    """The tasks' results in their order; `progress` hears the share done, `finished` each
+    result as it comes."""
+    done = finished or (lambda _c: None)
     if not tasks:
         return []
     out: list[CandidateResult] = []
@@ -27,9 +32,11 @@ def run_all(tasks: list[Task], progress: Callable[[float], None]) -> list[Candid
             results = {}
             for k, i in enumerate(order):
                 results[i] = futures[i].result()
+                done(results[i])
                 progress((k + 1) / len(tasks))
         return [results[i] for i in range(len(tasks))]
     for k, t in enumerate(tasks):
         out.append(run_task(t))
+        done(out[-1])
         progress((k + 1) / len(tasks))
     return out

@@ -110,7 +110,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of, inits[n], seed, bent,
                   bounds, fit_limit)
              for n in names]
-    fitted = run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f))
+    fitted = run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f),
+                     lambda c: say(fitted_words(c), 0.1))
     for c in fitted:
         score_against(c, base, floor)
     if bent:
@@ -165,8 +166,10 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                                    seed, options, bounds, starts, gap,
                                    lambda f: say("combinations", 0.7 + 0.3 * f))
     signals = unused_signals(fit_data + hold)
+    if signals:
+        say("signals", 0.95)
     followed = signal_candidates(signals, base, fit_data, hold, tail_of, seed, floor,
-                                 lambda f: say("signals", 0.95 + 0.05 * f)) if signals else []
+                                 lambda c: say(fitted_words(c), 0.95)) if signals else []
     candidates = sorted(singles + combos + followed, key=rank)
 
     def remaining(c: CandidateResult) -> list[Located] | None:
@@ -185,6 +188,11 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     say("done", 1.0)
     return Diagnosis(fit_data, hold, how, base, floor, where, tests, candidates, verdict,
                      time.perf_counter() - t_start, gap, **noise, kept=kept)
+
+
+def fitted_words(c: CandidateResult) -> str:
+    """A candidate's progress line: what was fitted and how long it took."""
+    return f"{c.label} fitted in {c.elapsed_s:.0f} s"
 
 
 def _pooled_tc(floors: list[RecordFloor]) -> dict[str, float]:

@@ -3,6 +3,7 @@ line (never a traceback) for data that cannot be diagnosed."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -127,3 +128,54 @@ def test_progress_lines_on_stderr_unless_quiet(case_files):
                 "--quiet")
     assert quiet.returncode == 0 and "furnace-model diagnose: " not in quiet.stderr
     assert quiet.stdout == r.stdout
+
+
+def _children(pid: int) -> set[int]:
+    """The live child processes of pid (Linux /proc)."""
+    out: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            out |= {int(x) for x in (task / "children").read_text().split()}
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
+def test_a_killed_diagnosis_leaves_no_worker_behind(case_files):
+    """SIGKILL, as a batch runner's timeout sends it, while the candidates are fitted in
+    their worker processes: the workers end with it."""
+    import os
+    import signal
+    import time
+
+    fit, hold, _truth = case_files
+    workers: set[int] = set()
+    proc = subprocess.Popen([sys.executable, "-m", "furnace_model.cli", "diagnose", str(fit),
+                             "--holdout", str(hold)], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        for line in proc.stderr:
+            if "fitting the candidate effects" in line:
+                while not workers and time.monotonic() < deadline:
+                    workers = _children(proc.pid)
+                    time.sleep(0.05)
+                break
+        assert workers, "no worker process was started"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 20
+        alive = workers
+        while alive and time.monotonic() < deadline:
+            alive = {w for w in alive if Path(f"/proc/{w}").exists()
+                     and "Z" not in (Path(f"/proc/{w}/stat").read_text().split()[2]
+                                     if Path(f"/proc/{w}/stat").exists() else "Z")}
+            time.sleep(0.1)
+        assert not alive, f"workers {sorted(alive)} outlived the killed diagnosis"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+        for w in workers:  # what the test started ends with it, whatever it found
+            with contextlib.suppress(OSError):
+                if b"furnace_model.cli" in Path(f"/proc/{w}/cmdline").read_bytes():
+                    os.kill(w, signal.SIGKILL)

@@ -3,7 +3,12 @@ seconds to minutes long."""
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import multiprocessing
+import os
+import signal
+import sys
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 
@@ -27,7 +32,9 @@ def run_all(tasks: list[Task], progress: Callable[[float], None],
         # nonlinear (slow) fits first, so that one does not finish last alone
         order = sorted(range(len(tasks)), key=lambda i: structure_of(
             tasks[i].effects, tasks[i].options, tasks[i].furnace).linear)
-        with ProcessPoolExecutor(max_workers=WORKERS, mp_context=ctx) as pool:
+        with ProcessPoolExecutor(max_workers=WORKERS, mp_context=ctx,
+                                 initializer=die_with_parent,
+                                 initargs=(os.getpid(),)) as pool:
             futures = {i: pool.submit(run_task, tasks[i]) for i in order}
             results = {}
             for k, i in enumerate(order):
@@ -40,3 +47,18 @@ def run_all(tasks: list[Task], progress: Callable[[float], None],
         done(out[-1])
         progress((k + 1) / len(tasks))
     return out
+
+
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(parent: int) -> None:
+    """A worker ends when the diagnosis that started it is killed (a supervisor's timeout
+    sends SIGKILL, which no handler sees): left alone, it would compute its candidate for
+    minutes as an orphan. Linux tells the worker through the parent-death signal; a parent
+    that died before this ran is seen by its pid."""
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:
+        os._exit(1)

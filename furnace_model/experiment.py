@@ -282,7 +282,7 @@ def _signals(frame: pd.DataFrame, cols: list[str], furnace: Furnace) -> dict[str
             *furnace.disturbance_columns}
     out = {}
     for c in cols:
-        if c in used or c.startswith(("tc_", "burners_", "heat_")):
+        if c in used or c.startswith(("tc_", "burners_", "heat_")) or _row_label(c):
             continue
         col = frame[c]
         if pd.api.types.is_bool_dtype(col.dtype):
@@ -294,9 +294,21 @@ def _signals(frame: pd.DataFrame, cols: list[str], furnace: Furnace) -> dict[str
             v = pd.to_numeric(text.where(text != "", None), errors="coerce").to_numpy(float)
             if (np.isnan(v) & (text != "").to_numpy()).any():
                 continue
-        if np.isfinite(v).any() and not np.isinf(v).any():
+        if np.isfinite(v).any() and not np.isinf(v).any() and not _counts_rows(v):
             out[c] = v
     return out
+
+
+def _row_label(column: str) -> bool:
+    """A table's own row numbers as a spreadsheet or pandas writes them, not a signal."""
+    return column.lower() in ("index", "row", "") or column.startswith("Unnamed: ")
+
+
+def _counts_rows(v: np.ndarray) -> bool:
+    """Whether a column only numbers the rows (0, 1, 2, ...): a ramp the model would take for
+    a heat input."""
+    steps = np.diff(v)
+    return v.size > 2 and bool(np.all(steps == 1.0))
 
 
 def _heat_input(v: np.ndarray, heat: HeatInput, zone: str, column: str, err) -> np.ndarray:

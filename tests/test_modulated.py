@@ -210,3 +210,15 @@ def test_commands_take_a_shipped_description_by_name(tmp_path, capsys):
     assert main(["simulate", "--scenario", SCENARIO, "--furnace", "nosuch",
                  "--out", str(out)]) == 2
     assert "nosuch" in capsys.readouterr().err
+
+
+def test_extra_numeric_columns_are_signals_but_row_numbers_are_not(tmp_path):
+    s = load_scenario("config/scenarios/paper_exp1.yaml")
+    frame = Plant.from_scenario(s, seed=1).run_scenario(s).to_frame()
+    frame["o2_pct"] = np.linspace(2.0, 5.0, len(frame))
+    frame["note"] = "ok"
+    frame["row"] = np.arange(len(frame))
+    frame.to_csv(tmp_path / "f.csv", index=True)  # pandas' own index: 'Unnamed: 0'
+    exp = read_table(tmp_path / "f.csv", furnace=s.furnace)
+    assert list(exp.signals) == ["o2_pct"]
+    assert np.allclose(exp.signals["o2_pct"], frame["o2_pct"], atol=1e-3)

@@ -53,6 +53,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import DataError
+from ..heldmeans import held_means, row_edges
 from ..simulation.furnace import Furnace
 from .messages import (
     Ambient,
@@ -281,7 +282,7 @@ class Resampler:
                                cb])[order]
         air = np.concatenate([means[:, ns], np.full(k, np.nan)])[order]
         reading = np.concatenate([np.ones(n, bool), np.zeros(k, bool)])[order]
-        edges = _row_edges(rows_t, self.step_ns)
+        edges = row_edges(rows_t, self.step_ns)
         burners = np.zeros((rows_t.size, furnace.n_zones))
         for col, (i, kind) in enumerate(zip(furnace.switched, kinds, strict=True)):
             burners[:, i] = held[:, col] if kind == "burners" \
@@ -364,34 +365,6 @@ class _Series:
         if cut > 0:
             self.t = t[order][cut:].tolist()
             self.v = np.asarray(self.v, dtype=float)[order][cut:].tolist()
-
-
-def _row_edges(t: np.ndarray, step_ns: int) -> np.ndarray:
-    """Where each row's span ends: the next row's time; the last row as long as the one
-    before (a step with one row)."""
-    if t.size == 0:
-        return t.astype(np.int64)
-    last = t[-1] + (t[-1] - t[-2] if t.size > 1 else step_ns)
-    return np.append(t, last).astype(np.int64)
-
-
-def held_means(t: np.ndarray, values: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """The time mean over each span [edges[i], edges[i+1]) of `values` held from each time
-    t[j] (ascending, ns) until the next, the first also before it; a span of no length
-    takes the value at its instant."""
-    values = np.asarray(values, dtype=float)
-    n = max(edges.size - 1, 0)
-    if t.size == 0:
-        return np.full(n, np.nan)
-    s = (t - t[0]) / 1e9  # seconds: the areas stay exact enough over years
-    x = (edges - t[0]) / 1e9
-    area = np.concatenate([[0.0], np.cumsum(values[:-1] * np.diff(s))])
-    j = np.clip(np.searchsorted(s, x, side="right") - 1, 0, None)
-    integral = area[j] + values[j] * (x - s[j])
-    width = np.diff(x)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(width > 0, np.diff(integral) / np.where(width > 0, width, 1.0),
-                        values[j[:-1]])
 
 
 DEFAULT_PERIOD_S = 60.0

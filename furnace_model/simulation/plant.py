@@ -15,6 +15,7 @@ import pandas as pd
 from scipy.signal import lfilter
 
 from ..experiment import Experiment
+from ..heldmeans import held_means, row_edges
 from .furnace import Furnace
 from .scenario import Scenario, SensorSpec
 from .structure import Inputs, ModelStructure
@@ -134,17 +135,7 @@ def row_means(t_in: np.ndarray, levels: np.ndarray, t: np.ndarray) -> np.ndarray
     the rows records of an analog input."""
     levels = np.asarray(levels, dtype=float).reshape(np.size(t_in), -1)
     t = np.asarray(t, dtype=float)
-    if t.size == 0 or levels.shape[1] == 0:
-        return np.zeros((t.size, levels.shape[1]))
-    edges = np.append(t, t[-1] + (t[-1] - t[-2] if t.size > 1 else 1.0))
-    area = np.concatenate([np.zeros((1, levels.shape[1])),
-                           np.cumsum(levels[:-1] * np.diff(t_in)[:, None], axis=0)])
-
-    def integral(x: np.ndarray) -> np.ndarray:
-        j = np.clip(np.searchsorted(t_in, x, side="right") - 1, 0, None)
-        return area[j] + levels[j] * (x - t_in[j])[:, None]
-
-    return np.diff(integral(edges), axis=0) / np.diff(edges)[:, None]
+    return held_means(np.asarray(t_in, dtype=float), levels, row_edges(t, 1.0))
 
 
 class PlantStepper:

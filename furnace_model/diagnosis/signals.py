@@ -6,8 +6,7 @@ no library effect is the cause: heat entered that the model never saw. The test 
 every candidate takes: the signal enters the baseline as one more measured input, with one
 gain per zone (`Disturbance`), the extended model is fitted on the fitted data and judged on
 the held-out data by the credit rules. A library effect cannot fake this candidate, since its
-input is the signal's own time course; a signal that merely tracks the burners gets no gain
-the data determine.
+input is the signal's own time course.
 """
 
 from __future__ import annotations

@@ -336,14 +336,14 @@ class _Series:
     def __init__(self) -> None:
         self.t: list[int] = []
         self.v: list[float] = []
-
-    @property
-    def first(self) -> int | None:
-        return min(self.t) if self.t else None
+        self.first: int | None = None
+        """The earliest reading's time: kept as they come, since the online refit asks at
+        every window and a week of readings is long to scan."""
 
     def add(self, t_ns: int, value: float) -> None:
         self.t.append(t_ns)
         self.v.append(value)
+        self.first = t_ns if self.first is None else min(self.first, t_ns)
 
     def means(self, edges: np.ndarray) -> np.ndarray:
         """The time mean over each [edges[i], edges[i+1]); NaN for a row that ends before
@@ -365,6 +365,7 @@ class _Series:
         if cut > 0:
             self.t = t[order][cut:].tolist()
             self.v = np.asarray(self.v, dtype=float)[order][cut:].tolist()
+            self.first = self.t[0]
 
 
 DEFAULT_PERIOD_S = 60.0

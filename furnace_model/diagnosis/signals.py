@@ -24,7 +24,7 @@ from .credit import credited, near_floor, rank, score_against
 from .fitting import Task
 from .locate import Located
 from .pool import run_all
-from .verdict import Part, Remaining, Verdict
+from .verdict import Part, Verdict, remaining_of
 from .words import temp_c
 
 UNMODELLED_INPUT = "unmodelled_input"
@@ -126,10 +126,7 @@ def prefer_signal(verdict: Verdict, followed: list[CandidateResult],
     if not full:
         parts = [Part(best.label, best.gap_closed_pct, best.shrink_pct,
                       dict(best.rmse_holdout_c))]
-        left = locate_remaining(best)
-        remaining = Remaining(dict(best.rmse_holdout_c), dict(floor),
-                              where if left is None else left,
-                              "baseline" if left is None else "kept")
+        remaining = remaining_of(best, floor, where, locate_remaining)
     return Verdict(
         "explained" if full else "explained_in_part", [], best.shrink_pct,
         gap_closed_pct=best.gap_closed_pct, unmodelled_inputs=[best.signal],

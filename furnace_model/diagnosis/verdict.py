@@ -136,9 +136,7 @@ def _in_part(base: CandidateResult, kept: CandidateResult, floor: dict[str, floa
     logs) seldom let any model reach it, and an effect that closes two thirds of the gap is
     worth naming, with what it leaves."""
     parts = _parts(base, kept, floor, steps, candidates)
-    found = locate_remaining(kept) if locate_remaining is not None else None
-    remaining = (Remaining(dict(kept.rmse_holdout_c), dict(floor), found, "kept") if found
-                 else Remaining(dict(kept.rmse_holdout_c), dict(floor), list(where), "baseline"))
+    remaining = remaining_of(kept, floor, where, locate_remaining)
     physics = "; and ".join(EFFECTS[n].physics_for(furnace) for n in kept.effects)
     one = len(kept.effects) == 1
     what, they = ("an effect", "it") if one else (f"{len(kept.effects)} effects", "they")
@@ -167,6 +165,17 @@ def _in_part(base: CandidateResult, kept: CandidateResult, floor: dict[str, floa
         + _unseen_words(kept, furnace) + missing_words)
     return Verdict("explained_in_part", list(kept.effects), kept.shrink_pct, sentence,
                    gap_closed_pct=kept.gap_closed_pct, parts=parts, remaining=remaining)
+
+
+def remaining_of(c: CandidateResult, floor: dict[str, float], where: list[Located],
+                 locate_remaining: Callable[[CandidateResult], list[Located] | None] | None
+                 ) -> Remaining:
+    """What a model that explains part of the gap leaves: located on its own held-out
+    residual, else the baseline's `where`, said to be the baseline's."""
+    found = locate_remaining(c) if locate_remaining is not None else None
+    if found:
+        return Remaining(dict(c.rmse_holdout_c), dict(floor), found, "kept")
+    return Remaining(dict(c.rmse_holdout_c), dict(floor), list(where), "baseline")
 
 
 def _parts(base: CandidateResult, kept: CandidateResult, floor: dict[str, float],

@@ -148,3 +148,53 @@ def test_first_order_of_a_linear_set_is_its_response(record):
     x0 = record.zone_temp[0]
     assert np.abs(rad.simulate_first_order(v, inputs, t, x0)
                   - rad.simulate(v, inputs, t, x0).zones).max() < 1e-9
+
+
+LINEAR = ("zone_burners", "zone_losses", "sensor_lag", "dead_time", "wall_storage",
+          "burner_nonlinearity", "fuel_change", "sensor_drift")
+TIMED = ("theta_dead", "t_fuel")
+"""Parameters that move the input's step times: their columns stay forward differences."""
+INSTANTS = TIMED + ("t_drift",)
+"""Instants at which something starts: on a sample time the residual has a kink there."""
+
+
+@pytest.mark.parametrize("shipped", ["paper", "six-zone", "modulated"])
+def test_exact_jacobian_on_random_parameter_sets(shipped):
+    """Every column the closed form gives matches central differences of the residuals to
+    1e-6 of the column, on random parameter sets around the truth, for the baseline and each
+    linear effect on each shipped furnace (the modulated one has rates, a pulse-fired zone
+    and a disturbance)."""
+    from furnace_model.diagnosis.cases import draw_case, network_truth
+    from furnace_model.effects import EFFECTS
+    from furnace_model.simulation.furnacefile import load_furnace
+
+    furnace = load_furnace(SCENARIOS.parent / "furnaces" / f"{shipped}.yaml")
+    rng = np.random.default_rng(11)
+    data = draw_case(None, rng, furnace=furnace).fit
+    rec = data[0].rows(data[0].t_min <= data[0].t_min[0] + 1500.0)
+    for name in ("baseline",) + LINEAR:
+        try:
+            effects = [] if name == "baseline" else [EFFECTS[name](furnace=furnace)]
+        except ValueError as e:  # zone_burners, on a furnace whose burners heat their zone
+            assert "does not apply" in str(e)
+            continue
+        structure = ModelStructure(effects, furnace=furnace)
+        prob = Problem([rec], structure, {}, {}, zone_offsets=True)
+        truth = {**network_truth(furnace), **structure.defaults(), **network_truth(furnace)}
+        for _ in range(2):
+            v = prob.to_z(np.array([truth[n] for n in prob.names]))
+            v = v + np.where(prob.log, rng.normal(0.0, 0.2, v.size), 0.0)
+            # an instant on a sample time is a kink of the residual: no derivative there
+            v = v + np.isin(prob.names, INSTANTS) * rng.uniform(0.2, 0.8)
+            z = prob.start(np.clip(v, prob.lo, prob.hi))
+            z[prob.k:prob.k + prob.nz] += rng.normal(0.0, 3.0, prob.nz)
+            J, ref = prob.jac(z), _central(prob, z)
+            # what the reference itself rounds to: the residuals' last digits over its step
+            rounding = 50 * np.finfo(float).eps * np.abs(prob.fun(z)).max()
+            for i, col in enumerate(prob.names + [f"x0_{w}" for w in range(prob.nz)]):
+                scale = np.abs(ref[:, i]).max()
+                err = np.abs(J[:, i] - ref[:, i]).max()
+                tol = 2e-3 if col in TIMED else 1e-6
+                h = 1e-5 * max(1.0, abs(z[i])) if i < prob.k else 1e-2
+                assert err <= tol * scale + rounding / h, (
+                    f"{shipped} {name} {col}: {err:.3g} against a column of {scale:.3g}")

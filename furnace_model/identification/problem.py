@@ -16,12 +16,12 @@ from ..errors import FurnaceError
 from ..experiment import Experiment
 from ..simulation.response import Response
 from ..simulation.structure import Inputs, ModelStructure
+from .jacobian import jacobian
 from .plausible import FLAG_LEVEL, Flag, start_band, zone_bias_bounds
 from .scores import zone_metrics
 from .uncertainty import gram
 
 _T = TypeVar("_T")
-_FD_STEP = 1e-6
 _CELLS = 4_000_000
 """Model values (sets x samples x zones) per simulator call in the GA: about 32 MB each."""
 POLISH_MAX_ITER = 60
@@ -339,51 +339,7 @@ class Problem:
         return np.concatenate(out, axis=1)
 
     def jac(self, z: np.ndarray) -> np.ndarray:
-        return self.remembered("jac", z, lambda: self._jac(z))
-
-    def _jac(self, z: np.ndarray) -> np.ndarray:
-        """Forward differences, all perturbed sets of an experiment in one batched call.
-
-        Where the nonlinear terms vanish at z (radiation's share at zero: a fit that drives
-        the effect to its null), every set but the one that switches them on is linear and
-        simulated in closed form; that one is taken to first order in its nonlinear terms
-        (`ModelStructure.simulate_first_order`). That differs from the integrated set by
-        the square of the step, and by the two schemes' discretisations (a few millionths
-        of the derivative on a heat-up): the same derivative, without a nonlinear
-        integration per Jacobian."""
-        k = self.k
-        blocks = []
-        zp, h = self._perturbed(z)
-        vals = self.values(zp)
-        first = None
-        if not self.structure.linear:
-            off = self.structure.nonlinear_off(vals)
-            if off[0] and not off.all():
-                first = ~off
-        nz = self.nz
-        for j in range(len(self.records)):
-            P = k + 1 + nz
-            x0 = np.repeat(self.x0_of(z, j)[None], P, axis=0)
-            x0[1 + k + np.arange(nz), np.arange(nz)] += h[k:]
-            res = self.residuals(j, vals, x0, first)
-            d = (res[1:] - res[0]) / h[:, None]  # (k+zones, m_j)
-            block = np.zeros((res.shape[1], self.n))
-            block[:, :k] = d[:k].T
-            i = k + self.block * j
-            block[:, i:i + nz] = d[k:].T
-            if self.offsets_fitted:  # a zone's offset moves its own residuals one for one
-                block[np.arange(res.shape[1]), i + nz + self.records[j].zone_of] = 1.0
-            blocks.append(block)
-        return np.concatenate(blocks)
-
-    def _perturbed(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The Jacobian's parameter sets (k + 1 + zones, k): z, then each free parameter
-        stepped, then z again for each initial zone temperature; and the steps (k + zones,)."""
-        k, nz = self.k, self.nz
-        h = np.concatenate([_FD_STEP * np.maximum(1.0, np.abs(z[:k])), np.full(nz, 1e-3)])
-        zp = np.repeat(z[None, :k], k + 1 + nz, axis=0)
-        zp[1 + np.arange(k), np.arange(k)] += h[:k]
-        return zp, h
+        return self.remembered("jac", z, lambda: jacobian(self, z))
 
     def polish(self, z0: np.ndarray, deadline: float | None, max_iter: int = POLISH_MAX_ITER,
                gain_tol: float = 1e-10, damping: float = 1e-3) -> Polished:

@@ -1,0 +1,194 @@
+"""Exact derivatives of a linear system's zero-order-hold response with respect to its
+matrices and input levels, from the same closed form the response is computed in.
+
+With x' = A x + B u and a parameter p that moves A, B and the input levels (but not the
+times the input steps at), the sensitivity s = dx/dp obeys s' = A s + A_p x + B_p u + B u_p.
+In the eigenbasis of A (x = V zeta, s = V sigma, W = V^-1) that is
+
+    sigma_i' = lam_i sigma_i + sum_j F_ij zeta_j + g_i,   F = W A_p V,  g = W (B_p u + B u_p),
+
+and on a segment of constant input zeta_j = c_j exp(lam_j tau) + steady_j, so sigma is a
+sum of the same exponentials: with G_ij = F_ij c_j / (lam_j - lam_i) (j != i) and
+h = F steady + g,
+
+    sigma_i(tau) = e_i (sigma_i(0) - sum_j G_ij + h_i / lam_i) + sum_j G_ij e_j
+                   + F_ii c_i tau e_i - h_i / lam_i,          e_j = exp(lam_j tau).
+
+No eigenvector derivative is needed, and one pass gives every parameter's column, where a
+finite difference needs a simulation per column and is good to about the square root of
+the rounding. Modes that (nearly) coincide, as the lags of several zones with one time
+constant do, take the quotient's limit as a series (`_coefficients`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lti import Drive, Modes
+
+_BLOCK = 4096
+"""Samples per block of the per-sample coefficient tables."""
+
+
+class NoClosedForm(ValueError):
+    """The system has no trustworthy eigenbasis (a defective A) or a mode too slow for the
+    closed form: its derivatives must be taken otherwise."""
+
+
+def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.ndarray,
+                         dB: np.ndarray, drive: Drive, d_u0: np.ndarray | None,
+                         d_du: np.ndarray | None, x0: np.ndarray, dx0: np.ndarray,
+                         t0: float, t: np.ndarray, modes: Modes | None = None
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Outputs and their derivatives for one parameter set.
+
+    A (n, n), B (n, m), C (q, n); dA (p, n, n) and dB (p, n, m) their derivatives with
+    respect to p parameters; `drive` with shared step times (one set); d_u0 (p, m) and
+    d_du (p, K, m) the derivatives of its levels (None: the levels do not move); x0 (n,)
+    the state at t0 and dx0 (r, n) directions of it. Returns dy/dp (p, N, q) and dy/dx0
+    along each direction (r, N, q). Raises NoClosedForm where `response` itself
+    would leave the eigenbasis. `modes`: A's, when several records share it.
+    """
+    t = np.asarray(t, dtype=float)
+    modes = modes or Modes.of(A[None])
+    lam, V, W = modes.lam[0], modes.V[0], modes.Vinv[0]
+    n = lam.size
+    span = max(float(t[-1] - t0), 1.0) if t.size else 1.0
+    if np.linalg.cond(V) > 1e9 or np.any(np.abs(lam) * span <= 1e-6):
+        raise NoClosedForm("no closed form for this system")
+    s = np.ravel(drive.s) if np.ndim(drive.s) == 1 or np.shape(drive.s)[0] == 1 else None
+    if s is None:
+        raise NoClosedForm("step times differ between parameter sets")
+    p, m = dA.shape[0], B.shape[1]
+    du = np.asarray(drive.du)[0]  # (K, m)
+    u0 = np.asarray(drive.u0)[0]
+    d_u0 = np.zeros((p, m)) if d_u0 is None else d_u0
+    d_du = np.zeros((p,) + du.shape) if d_du is None else d_du
+    order = np.argsort(s, kind="stable")
+    s, du, d_du = s[order], du[order], d_du[:, order]
+    uniq = np.unique(s)
+    bounds = np.concatenate(([t0], uniq[uniq > t0]))
+    Kb = bounds.size
+    last = np.searchsorted(s, bounds, side="right") - 1
+    if s.size:
+        U = np.where((last >= 0)[:, None], (u0 + np.cumsum(du, axis=0))[np.maximum(last, 0)], u0)
+        dU = np.where((last >= 0)[None, :, None],
+                      (d_u0[:, None] + np.cumsum(d_du, axis=1))[:, np.maximum(last, 0)],
+                      d_u0[:, None])
+    else:
+        U, dU = np.broadcast_to(u0, (Kb, m)), np.broadcast_to(d_u0[:, None], (p, Kb, m))
+    steady = -(U @ (W @ B).T) / lam  # (Kb, n)
+    F = W @ dA @ V  # (p, n, n)
+    h = np.einsum("pij,kj->pki", F, steady) + np.einsum(
+        "ij,pkj->pki", W, np.einsum("pnm,km->pkn", dB, U) + np.einsum("nm,pkm->pkn", B, dU))
+    gaps = np.diff(bounds)
+    decay = _exp(lam[None, :] * gaps[:, None])  # (Kb-1, n)
+    c = np.empty((Kb, n), np.result_type(lam, W, float))
+    zeta = W @ np.asarray(x0, dtype=float)
+    for k in range(Kb):
+        c[k] = zeta - steady[k]
+        if k + 1 < Kb:
+            zeta = c[k] * decay[k] + steady[k]
+    longest = max(float(gaps.max()) if gaps.size else 0.0,
+                  float(t[-1] - bounds[-1]) if t.size else 0.0, 1e-300)
+    coef = _coefficients(F, lam, c, h, longest)
+    sig = np.zeros((p, Kb, n), np.result_type(coef.G, h))
+    if Kb > 1:
+        basis = _basis(lam, gaps, coef.M.shape[2]).reshape(Kb - 1, -1, n)
+        step = (np.einsum("kbj,pkbj->pkj", basis, coef.M[:, :-1])
+                + np.einsum("kj,pkij->pki", decay, coef.G[:, :-1]) + coef.const[:, :-1])
+        for k in range(Kb - 1):
+            sig[:, k + 1] = decay[k] * sig[:, k] + step[:, k]
+    CVt = (C @ V).T  # (n, q)
+    nb = coef.M.shape[2]
+    # dy = sum over the basis of its coefficients times C V, per segment; laid out (basis,
+    # output, parameter) so that each segment is one matrix product into (N, q, p)
+    M = coef.M.copy()
+    M[:, :, 0] += sig
+    out_M = np.einsum("pkbj,jq->kbjqp", M, CVt)
+    out_M[:, 0] += np.einsum("pkij,iq->kjqp", coef.G, CVt)
+    q = C.shape[0]
+    out_M = out_M.reshape(Kb, nb * n, q * p)
+    out_c = np.einsum("pkj,jq->kqp", coef.const, CVt).reshape(Kb, q * p)
+    seg = np.searchsorted(bounds, t, side="right") - 1
+    dy = np.empty((t.size, q, p))
+    flat = dy.reshape(t.size, q * p)
+    if Kb <= max(t.size // 16, 1):  # few long segments: a product each
+        runs = np.searchsorted(seg, np.arange(Kb + 1))
+        for k in range(Kb):
+            lo, hi = runs[k], runs[k + 1]
+            if hi > lo:
+                X = _basis(lam, t[lo:hi] - bounds[k], nb)
+                flat[lo:hi] = np.real(X @ out_M[k] + out_c[k])
+    else:  # many short ones: each sample's segment gathered
+        for b0 in range(0, t.size, _BLOCK):
+            blk = slice(b0, b0 + _BLOCK)
+            k = seg[blk]
+            X = _basis(lam, t[blk] - bounds[k], nb)
+            flat[blk] = np.real(np.einsum("tb,tbc->tc", X, out_M[k]) + out_c[k])
+    free = _exp(lam[None, :] * (t - t0)[:, None])  # (N, n): the response to the start
+    start = np.asarray(dx0, dtype=float) @ W.T  # (r, n)
+    dy0 = np.real(free @ np.einsum("rj,jq->jqr", start, CVt).reshape(n, -1))
+    return (dy.transpose(2, 0, 1),
+            dy0.reshape(t.size, q, start.shape[0]).transpose(2, 0, 1))
+
+
+CLOSE = 1e-3
+"""Modes whose rates differ by less than this over the longest segment are summed as one
+mode with a polynomial factor: their difference quotient would cancel to rounding."""
+
+
+@dataclass(frozen=True)
+class _Coefficients:
+    """sigma(tau) on each segment = sum_b M[b] basis_b(tau) + G e(tau) + const, the basis
+    being e, tau e and, where modes are close, tau^2 e, tau^3 e (elementwise in the modes);
+    M[0] without sigma(0)."""
+
+    M: np.ndarray  # (p, Kb, 2 or 4, n)
+    G: np.ndarray  # (p, Kb, i, j): e_j's share in sigma_i, modes apart
+    const: np.ndarray  # (p, Kb, n)
+
+
+def _coefficients(F: np.ndarray, lam: np.ndarray, c: np.ndarray, h: np.ndarray,
+                  longest: float) -> _Coefficients:
+    """For modes apart, F_ij c_j (e_j - e_i) / (lam_j - lam_i); for modes close (a mode with
+    itself, or the lags of several zones sharing one time constant), the same quotient as
+    the series e_i (tau + d tau^2 / 2 + d^2 tau^3 / 6), d = lam_j - lam_i, which is exact to
+    rounding while |d| tau stays under CLOSE."""
+    n = lam.size
+    gap = lam[None, :] - lam[:, None]  # (i, j): lam_j - lam_i
+    close = np.abs(gap) * longest <= CLOSE
+    Fc = F[:, None] * c[None, :, None, :]  # (p, Kb, i, j)
+    G = np.where(close, 0.0, Fc / np.where(close, 1.0, gap))
+    near = np.where(close, Fc, 0.0)
+    series = close.sum() > n  # modes close to others than themselves
+    M = np.empty(Fc.shape[:2] + (4 if series else 2, n), np.result_type(Fc, h))
+    const = -h / lam
+    M[:, :, 0] = -G.sum(axis=-1) - const
+    M[:, :, 1] = near.sum(axis=-1)
+    if series:
+        M[:, :, 2] = (near * gap).sum(axis=-1) / 2.0
+        M[:, :, 3] = (near * gap * gap).sum(axis=-1) / 6.0
+    return _Coefficients(M, G, const)
+
+
+def _basis(lam: np.ndarray, tau: np.ndarray, nb: int) -> np.ndarray:
+    """e, tau e, tau^2 e, tau^3 e (the first nb) at each tau, flattened: (T, nb n)."""
+    X = np.empty((tau.size, nb, lam.size), np.result_type(lam, float))
+    X[:, 0] = _exp(lam[None, :] * tau[:, None])
+    for b in range(1, nb):
+        X[:, b] = tau[:, None] * X[:, b - 1]
+    return X.reshape(tau.size, -1)
+
+
+FLOOR = -600.0
+"""exp() of anything lower is taken at this: e^-600 (1e-261) weighs nothing beside any
+coefficient, while the subnormal numbers below e^-708 would slow every product they enter
+by a hundredfold."""
+
+
+def _exp(x: np.ndarray) -> np.ndarray:
+    return np.exp(np.maximum(x.real, FLOOR) + 1j * x.imag) if np.iscomplexobj(x) else \
+        np.exp(np.maximum(x, FLOOR))

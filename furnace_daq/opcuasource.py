@@ -75,9 +75,19 @@ def _status_text(status: ua.StatusCode) -> str:
     return status.name or f"0x{status.value:08X}"
 
 
+class _Refused(Exception):
+    """A server the gateway will not talk to, with the kind of failure and why."""
+
+    def __init__(self, kind: str, why: str):
+        super().__init__(why)
+        self.kind, self.why = kind, why
+
+
 def connect_failure(exc: BaseException) -> tuple[str, str]:
     """(kind, why) of a failed dial: the socket's failures as Modbus names them, a
     server that refused the session by its status code."""
+    if isinstance(exc, _Refused):
+        return exc.kind, exc.why
     if isinstance(exc, TimeoutError):
         return "connect timeout", "no answer"
     if isinstance(exc, UaStatusCodeError):
@@ -171,7 +181,7 @@ class OpcUaSource(Source):
         try:
             await self._secure(client)
             await asyncio.wait_for(client.connect(), 4 * timeout)
-        except (TimeoutError, OSError, UaError, ValueError) as exc:
+        except (TimeoutError, OSError, UaError, ValueError, _Refused) as exc:
             await _quietly_disconnect(client, timeout)
             kind, why = connect_failure(exc)
             raise SourceError(f"cannot connect to {self.url}: {why}", kind) from None
@@ -208,16 +218,31 @@ class OpcUaSource(Source):
                 x509.SubjectAlternativeName).value.get_values_for_type(
                 x509.UniformResourceIdentifier)[0]
         pinned = _load_certificate(trusted.read_bytes())
+        policy = getattr(security_policies, POLICIES[sec.policy])
+        mode = getattr(MessageSecurityMode, sec.mode)
+        # The server's endpoints (an unsecured GetEndpoints) say which certificate it
+        # holds: one other than the trusted is refused before any secret is sent to it.
+        endpoints = await asyncio.wait_for(client.connect_and_get_server_endpoints(),
+                                           2 * self.device.timeout_s)
+        offered = [e for e in endpoints if e.SecurityMode == mode
+                   and e.SecurityPolicyUri == policy.URI]
+        if not offered:
+            raise _Refused("security refused", f"the server offers no endpoint with "
+                                               f"{sec.policy} {sec.mode}")
+        presented = _load_certificate(_first_certificate(offered[0].ServerCertificate))
+        if presented != pinned:
+            raise _Refused("security refused", f"the server's certificate "
+                                               f"({presented.subject.rfc4514_string()}) is not "
+                                               f"the trusted one, {trusted}")
 
         async def only_the_trusted_server(cert, _app) -> None:
             if cert != pinned:
                 raise ua.UaStatusCodeError(ua.StatusCodes.BadCertificateUntrusted)
 
         client.certificate_validator = only_the_trusted_server
-        await client.set_security(getattr(security_policies, POLICIES[sec.policy]),
+        await client.set_security(policy,
                                   str(sec.certificate), str(sec.private_key),
-                                  server_certificate=str(trusted),
-                                  mode=getattr(MessageSecurityMode, sec.mode))
+                                  server_certificate=str(trusted), mode=mode)
 
     async def _resolve(self, client: Client) -> None:
         """NodeIds of the map's nodes: browse paths translated in one request, namespace
@@ -356,6 +381,13 @@ def _reading(nodes: Sequence[str], values: dict[str, ua.DataValue | str]) -> Rea
 
 def _as_list(handles) -> list:
     return list(handles) if isinstance(handles, list | tuple) else [handles]
+
+
+def _first_certificate(chain: bytes) -> bytes:
+    """The server's own certificate from the DER chain an endpoint carries."""
+    from asyncua.client.client import _first_cert_from_chain
+
+    return _first_cert_from_chain(chain)
 
 
 def _load_certificate(data: bytes):

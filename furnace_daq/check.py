@@ -3,7 +3,7 @@ say for each what came back, as `telegraf --test` does for its inputs.
 
 A wrong address, word order or scale in the map is otherwise found hours later in the MCAP
 file; here it is one table on the terminal. The reads, the decoding and the qualities are
-the daemon's own (sources.ModbusSource, registers.Point; for OPC UA and S7 their sources),
+the daemon's own (sources.ModbusSource, registers.Point; for OPC UA its source),
 so a point that is ok here is ok for the daemon. Bounded in time: one connect and one read within `plc.timeout_s` each, and
 at most `burners.can.timeout_s` listening to the CAN bus.
 """
@@ -165,7 +165,7 @@ async def check_modbus(config: DaqConfig, report: CheckReport,
 
 
 async def check_nodes(config: DaqConfig, report: CheckReport, plc: PlcConfig) -> None:
-    """Dial a device read by nodes or addresses (OPC UA, S7) with the daemon's own source,
+    """Dial a device read by nodes (OPC UA) with the daemon's own source,
     resolve and read every item once, one row per item naming its node(s); a node that
     fails is named with the server's reason."""
     from .protocols import make_source

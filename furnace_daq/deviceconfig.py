@@ -86,7 +86,7 @@ class PlcConfig:
     serial: SerialConfig | None = None
     workarounds: Workarounds = field(default_factory=Workarounds)
     protocol: str = "modbus"
-    """How the device is read (furnace_daq.protocols): modbus, opcua or s7."""
+    """How the device is read (furnace_daq.protocols): modbus or opcua."""
     opcua: OpcUaSettings | None = None
     """The `opcua:` section of an OPC UA device."""
 

@@ -1,4 +1,4 @@
-"""A sample from values read item by item (an OPC UA node, an S7 address), each with its
+"""A sample from values read item by item (an OPC UA node), each with its
 own quality: the node-based protocols' counterpart of `ModbusSource.decode`, giving the
 same `Sample` so that the daemon, the log and the refit do not care which protocol
 delivered it.

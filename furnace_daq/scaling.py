@@ -1,7 +1,7 @@
 """A number a PLC gives, as an engineering value with its quality: scale, offset, the raw
 values that mean an open sensor, and the plausible range.
 
-Node-based protocols (OPC UA, S7) hand over a typed number where Modbus hands over words;
+A node-based protocol (OPC UA) hands over a typed number where Modbus hands over words;
 what follows is the same as for a register point (registers.Point.value), with the same
 map keys (`scale`, `offset`, `sentinels`, `range`) and the same qualities.
 """

@@ -34,11 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulated seconds per wall second (default 3600)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="TCP port (default 5020, with --protocol opcua "
-                                             "4840, s7 1102; 0 = any free)")
-    p.add_argument("--protocol", choices=("modbus", "opcua", "s7"), default="modbus",
-                   help="serve the PLC over Modbus (default), OPC UA (an asyncua server, the "
-                        "nodes of config/gateway-opcua.yaml or of --config) or S7 (snap7's "
-                        "server, the addresses of config/gateway-s7.yaml or of --config)")
+                                             "4840; 0 = any free)")
+    p.add_argument("--protocol", choices=("modbus", "opcua"), default="modbus",
+                   help="serve the PLC over Modbus (default) or OPC UA (an asyncua server, "
+                        "the nodes of config/gateway-opcua.yaml or of --config)")
     p.add_argument("--manual", action="store_true",
                    help="burners follow coil writes from a client instead of the schedule "
                         "(--scenario only)")
@@ -65,7 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-DEFAULT_PORTS = {"modbus": 5020, "opcua": 4840, "s7": 1102}
+DEFAULT_PORTS = {"modbus": 5020, "opcua": 4840}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -148,8 +147,8 @@ def _served_map(args: argparse.Namespace):
 
 
 async def _serve_nodes(source, what: str, args: argparse.Namespace) -> int:
-    """The PLC over OPC UA or S7: the nodes or addresses of `--config` (its first device
-    speaking the protocol, or `--device`), else the protocol's default map."""
+    """The PLC over OPC UA: the nodes of `--config` (its first device speaking the
+    protocol, or `--device`), else the protocol's default map."""
     from ..daqconfig import load_config
     from ..protocols import server_class
 

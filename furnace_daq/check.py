@@ -3,8 +3,8 @@ say for each what came back, as `telegraf --test` does for its inputs.
 
 A wrong address, word order or scale in the map is otherwise found hours later in the MCAP
 file; here it is one table on the terminal. The reads, the decoding and the qualities are
-the daemon's own (sources.ModbusSource, registers.Point), so a point that is ok here is ok
-for the daemon. Bounded in time: one connect and one read within `plc.timeout_s` each, and
+the daemon's own (sources.ModbusSource, registers.Point; for OPC UA its source),
+so a point that is ok here is ok for the daemon. Bounded in time: one connect and one read within `plc.timeout_s` each, and
 at most `burners.can.timeout_s` listening to the CAN bus.
 """
 
@@ -164,6 +164,71 @@ async def check_modbus(config: DaqConfig, report: CheckReport,
         report.points.append(row)
 
 
+async def check_nodes(config: DaqConfig, report: CheckReport, plc: PlcConfig) -> None:
+    """Dial a device read by nodes (OPC UA) with the daemon's own source,
+    resolve and read every item once, one row per item naming its node(s); a node that
+    fails is named with the server's reason."""
+    from .protocols import make_source
+
+    source = make_source(config, plc)
+    keys = config.key_paths()
+    device = source.transport_text  # type: ignore[attr-defined]
+    if config.several_devices:
+        device = f"{plc.name}: {device}"
+    sample, error = None, ""
+    try:
+        await source.connect()
+        try:
+            sample = await asyncio.wait_for(source.read(), 2 * plc.timeout_s)
+        except TimeoutError:
+            error = f"no answer within {2 * plc.timeout_s:g} s"
+        except SourceError as exc:
+            error = str(exc)
+        notes = "; ".join(getattr(source, "notes", ()))
+        n = len(getattr(source, "addresses", ()))
+        report.devices.append((device, error or f"connected, {n} node(s)"
+                               + (f"; {notes}" if notes else "")))
+    except SourceError as exc:
+        error = str(exc)
+        report.devices.append((device, error))
+    finally:
+        await source.close()
+    for item in source.items:  # type: ignore[attr-defined]
+        row = PointCheck(keys.get(item.name, item.name), ", ".join(item.nodes))
+        if error or sample is None:
+            row.error = error or NOT_READ
+        else:
+            _node_row(row, item, sample)
+        report.points.append(row)
+
+
+def _node_row(row: PointCheck, item, sample) -> None:
+    """A row from the daemon's sample: the item's value and quality, and the errors that
+    name its nodes."""
+    errors = [e for e in sample.errors if any(e.startswith(f"{n}:") for n in item.nodes)]
+    if item.name == "clock":
+        value, quality = sample.plc_seconds, OK if sample.plc_seconds is not None else COMM_ERROR
+    elif item.name == "heartbeat":
+        value = sample.heartbeat
+        quality = OK if value is not None else COMM_ERROR
+    elif sample.burners is not None and item.name in sample.burners:
+        value, quality = _states_text(row.key, sample.burners[item.name]), sample.burner_quality
+    elif item.name in sample.quality:
+        value, quality = sample.values.get(item.name), sample.quality[item.name]
+        if isinstance(value, bool):
+            value = "on" if value else "off"
+    else:
+        value, quality = None, COMM_ERROR
+    row.quality = quality
+    if isinstance(value, float):
+        row.value = f"{value:g}"
+    elif value is not None:
+        row.value = repr(value) if isinstance(value, str) and item.name == "heartbeat" \
+            else str(value)
+    row.error = "; ".join(e.split(": ", 1)[1] if ": " in e else e for e in errors) \
+        or ("" if quality == OK else quality.replace("_", " "))
+
+
 async def check_can(config: DaqConfig, report: CheckReport) -> None:
     """Listen to the flame scanners' bus until every zone's frame came, at most the CAN
     timeout; one row per zone."""
@@ -208,11 +273,11 @@ async def check(config: DaqConfig) -> CheckReport:
     """Every configured device dialled and every configured point read once."""
     t0 = time.monotonic()
     report = CheckReport()
-    if config.modbus_items():
+    if config.plc_items():
         # every device dialled at once: one that is down costs its timeout, not the others'
         subs = [CheckReport() for _ in config.devices]
-        await asyncio.gather(*(check_modbus(config, sub, plc)
-                               for plc, sub in zip(config.devices, subs, strict=True)))
+        await asyncio.gather(*((check_modbus if plc.protocol == "modbus" else check_nodes)(
+            config, sub, plc) for plc, sub in zip(config.devices, subs, strict=True)))
         for sub in subs:
             report.devices += sub.devices
             report.points += sub.points

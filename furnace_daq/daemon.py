@@ -67,12 +67,12 @@ from .journal import NOTICE, Journal
 from .logclock import LogClock
 from .messagebuild import FlameComparison, MessageBuilder
 from .plcclock import PlcClock
+from .protocols import make_source
 from .refitpump import RefitPump
 from .samplemerge import merge
 from .sdnotify import Notifier
 from .sources import (
     CanSource,
-    ModbusSource,
     Sample,
     Source,
     SourceError,
@@ -107,7 +107,7 @@ class Daemon:
         if plc is not None:  # a source given by the caller: the only device
             self.links = [Link(config.devices[0], plc, config.several_devices)]
         else:
-            self.links = [Link(d, ModbusSource(config, device=d), config.several_devices)
+            self.links = [Link(d, make_source(config, d), config.several_devices)
                           for d in config.devices]
         self.plc = self.links[0].source
         self.flame = flame

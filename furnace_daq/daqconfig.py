@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +23,7 @@ from furnace_model.simulation.network import parameter_names
 
 from .deviceconfig import PLC_KEYS, PlcConfig, parse_device, parse_devices
 from .liveview import LiveViewConfig
+from .opcuamap import UaBits, UaPoint, is_ua_bit_entry, is_ua_entry, ua_bits, ua_point
 from .registers import (
     BIT_TABLES,
     ORDERS,
@@ -60,11 +61,11 @@ class Signal:
 
     name: str
     unit: str
-    item: Point | BitRange
+    item: Point | BitRange | UaPoint | UaBits
 
     @property
     def bit(self) -> bool:
-        return isinstance(self.item, BitRange)
+        return isinstance(self.item, BitRange | UaBits)
 
 
 HEAT_KEY = "heat"
@@ -187,14 +188,19 @@ class DaqConfig:
     def several_devices(self) -> bool:
         return bool(self.device_list)
 
-    def device_items(self, device: PlcConfig) -> list[Point | BitRange]:
-        """The Modbus items read from `device`."""
+    def device_items(self, device: PlcConfig) -> list:
+        """The items read from `device` (of its protocol's kind)."""
         first = self.devices[0].name
-        return [it for it in self.modbus_items() if (it.device or first) == device.name]
+        return [it for it in self.plc_items() if (it.device or first) == device.name]
 
     def modbus_items(self) -> list[Point | BitRange]:
         """Everything read over Modbus, in the order of the config file."""
-        items: list[Point | BitRange] = list(self.thermocouples)
+        return [it for it in self.plc_items() if isinstance(it, Point | BitRange)]
+
+    def plc_items(self) -> list:
+        """Everything read from the PLC devices, by whichever protocol, in the order of the
+        config file."""
+        items: list = list(self.thermocouples)
         clock = None if self.clock is None else self.clock.point
         items += [p for p in (self.ambient, clock, self.heartbeat) if p is not None]
         if self.burner_source in ("modbus", "both"):
@@ -234,6 +240,8 @@ def _orders(node: Node) -> tuple[str, str]:
 
 def _point(node: Node, name: str, extra: tuple[str, ...] = (), numeric: bool = True,
            devices: tuple[str, ...] = ()) -> Point:
+    if is_ua_entry(node):  # an OPC UA node: its device's protocol is checked at the end
+        return replace(ua_point(node, name, extra, numeric), device=_device_of(node, devices))
     node.mapping({"table", "address", "type", "word_order", "byte_order", "scale", "offset",
                   "sentinels", "range", "length", "device", *extra})
     table = node.get_string("table", "input", choices=[t for t in TABLES if t not in BIT_TABLES])
@@ -278,6 +286,8 @@ def _device_of(node: Node, devices: tuple[str, ...]) -> str:
 
 def _bits(node: Node, zone: str, n: int, devices: tuple[str, ...] = (),
           extra: tuple[str, ...] = (), table: str = "discrete") -> BitRange:
+    if is_ua_entry(node):
+        return replace(ua_bits(node, zone, n, extra), device=_device_of(node, devices))
     node.mapping({"table", "address", "invert", "bit", "device", *extra})
     table = node.get_string("table", table, choices=TABLES)
     bit = 0
@@ -386,7 +396,7 @@ def _signals(node: Node, furnace: Furnace, devices: tuple[str, ...]) -> tuple[Si
         sn.mapping()
         table = sn.get_string("table", "input", choices=TABLES)
         key = item_name(SIGNALS_KEY, name)
-        if table in BIT_TABLES or sn.has("bit"):
+        if table in BIT_TABLES or sn.has("bit") or is_ua_bit_entry(sn):
             item: Point | BitRange = _bits(sn, key, 1, devices, extra=("unit",), table=table)
         else:
             item = _point(sn, key, extra=("unit",), devices=devices)
@@ -594,12 +604,33 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
                 raise ConfigError(root.file, f"write_back.params.{point.name}",
                                   f"not a parameter of the model of furnace '{furnace.name}' "
                                   f"(its parameters: {', '.join(names)})")
+    if config.write_back is not None and plc.protocol != "modbus":
+        raise root.child("write_back").error(
+            f"writes to the first device, {plc.name}, over Modbus TCP; it speaks {plc.protocol}")
     if config.write_back is not None and plc.transport != "tcp":
         raise root.child("write_back").error(
             f"writes to the first device, {plc.name}, over Modbus TCP; its transport is "
             f"{plc.transport}")
     _check_overlaps(root, config)
+    _check_protocols(root, config)
     return config
+
+
+def _check_protocols(root: Node, config: DaqConfig) -> None:
+    """Each item addressed as its device reads: registers on a Modbus device, nodes on an
+    OPC UA one."""
+    where = config.key_paths()
+    protocols = {d.name: d.protocol for d in config.devices}
+    first = config.devices[0].name
+    for item in config.plc_items():
+        device = item.device or first
+        spoken = protocols[device]
+        given = getattr(item, "protocol", "modbus")
+        if given != spoken:
+            how = {"modbus": "a register (table, address)", "opcua": "a node (node: or nodes:)"}
+            raise ConfigError(root.file, where.get(item.name, item.name),
+                              f"is given as {how[given]}, but device {device} speaks "
+                              f"{spoken}: give {how[spoken]}")
 
 
 def _check_overlaps(root: Node, config: DaqConfig) -> None:

@@ -8,6 +8,10 @@ from dataclasses import dataclass, field
 
 from furnace_model.config import Node
 
+from .opcuamap import OpcUaSettings, parse_opcua
+from .protocols import NAMES as PROTOCOL_NAMES
+from .protocols import PROTOCOLS
+
 
 @dataclass(frozen=True)
 class Backoff:
@@ -81,6 +85,10 @@ class PlcConfig:
     transport: str = "tcp"
     serial: SerialConfig | None = None
     workarounds: Workarounds = field(default_factory=Workarounds)
+    protocol: str = "modbus"
+    """How the device is read (furnace_daq.protocols): modbus or opcua."""
+    opcua: OpcUaSettings | None = None
+    """The `opcua:` section of an OPC UA device."""
 
     @property
     def where(self) -> str:
@@ -91,8 +99,13 @@ class PlcConfig:
 
 
 PLC_KEYS = {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
-            "max_consecutive_errors", "reconnect"}
+            "max_consecutive_errors", "reconnect", "protocol", "opcua"}
 DEVICE_KEYS = PLC_KEYS | {"name", "transport", "serial", "workarounds"}
+MODBUS_KEYS = ("device_id", "max_gap_registers", "max_gap_bits", "transport", "serial",
+               "workarounds")
+"""Settings of a Modbus device only."""
+PROTOCOL_SECTIONS = ("opcua",)
+"""Sections of settings each for one protocol, named as the protocol."""
 
 
 def parse_device(node: Node, name: str = "plc") -> PlcConfig:
@@ -107,6 +120,12 @@ def parse_device(node: Node, name: str = "plc") -> PlcConfig:
                       rc.get_number("fast_for_s", 120.0, lo=0.0, hi=86400.0))
     if backoff.max_s < backoff.initial_s:
         raise rc.child("max_s").error(f"must be at least initial_s ({backoff.initial_s:g})")
+    protocol = node.get_string("protocol", "modbus", choices=PROTOCOL_NAMES)
+    for key in (*(MODBUS_KEYS if protocol != "modbus" else ()), *PROTOCOL_SECTIONS):
+        if node.has(key) and key != protocol:
+            owner = key if key in PROTOCOL_SECTIONS else "modbus"
+            raise node.child(key).error(f"applies to protocol: {owner} only (protocol is "
+                                        f"{protocol})")
     transport = node.get_string("transport", "tcp", choices=TRANSPORTS)
     serial = None
     if transport == "rtu":
@@ -135,14 +154,15 @@ def parse_device(node: Node, name: str = "plc") -> PlcConfig:
                                                  hi=125))
     return PlcConfig(
         host=node.get_string("host", "127.0.0.1"),
-        port=node.get_integer("port", 502, lo=1, hi=65535),
+        port=node.get_integer("port", PROTOCOLS[protocol].port, lo=1, hi=65535),
         device_id=node.get_integer("device_id", 1, lo=0, hi=255),
         timeout_s=node.get_number("timeout_s", 1.0, lo=0.01, hi=60.0),
         max_gap_registers=node.get_integer("max_gap_registers", 8, lo=0, hi=124),
         max_gap_bits=node.get_integer("max_gap_bits", 64, lo=0, hi=1999),
         max_consecutive_errors=node.get_integer("max_consecutive_errors", 3, lo=1, hi=1000),
         reconnect=backoff, name=name, transport=transport, serial=serial,
-        workarounds=workarounds)
+        workarounds=workarounds, protocol=protocol,
+        opcua=parse_opcua(node.child("opcua", {})) if protocol == "opcua" else None)
 
 
 def parse_devices(root: Node) -> tuple[PlcConfig, ...]:

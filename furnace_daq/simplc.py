@@ -37,7 +37,7 @@ from furnace_model.simulation.plant import Plant, PlantAhead
 from furnace_model.simulation.scenario import Scenario
 
 from .daqconfig import Signal
-from .registers import FUNCTION_CODE, BitRange
+from .registers import FUNCTION_CODE
 from .servedmap import ServedMap
 
 CAN_ID = 0x180
@@ -88,7 +88,7 @@ def simulated_signal(signal: Signal, firing: float, plc_seconds: int,
     quarter at full fire (as a flue's O2 falls when the burners fire harder), with noise of
     half a percent of the range. `firing`: the furnace's heat input as a fraction of its
     maximum."""
-    if isinstance(signal.item, BitRange):
+    if signal.bit:
         return plc_seconds % 3600 < 120
     lo = 0.0 if signal.item.lo is None else signal.item.lo
     hi = 100.0 if signal.item.hi is None else signal.item.hi
@@ -349,29 +349,38 @@ class SimPLC:
                 await self.scan()
 
     # -- one PLC scan --------------------------------------------------------------------------
-    async def scan(self) -> None:
-        """Take the source's values at the current simulated second and publish every
-        register; past the source's end, publish its last second once and stop."""
-        assert self._server is not None
+    def advance(self) -> PlcValues:
+        """The values of this scan, whatever protocol serves them: the source's at the
+        current simulated second (past its end, its last second, and `ended` set), the PLC
+        clock and heartbeat moved on, and the map's signals the source has no value for
+        simulated."""
         sim_s = int((time.monotonic() - self._t0) * self.speed)
         end = self.source.end_s
         if end is not None and sim_s >= end:
             sim_s = end
             self.ended.set()
+        self.values = values = self.source.values_at(sim_s)
+        self.plc_seconds = sim_s
+        self.heartbeat = (self.heartbeat + 1) & 0xFFFF
+        missing = [s for s in self.served.signals if s.name not in values.signals]
+        if missing:
+            firing = firing_fraction(values, self.served.furnace)
+            values.signals.update({s.name: simulated_signal(s, firing, sim_s, self._rng)
+                                   for s in missing})
+        return values
+
+    async def scan(self) -> None:
+        """Take the source's values at the current simulated second and publish every
+        register; past the source's end, publish its last second once and stop."""
+        assert self._server is not None
         furnace = self.served.furnace
         if self.manual:
             coils = await self._server.async_getValues(0, FUNCTION_CODE["coil"], 0,
                                                        n_states(furnace))
             self.source.command([bool(c) for c in coils])
-        self.values = values = self.source.values_at(sim_s)
-        self.plc_seconds = sim_s
-        self.heartbeat = (self.heartbeat + 1) & 0xFFFF
+        values = self.advance()
+        sim_s = self.plc_seconds
         states = list(values.burners)
-        missing = [s for s in self.served.signals if s.name not in values.signals]
-        if missing:
-            firing = firing_fraction(values, furnace)
-            values.signals.update({s.name: simulated_signal(s, firing, sim_s, self._rng)
-                                   for s in missing})
         image = self.served.image(values.thermocouples, values.t_air, sim_s,
                                   self.heartbeat, states, self.open_sensors, heat=values.heat,
                                   disturbances=values.disturbances, signals=values.signals)

@@ -33,7 +33,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=float, default=3600.0,
                    help="simulated seconds per wall second (default 3600)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=5020, help="TCP port (default 5020; 0 = any free)")
+    p.add_argument("--port", type=int, help="TCP port (default 5020, with --protocol opcua "
+                                             "4840; 0 = any free)")
+    p.add_argument("--protocol", choices=("modbus", "opcua"), default="modbus",
+                   help="serve the PLC over Modbus (default) or OPC UA (an asyncua server, "
+                        "the nodes of config/gateway-opcua.yaml or of --config)")
     p.add_argument("--manual", action="store_true",
                    help="burners follow coil writes from a client instead of the schedule "
                         "(--scenario only)")
@@ -60,7 +64,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
+DEFAULT_PORTS = {"modbus": 5020, "opcua": 4840}
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.port is None:
+        args.port = DEFAULT_PORTS[args.protocol]
+    if args.protocol != "modbus":
+        for flag, given in (("--transport", args.transport != "tcp"),
+                            ("--serial-port", args.serial_port), ("--manual", args.manual),
+                            ("--can-channel", args.can_channel)):
+            if given:
+                raise FurnaceError(f"{flag} works with --protocol modbus only")
     if (args.transport == "rtu") != (args.serial_port is not None):
         raise FurnaceError("--serial-port goes with --transport rtu, and only with it")
     import asyncio
@@ -91,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario, furnace)
         source = scenario
         what = f"{scenario.name}: {'manual' if args.manual else 'schedule'} burners"
+    if args.protocol != "modbus":
+        return asyncio.run(_serve_nodes(source, what, args))
     served, map_from = _served_map(args)
     own = source.furnace if isinstance(source, LogPlayer) else scenario.furnace
     if served is not None and served.furnace != own:
@@ -129,20 +146,57 @@ def _served_map(args: argparse.Namespace):
     return ServedMap.of_config(config, device), f"{where}, device {device}"
 
 
-async def _serve(source, what: str, args: argparse.Namespace, served) -> int:
-    import asyncio
+async def _serve_nodes(source, what: str, args: argparse.Namespace) -> int:
+    """The PLC over OPC UA: the nodes of `--config` (its first device speaking the
+    protocol, or `--device`), else the protocol's default map."""
+    from ..daqconfig import load_config
+    from ..protocols import server_class
 
+    cls = server_class(args.protocol)
+    kw = dict(speed=args.speed, host=args.host, port=args.port, seed=args.seed,
+              scan_s=args.scan_s)
+    if args.config is None:
+        if args.device is not None:
+            raise FurnaceError("--device goes with --config")
+        plc, map_from = cls(source, **kw), "the default map"
+    else:
+        config = load_config(args.config)
+        names = [d.name for d in config.devices if d.protocol == args.protocol]
+        if not names:
+            raise FurnaceError(f"--config {args.config}: no device speaks {args.protocol}")
+        if args.device is not None and args.device not in names:
+            raise FurnaceError(f"--device {args.device}: the {args.protocol} devices of the "
+                               f"map are {', '.join(names)}")
+        device = args.device or names[0]
+        if config.furnace != source.furnace:
+            raise FurnaceError(f"--config {args.config}: its map is of furnace "
+                               f"'{config.furnace.name}', the values of furnace "
+                               f"'{source.furnace.name}'")
+        plc = cls.of_config(source, config, device, **kw)
+        map_from = f"{args.config}, device {device}"
+    return await _run_server(plc, f"{what}; {args.protocol} map: {map_from}", args,
+                             f"{args.host}:{{port}}")
+
+
+async def _serve(source, what: str, args: argparse.Namespace, served) -> int:
     from ..simplc import SimPLC
 
     plc = SimPLC(source, speed=args.speed, host=args.host, port=args.port, manual=args.manual,
                  seed=args.seed, scan_s=args.scan_s, can_channel=args.can_channel,
                  can_interface=args.can_interface, transport=args.transport,
                  serial_port=args.serial_port, baudrate=args.baudrate, served=served)
-    where = args.serial_port if args.transport == "rtu" else f"{args.host}:{args.port}"
+    where = args.serial_port if args.transport == "rtu" else f"{args.host}:{{port}}"
+    return await _run_server(plc, what, args, where)
+
+
+async def _run_server(plc, what: str, args: argparse.Namespace, where: str) -> int:
+    """Start the PLC, say where it listens, serve until SIGTERM or --duration."""
+    import asyncio
+
     try:
         await plc.start()
     except (OSError, RuntimeError) as exc:
-        raise FurnaceError(f"cannot listen on {where}: {exc}") from None
+        raise FurnaceError(f"cannot listen on {where.format(port=args.port)}: {exc}") from None
     except Exception as exc:  # python-can raises various types for a bad interface/channel
         await plc.stop()
         raise FurnaceError(f"cannot start: {exc}") from None
@@ -150,8 +204,7 @@ async def _serve(source, what: str, args: argparse.Namespace, served) -> int:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
-    print(f"listening on {args.serial_port}" if args.transport == "rtu"
-          else f"listening on {args.host}:{plc.port}", flush=True)
+    print(f"listening on {where.format(port=plc.port)}", flush=True)
     print(f"{what}; {args.speed:g}x", file=sys.stderr, flush=True)
 
     async def tell_end() -> None:

@@ -265,7 +265,8 @@ def plan_reads(items: Iterable[Point | BitRange], max_gap_registers: int = 8,
 
 def overlaps(items: Sequence[Point | BitRange]) -> tuple[int, int] | None:
     """Indices of the first two items that share an address in the same table of the same
-    device, if any. Bits packed into one register overlap only if they share a bit."""
+    device, if any. Bits packed into one register, and the two bytes of one, overlap only if
+    they share a bit."""
     spans = sorted(((getattr(it, "device", ""), *_bit_span(it)), i) for i, it in enumerate(items))
     for ((d1, t1, _a1, b1), i), ((d2, t2, a2, _b2), j) in zip(spans, spans[1:], strict=False):
         if d1 == d2 and t1 == t2 and a2 < b1:
@@ -282,6 +283,9 @@ def _bit_span(item: Point | BitRange) -> tuple[str, int, int]:
     if isinstance(item, BitRange):
         start = 16 * a + item.bit
         return table, start, start + item.count
+    if item.dtype in BYTE_TYPES:  # the high byte is bits 8-15
+        start = 16 * a + (8 if item.dtype.endswith("h") else 0)
+        return table, start, start + 8
     return table, 16 * a, 16 * b
 
 

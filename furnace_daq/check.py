@@ -208,8 +208,9 @@ async def split_refused(source: ModbusSource, refused: dict[ReadRequest, int | N
                 alone.put(part_req, values)
             elif len(part) == 1:
                 culprits.append(part[0])
-                blame[part[0].name] = f"this point breaks it: refused alone " \
-                                      f"({exception_text(code)})"
+                blame[part[0].name] = "this point breaks it: refused alone too" \
+                    if code == refused[req] else \
+                    f"this point breaks it: refused alone with {exception_text(code)}"
             else:
                 halves += [part[len(part) // 2:], part[:len(part) // 2]]
         names = ", ".join(keys.get(c.name, c.name) for c in culprits)

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from .daqconfig import SIGNALS_KEY, DaqConfig
 from .deviceconfig import PlcConfig
 from .registers import BIT_TABLES, COMM_ERROR, OK, BitRange, Image, Point, ReadRequest, span
-from .sources import CanSource, ModbusSource, SourceError, exception_text
+from .sources import AllRefused, CanSource, ModbusSource, SourceError, exception_text
 
 NOT_READ = "not read"
 
@@ -81,18 +81,28 @@ def _states_text(key: str, states: list[bool]) -> str:
 
 
 def _row(item: Point | BitRange, key: str, image: Image,
-         refused: dict[ReadRequest, int | None]) -> PointCheck:
+         refused: dict[ReadRequest, int | None], alone: Image | None = None,
+         blame: dict[str, str] | None = None) -> PointCheck:
+    """The row of one point. A point in a refused block is comm_error, as the daemon reads
+    it; `alone` holds what it read on its own, `blame` why its block was refused (the key
+    of the point that breaks it, or the point's own refusal)."""
     row = PointCheck(key, _where(item))
     code = _block_of(item, refused)
     if code is not None:
         row.error = f"block refused: {exception_text(None if code < 0 else code)}"
+        why = (blame or {}).get(item.name)
+        if why:
+            row.error += f"; {why}"
+        words = None if alone is None else alone.words(item)
+        if words is not None:  # what it reads on its own, for the table's raw column
+            shown = _row(item, key, alone, {})
+            row.raw, row.value = shown.raw, shown.value
         return row
     words = image.words(item)
     if words is None:
         row.error = NOT_READ
         return row
-    if item.table in BIT_TABLES:
-        assert isinstance(item, BitRange)
+    if item.table in BIT_TABLES and isinstance(item, BitRange):
         states = item.states([bool(b) for b in words])
         row.raw = "".join(str(int(b)) for b in words)
         row.value = _states_text(key, states)
@@ -137,28 +147,36 @@ async def check_modbus(config: DaqConfig, report: CheckReport,
     if config.several_devices:
         device = f"{plc.name}: {device}"
     image, refused = Image(), {}
+    alone, blame = Image(), {}
     error = ""
-    # the requests one after the other, with the pauses the device asked for
+    # the requests one after the other, with the pauses and busy retries the device asked
+    # for, after the other devices of its serial bus
     w = plc.workarounds
-    budget = plc.timeout_s * max(1, len(source.requests)) \
-        + w.pause_between_requests_s * len(source.requests) + w.pause_after_connect_s
+    n = max(1, len(source.requests))
+    budget = plc.timeout_s * n + w.pause_between_requests_s * n + w.pause_after_connect_s \
+        + plc.busy_retries * (plc.busy_retries_wait_s + plc.timeout_s) + source.line_wait_s
     try:
         await source.connect()
         try:
             image, refused = await asyncio.wait_for(source.read_image(), budget)
         except TimeoutError:
             error = f"no answer within {budget:g} s"
+        except AllRefused as exc:  # the table says which points broke which block
+            refused = exc.refused
         except SourceError as exc:
             error = str(exc)
         report.devices.append((device, error or
                                f"connected, {len(source.requests)} read request(s)"))
-    except SourceError as exc:
-        error = str(exc)
+        if refused:
+            alone, blame = await asyncio.wait_for(
+                split_refused(source, refused, keys), budget * (1 + len(source.items)))
+    except (SourceError, TimeoutError) as exc:
+        error = error or str(exc) or "no answer"
         report.devices.append((device, error))
     finally:
         await source.close()
     for item in source.items:
-        row = _row(item, keys.get(item.name, item.name), image, refused)
+        row = _row(item, keys.get(item.name, item.name), image, refused, alone, blame)
         if error:
             row.error, row.quality = error, COMM_ERROR
         report.points.append(row)
@@ -227,6 +245,48 @@ def _node_row(row: PointCheck, item, sample) -> None:
             else str(value)
     row.error = "; ".join(e.split(": ", 1)[1] if ": " in e else e for e in errors) \
         or ("" if quality == OK else quality.replace("_", " "))
+
+
+async def split_refused(source: ModbusSource, refused: dict[ReadRequest, int | None],
+                        keys: dict[str, str]) -> tuple[Image, dict[str, str]]:
+    """Which point breaks each refused block: its points read in halves, each half that is
+    refused split again, down to single points (a few requests for a block of many).
+    Returns what the points read on their own, and for each point of a refused block of
+    several what broke it: the point itself, the points that did, or, when every point
+    reads alone, the unmapped addresses the block spans between them."""
+    alone = Image()
+    blame: dict[str, str] = {}
+    for req in refused:
+        inside = sorted((it for it in source.items
+                         if it.table == req.table and req.address <= it.address < req.end),
+                        key=lambda it: span(it)[1])
+        if len(inside) < 2:
+            continue  # a point read on its own: its refusal is its own
+        culprits: list[Point | BitRange] = []
+        halves = [inside[len(inside) // 2:], inside[:len(inside) // 2]]
+        while halves:
+            part = halves.pop()
+            first, end = span(part[0])[1], max(span(it)[2] for it in part)
+            part_req = ReadRequest(req.table, first, end - first)
+            values, code = await source.read_block(part_req)
+            if values is not None:
+                alone.put(part_req, values)
+            elif len(part) == 1:
+                culprits.append(part[0])
+                blame[part[0].name] = "this point breaks it: refused alone too" \
+                    if code == refused[req] else \
+                    f"this point breaks it: refused alone with {exception_text(code)}"
+            else:
+                halves += [part[len(part) // 2:], part[:len(part) // 2]]
+        names = ", ".join(keys.get(c.name, c.name) for c in culprits)
+        for it in inside:
+            if it.name not in blame:
+                blame[it.name] = (
+                    f"broken by {names}; alone this point reads" if culprits else
+                    f"every point of {req.table} {req.address}-{req.end - 1} reads alone: "
+                    "the device refuses the unmapped addresses between them (lower "
+                    "max_gap_registers or max_gap_bits, or one_request_per_field)")
+    return alone, blame
 
 
 async def check_can(config: DaqConfig, report: CheckReport) -> None:

@@ -25,7 +25,9 @@ from .deviceconfig import PLC_KEYS, PlcConfig, parse_device, parse_devices
 from .liveview import LiveViewConfig
 from .opcuamap import UaBits, UaPoint, is_ua_bit_entry, is_ua_entry, ua_bits, ua_point
 from .registers import (
+    BIT,
     BIT_TABLES,
+    MAX_BITS_PER_READ,
     ORDERS,
     POINT_TYPES,
     REGISTER_TABLES,
@@ -66,6 +68,11 @@ class Signal:
     @property
     def bit(self) -> bool:
         return isinstance(self.item, BitRange | UaBits)
+
+    @property
+    def text(self) -> bool:
+        """A string point (a recipe name, a product code): logged as text, never averaged."""
+        return isinstance(self.item, Point) and self.item.dtype == STRING
 
 
 HEAT_KEY = "heat"
@@ -239,17 +246,28 @@ def _orders(node: Node) -> tuple[str, str]:
 
 
 def _point(node: Node, name: str, extra: tuple[str, ...] = (), numeric: bool = True,
-           devices: tuple[str, ...] = ()) -> Point:
+           devices: tuple[str, ...] = (), bits: bool = False) -> Point:
+    """An entry of the map. `numeric`: no string; `bits`: a coil or discrete input may be
+    read as a number (0 or 1, before scale and offset), which a temperature never is."""
     if is_ua_entry(node):  # an OPC UA node: its device's protocol is checked at the end
         return replace(ua_point(node, name, extra, numeric), device=_device_of(node, devices))
     node.mapping({"table", "address", "type", "word_order", "byte_order", "scale", "offset",
                   "sentinels", "range", "length", "device", *extra})
-    table = node.get_string("table", "input", choices=[t for t in TABLES if t not in BIT_TABLES])
-    dtype = node.get_string("type", "int16", choices=POINT_TYPES)
+    table = node.get_string("table", "input",
+                            choices=TABLES if bits else REGISTER_TABLES)
     length = 0
+    if table in BIT_TABLES:
+        for key in ("type", "length", "word_order", "byte_order"):
+            if node.has(key):
+                raise node.child(key).error(f"a {table} is one bit, read as 0 or 1: it has no "
+                                            f"{key}")
+        dtype = BIT
+    else:
+        dtype = node.get_string("type", "int16", choices=POINT_TYPES)
     if dtype == STRING:
         if numeric:
-            raise node.child("type").error(f"{name} is a number; string is for the heartbeat")
+            raise node.child("type").error(f"{name} is a number; string is for the heartbeat "
+                                           "and signals")
         length = node.get_integer("length", lo=1, hi=125)
     elif node.has("length"):
         raise node.child("length").error("applies to type: string only")
@@ -350,7 +368,8 @@ def _zone_points(root: Node, furnace: Furnace, devices: tuple[str, ...]) -> tupl
                               f"input is the count of its burners' bits under burners.modbus "
                               f"(heat: holds the rate-fired zones: {', '.join(rated) or 'none'})")
     _exact_keys(node, rated, "rate-fired zone", furnace)
-    return tuple(_point(node.child(z), item_name(HEAT_KEY, z), devices=devices) for z in rated)
+    return tuple(_point(node.child(z), item_name(HEAT_KEY, z), devices=devices, bits=True)
+                 for z in rated)
 
 
 def _disturbance_points(root: Node, furnace: Furnace, devices: tuple[str, ...]
@@ -361,8 +380,8 @@ def _disturbance_points(root: Node, furnace: Furnace, devices: tuple[str, ...]
     if not names and not root.has(DISTURBANCES_KEY):
         return ()
     node = _exact_keys(root.child(DISTURBANCES_KEY, {}), names, "disturbance", furnace)
-    return tuple(_point(node.child(d), item_name(DISTURBANCES_KEY, d), devices=devices)
-                 for d in names)
+    return tuple(_point(node.child(d), item_name(DISTURBANCES_KEY, d), devices=devices,
+                        bits=True) for d in names)
 
 
 _SIGNAL_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
@@ -399,7 +418,7 @@ def _signals(node: Node, furnace: Furnace, devices: tuple[str, ...]) -> tuple[Si
         if table in BIT_TABLES or sn.has("bit") or is_ua_bit_entry(sn):
             item: Point | BitRange = _bits(sn, key, 1, devices, extra=("unit",), table=table)
         else:
-            item = _point(sn, key, extra=("unit",), devices=devices)
+            item = _point(sn, key, extra=("unit",), numeric=False, devices=devices)
         out.append(Signal(name, sn.get_string("unit"), item))
     return tuple(out)
 
@@ -559,8 +578,8 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
         point = _point(cn, "clock", extra=("epoch",), devices=names)
         epoch = cn.child("epoch").timestamp() if cn.has("epoch") else None
         clock = ClockConfig(point, epoch)
-    heartbeat = _point(root.child("heartbeat"), "heartbeat", numeric=False, devices=names) \
-        if root.has("heartbeat") else None
+    heartbeat = _point(root.child("heartbeat"), "heartbeat", numeric=False, devices=names,
+                       bits=True) if root.has("heartbeat") else None
 
     # A furnace every zone of which is fired at a rate has no burner bits to read.
     bn = root.child("burners", None if furnace.switched else {}).mapping(
@@ -613,6 +632,7 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
             f"{plc.transport}")
     _check_overlaps(root, config)
     _check_protocols(root, config)
+    _check_coils_from_zero(root, config)
     return config
 
 
@@ -631,6 +651,22 @@ def _check_protocols(root: Node, config: DaqConfig) -> None:
             raise ConfigError(root.file, where.get(item.name, item.name),
                               f"is given as {how[given]}, but device {device} speaks "
                               f"{spoken}: give {how[spoken]}")
+
+
+def _check_coils_from_zero(root: Node, config: DaqConfig) -> None:
+    """A device whose coil reads must start at address 0 can read coils only as far as one
+    request reaches from there."""
+    for k, device in enumerate(config.devices):
+        if not device.workarounds.read_coils_starting_at_zero:
+            continue
+        coils = [it for it in config.device_items(device) if it.table == "coil"]
+        end = min((it.address + (it.count if isinstance(it, BitRange) else 1) for it in coils),
+                  default=0)
+        if end > MAX_BITS_PER_READ:
+            key = f"devices[{k}]" if config.several_devices else "plc"
+            raise ConfigError(root.file, f"{key}.workarounds.read_coils_starting_at_zero",
+                              f"the first coil read would span {end} coils from address 0, "
+                              f"more than one request reads ({MAX_BITS_PER_READ})")
 
 
 def _check_overlaps(root: Node, config: DaqConfig) -> None:

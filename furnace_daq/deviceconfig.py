@@ -38,9 +38,14 @@ class Backoff:
         return min(self.retry_s, self.max_s)
 
 
-TRANSPORTS = ("tcp", "rtu-over-tcp", "rtu")
-"""Modbus TCP; RTU frames over a TCP socket (a serial-to-Ethernet converter in transparent
-mode); RTU on a serial line."""
+TRANSPORTS = ("tcp", "rtu-over-tcp", "ascii-over-tcp", "rtu", "ascii")
+"""Modbus TCP; RTU or ASCII frames over a TCP socket (a serial-to-Ethernet converter in
+transparent mode); RTU or ASCII on a serial line (Telegraf's transmission modes TCP,
+RTUoverTCP, ASCIIoverTCP, RTU, ASCII)."""
+SERIAL_TRANSPORTS = ("rtu", "ascii")
+LINE_TRANSPORTS = ("rtu-over-tcp", "ascii-over-tcp", "rtu", "ascii")
+"""Transports whose frames travel on one serial bus (directly, or behind a converter): the
+devices on it share it, one request at a time."""
 PARITIES = ("N", "E", "O")
 
 
@@ -67,6 +72,9 @@ class Workarounds:
     close_connection_after_gather: bool = False
     one_request_per_field: bool = False
     max_registers_per_request: int = 125
+    read_coils_starting_at_zero: bool = False
+    """A device that refuses a coil read not starting at address 0: the first coil request
+    starts there."""
 
 
 @dataclass(frozen=True)
@@ -89,20 +97,47 @@ class PlcConfig:
     """How the device is read (furnace_daq.protocols): modbus or opcua."""
     opcua: OpcUaSettings | None = None
     """The `opcua:` section of an OPC UA device."""
+    busy_retries: int = 0
+    busy_retries_wait_s: float = 0.1
+    """A request the device answers with exception 6 (server device busy) is sent again, up
+    to `busy_retries` times, `busy_retries_wait_s` apart (Telegraf's `busy_retries`,
+    `busy_retries_wait`)."""
 
     @property
     def where(self) -> str:
         """host:port, or the serial port: what an engineer finds the device by."""
-        if self.transport == "rtu" and self.serial is not None:
+        if self.transport in SERIAL_TRANSPORTS and self.serial is not None:
             return self.serial.port
         return f"{self.host}:{self.port}"
 
+    def read_budget_s(self, requests: int) -> float:
+        """The longest one read of `requests` requests may take on the device's own: its
+        timeout, plus the pauses its workarounds ask for and the waits of its busy retries."""
+        w = self.workarounds
+        n = max(1, requests)
+        budget = self.timeout_s + w.pause_between_requests_s * (n - 1)
+        if w.close_connection_after_gather:
+            budget += self.timeout_s + w.pause_after_connect_s
+        if w.one_request_per_field:
+            budget += self.timeout_s * (n - 1)
+        return budget + self.busy_retries * (self.busy_retries_wait_s + self.timeout_s)
+
+    @property
+    def line(self) -> tuple[str, str] | None:
+        """The serial bus the device is on, as (framing, where): devices with the same line
+        share one opening of it; None for Modbus TCP, where each device has its own
+        connection."""
+        if self.transport not in LINE_TRANSPORTS:
+            return None
+        return self.transport.split("-")[0], self.where
+
 
 PLC_KEYS = {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
-            "max_consecutive_errors", "reconnect", "protocol", "opcua"}
+            "max_consecutive_errors", "reconnect", "protocol", "opcua", "busy_retries",
+            "busy_retries_wait_s"}
 DEVICE_KEYS = PLC_KEYS | {"name", "transport", "serial", "workarounds"}
 MODBUS_KEYS = ("device_id", "max_gap_registers", "max_gap_bits", "transport", "serial",
-               "workarounds")
+               "workarounds", "busy_retries", "busy_retries_wait_s")
 """Settings of a Modbus device only."""
 PROTOCOL_SECTIONS = ("opcua",)
 """Sections of settings each for one protocol, named as the protocol."""
@@ -128,7 +163,7 @@ def parse_device(node: Node, name: str = "plc") -> PlcConfig:
                                         f"{protocol})")
     transport = node.get_string("transport", "tcp", choices=TRANSPORTS)
     serial = None
-    if transport == "rtu":
+    if transport in SERIAL_TRANSPORTS:
         for key in ("host", "port"):
             if node.has(key):
                 raise node.child(key).error("a serial device has no host or port: its line "
@@ -140,18 +175,19 @@ def parse_device(node: Node, name: str = "plc") -> PlcConfig:
                               stopbits=sn.get_integer("stopbits", 1, lo=1, hi=2),
                               bytesize=sn.get_integer("bytesize", 8, lo=7, hi=8))
     elif node.has("serial"):
-        raise node.child("serial").error(f"applies to transport: rtu only (transport is "
-                                         f"{transport})")
+        raise node.child("serial").error(f"applies to transport: rtu or ascii only "
+                                         f"(transport is {transport})")
     wn = node.child("workarounds", {}).mapping(
         {"pause_after_connect_s", "pause_between_requests_s", "close_connection_after_gather",
-         "one_request_per_field", "max_registers_per_request"})
+         "one_request_per_field", "max_registers_per_request", "read_coils_starting_at_zero"})
     workarounds = Workarounds(
         pause_after_connect_s=wn.get_number("pause_after_connect_s", 0.0, lo=0.0, hi=60.0),
         pause_between_requests_s=wn.get_number("pause_between_requests_s", 0.0, lo=0.0, hi=60.0),
         close_connection_after_gather=wn.get_bool("close_connection_after_gather", False),
         one_request_per_field=wn.get_bool("one_request_per_field", False),
         max_registers_per_request=wn.get_integer("max_registers_per_request", 125, lo=1,
-                                                 hi=125))
+                                                 hi=125),
+        read_coils_starting_at_zero=wn.get_bool("read_coils_starting_at_zero", False))
     return PlcConfig(
         host=node.get_string("host", "127.0.0.1"),
         port=node.get_integer("port", PROTOCOLS[protocol].port, lo=1, hi=65535),
@@ -162,7 +198,9 @@ def parse_device(node: Node, name: str = "plc") -> PlcConfig:
         max_consecutive_errors=node.get_integer("max_consecutive_errors", 3, lo=1, hi=1000),
         reconnect=backoff, name=name, transport=transport, serial=serial,
         workarounds=workarounds, protocol=protocol,
-        opcua=parse_opcua(node.child("opcua", {})) if protocol == "opcua" else None)
+        opcua=parse_opcua(node.child("opcua", {})) if protocol == "opcua" else None,
+        busy_retries=node.get_integer("busy_retries", 0, lo=0, hi=100),
+        busy_retries_wait_s=node.get_number("busy_retries_wait_s", 0.1, lo=0.0, hi=60.0))
 
 
 def parse_devices(root: Node) -> tuple[PlcConfig, ...]:
@@ -179,5 +217,34 @@ def parse_devices(root: Node) -> tuple[PlcConfig, ...]:
             raise dn.child("name").error("expected a name without spaces")
         if any(d.name == name for d in out):
             raise dn.child("name").error(f"device {name} is listed twice")
-        out.append(parse_device(dn, name))
+        device = parse_device(dn, name)
+        _same_line(dn, device, out)
+        out.append(device)
     return tuple(out)
+
+
+def _same_line(node: Node, device: PlcConfig, before: list[PlcConfig]) -> None:
+    """Devices on one serial bus: opened once with one framing and one set of line
+    settings, each answering to its own device id."""
+    for other in before:
+        if other.where != device.where or device.line is None and other.line is None:
+            continue
+        if device.line != other.line:
+            how = "serial line" if device.transport in SERIAL_TRANSPORTS else "converter"
+            raise node.child("transport").error(
+                f"{device.transport} on the {how} {device.where}, which device {other.name} "
+                f"reads with transport {other.transport}: one bus has one framing")
+        if device.serial != other.serial:
+            raise node.child("serial").error(
+                f"the line {device.where} is device {other.name}'s too, with other settings "
+                f"({_line_text(other.serial)}): one port is opened once, with one setting")
+        if device.device_id == other.device_id:
+            raise node.child("device_id").error(
+                f"device id {device.device_id} on {device.where} is device {other.name}'s "
+                "already: each device on a bus answers to its own id")
+
+
+def _line_text(serial: SerialConfig | None) -> str:
+    if serial is None:
+        return "none"
+    return f"{serial.baudrate} baud {serial.bytesize}{serial.parity}{serial.stopbits}"

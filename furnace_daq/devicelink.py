@@ -20,7 +20,7 @@ import contextlib
 import time
 from collections.abc import Callable
 
-from .deviceconfig import PlcConfig
+from .deviceconfig import SERIAL_TRANSPORTS, PlcConfig
 from .samplemerge import Heartbeat
 from .sources import CONNECT_FAILURES, Sample, Source, SourceError, failure_kind
 
@@ -43,7 +43,7 @@ class Link:
         self.device, self.source = device, source
         self.name = device.name
         where = f"{getattr(source, 'host', '?')}:{getattr(source, 'port', '?')}"
-        if device.transport == "rtu":
+        if device.transport in SERIAL_TRANSPORTS:
             where = device.where
         self.label = f"{device.name} ({where})" if named else where
         """How the journal names the device: host:port alone when it is the only one."""
@@ -71,16 +71,10 @@ class Link:
     @property
     def read_budget_s(self) -> float:
         """The longest one poll of this device may take: its timeout, plus the pauses its
-        workarounds ask for."""
-        d = self.device
-        w = d.workarounds
+        workarounds ask for, its busy retries, and on a shared serial line the reads of
+        the other devices it may wait behind."""
         n = len(getattr(self.source, "requests", ())) or 1
-        budget = d.timeout_s + w.pause_between_requests_s * (n - 1)
-        if w.close_connection_after_gather:
-            budget += d.timeout_s + w.pause_after_connect_s
-        if w.one_request_per_field:
-            budget += d.timeout_s * (n - 1)
-        return budget
+        return self.device.read_budget_s(n) + getattr(self.source, "line_wait_s", 0.0)
 
     # -- dialling ---------------------------------------------------------------------------
     def retry_after(self, kind: str, started: float, now: float) -> tuple[float, str]:

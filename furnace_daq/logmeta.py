@@ -89,7 +89,8 @@ def build_metadata(config: Any = None, *, furnace: Furnace | None = None,
 def signal_fields(config: Any) -> tuple[SignalField, ...]:
     """The `signals:` of a daemon config as /furnace/signals carries them (none without a
     config)."""
-    return tuple(SignalField(s.name, s.unit, s.bit) for s in getattr(config, "signals", ()))
+    return tuple(SignalField(s.name, s.unit, s.bit, s.text)
+                 for s in getattr(config, "signals", ()))
 
 
 def recorded_refit(metadata: Mapping[str, str] | None) -> dict | None:

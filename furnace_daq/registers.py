@@ -24,6 +24,7 @@ MAX_BITS_PER_READ = 2000
 
 # numeric data type -> (registers, struct format of the big-endian bytes)
 DATA_TYPES: dict[str, tuple[int, str]] = {
+    "int8h": (1, ">bx"), "int8l": (1, ">xb"), "uint8h": (1, ">Bx"), "uint8l": (1, ">xB"),
     "int16": (1, ">h"), "uint16": (1, ">H"),
     "int32": (2, ">i"), "uint32": (2, ">I"),
     "float32": (2, ">f"),
@@ -35,16 +36,23 @@ DATA_TYPES: dict[str, tuple[int, str]] = {
 def integer_range(dtype: str) -> tuple[int, int] | None:
     """The raw values an integer type holds; None for a floating-point type. From the
     struct format, so that a type added to DATA_TYPES needs nothing else."""
-    n, fmt = DATA_TYPES[dtype]
-    if fmt[-1] in "efd":
+    code = DATA_TYPES[dtype][1].strip(">x")
+    if code in "efd":
         return None
-    bits = 16 * n
-    return (-(2 ** (bits - 1)), 2 ** (bits - 1) - 1) if fmt[-1].islower() else (0, 2**bits - 1)
+    bits = 8 * struct.calcsize(code)
+    return (-(2 ** (bits - 1)), 2 ** (bits - 1) - 1) if code.islower() else (0, 2**bits - 1)
 
 
+BYTE_TYPES = ("int8h", "int8l", "uint8h", "uint8l")
+"""One byte of a register, Telegraf's INT8H, INT8L, UINT8H, UINT8L: h the high (first) byte,
+l the low one, after `byte_order` (little swaps them), so that two values packed in one
+register read as two points of the same address."""
 STRING = "string"
 """Text in `length` registers, two characters per register; trailing NULs and spaces are
 padding and dropped. Not a number: no scale, offset, sentinels or range."""
+BIT = "bit"
+"""One coil or discrete input read as a number, 0 or 1 (before scale and offset), as
+Telegraf's UINT16 output of a bit register: a measured on/off disturbance, a life bit."""
 POINT_TYPES = (*DATA_TYPES, STRING)
 ORDERS = ("big", "little")
 TELEGRAF_ORDERS: dict[str, tuple[str, str]] = {
@@ -84,6 +92,10 @@ def decode(words: Sequence[int], dtype: str, word_order: str = "big",
     if dtype == STRING:
         text = _arrange(words, word_order, byte_order).decode("latin-1")
         return text.rstrip("\x00 ")
+    if dtype == BIT:
+        if len(words) != 1:
+            raise ValueError(f"a bit is one address, got {len(words)}")
+        return int(bool(words[0]))
     n, fmt = DATA_TYPES[dtype]
     if len(words) != n:
         raise ValueError(f"{dtype} needs {n} register(s), got {len(words)}")
@@ -100,18 +112,24 @@ def encode(value: int | float | str, dtype: str, word_order: str = "big",
         if len(raw) > 2 * n:
             raise ValueError(f"{len(raw)} characters do not fit in {n} register(s)")
         return _words(raw.ljust(2 * n, b"\x00"), word_order, byte_order)
+    if dtype == BIT:
+        return [int(bool(value))]
     n, fmt = DATA_TYPES[dtype]
     return _words(struct.pack(fmt, value), word_order, byte_order)
 
 
 def register_count(dtype: str, length: int = 0) -> int:
-    """Registers a value of `dtype` occupies (`length` for a string)."""
-    return length if dtype == STRING else DATA_TYPES[dtype][0]
+    """Registers a value of `dtype` occupies (`length` for a string; a bit, one address of
+    its bit table)."""
+    if dtype == STRING:
+        return length
+    return 1 if dtype == BIT else DATA_TYPES[dtype][0]
 
 
 @dataclass(frozen=True)
 class Point:
-    """One analog value in a PLC's register map, as an engineer writes it down."""
+    """One value in a PLC's register map, as an engineer writes it down: a number or text in
+    registers, or a number (0 or 1) that is one bit of a coil or discrete input table."""
 
     name: str
     table: str = "input"
@@ -208,13 +226,15 @@ def span(item: Point | BitRange) -> tuple[str, int, int]:
 
 def plan_reads(items: Iterable[Point | BitRange], max_gap_registers: int = 8,
                max_gap_bits: int = 64, max_registers: int = MAX_REGISTERS_PER_READ,
-               one_per_item: bool = False) -> list[ReadRequest]:
+               one_per_item: bool = False, coils_from_zero: bool = False) -> list[ReadRequest]:
     """As few requests as the protocol limits allow: neighbours in one table are merged
     when the hole between them is at most the allowed gap (reading a few unused addresses
     costs less than a round trip), never beyond `max_registers` (at most 125) registers /
     2000 bits per request. Devices that choke on merged reads (Telegraf's
     `optimization = "none"`, or a gateway with a smaller buffer) get one request per item
-    or a smaller `max_registers`; an item is never split over two requests."""
+    or a smaller `max_registers`; an item is never split over two requests. Devices that
+    refuse a coil read not starting at address 0 (Telegraf's `read_coils_starting_at_zero`)
+    get their first coil request stretched down to 0."""
     by_table: dict[str, list[tuple[int, int]]] = {}
     for item in items:
         table, a, b = span(item)
@@ -224,6 +244,8 @@ def plan_reads(items: Iterable[Point | BitRange], max_gap_registers: int = 8,
         spans = sorted(set(by_table.get(table, [])))
         if not spans:
             continue
+        if coils_from_zero and table == "coil":
+            spans[0] = (0, spans[0][1])
         if one_per_item:
             out += [ReadRequest(table, a, b - a) for a, b in spans]
             continue
@@ -243,7 +265,8 @@ def plan_reads(items: Iterable[Point | BitRange], max_gap_registers: int = 8,
 
 def overlaps(items: Sequence[Point | BitRange]) -> tuple[int, int] | None:
     """Indices of the first two items that share an address in the same table of the same
-    device, if any. Bits packed into one register overlap only if they share a bit."""
+    device, if any. Bits packed into one register, and the two bytes of one, overlap only if
+    they share a bit."""
     spans = sorted(((getattr(it, "device", ""), *_bit_span(it)), i) for i, it in enumerate(items))
     for ((d1, t1, _a1, b1), i), ((d2, t2, a2, _b2), j) in zip(spans, spans[1:], strict=False):
         if d1 == d2 and t1 == t2 and a2 < b1:
@@ -260,6 +283,9 @@ def _bit_span(item: Point | BitRange) -> tuple[str, int, int]:
     if isinstance(item, BitRange):
         start = 16 * a + item.bit
         return table, start, start + item.count
+    if item.dtype in BYTE_TYPES:  # the high byte is bits 8-15
+        start = 16 * a + (8 if item.dtype.endswith("h") else 0)
+        return table, start, start + 8
     return table, 16 * a, 16 * b
 
 

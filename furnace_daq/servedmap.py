@@ -18,6 +18,7 @@ from furnace_model.simulation.furnace import Furnace
 
 from .daqconfig import DISTURBANCES_KEY, HEAT_KEY, Signal, item_name
 from .registers import (
+    BIT,
     BIT_TABLES,
     DATA_TYPES,
     STRING,
@@ -188,6 +189,8 @@ def _words(p: Point, value: float, wrap: bool = False) -> list[int]:
         raise OverflowError(f"{p.name} = {value:g} is beyond any {p.dtype} register")
     if not math.isfinite(raw):
         raw = p.sentinels[0] if p.sentinels else math.nan
+    if p.dtype == BIT:  # a coil or discrete input: on from half way
+        return [int(math.isfinite(raw) and raw >= 0.5)]
     span = integer_range(p.dtype)
     if span is not None:
         lo, hi = span

@@ -6,11 +6,13 @@ protocol delivered a value. Everything behind `read()` is plain data.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import errno
 import os
 import socket
 import time
 from abc import ABC, abstractmethod
+from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 
 import can
@@ -19,13 +21,30 @@ from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from .daqconfig import CanConfig, DaqConfig
-from .deviceconfig import PlcConfig
-from .registers import COMM_ERROR, OK, STALE, BitRange, Image, Point, ReadRequest, plan_reads
+from .deviceconfig import SERIAL_TRANSPORTS, PlcConfig
+from .modbusline import SharedLine, shared_line
+from .registers import (
+    BIT_TABLES,
+    COMM_ERROR,
+    OK,
+    STALE,
+    BitRange,
+    Image,
+    Point,
+    ReadRequest,
+    plan_reads,
+)
 
 CONNECT_FAILURES = frozenset({"connection refused", "connect timeout", "host unreachable",
                               "network unreachable", "name not resolved", "cannot connect"})
 """Kinds of failure where the device never accepted the TCP connection: a dial that costs
 it nothing (no session), so the daemon may retry these at a short fixed interval."""
+
+BUSY = 6
+"""Modbus exception code 6, server device busy: the one refusal worth asking again."""
+FRAMERS = {"tcp": FramerType.SOCKET, "rtu-over-tcp": FramerType.RTU, "rtu": FramerType.RTU,
+           "ascii-over-tcp": FramerType.ASCII, "ascii": FramerType.ASCII}
+"""The pymodbus framing of each transport of the config."""
 
 EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
                    4: "server device failure", 5: "acknowledge", 6: "server device busy",
@@ -78,6 +97,16 @@ class SourceError(Exception):
         self.kind = kind
 
 
+class AllRefused(SourceError):
+    """The device answered every request of a read with a Modbus exception: `refused` holds
+    the exception code of each block."""
+
+    def __init__(self, refused: dict[ReadRequest, int | None]):
+        super().__init__("; ".join(_refused_text(r, c) for r, c in refused.items()),
+                         "all blocks refused")
+        self.refused = refused
+
+
 @dataclass
 class Sample:
     """One read of a source; absent parts are None."""
@@ -119,13 +148,14 @@ class Source(ABC):
 
 
 class ModbusSource(Source):
-    """One Modbus device (TCP, RTU over TCP or RTU on a serial line), read in as few
-    requests as its map and workarounds allow.
+    """One Modbus device (TCP; RTU or ASCII over TCP; RTU or ASCII on a serial line), read
+    in as few requests as its map and workarounds allow.
 
     pymodbus' own reconnect is switched off (reconnect_delay=0): the daemon owns the
     connection state, so every drop and redial is visible in the log. With the workaround
     `close_connection_after_gather` the source stays "connected" between polls while the
-    line is closed, and each read dials again: the daemon sees a device that answers."""
+    line is closed, and each read dials again: the daemon sees a device that answers.
+    Devices on one serial bus share its one client (modbusline), one read at a time."""
 
     name = "modbus"
 
@@ -136,17 +166,17 @@ class ModbusSource(Source):
         self.host = host or self.device.host
         self.port = port or self.device.port
         if items is None:
-            items = config.device_items(self.device) if config.several_devices \
-                else config.modbus_items()
+            items = device_items(config, self.device)
         self.items = items
         """What is read: the config's points on this device (or the caller's own)."""
         self._names = {it.name for it in self.items}
-        w = self.device.workarounds
-        self.requests = plan_reads(self.items, self.device.max_gap_registers,
-                                   self.device.max_gap_bits, w.max_registers_per_request,
-                                   w.one_request_per_field)
+        self.requests = plan_device_reads(self.items, self.device)
         self._client: AsyncModbusTcpClient | AsyncModbusSerialClient | None = None
+        self._line: SharedLine | None = None  # while attached
         self._session = False  # connected as the daemon sees it (close-after-gather)
+        self._neighbours = [d for d in config.devices if d.line is not None
+                            and d.line == self.device.line and d.name != self.device.name]
+        """The other devices on this device's serial bus, whose reads it takes turns with."""
 
     @property
     def connected(self) -> bool:
@@ -156,7 +186,7 @@ class ModbusSource(Source):
 
     @property
     def where(self) -> str:
-        if self.device.transport == "rtu":
+        if self.device.transport in SERIAL_TRANSPORTS:
             return self.device.where
         return f"{self.host}:{self.port}"
 
@@ -164,24 +194,39 @@ class ModbusSource(Source):
     def transport_text(self) -> str:
         """How the device is reached, as `furnace-daq check` lists it."""
         d = self.device
-        if d.transport == "rtu" and d.serial is not None:
+        framing = d.transport.split("-")[0].upper()
+        if d.transport in SERIAL_TRANSPORTS and d.serial is not None:
             s = d.serial
-            return f"Modbus RTU {s.port} {s.baudrate} {s.bytesize}{s.parity}{s.stopbits}"
-        return ("Modbus RTU over TCP " if d.transport == "rtu-over-tcp" else "Modbus TCP ") \
+            return f"Modbus {framing} {s.port} {s.baudrate} {s.bytesize}{s.parity}{s.stopbits}"
+        return (f"Modbus {framing} over TCP " if d.transport != "tcp" else "Modbus TCP ") \
             + self.where
+
+    @property
+    def line_wait_s(self) -> float:
+        """How long a read may wait for the other devices on its serial bus to finish
+        theirs: the sum of their read budgets (0 for a device on its own)."""
+        return sum(d.read_budget_s(len(plan_device_reads(device_items(self.config, d), d)))
+                   for d in self._neighbours)
 
     def _new_client(self) -> AsyncModbusTcpClient | AsyncModbusSerialClient:
         d = self.device
-        if d.transport == "rtu":
+        # a shared client waits as long as its slowest device; each read keeps its own
+        timeout = max([d.timeout_s, *(n.timeout_s for n in self._neighbours)])
+        framer = FRAMERS[d.transport]
+        if d.transport in SERIAL_TRANSPORTS:
             s = d.serial
             assert s is not None
-            return AsyncModbusSerialClient(s.port, framer=FramerType.RTU, baudrate=s.baudrate,
+            return AsyncModbusSerialClient(s.port, framer=framer, baudrate=s.baudrate,
                                            bytesize=s.bytesize, parity=s.parity,
-                                           stopbits=s.stopbits, timeout=d.timeout_s,
+                                           stopbits=s.stopbits, timeout=timeout,
                                            retries=0, reconnect_delay=0)
-        framer = FramerType.RTU if d.transport == "rtu-over-tcp" else FramerType.SOCKET
-        return AsyncModbusTcpClient(self.host, port=self.port, framer=framer,
-                                    timeout=d.timeout_s, retries=0, reconnect_delay=0)
+        client = AsyncModbusTcpClient(self.host, port=self.port, framer=framer,
+                                      timeout=timeout, retries=0, reconnect_delay=0)
+        if self._neighbours:
+            # pymodbus hangs up after a few unanswered requests in a row; on a converter
+            # shared by several devices one silent device must not cut off the others
+            client.set_max_no_responses(1_000_000)
+        return client
 
     async def connect(self) -> None:
         await self.close()
@@ -189,6 +234,15 @@ class ModbusSource(Source):
         self._session = True
 
     async def _dial(self) -> None:
+        key = self.device.line
+        line = shared_line(key) if key is not None and self._neighbours else SharedLine(self)
+        client, fresh = await line.attach(self, self._open)
+        self._line, self._client = line, client
+        pause = self.device.workarounds.pause_after_connect_s
+        if fresh and pause > 0:  # a gateway that drops the first request sent too soon
+            await asyncio.sleep(pause)
+
+    async def _open(self) -> AsyncModbusTcpClient | AsyncModbusSerialClient:
         timeout = self.device.timeout_s
         try:
             client = self._new_client()
@@ -214,65 +268,102 @@ class ModbusSource(Source):
             else:
                 kind, why = "cannot connect", "refused or unreachable"
             raise SourceError(f"cannot connect to {self.where}: {why}", kind)
-        self._client = client
-        pause = self.device.workarounds.pause_after_connect_s
-        if pause > 0:  # a gateway that drops the first request sent too soon
-            await asyncio.sleep(pause)
+        return client
 
     async def close(self) -> None:
         self._session = False
         self._drop()
 
     def _drop(self) -> None:
-        if self._client is not None:
-            self._client.close()
-            self._client = None
+        if self._line is not None:
+            self._line.detach(self)
+        self._line = self._client = None
 
     async def read_image(self) -> tuple[Image, dict[ReadRequest, int | None]]:
         """Every planned request once: the words and bits read, and the blocks the PLC
         refused (with the exception code it gave). Raises SourceError when the link fails
         or every block is refused."""
+        async with self._gathering():
+            return await self._read_requests()
+
+    async def read_block(self, req: ReadRequest) -> tuple[list[int] | None, int | None]:
+        """One request on its own, in the device's turn on its line: (values, None), or
+        (None, the exception code) when the device refuses it. `furnace-daq check` splits a
+        refused block with it."""
+        async with self._gathering():
+            if self._line is None:
+                raise SourceError("not connected", "connection lost")
+            async with self._line.turn:
+                return await self._request(req)
+
+    @contextlib.asynccontextmanager
+    async def _gathering(self) -> AsyncIterator[None]:
+        """A read on the open line; with `close_connection_after_gather`, dialled for it
+        and hung up after it."""
         w = self.device.workarounds
         if w.close_connection_after_gather and self._session and self._client is None:
             await self._dial()
         try:
-            return await self._read_requests()
+            yield
         finally:
             if w.close_connection_after_gather:
                 self._drop()
 
     async def _read_requests(self) -> tuple[Image, dict[ReadRequest, int | None]]:
+        line = self._line
+        if line is None:
+            raise SourceError("not connected", "connection lost")
+        image = Image()
+        pause = self.device.workarounds.pause_between_requests_s
+        refused: dict[ReadRequest, int | None] = {}
+        async with line.turn:  # the other devices of a shared bus wait for this read
+            for k, req in enumerate(self.requests):
+                if k and pause > 0:
+                    await asyncio.sleep(pause)
+                values, code = await self._request(req)
+                if values is None:
+                    # The PLC answered, refusing one block: the link is fine and the other
+                    # blocks stay good; this block's points decode as comm_error.
+                    refused[req] = code
+                    continue
+                image.put(req, values)
+        if refused and len(refused) == len(self.requests):
+            raise AllRefused(refused)
+        return image, refused
+
+    async def _request(self, req: ReadRequest) -> tuple[list[int] | None, int | None]:
+        """One request, sent again while the device says it is busy (exception 6), at most
+        `busy_retries` times."""
         client = self._client
         if client is None or not client.connected:
             raise SourceError("not connected", "connection lost")
-        image = Image()
+        d = self.device
         methods = {"input": client.read_input_registers, "holding": client.read_holding_registers,
                    "discrete": client.read_discrete_inputs, "coil": client.read_coils}
-        device_id = self.device.device_id
-        pause = self.device.workarounds.pause_between_requests_s
-        refused: dict[ReadRequest, int | None] = {}
-        for k, req in enumerate(self.requests):
-            if k and pause > 0:
-                await asyncio.sleep(pause)
+        code: int | None = None
+        for attempt in range(d.busy_retries + 1):
+            if attempt:
+                await asyncio.sleep(d.busy_retries_wait_s)
             try:
-                rr = await methods[req.table](req.address, count=req.count, device_id=device_id)
+                rr = await asyncio.wait_for(
+                    methods[req.table](req.address, count=req.count, device_id=d.device_id),
+                    d.timeout_s + 0.05)  # the shared client's own timeout may be longer
+            except TimeoutError:
+                raise SourceError(f"{req.table} {req.address}+{req.count}: no response within "
+                                  f"{d.timeout_s:g} s", "no response") from None
             except ModbusException as exc:
                 raise SourceError(f"{req.table} {req.address}+{req.count}: {exc}",
                                   failure_kind(exc)) from None
-            if rr.isError():
-                # The PLC answered, refusing one block: the link is fine and the other
-                # blocks stay good; this block's points decode as comm_error.
-                refused[req] = getattr(rr, "exception_code", None)
-                continue
-            values = rr.bits if req.table in ("discrete", "coil") else rr.registers
-            if len(values) < req.count:
-                raise SourceError(f"{req.table} {req.address}+{req.count}: short response "
-                                  f"({len(values)} values)", "short response")
-            image.put(req, values)
-        if refused and len(refused) == len(self.requests):
-            raise SourceError("; ".join(_refused_text(r, c) for r, c in refused.items()),
-                              "all blocks refused")
-        return image, refused
+            if not rr.isError():
+                values = rr.bits if req.table in BIT_TABLES else rr.registers
+                if len(values) < req.count:
+                    raise SourceError(f"{req.table} {req.address}+{req.count}: short response "
+                                      f"({len(values)} values)", "short response")
+                return [int(v) for v in values[:req.count]], None
+            code = getattr(rr, "exception_code", None)
+            if code != BUSY:
+                break
+        return None, code
 
     async def read(self) -> Sample:
         image, refused = await self.read_image()
@@ -326,7 +417,20 @@ class ModbusSource(Source):
 
 
 def _refused_text(req: ReadRequest, code: int | None) -> str:
-    return f"{req.table} {req.address}+{req.count}: Modbus exception code {'?' if code is None else code}"
+    return f"{req.table} {req.address}+{req.count}: {exception_text(code)}"
+
+
+def device_items(config: DaqConfig, device: PlcConfig) -> list[Point | BitRange]:
+    """The config's points read from `device`."""
+    return config.device_items(device) if config.several_devices else config.modbus_items()
+
+
+def plan_device_reads(items: list[Point | BitRange], device: PlcConfig) -> list[ReadRequest]:
+    """The requests that read `items` from `device`, under its limits and workarounds."""
+    w = device.workarounds
+    return plan_reads(items, device.max_gap_registers, device.max_gap_bits,
+                      w.max_registers_per_request, w.one_request_per_field,
+                      w.read_coils_starting_at_zero)
 
 
 def _note_connect_failure(client: AsyncModbusTcpClient | AsyncModbusSerialClient

@@ -99,7 +99,7 @@ def test_check_names_the_keys_of_a_wrong_map_and_fails(tmp_path):
         assert "ok" in got[key], (key, r.stdout)
     # one line on stderr, naming every failing key and why
     (line,) = r.stderr.strip().splitlines()
-    assert line.startswith("furnace-daq check: error: 4 of ")
+    assert line.startswith("<3>furnace-daq check: error: 4 of ")
     for key in ("thermocouples.heat_1", "thermocouples.heat_2", "thermocouples.preheat_1",
                 "thermocouples.preheat_2"):
         assert key in line, line

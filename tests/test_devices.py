@@ -115,7 +115,7 @@ def test_the_example_multi_device_config():
      "required key"),
     (lambda d: d["devices"][1].update(transport="rtu"), "devices[1].host", "serial"),
     (lambda d: d["devices"][0].update(serial={"port": "/dev/ttyS0"}), "devices[0].serial",
-     "transport: rtu only"),
+     "transport: rtu or ascii only"),
     (lambda d: d["devices"][0].update(workarounds={"pause_after_connect": 1}),
      "devices[0].workarounds.pause_after_connect", "unknown key"),
     (lambda d: d.update(plc={"port": 502}), "plc", "not both"),

@@ -6,10 +6,9 @@ decoded value, quality, error. Exit 0 when every point is ok, 1 when anything fa
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from pathlib import Path
-
-from furnace_model.errors import FurnaceError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,6 +25,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..check import check, format_report
     from ..daqconfig import load_config
+    from ..journal import ERR, Journal
     from .run import _plc_address
 
     config = load_config(args.config)
@@ -37,10 +37,15 @@ def run(args: argparse.Namespace) -> int:
     print(format_report(report), flush=True)
     failed = report.failed
     if failed:
+        # with an sd-daemon priority, as the daemon's lines: run from a unit (ExecStartPre=),
+        # `journalctl -p err` finds it
         by_error: dict[str, list[str]] = {}
         for p in failed:
             by_error.setdefault(p.error or p.quality, []).append(p.key)
         why = "; ".join(f"{', '.join(keys)}: {error}" for error, keys in by_error.items())
-        raise FurnaceError(f"{len(failed)} of {len(report.points)} points failed: {why}")
+        Journal(stream=sys.stderr).say(
+            ERR, f"furnace-daq check: error: {len(failed)} of {len(report.points)} points "
+                 f"failed: {why}")
+        return 1
     print(f"all {len(report.points)} points ok ({report.elapsed_s:.2f} s)")
     return 0

@@ -305,7 +305,7 @@ class NamedReadings(Message):
     def _read(cls, message: dict, names: Iterable[str], bits: bool = False) -> NamedReadings:
         names = tuple(names)
         values = {n: v for n in names
-                  if _is_number(v := message.get(n)) or (bits and isinstance(v, bool))}
+                  if _is_number(v := message.get(n)) or (bits and isinstance(v, bool | str))}
         quality, unit = _dict(message.get("quality")) or {}, _dict(message.get("unit")) or {}
         return cls(values, {n: str(q) for n, q in quality.items() if n in names},
                    {n: str(u) for n, u in unit.items() if n in names}, _stamp(message))
@@ -342,7 +342,8 @@ class Disturbances(NamedReadings):
 
 @dataclass
 class Signals(NamedReadings):
-    """The register map's extra named points, by name: a number, or a bit as a boolean.
+    """The register map's extra named points, by name: a number, a bit as a boolean, or
+    text.
     Which signals there are is the map's, not the furnace's: every message names them all
     in `unit` (and `quality`), present or not."""
 

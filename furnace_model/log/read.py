@@ -126,7 +126,8 @@ def recorded_signals(metadata: dict[str, str] | None) -> tuple[SignalField, ...]
         return ()
     if not isinstance(value, list):
         return ()
-    return tuple(SignalField(str(v["name"]), str(v.get("unit", "")), bool(v.get("bit", False)))
+    return tuple(SignalField(str(v["name"]), str(v.get("unit", "")), bool(v.get("bit", False)),
+                             bool(v.get("text", False)))
                  for v in value if isinstance(v, dict) and "name" in v)
 
 

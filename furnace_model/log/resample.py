@@ -39,7 +39,7 @@ Inputs that are not whole burners (a furnace description says how each zone is f
   changes of their own rows;
 - the register map's extra signals (/furnace/signals) are their time means too (a bit as
   the fraction of the row it was on), in a column of each signal's name, empty before a
-  signal's first reading.
+  signal's first reading; a text signal has none.
 """
 
 from __future__ import annotations
@@ -127,6 +127,7 @@ class Resampler:
         self._heat = {furnace.zones[i]: _Series() for i in furnace.rated}
         self._disturbances = {d.name: _Series() for d in furnace.disturbances}
         self._signals: dict[str, _Series] = {}
+        self._texts: set[str] = set()
         self._unsorted = False
         self._last_burner_msg: Burners | None = None
         self._last_burner_raw: dict | None = None
@@ -182,8 +183,13 @@ class Resampler:
             else:
                 assert isinstance(msg, Signals)
                 series = self._signals
+                # text (a recipe name) has no mean over a row: no column of its own
+                self._texts.update(n for n, v in msg.values.items() if isinstance(v, str))
                 for name in (*msg.unit, *msg.quality):
-                    series.setdefault(name, _Series())
+                    if name not in self._texts:
+                        series.setdefault(name, _Series())
+                for name in self._texts:
+                    series.pop(name, None)
             for name, one in series.items():
                 value = msg.reading(name)
                 if math.isfinite(value):

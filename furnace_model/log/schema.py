@@ -74,11 +74,12 @@ they carry by name."""
 @dataclass(frozen=True)
 class SignalField:
     """An extra named point of a register map as /furnace/signals carries it: a number in
-    its unit, or a bit (a boolean)."""
+    its unit, a bit (a boolean), or text (a string register: a recipe, a product code)."""
 
     name: str
     unit: str
     bit: bool = False
+    text: bool = False
 
 JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 """The draft every top-level schema declares (`$schema`); validators pick it from there."""
@@ -269,6 +270,8 @@ def _signals(signals: tuple[SignalField, ...]) -> dict:
     return _named_readings(
         {s.name: {"type": "boolean", "description": f"signal {s.name}, a bit; absent when "
                   "the reading is not usable"} if s.bit else
+         {"type": "string", "description": f"signal {s.name}, text; absent when the reading "
+                  "is not usable"} if s.text else
          _number(f"signal {s.name}" + (f" in {s.unit}" if s.unit else "") + "; absent when "
                  "the reading is not usable") for s in signals},
         {s.name: s.unit for s in signals}, "signal",

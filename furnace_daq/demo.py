@@ -203,13 +203,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"   last online refit: window {_hours(last.window_start, start)}-"
           f"{_hours(last.window_end, start)} h; whole run: 0-{scenario.duration_min / 60:.1f} h")
     _report(last, whole, scenario)
-    from furnace_model.plots import plot_fit  # matplotlib: not for the refit worker's import
-
     label = f"online model of {_hours(last.window_end, start)} h"
     online = Model(ModelStructure(furnace=furnace),
                    {p: last.params[p] for p in param_names(furnace)})
-    plots = plot_fit(exp, online.predict(exp), args.out, label)
-    plots.append(plot_refits(good, scenario, args.out / "refits.png"))
+    plots = _plots(exp, online, good, scenario, args.out, label)
     print(f"\n   MCAP log:   {', '.join(map(str, logs))}")
     state = args.out / "state" / "model.json"
     if state.exists():
@@ -451,6 +448,21 @@ def _report(online: ModelParameters, whole: FitResult, scenario: Scenario) -> No
     rmse = lambda m: "/".join(f"{m[z]:.2f}" for z in zones)  # noqa: E731
     print(f"   {'RMSE, °C':{width}}{'':10}  {rmse(online.rmse_c or {}):>28}  "
           f"{rmse({z: whole.per_zone[z]['rmse_c'] for z in zones}):>28}")
+
+
+def _plots(exp, online: Model, good: list[ModelParameters], scenario: Scenario, out: Path,
+           label: str) -> list[Path]:
+    """The demo's figures, when the `report` extra (matplotlib) is installed: the daemon's
+    installation runs the demo without them."""
+    from furnace_model.extras import missing
+
+    if missing("report"):
+        print("   figures skipped: matplotlib is not installed (install furnace-daq[report])")
+        return []
+    from furnace_model.plots import plot_fit  # matplotlib: not for the refit worker's import
+
+    return [*plot_fit(exp, online.predict(exp), out, label),
+            plot_refits(good, scenario, out / "refits.png")]
 
 
 def plot_refits(refits: list[ModelParameters], scenario: Scenario, path: Path) -> Path:

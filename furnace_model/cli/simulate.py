@@ -28,10 +28,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..effects.plugins import guarded
-    from ..experiment import write_table
+    from ..experiment import table_kind, write_table
     from ..simulation.plant import Plant
     from ..simulation.scenario import load_scenario
 
+    table_kind(args.out)
     args.scenario = scenario_path(args.scenario)
     scenario = load_scenario(args.scenario,
                              None if args.furnace is None else furnace_of(args))

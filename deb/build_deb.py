@@ -9,7 +9,7 @@ build's architecture, which `Depends:` says. The venv is built in a staging dire
 moved to its place: the paths written into it (script lines, pyvenv.cfg, compiled files)
 are rewritten to /opt/furnace-daq/.venv.
 
-Beside the venv: the systemd unit in /lib/systemd/system, the example config as the
+Beside the venv: the commands linked into /usr/bin, the systemd unit in /lib/systemd/system, the example config as the
 conffile /etc/furnace-daq/gateway.yaml, the system user's sysusers.d entry, the docs, and
 the maintainer scripts of deb/ (user, systemd, purge).
 
@@ -85,6 +85,10 @@ def stage(root: Path, wheel: Path, *, dependencies: bool = True,
     _run([python, "-m", "compileall", "-q", "-s", str(root), "-p", "/",
           "--invalidation-mode", "unchecked-hash", str(venv / "lib")])
 
+    bin_dir = root / "usr/bin"
+    bin_dir.mkdir(parents=True)
+    for command in ("furnace-daq", "furnace-model"):
+        (bin_dir / command).symlink_to(f"{VENV}/bin/{command}")
     _install(ROOT / "systemd" / UNIT, root / "lib/systemd/system" / UNIT)
     _install(ROOT / "config" / "gateway.yaml", root / "etc/furnace-daq/gateway.yaml")
     _install(HERE / "furnace-daq.sysusers", root / "usr/lib/sysusers.d/furnace-daq.conf")

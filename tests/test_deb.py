@@ -9,6 +9,7 @@ does, with the daemon's dependencies, and runs the installed program."""
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -85,7 +86,7 @@ def test_control_conffiles_and_contents(layout_deb, tmp_path):
     assert all(row[1] == "root/root" for row in rows)  # --root-owner-group, whoever built it
     paths = {row[5].removeprefix(".") for row in rows}
     for path in (f"/{VENV}/bin/furnace-daq", f"/{VENV}/bin/furnace-model", f"/{CONFIG}",
-                 f"/{UNIT}", "/usr/lib/sysusers.d/furnace-daq.conf",
+                 f"/{UNIT}", "/usr/lib/sysusers.d/furnace-daq.conf", "/usr/bin/furnace-daq",
                  "/usr/share/doc/furnace-daq/operations.md"):
         assert path in paths, path
     # logs and state are the service's (systemd creates them), not files of the package
@@ -100,6 +101,7 @@ def test_install_reinstall_remove_purge(layout_deb, tmp_path):
     assert script.startswith("#!/opt/furnace-daq/.venv/bin/python\n"), script[:80]
     cfg = (venv / "pyvenv.cfg").read_text()
     assert "home = /usr/bin" in cfg and str(tmp_path) not in cfg
+    assert os.readlink(root / "usr/bin/furnace-daq") == f"/{VENV}/bin/furnace-daq"
     assert not list(venv.glob("lib/python3*/site-packages/dask*"))
     # the venv's interpreter finds the package and its data inside the root
     out = subprocess.run([str(venv / "bin" / "python"), "-I", "-c",

@@ -5,23 +5,34 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 OUT    ?= out
 
-.PHONY: demo test test-slow lint bench system-deps clean
+.PHONY: demo test test-slow lint bench system-deps deb clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet -e '.[all,dev]'
 	touch $@
 
 # Debian tools that tests drive as independent peers (mbpoll: a Modbus client we did not write;
-# socat: a pair of pseudo-terminals, the serial line between an RTU server and the daemon).
+# socat: a pair of pseudo-terminals, the serial line between an RTU server and the daemon),
+# and what `make deb` builds with (dpkg-deb, Debian's own python3.11 for the package's venv;
+# systemd-sysusers and systemd-analyze, which the package's tests run), as TOOL:PACKAGE.
+DEBIAN_TOOLS := mbpoll:mbpoll socat:socat dpkg-deb:dpkg /usr/bin/python3.11:python3.11 \
+                systemd-sysusers:systemd systemd-analyze:systemd
+
 system-deps:
-	@for tool in mbpoll socat; do \
+	@for pair in $(DEBIAN_TOOLS); do \
+	  tool=$${pair%%:*}; package=$${pair#*:}; \
 	  command -v $$tool >/dev/null 2>&1 || { \
-	    echo "installing $$tool (Debian package)"; \
+	    echo "installing $$package (Debian package, for $$tool)"; \
 	    SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	    $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$tool >/dev/null; }; \
+	    $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$package >/dev/null; }; \
 	done
+
+# The gateway's package: out/deb/furnace-daq_VERSION_ARCH.deb (deb/build_deb.py says what it
+# holds; pip fetches the daemon's dependencies while building, the install needs no network).
+deb: $(STAMP) system-deps
+	$(BIN)/python deb/build_deb.py --out $(OUT)/deb
 
 # `make demo FURNACE=config/furnaces/six-zone.yaml` (or a name in config/furnaces/, e.g.
 # FURNACE=modulated): the same chain on another furnace.

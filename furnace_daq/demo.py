@@ -9,8 +9,8 @@ online model is printed next to the simulator's truth and next to one fit of the
 from the exported log, with what 1-minute data do and do not determine.
 
 Another furnace: `--furnace F` (`make demo FURNACE=F`; F a description file or the name of
-one in config/furnaces/) runs the same chain on the furnace description F: a scenario of
-that furnace from config/scenarios/ (or `--scenario`), the default register map derived
+a shipped one, config/furnaces/) runs the same chain on the furnace description F: a
+shipped scenario of that furnace (config/scenarios/, or `--scenario`), the default register map derived
 from F served by the simulated PLC and read by the daemon (a config written by
 `furnace-daq config`, with two extra signals, unless `--config` is given), and the
 furnace's thermal network identified online and from the export: for a furnace fired at
@@ -41,6 +41,7 @@ from furnace_model.identification.result import FitResult
 from furnace_model.log.messages import Burners, Heat, ModelParameters, Thermocouples, number
 from furnace_model.log.resample import resample_logs
 from furnace_model.log.schema import BURNERS, HEAT, THERMOCOUPLES, param_names
+from furnace_model.shipped import SCENARIOS, shipped
 from furnace_model.simulation.furnace import PAPER, Furnace
 from furnace_model.simulation.furnacefile import load_furnace
 from furnace_model.simulation.scenario import Scenario, load_scenario
@@ -51,20 +52,18 @@ from .daqconfig import RefitConfig, load_config
 from .logmeta import build_metadata, signal_fields
 from .mcaplog import LogWriter
 
-ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_SCENARIO = ROOT / "config" / "scenarios" / "paper_exp1.yaml"
-DEFAULT_CONFIG = ROOT / "config" / "gateway.yaml"
-SCENARIOS = ROOT / "config" / "scenarios"
-FURNACES = ROOT / "config" / "furnaces"
+DEFAULT_SCENARIO = "config/scenarios/paper_exp1.yaml"
+DEFAULT_CONFIG = "config/gateway.yaml"
+"""The paper's furnace's scenario and config, shipped files (`furnace_model.shipped`)."""
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="furnace-demo", description=__doc__)
-    ap.add_argument("--furnace", type=Path,
-                    help="furnace description, a file or a name in config/furnaces/ "
+    ap.add_argument("--furnace",
+                    help="furnace description, a file or a shipped name (six-zone, modulated) "
                          "(default the paper's furnace); the scenario and the register map "
                          "are then that furnace's")
-    ap.add_argument("--scenario", type=Path)
+    ap.add_argument("--scenario", help="scenario, a file or a shipped name")
     ap.add_argument("--config", type=Path)
     ap.add_argument("--out", type=Path, default=Path("out/demo"))
     ap.add_argument("--speed", type=float, default=5000.0,
@@ -115,33 +114,30 @@ def _signals_yaml(furnace: Furnace) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _description(path: Path) -> Path:
-    """A furnace description by its file, or by its name in config/furnaces/."""
-    if path.is_file() or path.suffix or len(path.parts) > 1:
-        return path
-    return FURNACES / f"{path}.yaml"
-
-
 def _of_furnace(args: argparse.Namespace) -> Furnace:
     """Fill in --scenario and --config for the furnace asked for: the paper's defaults, or a
-    scenario of that furnace from config/scenarios/ and its derived map's config."""
+    shipped scenario of that furnace and its derived map's config."""
+    from furnace_model.cli.arguments import furnace_path, scenario_path
+
     if args.furnace is not None:
-        args.furnace = _description(args.furnace)
+        args.furnace = furnace_path(args.furnace)
+    if args.scenario is not None:
+        args.scenario = scenario_path(args.scenario)
     furnace = PAPER if args.furnace is None else load_furnace(args.furnace)
     if args.scenario is None:
         if furnace == PAPER:
-            args.scenario = DEFAULT_SCENARIO
+            args.scenario = shipped(DEFAULT_SCENARIO)
         else:
-            mine = [p for p in sorted(SCENARIOS.glob("*.yaml"))
+            mine = [p for p in sorted(shipped(SCENARIOS).glob("*.yaml"))
                     if "furnace" in p.read_text(encoding="utf-8")
                     and _scenario_furnace(p) == furnace]
             if not mine:
-                raise FurnaceError(f"no scenario of furnace '{furnace.name}' in {SCENARIOS}: "
+                raise FurnaceError(f"no shipped scenario of furnace '{furnace.name}': "
                                    "give --scenario")
             args.scenario = mine[0]
     if args.config is None:
         if furnace == PAPER:
-            args.config = DEFAULT_CONFIG
+            args.config = shipped(DEFAULT_CONFIG)
         else:
             from .gatewayconfig import gateway_yaml
 
@@ -207,13 +203,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"   last online refit: window {_hours(last.window_start, start)}-"
           f"{_hours(last.window_end, start)} h; whole run: 0-{scenario.duration_min / 60:.1f} h")
     _report(last, whole, scenario)
-    from furnace_model.plots import plot_fit  # matplotlib: not for the refit worker's import
-
     label = f"online model of {_hours(last.window_end, start)} h"
     online = Model(ModelStructure(furnace=furnace),
                    {p: last.params[p] for p in param_names(furnace)})
-    plots = plot_fit(exp, online.predict(exp), args.out, label)
-    plots.append(plot_refits(good, scenario, args.out / "refits.png"))
+    plots = _plots(exp, online, good, scenario, args.out, label)
     print(f"\n   MCAP log:   {', '.join(map(str, logs))}")
     state = args.out / "state" / "model.json"
     if state.exists():
@@ -455,6 +448,21 @@ def _report(online: ModelParameters, whole: FitResult, scenario: Scenario) -> No
     rmse = lambda m: "/".join(f"{m[z]:.2f}" for z in zones)  # noqa: E731
     print(f"   {'RMSE, °C':{width}}{'':10}  {rmse(online.rmse_c or {}):>28}  "
           f"{rmse({z: whole.per_zone[z]['rmse_c'] for z in zones}):>28}")
+
+
+def _plots(exp, online: Model, good: list[ModelParameters], scenario: Scenario, out: Path,
+           label: str) -> list[Path]:
+    """The demo's figures, when the `report` extra (matplotlib) is installed: the daemon's
+    installation runs the demo without them."""
+    from furnace_model.extras import missing
+
+    if missing("report"):
+        print("   figures skipped: matplotlib is not installed (install furnace-daq[report])")
+        return []
+    from furnace_model.plots import plot_fit  # matplotlib: not for the refit worker's import
+
+    return [*plot_fit(exp, online.predict(exp), out, label),
+            plot_refits(good, scenario, out / "refits.png")]
 
 
 def plot_refits(refits: list[ModelParameters], scenario: Scenario, path: Path) -> Path:

@@ -7,6 +7,16 @@ same topic and JSON schema as the MCAP channel. The server is read-only: it adve
 capability (no client publishing, services, parameters), so a client cannot write anything
 to the daemon or, through it, to the PLC.
 
+Protocol. foxglove-sdk's server speaks the WebSocket subprotocol `foxglove.sdk.v1` only: a
+client that offers only `foxglove.websocket.v1` (older Foxglove and Lichtblick releases,
+tools on @foxglove/ws-protocol before it offered the new name) is refused during the
+handshake with "400 Bad Request" (docs/operations.md, "Live view").
+
+The library logs through Python's `logging` (its Rust core bridged by pyo3-log into the
+logger `foxglove`): with a journal, those lines go to it with a priority prefix like the
+daemon's own, never above warning, since a client's failure is not the daemon's; a
+refused handshake says which subprotocol to offer.
+
 Failures. A port that cannot be bound stops the daemon at start with an error naming
 `live_view.port`. Once running, nothing the live view does may stop logging: `send` never
 raises; its first failure is kept in `error` and the view goes quiet.
@@ -14,6 +24,7 @@ raises; its first failure is kept in `error` and the view goes quiet.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 from furnace_model.errors import FurnaceError
@@ -25,6 +36,14 @@ from furnace_model.log.schema import (
     topics,
 )
 from furnace_model.simulation.furnace import Furnace
+
+from .journal import WARNING, Journal, JournalHandler
+
+SUBPROTOCOL = "foxglove.sdk.v1"
+"""The one WebSocket subprotocol the server accepts (foxglove-sdk 0.30)."""
+
+LIBRARY_LOGGER = "foxglove"
+"""Where foxglove-sdk's log records arrive in Python's logging."""
 
 
 @dataclass(frozen=True)
@@ -40,11 +59,13 @@ class LiveView:
     """A running server and its channels, one per log topic."""
 
     def __init__(self, config: LiveViewConfig, name: str = "furnace-daq", where: str = "",
-                 *, furnace: Furnace, signals: tuple[SignalField, ...] = ()):
-        import foxglove
-
+                 *, furnace: Furnace, signals: tuple[SignalField, ...] = (),
+                 journal: Journal | None = None):
         self.furnace = furnace
         self.signals = signals
+        # before the library starts: its bridge reads the logger's level when it first logs
+        self._handler = None if journal is None else _route_library_logs(journal)
+        import foxglove
 
         self._foxglove = foxglove
         # A context of its own: the server sees only these channels, and nothing else in the
@@ -58,6 +79,7 @@ class LiveView:
                 name=name, host=config.host, port=config.port, capabilities=[],
                 services=None, context=self._context)
         except (RuntimeError, OSError, ValueError, TypeError, OverflowError) as exc:
+            self._unroute_library_logs()
             key = f"{where}: live_view.port" if where else "live_view.port"
             raise FurnaceError(f"{key}: cannot serve the live view on "
                                f"{config.host}:{config.port}: {_reason(exc)}") from None
@@ -88,6 +110,14 @@ class LiveView:
             self._server.stop()
         except Exception as exc:  # stopping must not hide the daemon's own exit status
             self.error = self.error or f"live view stop: {_reason(exc)}"
+        self._unroute_library_logs()
+
+    def _unroute_library_logs(self) -> None:
+        if self._handler is not None:
+            logger = logging.getLogger(LIBRARY_LOGGER)
+            logger.removeHandler(self._handler)
+            logger.propagate, self._handler = True, None
+            logger.setLevel(logging.NOTSET)
 
     def _channel(self, name: str):
         channel = self._channels.get(name)
@@ -100,6 +130,31 @@ class LiveView:
                                              context=self._context)
             self._channels[name] = channel
         return channel
+
+
+class _HandshakeHint(logging.Filter):
+    """A refused handshake's line says what the server wants: the library says only
+    "Dropping client ADDRESS: handshake failed"."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage().endswith("handshake failed"):
+            record.msg = (f"{record.getMessage()} (the live view accepts WebSocket clients "
+                          f"that offer the subprotocol {SUBPROTOCOL}; see docs/operations.md, "
+                          "\"Live view\")")
+            record.args = None
+        return True
+
+
+def _route_library_logs(journal: Journal) -> JournalHandler:
+    """The library's records, from INFO up (clients coming and going, refused handshakes),
+    to the journal only: not to the root logger's stderr, unprefixed."""
+    logger = logging.getLogger(LIBRARY_LOGGER)
+    handler = JournalHandler(journal, "live view", most=WARNING)
+    handler.addFilter(_HandshakeHint())
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    logger.propagate = False
+    return handler
 
 
 def _reason(exc: BaseException) -> str:

@@ -26,8 +26,9 @@ class Protocol:
     """module:Class of its simulated PLC (SimPLC's interface)."""
     port: int
     """The protocol's usual TCP port: a device's default."""
-    package: str
-    """The distribution to install when its module is missing."""
+    install: str
+    """What to install when its module is missing: the package itself, or the extra that
+    brings it."""
     text: str
 
 
@@ -35,7 +36,7 @@ PROTOCOLS: dict[str, Protocol] = {
     "modbus": Protocol("furnace_daq.sources:ModbusSource", "furnace_daq.simplc:SimPLC", 502,
                        "pymodbus", "Modbus TCP or RTU"),
     "opcua": Protocol("furnace_daq.opcuasource:OpcUaSource",
-                      "furnace_daq.opcuaserver:OpcUaPLC", 4840, "asyncua", "OPC UA"),
+                      "furnace_daq.opcuaserver:OpcUaPLC", 4840, "furnace-daq[opcua]", "OPC UA"),
 }
 NAMES = tuple(PROTOCOLS)
 
@@ -45,8 +46,9 @@ def _load(name: str, target: str) -> Any:
     try:
         return getattr(importlib.import_module(module), cls)
     except ImportError as exc:
-        raise FurnaceError(f"protocol {name} needs the package {PROTOCOLS[name].package} "
-                           f"(pip install {PROTOCOLS[name].package}): {exc}") from None
+        need = PROTOCOLS[name].install
+        raise FurnaceError(f"protocol {name} needs a package this installation lacks "
+                           f"({exc}): install {need} (pip install '{need}')") from None
 
 
 def source_class(name: str) -> type[Source]:

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import DataError, DataWarning
+from .extras import require
 from .simulation.furnace import Disturbance, Furnace, HeatInput
 
 TIME_COLUMNS = ("timestamp", "t_min")
@@ -109,7 +110,7 @@ class Experiment:
 def write_table(frame: pd.DataFrame, path: str | Path) -> None:
     """Write the tabular contract as CSV or Parquet, chosen by the file's suffix."""
     path = Path(path)
-    kind = _kind(path)
+    kind = table_kind(path)
     # Written aside and renamed: a full disk or a kill never leaves half a table, nor
     # destroys the file being replaced.
     tmp = path.with_name(f".{path.name}.tmp")
@@ -126,11 +127,14 @@ def write_table(frame: pd.DataFrame, path: str | Path) -> None:
         raise DataError(str(path), f"cannot write: {exc.strerror or exc}") from None
 
 
-def _kind(path: Path) -> str:
+def table_kind(path: Path) -> str:
+    """"csv" or "parquet" by the file's suffix; Parquet only where its extra is installed.
+    Commands that write a table call it on their arguments, before the work."""
     suffix = path.suffix.lower()
     if suffix == ".csv":
         return "csv"
     if suffix in (".parquet", ".pq"):
+        require("parquet", f"{path}: a Parquet table")
         return "parquet"
     raise DataError(str(path), f"unsupported file type '{suffix or '(none)'}': use .csv or .parquet")
 
@@ -141,7 +145,7 @@ def read_table(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
     """Read and check one file of the tabular contract (CSV or Parquet) against the
     furnace's columns."""
     path = Path(path)
-    kind = _kind(path)
+    kind = table_kind(path)
     file = str(path)
     if not path.exists():
         raise DataError(file, "file not found")

@@ -173,7 +173,7 @@ def test_foxglove_client_sees_every_topic_as_logged_and_cannot_write(tmp_path, n
     daemon = furnace_daq("run", "--config", str(cfg), "--log-dir", str(logs),
                          "--plc", f"127.0.0.1:{plc_port}", "--duration", "60")
     try:
-        line = wait_for_line(daemon, "live view:", 30)
+        line = wait_for_line(daemon, "live view: Foxglove WebSocket on", 30)
         assert f"ws://127.0.0.1:{port}" in line
         client = subprocess.run([node, "live_client.mjs", f"ws://127.0.0.1:{port}", "1.5"],
                                 cwd=NODE_DIR, capture_output=True, text=True, timeout=30)

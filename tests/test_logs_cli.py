@@ -130,7 +130,7 @@ def test_export_time_window(series: list[Path], tmp_path: Path, capsys) -> None:
     assert "no UTC offset" in capsys.readouterr().err
     assert main(["logs", "export", *map(str, series), "--out", str(out), "--period", "0"]) != 0
     assert main(["logs", "export", *map(str, series), "--out", str(tmp_path / "x.txt")]) != 0
-    assert "x.txt: unsupported output type" in capsys.readouterr().err
+    assert "x.txt: unsupported file type" in capsys.readouterr().err
     assert main(["logs", "export", *map(str, series), "--out", str(out),
                  "--start", "2027-01-01T00:00:00Z"]) != 0
     assert "no furnace data" in capsys.readouterr().err

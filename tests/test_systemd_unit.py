@@ -55,7 +55,9 @@ def test_unit_keeps_state_and_logs_and_listens_only_for_the_live_view():
     d = directives(UNIT.read_text())
     assert d["StateDirectory"] == ["furnace-daq"]  # model.json of the refits and write-back
     assert d["LogsDirectory"] == ["furnace-daq"] and d["UMask"] == ["0027"]
-    assert d["DynamicUser"] == ["yes"] and d["SocketBindDeny"] == ["any"]
+    # the Debian package's system user (deb/furnace-daq.sysusers), not a dynamic one
+    assert d["User"] == ["furnace-daq"] and d["Group"] == ["furnace-daq"]
+    assert "DynamicUser" not in d and d["SocketBindDeny"] == ["any"]
     # The one port the daemon may bind: the live view's default (furnace_daq.liveview).
     assert d["SocketBindAllow"] == [f"tcp:{LiveViewConfig.port}"]
     assert "time-sync.target" in d["After"][0].split()

@@ -15,8 +15,9 @@ from furnace_model.errors import FurnaceError
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("config", help="write a daemon config for a furnace description",
                        description=__doc__)
-    p.add_argument("--furnace", required=True, type=Path, metavar="FURNACE.yaml",
-                   help="furnace description (config/furnaces/)")
+    p.add_argument("--furnace", required=True, metavar="FURNACE.yaml",
+                   help="furnace description: a YAML file, or the name of a shipped one "
+                        "(paper, six-zone, modulated; config/furnaces/)")
     p.add_argument("--out", type=output_file,
                    help="write the config here (default: print it)")
     p.add_argument("--port", type=int, default=5020, help="plc.port (default 5020)")
@@ -24,16 +25,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from furnace_model.cli.arguments import furnace_path
     from furnace_model.simulation.furnacefile import load_furnace
 
     from ..gatewayconfig import gateway_yaml
 
-    furnace = load_furnace(args.furnace)
+    path = furnace_path(args.furnace)
+    furnace = load_furnace(path)
     if not 1 <= args.port <= 65535:
         raise FurnaceError(f"--port must be 1-65535, got {args.port}")
-    # the config finds its furnace relative to its own directory
-    base = args.out.resolve().parent if args.out is not None else Path.cwd()
-    ref = Path(os.path.relpath(args.furnace.resolve(), base)).as_posix()
+    if not Path(args.furnace).is_file():
+        ref = args.furnace  # a shipped description: its name finds it wherever the config is
+    else:  # the config finds its furnace relative to its own directory
+        base = args.out.resolve().parent if args.out is not None else Path.cwd()
+        ref = Path(os.path.relpath(path.resolve(), base)).as_posix()
     text = gateway_yaml(furnace, ref, port=args.port)
     if args.out is None:
         print(text, end="")

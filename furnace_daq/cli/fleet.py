@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from furnace_model.cli.arguments import CommandParser, furnace_of, output_dir, positive_int
+from furnace_model.extras import require
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -94,6 +95,7 @@ def _effects(paths: list[Path]) -> tuple[str, ...]:
 def _prepare(args: argparse.Namespace):
     from ..fleet.description import load_fleet
 
+    require("fleet", "a fleet job")
     effects = _effects(args.effects_from)
     fleet = load_fleet(args.fleet)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -133,6 +135,7 @@ def run_selfcheck(args: argparse.Namespace) -> int:
 
     from ..fleet.jobs.selfcheck import run_selfcheck as job
 
+    require("fleet", "a fleet job")
     effects = _effects(args.effects_from or [])
     labels = sc.labels_of(args)
     args.out.mkdir(parents=True, exist_ok=True)

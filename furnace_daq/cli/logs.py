@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from furnace_model.cli.arguments import LOG_PERIOD_S, CommandParser, output_file
-from furnace_model.errors import DataError
 from furnace_model.log.schema import DAQ_STATUS, THERMOCOUPLES
 
 if TYPE_CHECKING:
@@ -150,12 +149,11 @@ def _duration(s: float) -> str:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    from furnace_model.experiment import write_table
+    from furnace_model.experiment import table_kind, write_table
     from furnace_model.log.experiment import log_files
     from furnace_model.log.resample import parse_time, resample_logs
 
-    if args.out.suffix.lower() not in (".csv", ".parquet", ".pq"):
-        raise DataError(str(args.out), "unsupported output type: use .csv or .parquet")
+    table_kind(args.out)
     start = parse_time(args.start, "--start") if args.start else None
     end = parse_time(args.end, "--end") if args.end else None
     files = [f for p in args.files for f in (log_files(p) if p.is_dir() else [p])]

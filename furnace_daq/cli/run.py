@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
         try:
             live = LiveView(config.live_view, where=config.file, furnace=config.furnace,
-                            signals=signal_fields(config))
+                            signals=signal_fields(config), journal=journal)
         except FurnaceError:
             log.close()
             if lock is not None:

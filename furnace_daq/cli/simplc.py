@@ -24,12 +24,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sim-plc", help="run the simulated furnace PLC (Modbus TCP server)",
                        description=__doc__)
     what = p.add_mutually_exclusive_group(required=True)
-    what.add_argument("--scenario", type=Path, help="scenario YAML: serve the simulated plant")
+    what.add_argument("--scenario", metavar="SCENARIO.yaml",
+                      help="scenario YAML, or the name of a shipped one (paper_exp1; "
+                           "config/scenarios/): serve the simulated plant")
     what.add_argument("--from-log", type=Path, nargs="+", metavar="LOG",
                       help="MCAP log file(s) of the daemon: serve the recorded values")
-    p.add_argument("--furnace", type=Path, metavar="FURNACE.yaml",
-                   help="furnace description the scenario or log must be of (default: the "
-                        "scenario's or log's own, the paper's when it names none)")
+    p.add_argument("--furnace", metavar="FURNACE.yaml",
+                   help="furnace description (a file or a shipped name) the scenario or log "
+                        "must be of (default: the scenario's or log's own, the paper's when "
+                        "it names none)")
     p.add_argument("--speed", type=float, default=3600.0,
                    help="simulated seconds per wall second (default 3600)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
@@ -80,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         raise FurnaceError("--serial-port goes with --transport rtu, and only with it")
     import asyncio
 
+    from furnace_model.cli.arguments import furnace_path, scenario_path
     from furnace_model.simulation.furnace import PAPER
     from furnace_model.simulation.furnacefile import load_furnace
     from furnace_model.simulation.scenario import load_scenario
@@ -91,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.port <= 65535:
         raise FurnaceError(f"--port must be 0-65535, got {args.port}")
     source: ValueSource
-    furnace = None if args.furnace is None else load_furnace(args.furnace)
+    furnace = None if args.furnace is None else load_furnace(furnace_path(args.furnace))
     if args.from_log:
         if args.manual:
             raise FurnaceError("--manual works with --scenario only: a log's burners are recorded")
@@ -103,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.loop:
             raise FurnaceError("--loop works with --from-log only")
-        scenario = load_scenario(args.scenario, furnace)
+        scenario = load_scenario(scenario_path(args.scenario), furnace)
         source = scenario
         what = f"{scenario.name}: {'manual' if args.manual else 'schedule'} burners"
     if args.protocol != "modbus":

@@ -147,28 +147,49 @@ def output_dir(text: str) -> Path:
 
 
 def add_furnace(parser: argparse.ArgumentParser) -> None:
-    """--furnace: the furnace description the command works on (config/furnaces/)."""
+    """--furnace: the furnace description the command works on (a file or a shipped name)."""
     parser.add_argument("--furnace", metavar="FURNACE.yaml",
                         help="furnace description (zones, links, burners, thermocouples): a "
-                             "YAML file, or the name of one in config/furnaces/ (six-zone, "
-                             "modulated); default the paper's three-zone furnace")
+                             "YAML file, or the name of a shipped one (six-zone, modulated; "
+                             "config/furnaces/); default the paper's three-zone furnace")
+
+
+def furnace_path(text: str) -> Path:
+    """The description file --furnace names (`furnace_file`), or a ConfigError saying it is
+    neither a file nor a shipped description's name."""
+    from ..errors import ConfigError
+    from ..simulation.furnacefile import furnace_file, shipped_furnaces
+
+    path = furnace_file(text)
+    if path is None:
+        raise ConfigError(text, "", "file not found, nor a shipped description's name "
+                                    f"({shipped_furnaces()})")
+    return path
 
 
 def furnace_of(args: argparse.Namespace):
     """The furnace --furnace names, checked; the paper's when none is named."""
-    from ..errors import ConfigError
     from ..simulation.furnace import PAPER
-    from ..simulation.furnacefile import FURNACES_DIR, load_furnace
+    from ..simulation.furnacefile import load_furnace
 
     text = getattr(args, "furnace", None)
-    if text is None:
-        return PAPER
-    for candidate in (Path(text), FURNACES_DIR / text, FURNACES_DIR / f"{text}.yaml"):
-        if candidate.is_file():
-            return load_furnace(candidate)
-    names = ", ".join(sorted(p.stem for p in FURNACES_DIR.glob("*.yaml")))
-    raise ConfigError(str(text), "", f"file not found, nor a description's name in "
-                                     f"{FURNACES_DIR} ({names})")
+    return PAPER if text is None else load_furnace(furnace_path(str(text)))
+
+
+def scenario_path(text: str) -> Path:
+    """The scenario --scenario names: a file, or the name of a shipped scenario
+    (`paper_exp1`, config/scenarios/); else a ConfigError listing the shipped names."""
+    from ..errors import ConfigError
+    from ..shipped import SCENARIOS, shipped_named, shipped_names
+
+    path = Path(text)
+    if path.is_file():
+        return path
+    named = shipped_named(SCENARIOS, text)
+    if named is not None:
+        return named
+    raise ConfigError(text, "", "file not found, nor a shipped scenario's name "
+                                f"({', '.join(shipped_names(SCENARIOS))})")
 
 
 def add_effects_from(parser: argparse.ArgumentParser) -> None:

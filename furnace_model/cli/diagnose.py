@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import FurnaceError
+from ..extras import require
 from .arguments import (
     DATA_HELP,
     add_data_window,
@@ -89,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose
     from ..records import load_experiments
 
+    if args.report:
+        require("report", "--report")
     window = data_window(args)
     furnace = furnace_of(args)
     data = load_experiments(args.data, **window, furnace=furnace)
@@ -99,10 +102,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         _write(args.json, json.dumps(result.to_json(), indent=1, allow_nan=False) + "\n")
     if args.report:
-        try:
-            from ..report import write_report
-        except ImportError:
-            raise FurnaceError("the HTML report is not available in this installation") from None
+        from ..report import write_report
+
         try:
             write_report(result, args.report)
         except OSError as exc:

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import FurnaceError
+from ..extras import require
 from ..simulation.parameters import BASELINE
 from .arguments import (
     DATA_HELP,
@@ -151,13 +152,14 @@ class ProgressBar:
 
 
 def run(args: argparse.Namespace) -> int:
-
     from ..effects import EFFECTS
     from ..effects.plugins import guarded
     from ..identification.fit import fit
     from ..records import load_experiments
     from ..simulation.structure import ModelStructure
 
+    if args.plot:
+        require("report", "--plot")
     furnace = furnace_of(args)
     try:
         structure = ModelStructure([EFFECTS[n](**EFFECTS[n].tried.candidate_for(furnace),

@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from ..errors import ConfigError
-from .arguments import add_effects_from, add_furnace, furnace_of, output_file
+from .arguments import add_effects_from, add_furnace, furnace_of, output_file, scenario_path
 
 MAX_ROWS = 10_000_000
 """About 1 GB of CSV: beyond it a scenario's sampling is a typo, not a data set."""
@@ -17,7 +16,9 @@ MAX_ROWS = 10_000_000
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a scenario into a CSV or Parquet file",
                        description=__doc__)
-    p.add_argument("--scenario", required=True, type=Path, help="scenario YAML")
+    p.add_argument("--scenario", required=True, metavar="SCENARIO.yaml",
+                   help="scenario YAML, or the name of a shipped one (paper_exp1, "
+                        "six_zone_heatup; config/scenarios/)")
     p.add_argument("--out", required=True, type=output_file, help="output .csv or .parquet")
     p.add_argument("--seed", type=int, default=0, help="noise and sensor-bias seed (default 0)")
     add_furnace(p)
@@ -27,10 +28,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..effects.plugins import guarded
-    from ..experiment import write_table
+    from ..experiment import table_kind, write_table
     from ..simulation.plant import Plant
     from ..simulation.scenario import load_scenario
 
+    table_kind(args.out)
+    args.scenario = scenario_path(args.scenario)
     scenario = load_scenario(args.scenario,
                              None if args.furnace is None else furnace_of(args))
     if scenario.duration_min / scenario.sample_min > MAX_ROWS:

@@ -1,5 +1,5 @@
 """A furnace description read from YAML, every key checked: a file, a string, a key of a
-larger file, or a name among the descriptions shipped in config/furnaces/.
+larger file, or the name of a shipped description (config/furnaces/, `furnace_model.shipped`).
 
 Here rather than beside `Furnace`, because checking a description needs the network
 built from it (parameter names must not collide), and the network needs `Furnace`.
@@ -11,6 +11,7 @@ import re
 from pathlib import Path
 
 from ..config import Node, load_yaml, parse_yaml
+from ..shipped import FURNACES, shipped_named, shipped_names
 from .furnace import BURNER_HEAT, HEAT_KINDS, Disturbance, Furnace, HeatInput
 from .network import parameter_names
 
@@ -181,19 +182,28 @@ def _check_connected(furnace: Furnace, node: Node) -> None:
                          "ambient: add links or ambient zones")
 
 
-FURNACES_DIR = Path(__file__).resolve().parents[2] / "config" / "furnaces"
+def furnace_file(text: str, base: Path | None = None) -> Path | None:
+    """The description a name or path stands for: a file relative to `base` (the naming
+    file's directory), or to the working directory, or the name of a shipped description
+    (`six-zone`, `paper`); None when it is none of these."""
+    for candidate in ([] if base is None else [base / text]) + [Path(text)]:
+        if candidate.is_file():
+            return candidate
+    return shipped_named(FURNACES, text)
+
+
+def shipped_furnaces() -> str:
+    """The shipped descriptions' names, for an error message."""
+    return ", ".join(shipped_names(FURNACES))
 
 
 def named_furnace(node: Node, base: Path | None = None, what: str = "the file") -> Furnace:
     """The furnace a `furnace:` key names, in every file that has one (a daemon config, a
-    scenario, a fleet file): a description's path relative to the naming file's directory
-    (`base`), or to the working directory, or the name of one in config/furnaces/
-    (`six-zone`, `paper`)."""
+    scenario, a fleet file): `furnace_file` from the naming file's directory (`base`)."""
     text = node.string()
-    candidates = [] if base is None else [base / text]
-    candidates += [Path(text), FURNACES_DIR / text, FURNACES_DIR / f"{text}.yaml"]
-    for candidate in candidates:
-        if candidate.is_file():
-            return load_furnace(candidate)
-    raise node.error(f"no furnace description '{text}' (a YAML file relative to {what}'s "
-                     f"directory or the working directory, or a name in {FURNACES_DIR})")
+    path = furnace_file(text, base)
+    if path is None:
+        raise node.error(f"no furnace description '{text}' (a YAML file relative to {what}'s "
+                         f"directory or the working directory, or a shipped description: "
+                         f"{shipped_furnaces()})")
+    return load_furnace(path)

@@ -37,9 +37,11 @@ def case_files(tmp_path_factory) -> tuple[Path, Path, dict]:
 def test_diagnose_names_the_effect_and_writes_the_contract_json(case_files, tmp_path):
     fit, hold, _truth = case_files
     out = tmp_path / "d.json"
+    # a limit far beyond the diagnosis's time changes nothing and leaves nothing untried
     r = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,sensor_lag,dead_time",
-            "--json", str(out))
+            "--json", str(out), "--time-limit", "3600")
     assert r.returncode == 0, r.stderr
+    assert "Judged without" not in r.stdout
     # the verdict first, then the evidence: baseline, where, candidates
     assert r.stdout.startswith("Verdict: explained (zone_burners)\n")
     order = [r.stdout.index(h) for h in ("Baseline (the paper's model", "Where the error lies",
@@ -50,6 +52,7 @@ def test_diagnose_names_the_effect_and_writes_the_contract_json(case_files, tmp_
     assert "Noise floor per record" in r.stdout and "from the thermocouple pair's" in r.stdout
     assert "degC" not in r.stdout and " C;" not in r.stdout
     doc = json.loads(out.read_text())
+    assert doc["untried"] == [] and doc["time_limit_s"] == 3600
     # each record's own floor, per zone, and the one the held-out RMSE is judged against
     assert [f["role"] for f in doc["noise_floors"]] == ["fit", "holdout"]
     held = doc["noise_floors"][1]["zones"]
@@ -179,3 +182,30 @@ def test_a_killed_diagnosis_leaves_no_worker_behind(case_files):
             with contextlib.suppress(OSError):
                 if b"furnace_model.cli" in Path(f"/proc/{w}/cmdline").read_bytes():
                     os.kill(w, signal.SIGKILL)
+
+
+def test_a_time_limit_answers_and_names_what_it_left(case_files, tmp_path):
+    """A limit shorter than the candidates' fits: the baseline still completes, the verdict
+    is judged on what was fitted, and every effect asked for is either a candidate or named
+    as not tried, in the summary and the JSON."""
+    fit, hold, _truth = case_files
+    out = tmp_path / "d.json"
+    effects = ("zone_burners", "sensor_lag", "wall_storage")
+    r = cli(str(fit), "--holdout", str(hold), "--effects", ",".join(effects),
+            "--time-limit", "0.001", "--json", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(out.read_text())
+    assert d["time_limit_s"] == 0.001
+    assert set(d["untried"]) == set(effects)  # nothing could be fitted in a millisecond
+    assert d["candidates"] == [] and d["verdict"]["status"] == "unexplained"
+    assert d["baseline"]["gap_zones"]  # the baseline, fitted in full, still sees the gap
+    assert "Judged without what the time limit of 0.001 s left unfitted" in r.stdout
+    for name in effects:
+        assert name in r.stdout.split("Judged without")[1].split("\n")[0]
+
+
+@pytest.mark.parametrize("bad", ["0", "-3", "soon", "inf"])
+def test_a_time_limit_must_be_seconds_above_zero(case_files, bad):
+    fit, hold, _ = case_files
+    r = cli(str(fit), "--holdout", str(hold), "--time-limit", bad)
+    assert r.returncode == 2 and "--time-limit" in r.stderr and bad in r.stderr

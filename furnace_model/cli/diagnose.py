@@ -47,9 +47,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_furnace(p)
     add_data_window(p)
     p.add_argument("--seed", type=int, default=0, help="random seed of the searches (default 0)")
+    p.add_argument("--time-limit", type=positive_seconds, metavar="S",
+                   help="answer within about S seconds: the verdict judged on what was fitted "
+                        "by then, the candidates left unfitted named (the baseline always "
+                        "completes)")
     p.add_argument("--quiet", action="store_true",
                    help="no progress lines on stderr (each stage of the search as it starts)")
     p.set_defaults(run=run)
+
+
+def positive_seconds(text: str) -> float:
+    """A time limit in seconds, for argparse."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number of seconds above 0, not {text!r}")
+    return value
 
 
 def effect_list(text: str, what: str = "effect") -> tuple[str, ...]:
@@ -97,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
     data = load_experiments(args.data, **window, furnace=furnace)
     hold = load_experiments(args.holdout, **window, furnace=furnace) if args.holdout else None
     result = diagnose(data, hold, effects=args.effects, seed=args.seed,
-                      progress=None if args.quiet else stage_lines())
+                      progress=None if args.quiet else stage_lines(),
+                      time_limit_s=args.time_limit)
     print(summary(result))
     if args.json:
         _write(args.json, json.dumps(result.to_json(), indent=1, allow_nan=False) + "\n")
@@ -139,12 +155,16 @@ def summary(d: Diagnosis) -> str:
     else:
         model = f"the thermal network of furnace '{furnace.name}'"
     lines = [f"Verdict: {v.status}" + (f" ({', '.join(v.effects)})" if v.effects else ""),
-             v.sentence, "",
-             f"Fitted: {', '.join(e.name for e in d.fit_data)}; held out: {d.holdout_how}", "",
-             f"Baseline ({model}):",
-             "| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap above (°C) "
-             "| gap |",
-             "|---|---|---|---|---|---|"]
+             v.sentence, ""]
+    if d.untried:
+        lines += [f"Judged without what the time limit of {d.time_limit_s:g} s left unfitted: "
+                  + "; ".join(d.untried) + ". Run again with a longer --time-limit (or none) "
+                  "to try them.", ""]
+    lines += [f"Fitted: {', '.join(e.name for e in d.fit_data)}; held out: {d.holdout_how}",
+              "", f"Baseline ({model}):",
+              "| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap above (°C) "
+              "| gap |",
+              "|---|---|---|---|---|---|"]
     limit = d.gap_limit_c or {}
     for z in zone_names:
         lines.append(f"| {z} | {c2(b.rmse_fit_c[z])} | {c2(b.rmse_holdout_c[z])} | "

@@ -47,6 +47,9 @@ class Task:
     """Per zone: the cold search is skipped when the warm fit is already below these."""
     generations: int | None = None
     """Generations of a search from scratch (init None); None: the fit's default."""
+    deadline: float | None = None
+    """time.monotonic() by which the diagnosis must answer (its --time-limit): a fit still
+    running then stops, and the candidate is named as not tried."""
 
     @property
     def furnace(self) -> Furnace:
@@ -64,6 +67,8 @@ def run_task(task: Task) -> CandidateResult:
     simulator cannot integrate) is reported as failed, with the reason, and earns no
     credit: one bad candidate must not end the diagnosis."""
     t0 = time.perf_counter()
+    if task.deadline is not None and time.monotonic() >= task.deadline:
+        return not_tried(task)
     try:
         return _run_task(task, t0)
     except Exception as exc:  # noqa: BLE001 - any failure of one candidate is reported as such
@@ -74,6 +79,19 @@ def run_task(task: Task) -> CandidateResult:
                                note=f"fit failed: {type(exc).__name__}: {exc}",
                                options={n: dict(task.options.get(n, {})) for n in task.effects},
                                elapsed_s=time.perf_counter() - t0)
+
+
+def not_tried(task: Task) -> CandidateResult:
+    """A candidate the time limit left unfitted (the baseline has no limit: everything is
+    measured against it)."""
+    nan = {z: float("nan") for z in task.furnace.zones}
+    return CandidateResult(task.effects, {}, {}, dict(nan), dict(nan), identifiable=False,
+                           note="not tried within the time limit", cut=True,
+                           options={n: dict(task.options.get(n, {})) for n in task.effects})
+
+
+def _budget(task: Task) -> float | None:
+    return None if task.deadline is None else max(task.deadline - time.monotonic(), 0.0)
 
 
 def _run_task(task: Task, t0: float) -> CandidateResult:
@@ -95,16 +113,19 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     # more than the candidate's fit, and the verdict reads the white ones.
     runs = 3 if not task.effects else 1
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
-             runs=runs, bounds=bounds, generations=task.generations, profile=False)
-    if init is not None:
+             runs=runs, bounds=bounds, generations=task.generations, profile=False,
+             time_budget_s=_budget(task))
+    if init is not None and not _late(task):
         fr = _restarted(fr, task, structure, init, bounds)
     off_floor = task.cold_above is None or any(
         fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in zones)
-    if init is not None and structure.linear and task.cold_too and off_floor:
+    if init is not None and structure.linear and task.cold_too and off_floor and not _late(task):
         cold = fit(task.fit_data, structure, seed=task.seed + 1, zone_offsets=True,
-                   bounds=bounds, profile=False)
-        if cold.sse < fr.sse:
+                   bounds=bounds, profile=False, time_budget_s=_budget(task))
+        if cold.sse < fr.sse and cold.stop_reason != "time_budget":
             fr = cold
+    if fr.stop_reason == "time_budget":
+        return not_tried(task)
     fit_pred = fitted_predictions(fr, task.fit_data)
     unseen = unseen_by_fit(fr, bounds) if any(j is None for j in task.tail_of) else ()
     hold_pred, refined = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of,
@@ -134,6 +155,10 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         rmse_holdout_carried_c=(None if task.effects else
                                 _with_carried_offsets(fr, task, hold_pred, unseen)),
         flags=[f.words() for f in [*fr.flags, *(refined.flags if refined else [])]])
+
+
+def _late(task: Task) -> bool:
+    return task.deadline is not None and time.monotonic() >= task.deadline
 
 
 def _with_carried_offsets(fr: FitResult, task: Task, hold_pred: list[np.ndarray],
@@ -171,8 +196,12 @@ def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
         restarts += [{**v, **_network_without_sensor_error(structure, v, task.fit_data)}
                      for v in placed]
     for values in restarts:
+        if _late(task):
+            return dataclasses.replace(fr, stop_reason="time_budget")
         other = fit(task.fit_data, structure, init=values, seed=task.seed, zone_offsets=True,
-                    bounds=bounds, profile=False)
+                    bounds=bounds, profile=False, time_budget_s=_budget(task))
+        if other.stop_reason == "time_budget":  # a search left unfinished: not tried
+            return dataclasses.replace(fr, stop_reason="time_budget")
         if other.sse < fr.sse:
             fr = other
     return fr

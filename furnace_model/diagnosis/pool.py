@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
 import multiprocessing
 import os
 import signal
@@ -19,13 +20,16 @@ WORKERS = 2
 
 
 def run_all(tasks: list[Task], progress: Callable[[float], None],
-            finished: Callable[[CandidateResult], None] | None = None
-            ) -> list[CandidateResult]:
+            finished: Callable[[CandidateResult], None] | None = None,
+            deadline: float | None = None) -> list[CandidateResult]:
     """The tasks' results in their order; `progress` hears the share done, `finished` each
-    result as it comes."""
+    result as it comes. `deadline` (time.monotonic()): the diagnosis's time limit, by which
+    each task ends, fitted or named as not tried (`CandidateResult.cut`)."""
     done = finished or (lambda _c: None)
     if not tasks:
         return []
+    if deadline is not None:
+        tasks = [dataclasses.replace(t, deadline=deadline) for t in tasks]
     out: list[CandidateResult] = []
     if WORKERS > 1 and len(tasks) > 1:
         ctx = multiprocessing.get_context("fork")

@@ -3,7 +3,7 @@ it)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,6 +38,10 @@ class Diagnosis:
     """Held-out RMSE per zone above which the zone has a gap."""
     kept: CandidateResult | None = None
     """The model the verdict judged: the effects the stepwise search kept, as fitted."""
+    time_limit_s: float | None = None
+    untried: list[str] = field(default_factory=list)
+    """What the time limit left unfitted (candidates, searches from scratch, combinations):
+    the verdict is judged without them."""
 
     def offset_lines(self) -> list[str]:
         """The baseline's thermocouple offsets, fitted and carried to the held-out records,
@@ -117,6 +121,8 @@ class Diagnosis:
                               else "holdout"} for i, f in enumerate(self.record_floors or [])],
             "residual_tests": self.residual_tests,
             "elapsed_s": _r(self.elapsed_s),
+            "time_limit_s": self.time_limit_s,
+            "untried": list(self.untried),
         }
 
 

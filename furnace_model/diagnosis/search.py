@@ -60,9 +60,23 @@ def check_effects(names) -> tuple[str, ...]:
 
 def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
              effects: Sequence[str] | None = None, seed: int = 0,
-             progress: Callable[[str, float], None] | None = None) -> Diagnosis:
-    """Fit the baseline, locate its error, try every effect as an extension, and judge."""
+             progress: Callable[[str, float], None] | None = None,
+             time_limit_s: float | None = None) -> Diagnosis:
+    """Fit the baseline, locate its error, try every effect as an extension, and judge.
+
+    `time_limit_s`: answer within about this long (the baseline always completes: every
+    verdict is measured against it). What the limit leaves unfitted is named in
+    `Diagnosis.untried`, and the verdict is judged on what was fitted."""
     t_start = time.perf_counter()
+    deadline = None if time_limit_s is None else time.monotonic() + float(time_limit_s)
+    untried: list[str] = []
+
+    def late() -> bool:
+        return deadline is not None and time.monotonic() >= deadline
+
+    def tried(results: list[CandidateResult]) -> list[CandidateResult]:
+        untried.extend(c.label for c in results if c.cut and c.label not in untried)
+        return [c for c in results if not c.cut]
     say = progress or (lambda _s, _f: None)
     names = check_effects(EFFECTS if effects is None else effects)
     fit_data, hold, tail_of, how = split(data, holdout)
@@ -98,7 +112,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         verdict = judge(base, None, [], floor, near, gap, where, furnace=furnace)
         say("done", 1.0)
         return Diagnosis(fit_data, hold, how, base, floor, where, tests, [], verdict,
-                         time.perf_counter() - t_start, gap, **noise)
+                         time.perf_counter() - t_start, gap, **noise, time_limit_s=time_limit_s)
     clues.bent = bent = any(base.rmse_fit_c[z] > fit_limit[z] for z in zones)
     say("candidates", 0.1)
     trials = {n: EFFECTS[n].tried.trial(clues) for n in names}
@@ -110,8 +124,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of, inits[n], seed, bent,
                   bounds, fit_limit)
              for n in names]
-    fitted = run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f),
-                     lambda c: say(fitted_words(c), 0.1))
+    fitted = tried(run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f),
+                           lambda c: say(fitted_words(c), 0.1), deadline))
     for c in fitted:
         score_against(c, base, floor)
     if bent:
@@ -129,8 +143,12 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                and any(c.rmse_fit_c[z] > fit_limit[z] for z in zones)]
         cold = run_all([Task(fitted[i].effects, fitted[i].options, fit_data, hold, tail_of,
                               None, seed + 1, bounds=bounds, generations=COLD_GENERATIONS)
-                         for i in off], lambda f: say("candidates", 0.6 + 0.05 * f))
+                         for i in off], lambda f: say("candidates", 0.6 + 0.05 * f),
+                       deadline=deadline)
         for i, c in zip(off, cold, strict=True):
+            if c.cut:
+                untried.append(f"{c.label} searched from scratch")
+                continue
             score_against(c, base, floor)
             if np.isfinite(c.sse_fit) and c.sse_fit < fitted[i].sse_fit:
                 c.note = "; ".join(x for x in (c.note, "searched from scratch") if x)
@@ -143,13 +161,16 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
                  seed, cold_laws, bounds, fit_limit)
             for c, opts in further_laws(fitted, furnace)]
-    more = run_all(laws, lambda f: say("candidates", 0.65 + 0.05 * f))
+    more = tried(run_all(laws, lambda f: say("candidates", 0.65 + 0.05 * f),
+                         deadline=deadline))
     for c in more:
         score_against(c, base, floor)
     fitted += more
     singles = []
     for n in names:
         same = sorted((c for c in fitted if c.effects == (n,)), key=rank)
+        if not same:  # left unfitted by the time limit
+            continue
         if len(same) > 1:
             options[n] = same[0].options[n]  # combinations are simulated in one law
             mix = between_laws(same, fit_data, hold) if EFFECTS[n].tried.blends else None
@@ -164,12 +185,14 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     singles.sort(key=rank)
     combos, kept, steps = stepwise(singles, base, floor, gap_limit, fit_data, hold, tail_of,
                                    seed, options, bounds, starts, gap,
-                                   lambda f: say("combinations", 0.7 + 0.3 * f))
+                                   lambda f: say("combinations", 0.7 + 0.3 * f),
+                                   deadline, untried)
     signals = unused_signals(fit_data + hold)
     if signals:
         say("signals", 0.95)
-    followed = signal_candidates(signals, base, fit_data, hold, tail_of, seed, floor,
-                                 lambda c: say(fitted_words(c), 0.95)) if signals else []
+    followed = tried(signal_candidates(signals, base, fit_data, hold, tail_of, seed, floor,
+                                       lambda c: say(fitted_words(c), 0.95), deadline)
+                     if signals else [])
     candidates = sorted(singles + combos + followed, key=rank)
 
     def remaining(c: CandidateResult) -> list[Located] | None:
@@ -187,7 +210,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                             remaining)
     say("done", 1.0)
     return Diagnosis(fit_data, hold, how, base, floor, where, tests, candidates, verdict,
-                     time.perf_counter() - t_start, gap, **noise, kept=kept)
+                     time.perf_counter() - t_start, gap, **noise, kept=kept,
+                     time_limit_s=time_limit_s, untried=untried)
 
 
 def fitted_words(c: CandidateResult) -> str:
@@ -210,12 +234,15 @@ def _pooled_tc(floors: list[RecordFloor]) -> dict[str, float]:
 def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[str, float],
              gap_limit: dict[str, float], fit_data, hold, tail_of, seed: int, options: dict, bounds: dict, starts: dict,
              gap: tuple[str, ...],
-             progress: Callable[[float], None]
+             progress: Callable[[float], None], deadline: float | None = None,
+             untried: list[str] | None = None
              ) -> tuple[list[CandidateResult], CandidateResult | None, list[CandidateResult]]:
     """Combinations tried, the set kept, and the kept set after each effect was added (the
     last is the set kept): the best single with credit, then one effect added at a time
     while the kept set leaves a clear gap and a further effect removes most of what is left
-    (and is itself determined by the data)."""
+    (and is itself determined by the data). Combinations the time limit (`deadline`) cut
+    are added to `untried` and the search stops there."""
+    untried = [] if untried is None else untried
     if not gap or not singles or not credited(singles[0]):
         return [], None, []
     kept = singles[0]
@@ -228,7 +255,11 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         again = run_all([Task(kept.effects, {k: v for k, v in options.items()
                                               if k in kept.effects}, fit_data, hold, tail_of,
                               {k: v for k, v in combination.params.items()
-                               if k in structure.names}, seed, bounds=bounds)], progress)[0]
+                               if k in structure.names}, seed, bounds=bounds)], progress,
+                        deadline=deadline)[0]
+        if again.cut:
+            untried.append(f"{kept.label} refitted from {combination.label}'s optimum")
+            return again
         score_against(again, base, floor)
         again.note = "; ".join(x for x in (again.note, "refitted from a combination's "
                                            "optimum") if x)
@@ -245,7 +276,10 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
             tasks.append(Task(effs, opts, fit_data, hold, tail_of,
                               {**kept.params, **starts.get(n, {})}, seed,
                               bounds=bounds))
-        step = run_all(tasks, progress)
+        step = run_all(tasks, progress, deadline=deadline)
+        untried.extend(c.label for c in step if c.cut)
+        if any(c.cut for c in step):
+            break  # a step judged on some of its combinations would not be the search's
         for c in step:
             score_against(c, base, floor)
         tried += step

@@ -80,9 +80,10 @@ def _held(v: np.ndarray) -> np.ndarray:
 def signal_candidates(names: tuple[str, ...], base: CandidateResult,
                       fit_data: list[Experiment], hold: list[Experiment],
                       tail_of: list[int | None], seed: int, floor: dict[str, float],
-                      finished=None) -> list[CandidateResult]:
+                      finished=None, deadline: float | None = None) -> list[CandidateResult]:
     """Each signal tried as an unmodelled input: fitted from the baseline's optimum, scored
-    against the baseline like an effect; `finished` hears each as it is fitted."""
+    against the baseline like an effect; `finished` hears each as it is fitted. Those the
+    time limit (`deadline`) cut come back with `cut` set, unscored."""
     tasks, furnaces = [], []
     for name in names:
         furnace = with_signal(fit_data[0].furnace, name, fit_data + hold)
@@ -90,9 +91,11 @@ def signal_candidates(names: tuple[str, ...], base: CandidateResult,
         tasks.append(Task((), {}, [as_input(r, name, furnace) for r in fit_data],
                           [as_input(r, name, furnace) for r in hold], tail_of,
                           dict(base.params), seed, cold_too=True))
-    out = run_all(tasks, lambda _f: None)
+    out = run_all(tasks, lambda _f: None, deadline=deadline)
     for name, furnace, c in zip(names, furnaces, out, strict=True):
         c.signal = name
+        if c.cut:
+            continue
         if finished is not None:
             finished(c)
         gains = [f"gain_{name}_{z}" for z in furnace.zones]

@@ -126,6 +126,10 @@ def test_progress_lines_on_stderr_unless_quiet(case_files):
     assert lines[0].startswith("furnace-model diagnose: fitting the baseline (")
     assert any("zone_burners fitted in" in x for x in lines)
     assert any("sensor_lag fitted in" in x for x in lines)
+    # the first of the two says how long the other will take; the last, none
+    counts = [x for x in lines if " fitted in " in x and " of 2" in x]
+    assert "(1 of 2; about " in counts[0] and " left for the others)" in counts[0]
+    assert "(2 of 2) (" in counts[1] and "left" not in counts[1]
     assert lines[-1].startswith("furnace-model diagnose: judging (")
     quiet = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,sensor_lag",
                 "--quiet")

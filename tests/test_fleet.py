@@ -362,10 +362,14 @@ def test_an_uncut_refit_is_the_replay_timeline(local, fleet_file):
             assert getattr(row, p) == pytest.approx(m[p], rel=1e-9)
 
 
-def test_progress_rewrites_one_line_on_a_terminal_and_prints_tenths_otherwise():
+def test_progress_rewrites_one_line_on_a_terminal_and_prints_tenths_otherwise(monkeypatch):
     import io
 
-    from furnace_daq.fleet.progress import Progress
+    from furnace_model import progress as progress_module
+    from furnace_model.progress import Progress
+
+    clock = iter(range(0, 1000, 10))  # each reading of the clock 10 s after the last
+    monkeypatch.setattr(progress_module.time, "monotonic", lambda: float(next(clock)))
 
     class Tty(io.StringIO):
         def isatty(self) -> bool:
@@ -377,18 +381,23 @@ def test_progress_rewrites_one_line_on_a_terminal_and_prints_tenths_otherwise():
     p.failure("line2", "segment 1", "boom")
     p.finished(ok=False)
     p.close()
-    assert "\rrefit: 1/3 tasks done" in tty.getvalue()
-    assert "\nrefit: FAILED line2 segment 1: boom\n" in tty.getvalue()
-    assert tty.getvalue().endswith("refit: 2/3 tasks done, 1 failed\x1b[K\n")
+    shown = tty.getvalue()
+    # a bar, the count, and the time left at this run's pace (10 s per task so far)
+    assert "\r[########................] refit: 1/3 tasks done, about 20 s left" in shown
+    assert "\r\x1b[Krefit: FAILED line2 segment 1: boom\n" in shown  # the bar's line cleared
+    assert shown.endswith("refit: 2/3 tasks done, 1 failed, about 10 s left\x1b[K\n")
     log = io.StringIO()
-    p = Progress("refit", 20, stream=log)
-    for _ in range(20):
+    p = Progress("refit", 20, stream=log, cached=4)
+    for _ in range(16):
         p.finished()
     lines = log.getvalue().splitlines()
-    assert len(lines) == 11 and lines[-1] == "refit: 20/20 tasks done"
+    assert lines[0] == "refit: 4/20 tasks done (4 from earlier runs)"  # nothing run: no estimate
+    assert lines[-1] == "refit: 20/20 tasks done (4 from earlier runs)"
+    assert len(lines) == 9 and all("left" in x for x in lines[1:-1])
     quiet = io.StringIO()
     p = Progress("refit", 2, stream=quiet, quiet=True)
     p.finished()
+    p.note("a case's line")
     p.failure("x", "scan", "bad")
     assert quiet.getvalue() == "refit: FAILED x scan: bad\n"
 

@@ -22,8 +22,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 if TYPE_CHECKING:  # pandas and the fleet's modules: not for `furnace-daq fleet --help`
     import pandas as pd
 
+    from furnace_model.progress import Progress
+
     from .description import Fleet
-    from .progress import Progress
     from .store import Store
 
 
@@ -94,7 +95,8 @@ class FleetJob:
 
     def run(self, client, fleet: Fleet, out_dir: Path, *, effects_from: tuple[str, ...] = (),
             quiet: bool = False, **options: Any) -> JobResult:
-        from .progress import Progress
+        from furnace_model.progress import Progress
+
         from .report import write_report
         from .store import Store
 
@@ -167,7 +169,7 @@ def run_tasks(client, specs: list[TaskSpec], store: Store | None, progress: Prog
 def scan(client, fleet: Fleet, job: str, result: JobResult) -> dict[str, dict]:
     """Every furnace's files and spans (tasks on the cluster: the files may be visible only
     there); a furnace whose scan fails is a failure of the job and is left out."""
-    from .progress import Progress
+    from furnace_model.progress import Progress
 
     specs = [TaskSpec(job, f.name, "scan", _scan_task,
                       (f.name, tuple(map(str, f.logs)), f.description), "")

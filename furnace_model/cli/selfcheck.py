@@ -55,6 +55,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "draws 2-4 of a longer check, the same cases")
     p.add_argument("--json", type=output_file, metavar="OUT",
                    help="write every case and the table")
+    p.add_argument("--quiet", action="store_true",
+                   help="no line per case and no progress on stderr, only the table")
     add_effects_from(p)
     add_furnace(p)
     p.set_defaults(run=run)
@@ -100,22 +102,26 @@ def _refused(furnace) -> dict[str, str]:
 
 def run(args: argparse.Namespace) -> int:
     from ..diagnosis.selfcheck import check
+    from ..progress import Progress
 
     labels = labels_of(args)
     outcomes: list[Outcome] = []
+    # a line per case as it is judged, and the cases done with the time left at this pace
+    bar = Progress("selfcheck", len(labels) * args.draws, quiet=args.quiet, unit="cases")
 
     def progress(o):
         outcomes.append(o)
         mark = "absorbed" if o.absorbed else ("ok" if o.correct else "WRONG")
-        print(f"{o.label} draw {o.draw}: {o.status} {'+'.join(o.named)} [{mark}] "
-              f"{o.elapsed_s:.0f} s{': ' + o.reason if o.reason else ''}", file=sys.stderr,
-              flush=True)
+        bar.note(f"{o.label} draw {o.draw}: {o.status} {'+'.join(o.named)} [{mark}] "
+                 f"{o.elapsed_s:.0f} s{': ' + o.reason if o.reason else ''}")
+        bar.finished(ok=o.correct or o.absorbed)
 
     try:
         check(labels, args.draws, args.seed, form=args.form, candidates=args.candidates,
               noise=args.noise, report=progress, first=args.first_draw,
               furnace=furnace_of(args))
     except KeyboardInterrupt:
+        bar.close()
         # A full check takes hours: stopping it must not throw away the cases diagnosed.
         if not outcomes:
             raise
@@ -123,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"selfcheck: interrupted after {len(outcomes)} case(s); the table and --json "
               "hold those only", file=sys.stderr)
         return 130
+    bar.close()
     rows = report(args, outcomes, complete=True)
     failed = [r.label for r in rows if not r.passed]
     if failed:

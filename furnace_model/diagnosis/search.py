@@ -125,7 +125,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                   bounds, fit_limit)
              for n in names]
     fitted = tried(run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f),
-                           lambda c: say(fitted_words(c), 0.1), deadline))
+                           counted(len(tasks), lambda w: say(w, 0.1)), deadline))
     for c in fitted:
         score_against(c, base, floor)
     if bent:
@@ -191,7 +191,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     if signals:
         say("signals", 0.95)
     followed = tried(signal_candidates(signals, base, fit_data, hold, tail_of, seed, floor,
-                                       lambda c: say(fitted_words(c), 0.95), deadline)
+                                       counted(len(signals), lambda w: say(w, 0.95)),
+                                       deadline)
                      if signals else [])
     candidates = sorted(singles + combos + followed, key=rank)
 
@@ -217,6 +218,23 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
 def fitted_words(c: CandidateResult) -> str:
     """A candidate's progress line: what was fitted and how long it took."""
     return f"{c.label} fitted in {c.elapsed_s:.0f} s"
+
+
+def counted(total: int, say: Callable[[str], None]) -> Callable[[CandidateResult], None]:
+    """Each result of a batch of `total` as a progress line, with how many are done and the
+    time the others will take at the pace so far."""
+    from ..progress import duration
+
+    t0, done = time.monotonic(), [0]
+
+    def heard(c: CandidateResult) -> None:
+        done[0] += 1
+        k = done[0]
+        left = (time.monotonic() - t0) / k * (total - k)
+        say(f"{fitted_words(c) if not c.cut else c.label + ' not tried (time limit)'} "
+            f"({k} of {total}" + (f"; about {duration(left)} left for the others)"
+                                  if k < total else ")"))
+    return heard
 
 
 def _pooled_tc(floors: list[RecordFloor]) -> dict[str, float]:

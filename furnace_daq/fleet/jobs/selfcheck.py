@@ -23,8 +23,8 @@ def run_selfcheck(client, labels: list[str], draws: int, out_dir: Path, *, furna
     """Every (label, draw) of the selfcheck as a task; the Outcomes in the order
     `furnace-model selfcheck` reports them."""
     from furnace_model.diagnosis.selfcheck import Outcome
+    from furnace_model.progress import Progress
 
-    from ..progress import Progress
     from ..store import Store, task_key
     from ..tasks import Draw, selfcheck_draw
 

@@ -7,6 +7,7 @@ check`, and `sim-plc --protocol s7` with `check` end to end."""
 from __future__ import annotations
 
 import asyncio
+import sys
 
 import numpy as np
 import pytest
@@ -19,11 +20,12 @@ from furnace_daq.daemon import EVENT_PRIORITY, Daemon
 from furnace_daq.daqconfig import load_config, parse_config
 from furnace_daq.logmeta import build_metadata
 from furnace_daq.mcaplog import LogWriter
+from furnace_daq.protocols import source_class
 from furnace_daq.s7map import S7Address
 from furnace_daq.s7server import S7PLC, default_items
 from furnace_daq.s7source import S7Block, S7Source, plan_blocks, plan_requests
 from furnace_model.config import Node
-from furnace_model.errors import ConfigError
+from furnace_model.errors import ConfigError, FurnaceError
 from furnace_model.log.read import read_messages
 from furnace_model.log.schema import BURNERS, DAQ_STATUS, THERMOCOUPLES
 from furnace_model.simulation.furnace import PAPER
@@ -159,6 +161,14 @@ def test_reads_are_joined_per_area_and_packed_into_the_pdu():
     # and at most 20 pieces in one request, however small
     assert [len(r) for r in plan_requests([S7Block("M", 0, 2 * k, 1)
                                            for k in range(25)], 960)] == [20, 5]
+
+
+def test_without_snap7_the_protocol_says_which_extra_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "snap7", None)  # an installation without the extra
+    monkeypatch.delitem(sys.modules, "furnace_daq.s7source")
+    with pytest.raises(FurnaceError, match=r"protocol s7 needs a package this installation "
+                                           r"lacks .*pip install 'furnace-daq\[s7\]'"):
+        source_class("s7")
 
 
 # -- the daemon against python-snap7's server ------------------------------------------------

@@ -191,15 +191,15 @@ class S7Source(Source):
 
     @property
     def transport_text(self) -> str:
-        return f"S7 {self.where} rack {self.settings.rack} slot {self.settings.slot}" + \
-            (f" (PDU {self.pdu} bytes)" if self._client is not None else "")
+        return f"S7 {self.where} rack {self.settings.rack} slot {self.settings.slot}"
 
     @property
     def plan_text(self) -> str:
-        """What one read covers, as `furnace-daq check` says it."""
+        """What one read covers, as `furnace-daq check` says it (after connecting: the
+        plan follows the PDU size the PLC agreed on)."""
         pieces = sum(len(r) for r in self.requests)
         return f"{len(self.addresses)} address(es) in {pieces} piece(s), " \
-               f"{len(self.requests)} request(s)"
+               f"{len(self.requests)} request(s) of PDU {self.pdu} bytes"
 
     @property
     def connected(self) -> bool:

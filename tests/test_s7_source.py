@@ -324,7 +324,7 @@ def test_check_reads_every_address_and_names_the_failing_one():
     assert whole.ok and len(whole.points) == 12
     text = format_report(whole)
     assert "S7 127.0.0.1:" in text and "rack 0 slot 1" in text
-    assert "connected, 35 address(es) in 4 piece(s), 1 request(s)" in text
+    assert "connected, 35 address(es) in 4 piece(s), 1 request(s) of PDU 480 bytes" in text
     assert "DB11.DBD0" in text and "I0.0-I1.1" in text and "MW10" in text
     assert [(p.key, p.where, p.error) for p in broken.failed] == [
         ("thermocouples.heat_2", "DB11.DBD0",

@@ -35,9 +35,10 @@ deb: $(STAMP) system-deps
 	$(BIN)/python deb/build_deb.py --out $(OUT)/deb
 
 # `make demo FURNACE=config/furnaces/six-zone.yaml` (or a name in config/furnaces/, e.g.
-# FURNACE=modulated): the same chain on another furnace.
+# FURNACE=modulated): the same chain on another furnace. `make demo PROTOCOL=opcua` (or s7):
+# the simulated PLC and the daemon speak that protocol instead of Modbus.
 demo: $(STAMP)
-	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo$(if $(FURNACE), --furnace $(FURNACE))
+	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo$(if $(FURNACE), --furnace $(FURNACE))$(if $(PROTOCOL), --protocol $(PROTOCOL))
 
 # Two workers (pytest-xdist), one per core of the 2-core target; a test module stays on one
 # worker, so its module-wide fixtures (a live daemon run, a fitted record) are built once.

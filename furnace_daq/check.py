@@ -3,7 +3,7 @@ say for each what came back, as `telegraf --test` does for its inputs.
 
 A wrong address, word order or scale in the map is otherwise found hours later in the MCAP
 file; here it is one table on the terminal. The reads, the decoding and the qualities are
-the daemon's own (sources.ModbusSource, registers.Point; for OPC UA its source),
+the daemon's own (sources.ModbusSource, registers.Point; for OPC UA and S7 their sources),
 so a point that is ok here is ok for the daemon. Bounded in time: one connect and one read within `plc.timeout_s` each, and
 at most `burners.can.timeout_s` listening to the CAN bus.
 """
@@ -183,9 +183,9 @@ async def check_modbus(config: DaqConfig, report: CheckReport,
 
 
 async def check_nodes(config: DaqConfig, report: CheckReport, plc: PlcConfig) -> None:
-    """Dial a device read by nodes (OPC UA) with the daemon's own source,
-    resolve and read every item once, one row per item naming its node(s); a node that
-    fails is named with the server's reason."""
+    """Dial a device read item by item (OPC UA nodes, S7 addresses) with the daemon's own
+    source, read every item once, one row per item naming its node(s) or address(es); one
+    that fails is named with the PLC's reason."""
     from .protocols import make_source
 
     source = make_source(config, plc)
@@ -203,8 +203,8 @@ async def check_nodes(config: DaqConfig, report: CheckReport, plc: PlcConfig) ->
         except SourceError as exc:
             error = str(exc)
         notes = "; ".join(getattr(source, "notes", ()))
-        n = len(getattr(source, "addresses", ()))
-        report.devices.append((device, error or f"connected, {n} node(s)"
+        plan = getattr(source, "plan_text", "read")
+        report.devices.append((device, error or f"connected, {plan}"
                                + (f"; {notes}" if notes else "")))
     except SourceError as exc:
         error = str(exc)
@@ -221,9 +221,12 @@ async def check_nodes(config: DaqConfig, report: CheckReport, plc: PlcConfig) ->
 
 
 def _node_row(row: PointCheck, item, sample) -> None:
-    """A row from the daemon's sample: the item's value and quality, and the errors that
-    name its nodes."""
-    errors = [e for e in sample.errors if any(e.startswith(f"{n}:") for n in item.nodes)]
+    """A row from the daemon's sample: the item's value and quality, and why it was not
+    read: the errors that name its nodes (said without the node, which the row shows), or
+    what the PLC answered for the part of its memory the item is in."""
+    errors = [e.split(": ", 1)[1] if ": " in e else e for e in sample.errors
+              if any(e.startswith(f"{n}:") for n in item.nodes)]
+    errors = errors or [u.what for u in sample.unread if item.name in u.items]
     if item.name == "clock":
         value, quality = sample.plc_seconds, OK if sample.plc_seconds is not None else COMM_ERROR
     elif item.name == "heartbeat":
@@ -243,8 +246,7 @@ def _node_row(row: PointCheck, item, sample) -> None:
     elif value is not None:
         row.value = repr(value) if isinstance(value, str) and item.name == "heartbeat" \
             else str(value)
-    row.error = "; ".join(e.split(": ", 1)[1] if ": " in e else e for e in errors) \
-        or ("" if quality == OK else quality.replace("_", " "))
+    row.error = "; ".join(errors) or ("" if quality == OK else quality.replace("_", " "))
 
 
 async def split_refused(source: ModbusSource, refused: dict[ReadRequest, int | None],

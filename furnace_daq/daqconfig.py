@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -21,9 +22,10 @@ from furnace_model.simulation.furnace import PAPER, Furnace
 from furnace_model.simulation.furnacefile import named_furnace
 from furnace_model.simulation.network import parameter_names
 
+from . import opcuamap, s7map
 from .deviceconfig import PLC_KEYS, PlcConfig, parse_device, parse_devices
 from .liveview import LiveViewConfig
-from .opcuamap import UaBits, UaPoint, is_ua_bit_entry, is_ua_entry, ua_bits, ua_point
+from .opcuamap import UaBits, UaPoint
 from .registers import (
     BIT,
     BIT_TABLES,
@@ -39,7 +41,40 @@ from .registers import (
     overlaps,
     register_count,
 )
+from .s7map import S7Bits, S7Point
 from .writeback import WriteBackConfig, parse_write_back
+
+
+@dataclass(frozen=True)
+class Addressing:
+    """How the map names an item read by a protocol other than Modbus: how to tell its
+    entries (`node:`, `s7:`), and how to read an analog point and a run of bits from one.
+    Everything else of an entry (device, scaling, key paths) is the map's, whatever the
+    protocol."""
+
+    how: str
+    """The entry's form, as errors name it."""
+    is_entry: Callable[[Node], bool]
+    is_bit_entry: Callable[[Node], bool]
+    point: Callable[..., Any]
+    """(node, name, extra, numeric) -> the item."""
+    bits: Callable[..., Any]
+    """(node, name, n, extra) -> the item."""
+
+
+ADDRESSINGS: dict[str, Addressing] = {
+    "opcua": Addressing(opcuamap.ADDRESSING, opcuamap.is_ua_entry, opcuamap.is_ua_bit_entry,
+                        opcuamap.ua_point, opcuamap.ua_bits),
+    "s7": Addressing(s7map.ADDRESSING, s7map.is_s7_entry, s7map.is_s7_bit_entry,
+                     s7map.s7_point, s7map.s7_bits),
+}
+"""By protocol (furnace_daq.protocols); a Modbus entry is one that none of these claims."""
+MODBUS_ADDRESSING = "a register (table, address)"
+
+
+def _addressing(node: Node) -> Addressing | None:
+    return next((a for a in ADDRESSINGS.values() if a.is_entry(node)), None)
+
 
 BURNER_SOURCES = ("modbus", "can", "both")
 REFIT_METHODS = ("polish", "ga")
@@ -63,11 +98,11 @@ class Signal:
 
     name: str
     unit: str
-    item: Point | BitRange | UaPoint | UaBits
+    item: Point | BitRange | UaPoint | UaBits | S7Point | S7Bits
 
     @property
     def bit(self) -> bool:
-        return isinstance(self.item, BitRange | UaBits)
+        return isinstance(self.item, BitRange | UaBits | S7Bits)
 
     @property
     def text(self) -> bool:
@@ -249,8 +284,10 @@ def _point(node: Node, name: str, extra: tuple[str, ...] = (), numeric: bool = T
            devices: tuple[str, ...] = (), bits: bool = False) -> Point:
     """An entry of the map. `numeric`: no string; `bits`: a coil or discrete input may be
     read as a number (0 or 1, before scale and offset), which a temperature never is."""
-    if is_ua_entry(node):  # an OPC UA node: its device's protocol is checked at the end
-        return replace(ua_point(node, name, extra, numeric), device=_device_of(node, devices))
+    addressing = _addressing(node)
+    if addressing is not None:  # a node, an S7 address: its device's protocol is checked last
+        return replace(addressing.point(node, name, extra, numeric),
+                       device=_device_of(node, devices))
     node.mapping({"table", "address", "type", "word_order", "byte_order", "scale", "offset",
                   "sentinels", "range", "length", "device", *extra})
     table = node.get_string("table", "input",
@@ -304,8 +341,9 @@ def _device_of(node: Node, devices: tuple[str, ...]) -> str:
 
 def _bits(node: Node, zone: str, n: int, devices: tuple[str, ...] = (),
           extra: tuple[str, ...] = (), table: str = "discrete") -> BitRange:
-    if is_ua_entry(node):
-        return replace(ua_bits(node, zone, n, extra), device=_device_of(node, devices))
+    addressing = _addressing(node)
+    if addressing is not None:
+        return replace(addressing.bits(node, zone, n, extra), device=_device_of(node, devices))
     node.mapping({"table", "address", "invert", "bit", "device", *extra})
     table = node.get_string("table", table, choices=TABLES)
     bit = 0
@@ -415,7 +453,8 @@ def _signals(node: Node, furnace: Furnace, devices: tuple[str, ...]) -> tuple[Si
         sn.mapping()
         table = sn.get_string("table", "input", choices=TABLES)
         key = item_name(SIGNALS_KEY, name)
-        if table in BIT_TABLES or sn.has("bit") or is_ua_bit_entry(sn):
+        if table in BIT_TABLES or sn.has("bit") or any(a.is_bit_entry(sn)
+                                                       for a in ADDRESSINGS.values()):
             item: Point | BitRange = _bits(sn, key, 1, devices, extra=("unit",), table=table)
         else:
             item = _point(sn, key, extra=("unit",), numeric=False, devices=devices)
@@ -638,7 +677,7 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
 
 def _check_protocols(root: Node, config: DaqConfig) -> None:
     """Each item addressed as its device reads: registers on a Modbus device, nodes on an
-    OPC UA one."""
+    OPC UA one, S7 addresses on an S7 one."""
     where = config.key_paths()
     protocols = {d.name: d.protocol for d in config.devices}
     first = config.devices[0].name
@@ -647,7 +686,8 @@ def _check_protocols(root: Node, config: DaqConfig) -> None:
         spoken = protocols[device]
         given = getattr(item, "protocol", "modbus")
         if given != spoken:
-            how = {"modbus": "a register (table, address)", "opcua": "a node (node: or nodes:)"}
+            how = {"modbus": MODBUS_ADDRESSING,
+                   **{name: a.how for name, a in ADDRESSINGS.items()}}
             raise ConfigError(root.file, where.get(item.name, item.name),
                               f"is given as {how[given]}, but device {device} speaks "
                               f"{spoken}: give {how[spoken]}")

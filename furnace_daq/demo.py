@@ -15,6 +15,10 @@ from F served by the simulated PLC and read by the daemon (a config written by
 `furnace-daq config`, with two extra signals, unless `--config` is given), and the
 furnace's thermal network identified online and from the export: for a furnace fired at
 modulated rates and with measured disturbances (`modulated`), their gains too.
+
+Another protocol: `--protocol opcua` or `--protocol s7` (`make demo PROTOCOL=s7`) runs the
+same chain with the simulated PLC serving OPC UA or S7 and the daemon reading it so, with
+the shipped config of that protocol (config/gateway-opcua.yaml, config/gateway-s7.yaml).
 """
 
 from __future__ import annotations
@@ -51,10 +55,14 @@ from .daemon import EVENT_PRIORITY, Daemon
 from .daqconfig import RefitConfig, load_config
 from .logmeta import build_metadata, signal_fields
 from .mcaplog import LogWriter
+from .protocols import NAMES as PROTOCOL_NAMES
+from .protocols import PROTOCOLS
 
 DEFAULT_SCENARIO = "config/scenarios/paper_exp1.yaml"
-DEFAULT_CONFIG = "config/gateway.yaml"
-"""The paper's furnace's scenario and config, shipped files (`furnace_model.shipped`)."""
+DEFAULT_CONFIGS = {"modbus": "config/gateway.yaml", "opcua": "config/gateway-opcua.yaml",
+                   "s7": "config/gateway-s7.yaml"}
+"""The paper's furnace's scenario and config of each protocol, shipped files
+(`furnace_model.shipped`)."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -65,6 +73,10 @@ def main(argv: list[str] | None = None) -> int:
                          "are then that furnace's")
     ap.add_argument("--scenario", help="scenario, a file or a shipped name")
     ap.add_argument("--config", type=Path)
+    ap.add_argument("--protocol", choices=PROTOCOL_NAMES,
+                    help="how the daemon reads the simulated PLC (default: the config's, "
+                         "modbus without one): the paper's furnace's shipped config of that "
+                         "protocol unless --config is given")
     ap.add_argument("--out", type=Path, default=Path("out/demo"))
     ap.add_argument("--speed", type=float, default=5000.0,
                     help="simulated seconds per wall second (default 5000)")
@@ -136,8 +148,13 @@ def _of_furnace(args: argparse.Namespace) -> Furnace:
                                    "give --scenario")
             args.scenario = mine[0]
     if args.config is None:
+        protocol = args.protocol or "modbus"
         if furnace == PAPER:
-            args.config = shipped(DEFAULT_CONFIG)
+            args.config = shipped(DEFAULT_CONFIGS[protocol])
+        elif protocol != "modbus":
+            raise FurnaceError(f"--protocol {protocol}: the shipped {protocol} map is the "
+                               f"paper furnace's; for furnace '{furnace.name}' give --config "
+                               f"with a {protocol} map of it")
         else:
             from .gatewayconfig import gateway_yaml
 
@@ -254,7 +271,8 @@ async def _start_plc(args: argparse.Namespace, scan_s: float
     furnace = [] if args.furnace is None else ["--furnace", str(args.furnace)]
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "furnace_daq.cli", "sim-plc", "--scenario", str(args.scenario),
-        *furnace, "--config", str(args.config), "--speed", f"{args.speed:g}", "--seed",
+        *furnace, "--config", str(args.config), "--protocol", args.protocol,
+        "--speed", f"{args.speed:g}", "--seed",
         str(args.seed), "--scan-s",
         f"{scan_s:g}", "--port", "0", stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE)
@@ -275,14 +293,25 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
     """The simulated PLC, the daemon and its refit worker: three processes, as on a gateway
     polling a PLC. Returns the /model/parameters messages."""
     poll_s = 60.0 / args.polls_per_minute / args.speed
-    plc, port = await _start_plc(args, poll_s)
     config = load_config(args.config)
+    spoken = config.plc.protocol
+    if args.protocol is None:
+        args.protocol = spoken
+    elif args.protocol != spoken:
+        raise FurnaceError(f"--protocol {args.protocol}: the first device of {args.config} "
+                           f"speaks {spoken}")
+    plc, port = await _start_plc(args, poll_s)
     refit = replace(config.refit or RefitConfig(), period_s=args.refit_period_h * 3600.0,
                     window_s=args.refit_window_h * 3600.0, step_s=60.0,
                     state_dir=args.out / "state")
+    plc_config = replace(config.plc, host="127.0.0.1", port=port)
+    if plc_config.opcua is not None:
+        # one Read per poll: a subscription sampled every 500 ms of the wall clock would
+        # see the plant minutes apart at this speed
+        plc_config = replace(plc_config, opcua=replace(plc_config.opcua, mode="poll"))
     config = replace(
         config, poll_period_s=poll_s, stale_after_s=max(config.stale_after_s, 1.0),
-        plc=replace(config.plc, host="127.0.0.1", port=port),
+        plc=plc_config,
         clock=replace(config.clock, epoch=scenario.start_time) if config.clock else None,
         log=replace(config.log, dir=log_dir), refit=refit)
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -298,7 +327,8 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
         print(_refit_line(msg, scenario.start_time), flush=True)
 
     daemon = Daemon(config, log, on_model=on_model)
-    print(f"2. Daemon polling 127.0.0.1:{port} every {poll_s * 1e3:.1f} ms "
+    print(f"2. Daemon polling 127.0.0.1:{port} over {PROTOCOLS[spoken].text} every "
+          f"{poll_s * 1e3:.1f} ms "
           f"({60 / args.polls_per_minute:g} simulated seconds), logging MCAP to {log_dir}; "
           f"a refit of the last {args.refit_window_h:g} h every {args.refit_period_h:g} h "
           "of PLC time")

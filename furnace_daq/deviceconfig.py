@@ -11,6 +11,7 @@ from furnace_model.config import Node
 from .opcuamap import OpcUaSettings, parse_opcua
 from .protocols import NAMES as PROTOCOL_NAMES
 from .protocols import PROTOCOLS
+from .s7map import S7Settings, parse_s7
 
 
 @dataclass(frozen=True)
@@ -94,9 +95,11 @@ class PlcConfig:
     serial: SerialConfig | None = None
     workarounds: Workarounds = field(default_factory=Workarounds)
     protocol: str = "modbus"
-    """How the device is read (furnace_daq.protocols): modbus or opcua."""
+    """How the device is read (furnace_daq.protocols): modbus, opcua or s7."""
     opcua: OpcUaSettings | None = None
     """The `opcua:` section of an OPC UA device."""
+    s7: S7Settings | None = None
+    """The `s7:` section of an S7 device."""
     busy_retries: int = 0
     busy_retries_wait_s: float = 0.1
     """A request the device answers with exception 6 (server device busy) is sent again, up
@@ -133,13 +136,13 @@ class PlcConfig:
 
 
 PLC_KEYS = {"host", "port", "device_id", "timeout_s", "max_gap_registers", "max_gap_bits",
-            "max_consecutive_errors", "reconnect", "protocol", "opcua", "busy_retries",
+            "max_consecutive_errors", "reconnect", "protocol", "opcua", "s7", "busy_retries",
             "busy_retries_wait_s"}
 DEVICE_KEYS = PLC_KEYS | {"name", "transport", "serial", "workarounds"}
 MODBUS_KEYS = ("device_id", "max_gap_registers", "max_gap_bits", "transport", "serial",
                "workarounds", "busy_retries", "busy_retries_wait_s")
 """Settings of a Modbus device only."""
-PROTOCOL_SECTIONS = ("opcua",)
+PROTOCOL_SECTIONS = ("opcua", "s7")
 """Sections of settings each for one protocol, named as the protocol."""
 
 
@@ -199,6 +202,7 @@ def parse_device(node: Node, name: str = "plc") -> PlcConfig:
         reconnect=backoff, name=name, transport=transport, serial=serial,
         workarounds=workarounds, protocol=protocol,
         opcua=parse_opcua(node.child("opcua", {})) if protocol == "opcua" else None,
+        s7=parse_s7(node.child("s7", {})) if protocol == "s7" else None,
         busy_retries=node.get_integer("busy_retries", 0, lo=0, hi=100),
         busy_retries_wait_s=node.get_number("busy_retries_wait_s", 0.1, lo=0.0, hi=60.0))
 

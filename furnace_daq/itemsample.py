@@ -1,5 +1,5 @@
-"""A sample from values read item by item (an OPC UA node), each with its
-own quality: the node-based protocols' counterpart of `ModbusSource.decode`, giving the
+"""A sample from values read item by item (an OPC UA node, an S7 address), each with its
+own quality: the item-based protocols' counterpart of `ModbusSource.decode`, giving the
 same `Sample` so that the daemon, the log and the refit do not care which protocol
 delivered it.
 """
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from .daqconfig import DaqConfig
 from .registers import COMM_ERROR, OK, STALE
-from .sources import Sample
+from .sources import Sample, Unread
 
 
 @dataclass(frozen=True)
@@ -61,11 +61,11 @@ def build_sample(config: DaqConfig, items: Iterable, got: dict[str, Reading]) ->
     are the sample's, one per failure."""
     mine = {it.name: it for it in items}
     sample = Sample()
-    errors: dict[str, None] = {}
+    errors: dict[str, list[str]] = {}  # why -> the items it leaves without a value
 
-    def note(r: Reading) -> None:
+    def note(r: Reading, name: str) -> None:
         if r.error:
-            errors[r.error] = None
+            errors.setdefault(r.error, []).append(name)
 
     for point in (*config.thermocouples, *([config.ambient] if config.ambient else []),
                   *config.heat, *config.disturbances, *(s.item for s in config.signals)):
@@ -73,18 +73,18 @@ def build_sample(config: DaqConfig, items: Iterable, got: dict[str, Reading]) ->
             continue  # another device's
         r = got.get(point.name, Reading(None, COMM_ERROR, f"{point.name}: not read"))
         value, quality, error = _value(point, r)
-        note(Reading(error=error))
+        note(Reading(error=error), point.name)
         sample.values[point.name] = value
         sample.quality[point.name] = quality
     if config.clock is not None and "clock" in mine:
         r = got.get("clock", Reading(None, COMM_ERROR))
         value, quality, error = _value(mine["clock"], r)
-        note(Reading(error=error))
+        note(Reading(error=error), "clock")
         if value is not None and quality in (OK, STALE) and math.isfinite(value):
             sample.plc_seconds = float(value)
     if config.heartbeat is not None and "heartbeat" in mine:
         r = got.get("heartbeat", Reading(None, COMM_ERROR))
-        note(r)
+        note(r, "heartbeat")
         if isinstance(r.raw, str):
             sample.heartbeat = r.raw
         elif r.quality == OK and (n := _number(r.raw)) is not None:
@@ -101,14 +101,16 @@ def build_sample(config: DaqConfig, items: Iterable, got: dict[str, Reading]) ->
                 else _states(mine[bits.name], r.raw)
             if states is None:
                 note(r if r.error or r.raw is None else
-                     Reading(error=f"{bits.name}: expected {bits.count} booleans, got {r.raw!r}"))
+                     Reading(error=f"{bits.name}: expected {bits.count} booleans, got {r.raw!r}"),
+                     bits.name)
                 quality = COMM_ERROR
                 break
-            note(r)
+            note(r, bits.name)
             burners[bits.name] = states
             if r.quality != OK:
                 quality = r.quality
         sample.burner_quality = quality
         sample.burners = burners if quality != COMM_ERROR else None
     sample.errors = list(errors)
+    sample.unread = [Unread(why, why, tuple(names)) for why, names in errors.items()]
     return sample

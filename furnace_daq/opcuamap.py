@@ -21,6 +21,8 @@ from furnace_model.config import Node
 from .scaling import SCALING_KEYS, Scaling, parse_scaling
 
 PROTOCOL = "opcua"
+ADDRESSING = "a node (node: or nodes:)"
+"""How an item of this protocol is given in the map, as errors name it."""
 TYPES: dict[str, str] = {
     "boolean": "Boolean", "sbyte": "SByte", "byte": "Byte", "int16": "Int16",
     "uint16": "UInt16", "int32": "Int32", "uint32": "UInt32", "int64": "Int64",

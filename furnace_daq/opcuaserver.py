@@ -28,10 +28,11 @@ from asyncua.server.user_managers import UserManager
 from furnace_model.simulation.furnace import Furnace
 from furnace_model.simulation.scenario import Scenario
 
-from .daqconfig import DISTURBANCES_KEY, HEAT_KEY, SIGNALS_KEY, DaqConfig, Signal, item_name
+from .daqconfig import DISTURBANCES_KEY, HEAT_KEY, Signal, item_name
+from .itemplc import ItemPLC
 from .opcuamap import TYPES, UaBits, UaPoint
-from .servedmap import ServedMap
-from .simplc import SimPLC, ValueSource, zone_slices
+from .scaling import wrapped
+from .simplc import ValueSource
 
 NAMESPACE = "urn:furnace-daq:sim-plc"
 for _name in ("asyncua",):
@@ -72,7 +73,7 @@ class _Users(UserManager):
         return None
 
 
-class OpcUaPLC(SimPLC):
+class OpcUaPLC(ItemPLC):
     """A running simulated PLC on OPC UA: `await start()`, then `url`; `await stop()`.
 
     `items`: the nodes to serve (default: `default_items`); `signals`: the map's extra
@@ -80,31 +81,20 @@ class OpcUaPLC(SimPLC):
     `private_key` the server offers Basic256Sha256 Sign and SignAndEncrypt only; `users`
     ({name: password}) makes it refuse anonymous sessions."""
 
+    item_types = (UaPoint, UaBits)
+    default_items = staticmethod(default_items)
+
     def __init__(self, source: ValueSource | Scenario, *, items=None,
                  signals: tuple[Signal, ...] = (), path: str = "/furnace",
                  certificate: Path | None = None, private_key: Path | None = None,
                  users: dict[str, str] | None = None, port: int = 4840, **kw):
-        super().__init__(source, port=port, **kw)
-        furnace = self.source.furnace
-        self.served = ServedMap((), None, None, None, (), furnace, signals=signals)
-        self.items = tuple(items) if items is not None else default_items(furnace)
+        super().__init__(source, items=items, signals=signals, port=port, **kw)
         self.path = path
         self.certificate, self.private_key = certificate, private_key
         self.users = dict(users or {})
         self._ua: Server | None = None
         self._nodes: dict[str, list] = {}
         """asyncua nodes by item name."""
-
-    @classmethod
-    def of_config(cls, source, config: DaqConfig, device: str | None = None,
-                  **kw) -> OpcUaPLC:
-        """The nodes a daemon config reads from its OPC UA `device` (default: its first)."""
-        name = device or config.devices[0].name
-        first = config.devices[0].name
-        items = [it for it in config.plc_items() if (it.device or first) == name
-                 and isinstance(it, UaPoint | UaBits)]
-        return cls(source, items=items, signals=tuple(
-            s for s in config.signals if s.item in items), **kw)
 
     @property
     def url(self) -> str:
@@ -188,44 +178,24 @@ class OpcUaPLC(SimPLC):
         server = self._ua
         if server is None:
             return
-        furnace = self.served.furnace
-        by_sensor = dict(zip(furnace.sensors, values.thermocouples, strict=True))
-        slices = dict(zip(furnace.switched_zones, zone_slices(furnace), strict=True))
+        shown = self.item_values(values)
         for item in self.items:
             nodes = self._nodes.get(item.name)
             if not nodes:
                 continue
+            value = shown[item.name]
             if isinstance(item, UaBits):
-                if item.name in slices:
-                    states = list(values.burners[slices[item.name]])
-                else:  # a bit signal
-                    v = values.signals.get(item.name.removeprefix(f"{SIGNALS_KEY}."), False)
-                    states = [v is True or v == 1]
-                states = [s != item.invert for s in states]
+                assert isinstance(value, list)
                 if item.array:
-                    dvs = [_dv(states, ua.VariantType.Boolean)]
+                    dvs = [_dv(value, ua.VariantType.Boolean)]
                 else:
-                    dvs = [_dv(s, ua.VariantType.Boolean) for s in states]
+                    dvs = [_dv(s, ua.VariantType.Boolean) for s in value]
                 for node, dv in zip(nodes, dvs, strict=True):
                     await server.write_attribute_value(node.nodeid, dv)
                 continue
-            value = self._value_of(item.name, values, by_sensor)
+            assert isinstance(value, float)
             await server.write_attribute_value(nodes[0].nodeid, _encoded(item, value))
         self.scans += 1
-
-    def _value_of(self, name: str, values, by_sensor: dict[str, float]) -> float | str:
-        if name in by_sensor:
-            return math.nan if name in self.open_sensors else by_sensor[name]
-        if name == "t_air":
-            return values.t_air
-        if name == "clock":
-            return float(self.plc_seconds)
-        if name == "heartbeat":
-            return float(self.heartbeat)
-        section, _, key = name.partition(".")
-        got = {HEAT_KEY: values.heat, DISTURBANCES_KEY: values.disturbances,
-               SIGNALS_KEY: values.signals}.get(section, {})
-        return float(got.get(key, math.nan))
 
 
 def vtype_zero(dtype: str) -> float | int:
@@ -249,7 +219,5 @@ def _encoded(item: UaPoint, value: float | str) -> ua.DataValue:
     if item.dtype not in ("float", "double"):
         bits = {"sbyte": 8, "byte": 8, "int16": 16, "uint16": 16, "int32": 32, "uint32": 32,
                 "int64": 64, "uint64": 64}[item.dtype]
-        signed = not item.dtype.startswith(("u", "byte"))
-        lo = -(2 ** (bits - 1)) if signed else 0
-        raw = lo + (int(round(raw)) - lo) % 2 ** bits
+        raw = wrapped(raw, bits, signed=not item.dtype.startswith(("u", "byte")))
     return _dv(raw, vtype)

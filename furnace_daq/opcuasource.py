@@ -166,6 +166,11 @@ class OpcUaSource(Source):
         return f"OPC UA {self.url} ({self.mode}, {security}{user})"
 
     @property
+    def plan_text(self) -> str:
+        """What one read covers, as `furnace-daq check` says it."""
+        return f"{len(self.addresses)} node(s)"
+
+    @property
     def connected(self) -> bool:
         client = self._client
         if client is None or self._ended is not None:

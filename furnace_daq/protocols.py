@@ -1,7 +1,7 @@
 """The protocols a PLC is reached by, as python-can's `BACKENDS` names its interfaces: a
 name in the config (`protocol:` of a device) -> the source that reads it and the
 simulated PLC that serves it, imported only when used, so that `--help` stays fast and a
-gateway polling Modbus never loads an OPC UA library.
+gateway polling Modbus never loads an OPC UA or S7 library.
 """
 
 from __future__ import annotations
@@ -37,6 +37,8 @@ PROTOCOLS: dict[str, Protocol] = {
                        "pymodbus", "Modbus TCP or RTU"),
     "opcua": Protocol("furnace_daq.opcuasource:OpcUaSource",
                       "furnace_daq.opcuaserver:OpcUaPLC", 4840, "furnace-daq[opcua]", "OPC UA"),
+    "s7": Protocol("furnace_daq.s7source:S7Source", "furnace_daq.s7server:S7PLC", 102,
+                   "furnace-daq[s7]", "Siemens S7 (ISO on TCP)"),
 }
 NAMES = tuple(PROTOCOLS)
 

@@ -68,7 +68,7 @@ def merge(good: Sequence[tuple[Device, Sample]], missing: Sequence[str], zones: 
         if s.burner_quality != OK:
             burner_quality = s.burner_quality
         out.errors += [device.named(e) for e in s.errors]
-        out.refused.update(s.refused)
+        out.unread += s.unread
     out.errors += missing
     if burner_source in ("modbus", "both") and zones:
         if all(z in burners for z in zones):

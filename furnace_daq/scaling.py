@@ -1,7 +1,7 @@
 """A number a PLC gives, as an engineering value with its quality: scale, offset, the raw
 values that mean an open sensor, and the plausible range.
 
-A node-based protocol (OPC UA) hands over a typed number where Modbus hands over words;
+An item-based protocol (OPC UA, S7) hands over a typed number where Modbus hands over words;
 what follows is the same as for a register point (registers.Point.value), with the same
 map keys (`scale`, `offset`, `sentinels`, `range`) and the same qualities.
 """
@@ -39,6 +39,13 @@ class Scaling:
     def raw(self, value: float) -> float:
         """The raw number that reads as `value` (what a simulated PLC serves)."""
         return (value - self.offset) / self.scale
+
+
+def wrapped(raw: float, bits: int, signed: bool) -> int:
+    """`raw` rounded to an integer of `bits` bits, wrapped as the PLC's counter wraps: what
+    a simulated PLC serves for a value of an integer type."""
+    lo = -(2 ** (bits - 1)) if signed else 0
+    return lo + (int(round(raw)) - lo) % 2 ** bits
 
 
 def parse_scaling(node: Node) -> Scaling:

@@ -120,9 +120,24 @@ class Sample:
     burners: dict[str, list[bool]] | None = None
     burner_quality: str = OK
     errors: list[str] = field(default_factory=list)
-    """Blocks the PLC refused in this read (their points are comm_error)."""
-    refused: dict[ReadRequest, int | None] = field(default_factory=dict)
-    """The same blocks with the Modbus exception code the PLC gave for each."""
+    """What the PLC answered without a value in this read, as the log's `error` field says
+    it (their points are comm_error)."""
+    unread: list[Unread] = field(default_factory=list)
+    """The same, each with the items it leaves without a value: what the journal tells."""
+
+
+@dataclass(frozen=True)
+class Unread:
+    """A part of the map a device answered without a value, whatever its protocol: a block
+    refused with a Modbus exception, an S7 area the PLC has not got, an OPC UA node the
+    server does not know."""
+
+    what: str
+    """What and why, as the journal says it."""
+    kind: str
+    """Its short form, which the `incomplete` counts group by."""
+    items: tuple[str, ...]
+    """Names of the items left without a value."""
 
 
 class Source(ABC):
@@ -369,7 +384,12 @@ class ModbusSource(Source):
         image, refused = await self.read_image()
         sample = self.decode(image)
         sample.errors = [_refused_text(r, c) for r, c in refused.items()]
-        sample.refused = refused
+        sample.unread = [Unread(f"{_block_text(r)} refused with {exception_text(c)}",
+                                f"{_block_text(r)} refused with exception code "
+                                f"{'?' if c is None else c}",
+                                tuple(it.name for it in self.items if it.table == r.table
+                                      and r.address <= it.address < r.end))
+                         for r, c in refused.items()]
         return sample
 
     def decode(self, image: Image) -> Sample:
@@ -416,8 +436,12 @@ class ModbusSource(Source):
         return sample
 
 
+def _block_text(req: ReadRequest) -> str:
+    return f"{req.table} {req.address}+{req.count}"
+
+
 def _refused_text(req: ReadRequest, code: int | None) -> str:
-    return f"{req.table} {req.address}+{req.count}: {exception_text(code)}"
+    return f"{_block_text(req)}: {exception_text(code)}"
 
 
 def device_items(config: DaqConfig, device: PlcConfig) -> list[Point | BitRange]:

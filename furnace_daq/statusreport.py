@@ -30,7 +30,7 @@ from .devicelink import Link
 from .journal import ERR, INFO, NOTICE, WARNING, Journal
 from .registers import COMM_ERROR, OK, STALE
 from .sdnotify import Notifier
-from .sources import Sample, SourceError, exception_text
+from .sources import Sample, SourceError
 
 _D, _M = DaqEventKind, ModelEventKind
 EVENT_PRIORITY: dict[DaqEventKind | ModelEventKind, int] = {
@@ -61,7 +61,8 @@ class Counters:
     """Polls that gave no data, by kind ('connection refused', 'poll timeout', ...); a tick
     while disconnected counts as the kind of failure that keeps the PLC away."""
     incomplete: dict[str, int] = field(default_factory=dict)
-    """Polls that were logged with a block the PLC refused, by block and exception."""
+    """Polls that were logged with a part of the map the PLC answered without a value (a
+    refused block, an S7 area or OPC UA node it has not got), by that part and why."""
 
 
 def _by_kind(counts: dict[str, int]) -> str:
@@ -178,26 +179,21 @@ class Reporter:
             self._missed_unreported = 0
 
     def tell_sample(self, link: Link, sample: Sample) -> None:
-        """The journal hears of a block the PLC refuses and of each point whose quality
-        changes, not of every poll that repeats them."""
+        """The journal hears of what the PLC answers without a value (a refused block, an
+        area or a node it has not got) and of each point whose quality changes, not of
+        every poll that repeats them."""
         keys = self.config.key_paths()
-        for req, code in sample.refused.items():
-            block = f"{req.table} {req.address}+{req.count}"
-            self.count_failure(f"{block} refused with exception code "
-                                f"{'?' if code is None else code}", self.counters.incomplete)
-            items = getattr(link.source, "items", ())
-            names = [keys.get(item.name, item.name) for item in items
-                     if item.table == req.table and req.address <= item.address < req.end]
-            self.journal.say(ERR, f"PLC {link.label}: {block} refused with "
-                                  f"{exception_text(code)}: {', '.join(names) or 'no point'} "
-                                  f"not read (check the register map)",
-                             f"{link.key}refused:{block}")
+        for unread in sample.unread:
+            self.count_failure(unread.kind, self.counters.incomplete)
+            names = ", ".join(keys.get(n, n) for n in unread.items) or "no point"
+            self.journal.say(ERR, f"PLC {link.label}: {unread.what}: {names} not read "
+                                  "(check the map)", f"{link.key}unread:{unread.kind}")
         stale = link.was_stale
         for name, quality in sample.quality.items():
             before = self._qualities.get(name, OK)
             self._qualities[name] = quality
             if quality == before or quality in (COMM_ERROR, STALE):
-                continue  # refused blocks are told above, staleness below
+                continue  # what was not read is told above, staleness below
             key = keys.get(name, name)
             if quality == OK:
                 self.good_news(NOTICE, f"{key}: ok again", f"quality:{name}")

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from logcheck import check_files
 
-from furnace_daq.logmeta import read_metadata
+from furnace_daq.logmeta import read_metadata, recorded_config
 from furnace_model.log.read import read_messages
 from furnace_model.log.schema import MODEL_PARAMETERS, PARAM_NAMES
 from furnace_model.simulation.furnace import PAPER
@@ -23,6 +23,7 @@ from furnace_model.simulation.parameters import PAPER_TABLE_V
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = ROOT / "tests" / "data" / "demo_quick.yaml"
+BRIEF = ROOT / "tests" / "data" / "demo_brief.yaml"
 ROW = re.compile(r"^\s+(\S+)\s+([-+.\deE]+)\s+([-+.\deE]+)\s+([-+][\d.]+)% \(±([\d.e+]+)%\)")
 TRUTH_COMBINATIONS = {"b/c": PAPER_TABLE_V["b"] / PAPER_TABLE_V["c"],
                       "d/e": PAPER_TABLE_V["d"] / PAPER_TABLE_V["e"]}
@@ -105,3 +106,33 @@ def test_default_demo_within_two_minutes(tmp_path):
     models = check_run(done, out, min_ok=3)  # 5 on a quiet host; skipped ticks cost windows
     assert len(models) == 9
     assert wall < 120, wall
+
+
+def test_demo_on_opcua_runs_the_same_chain(tmp_path):
+    """`--protocol opcua`: the simulated PLC serves OPC UA, the daemon reads it by the
+    shipped OPC UA map; three hours of plant, refits of two-hour windows."""
+    out = tmp_path / "demo"
+    done, _ = run_demo(out, "--protocol", "opcua", "--scenario", str(BRIEF), "--speed", "2000",
+                       "--refit-window-h", "2", "--refit-period-h", "1", "--every", "1",
+                       timeout=120)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr
+    assert "2. Daemon polling 127.0.0.1:" in done.stdout and " over OPC UA every " in done.stdout
+    logs = sorted((out / "logs").glob("*.mcap"))
+    counts, problems = check_files(logs)
+    assert not problems, problems
+    tc = [m for _, m, _, _ in read_messages(logs, ["/furnace/thermocouples"])]
+    ok = [m for m in tc if set(m["quality"].values()) == {"ok"}]
+    assert len(ok) >= 0.9 * len(tc) and ok[-1]["plc_seconds"] >= 2.9 * 3600, tc[-1]
+    models = [m for _, m, _, _ in read_messages(logs, [MODEL_PARAMETERS])]
+    assert any(m["status"] == "ok" for m in models), [m["status"] for m in models]
+    # the config recorded in the log is the shipped OPC UA map's
+    assert recorded_config(read_metadata(logs), "log").plc.protocol == "opcua"
+
+
+def test_demo_refuses_a_protocol_its_config_does_not_speak(tmp_path):
+    done, _ = run_demo(tmp_path / "demo", "--protocol", "s7", "--config",
+                       str(ROOT / "config" / "gateway-opcua.yaml"), timeout=60)
+    assert done.returncode == 1 and "Traceback" not in done.stderr
+    assert "--protocol s7: the first device of " in done.stderr
+    assert "gateway-opcua.yaml speaks opcua" in done.stderr

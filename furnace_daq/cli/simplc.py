@@ -1,4 +1,4 @@
-"""`furnace-daq sim-plc`: a Modbus PLC serving either a scenario's simulated plant
+"""`furnace-daq sim-plc`: a Modbus (or OPC UA, or S7) PLC serving either a scenario's simulated plant
 (`--scenario`) or recorded logs (`--from-log`), optionally broadcasting flame states on a CAN
 bus. The register map is the default of CONTRACTS.md section 3 (for another furnace the map
 derived from its description by the same rule, docs/operations.md), a daemon config's
@@ -16,12 +16,14 @@ from typing import TYPE_CHECKING
 
 from furnace_model.errors import FurnaceError
 
+from ..protocols import NAMES as PROTOCOL_NAMES
+
 if TYPE_CHECKING:
     from ..simplc import ValueSource
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("sim-plc", help="run the simulated furnace PLC (Modbus TCP server)",
+    p = sub.add_parser("sim-plc", help="run the simulated furnace PLC (Modbus, OPC UA or S7 server)",
                        description=__doc__)
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--scenario", metavar="SCENARIO.yaml",
@@ -37,10 +39,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulated seconds per wall second (default 3600)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="TCP port (default 5020, with --protocol opcua "
-                                             "4840; 0 = any free)")
-    p.add_argument("--protocol", choices=("modbus", "opcua"), default="modbus",
-                   help="serve the PLC over Modbus (default) or OPC UA (an asyncua server, "
-                        "the nodes of config/gateway-opcua.yaml or of --config)")
+                                             "4840, with --protocol s7 1102; 0 = any free)")
+    p.add_argument("--protocol", choices=PROTOCOL_NAMES, default="modbus",
+                   help="serve the PLC over Modbus (default), OPC UA (an asyncua server, the "
+                        "nodes of config/gateway-opcua.yaml or of --config) or S7 "
+                        "(python-snap7's server, the addresses of config/gateway-s7.yaml or "
+                        "of --config)")
     p.add_argument("--manual", action="store_true",
                    help="burners follow coil writes from a client instead of the schedule "
                         "(--scenario only)")
@@ -67,7 +71,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-DEFAULT_PORTS = {"modbus": 5020, "opcua": 4840}
+DEFAULT_PORTS = {"modbus": 5020, "opcua": 4840, "s7": 1102}
+"""The simulated PLC's: S7's own port, 102, is below 1024, which only root may bind."""
 
 
 def run(args: argparse.Namespace) -> int:
@@ -151,8 +156,9 @@ def _served_map(args: argparse.Namespace):
 
 
 async def _serve_nodes(source, what: str, args: argparse.Namespace) -> int:
-    """The PLC over OPC UA: the nodes of `--config` (its first device speaking the
-    protocol, or `--device`), else the protocol's default map."""
+    """The PLC over a protocol that names items one by one (OPC UA, S7): the items of
+    `--config` (its first device speaking the protocol, or `--device`), else the protocol's
+    default map."""
     from ..daqconfig import load_config
     from ..protocols import server_class
 

@@ -1,7 +1,9 @@
 """`make deb`: the gateway's Debian package, built with dpkg-deb from this tree.
 
 The package holds a ready virtualenv, /opt/furnace-daq/.venv, built here from the wheel
-and the daemon's dependencies (no extras), rather than a wheelhouse that postinst would
+and the daemon's dependencies with the PLC protocols' extras (`PLC_EXTRAS`: a gateway
+talks to whatever PLC the plant has; the desk's fleet, report and Parquet extras are left
+out), rather than a wheelhouse that postinst would
 install from: installing then needs no network, no pip and no compiler on the gateway, takes
 seconds, and dpkg knows every file it put there (`dpkg -L`, clean removal, `dpkg -V`). The
 price is that the package is for one interpreter: Debian 12's /usr/bin/python3.11 on the
@@ -9,9 +11,10 @@ build's architecture, which `Depends:` says. The venv is built in a staging dire
 moved to its place: the paths written into it (script lines, pyvenv.cfg, compiled files)
 are rewritten to /opt/furnace-daq/.venv.
 
-Beside the venv: the commands linked into /usr/bin, the systemd unit in /lib/systemd/system, the example config as the
-conffile /etc/furnace-daq/gateway.yaml, the system user's sysusers.d entry, the docs, and
-the maintainer scripts of deb/ (user, systemd, purge).
+Beside the venv: the commands linked into /usr/bin, the systemd unit in
+/lib/systemd/system, the example config as the conffile /etc/furnace-daq/gateway.yaml, the
+system user's sysusers.d entry, the docs, and the maintainer scripts of deb/ (user,
+systemd, purge).
 
 Building needs the network for pip (or PIP_FIND_LINKS/PIP_INDEX_URL pointing at a mirror);
 run it on Debian 12 (make system-deps installs dpkg-dev and fakeroot).
@@ -30,6 +33,8 @@ import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+PLC_EXTRAS = ("opcua", "s7")
+"""The extras of the PLC protocols beyond Modbus and CAN, installed into the package's venv."""
 HERE = Path(__file__).resolve().parent
 PREFIX = "/opt/furnace-daq"
 VENV = f"{PREFIX}/.venv"
@@ -78,7 +83,7 @@ def stage(root: Path, wheel: Path, *, dependencies: bool = True,
     _run([python, "-m", "venv", "--without-pip", str(venv)])
     _run([sys.executable, "-m", "pip", "--python", str(venv / "bin" / "python"), "install",
           "--quiet", "--no-compile", "--no-warn-script-location",
-          *([] if dependencies else ["--no-deps"]), str(wheel)])
+          *([f"{wheel}[{','.join(PLC_EXTRAS)}]"] if dependencies else ["--no-deps", str(wheel)])])
     _relocate(venv)
     # Compiled here, by the gateway's interpreter, under the installed paths: the service's
     # /opt is read-only (ProtectSystem=strict), so nothing could be cached at run time.

@@ -114,7 +114,7 @@ def test_refused_block_is_comm_error_and_the_rest_stays_ok(tmp_path):
     tc = [m for t, m, _ in msgs if t == THERMOCOUPLES]
     assert len(tc) >= 20
     for m in tc:
-        assert m["error"] == "input 100+2: Modbus exception code 2"  # why, in the message
+        assert m["error"] == "input 100+2: Modbus exception code 2 (illegal data address)"  # why, in the message
         assert "heat_1" not in m and "heat_2" not in m  # no number: absent
         assert m["quality"]["heat_1"] == m["quality"]["heat_2"] == "comm_error"
         assert {m["quality"][s] for s in ("soak_1", "soak_2", "preheat_1", "preheat_2")} == {"ok"}

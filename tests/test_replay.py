@@ -92,9 +92,19 @@ def live_params(live) -> list[dict]:
     return [m for t, m, _, _ in live["msgs"] if t == MODEL_PARAMETERS]
 
 
+def common(got: list, want: list) -> list:
+    """The replayed refits that the live daemon published too. The live run ends at a fixed
+    time: a refit still running in its worker then is not published, while the replay,
+    from the same log, fits that window too (at most one: the daemon runs one refit at a
+    time), so the replay may hold one more, after the last live one."""
+    assert len(want) <= len(got) <= len(want) + 1, (len(got), len(want))
+    return got[:len(want)]
+
+
 def assert_same_timeline(got: list[dict], want: list[dict]) -> None:
-    assert len(got) == len(want)
-    for g, w in zip(got, want, strict=True):
+    if len(got) > len(want):
+        assert got[-1]["window_end"] > want[-1]["window_end"]
+    for g, w in zip(common(got, want), want, strict=True):
         assert (g["window_start"], g["window_end"], g["status"]) == \
             (w["window_start"], w["window_end"], w["status"])
         for p in PARAM_NAMES:
@@ -244,7 +254,8 @@ def test_replay_fits_with_the_configured_method(live, tmp_path):
     assert len(fitted) >= 3 and {m["status"] for m in fitted} == {"ok"}, fitted
     assert all(m["search"] == {"method": "ga", "warm_start": False, "population": 12,
                                "generations": 30} for m in fitted)
-    assert [m["window_end"] for m in got] == [m["window_end"] for m in live_params(live)]
+    want = live_params(live)
+    assert [m["window_end"] for m in common(got, want)] == [m["window_end"] for m in want]
     assert not any("zone_offsets_c" in m for m in got)  # the GA fits none: absent, not null
     counts, found = check_files([tmp_path / "ga.mcap"])
     assert found == [] and counts[MODEL_PARAMETERS] == len(got)
@@ -263,8 +274,8 @@ def test_replay_command_prints_one_line_per_refit(live, tmp_path):
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
     want = live_params(live)
-    assert len(lines) == len(want)
-    assert lines[-1].startswith(want[-1]["window_end"]) and want[-1]["status"] in lines[-1]
+    last = common(lines, want)[-1]
+    assert last.startswith(want[-1]["window_end"]) and want[-1]["status"] in last
     assert f"-> {out}" in proc.stderr
     assert_same_timeline([m for t, m, _, _ in read_messages([out]) if t == MODEL_PARAMETERS],
                          want)

@@ -1,0 +1,90 @@
+"""The fit's Jacobian: exact (closed-form sensitivities) against forward differences, and
+what that does to a cold `fit` and to the paper pair's `diagnose`. Both ways run in the
+same process on the same data, alternating, so the ratios hold on a busy machine. Prints
+markdown tables for docs/performance.md.
+
+    .venv/bin/python bench/bench_jacobian.py [--repeat 5] [--no-diagnose]
+
+The paper pair is the worked example of docs/diagnosis.md (bench_diagnose.py); the fit is
+of its first heat-up. CPU time of this process (the diagnosis's pool is set to one worker
+so that all of its work is counted here).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+
+import numpy as np
+from bench_diagnose import paper_pair
+
+from furnace_model.diagnosis import diagnose
+from furnace_model.diagnosis import pool as diagnosis_pool
+from furnace_model.effects import EFFECTS
+from furnace_model.identification import jacobian as jacobian_module
+from furnace_model.identification import problem as problem_module
+from furnace_model.identification.fit import fit
+from furnace_model.identification.problem import Problem
+from furnace_model.simulation.structure import ModelStructure
+
+WAYS = {"exact": jacobian_module.jacobian, "differences": jacobian_module.forward_differences}
+
+
+def cpu(f: Callable[[], object], repeat: int, inner: int = 1) -> float:
+    """Median CPU seconds of one call."""
+    out = []
+    for _ in range(repeat):
+        t = time.process_time()
+        for _ in range(inner):
+            f()
+        out.append((time.process_time() - t) / inner)
+    return statistics.median(out)
+
+
+def using(way: str) -> None:
+    problem_module.jacobian = WAYS[way]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--no-diagnose", action="store_true")
+    args = ap.parse_args()
+    data = paper_pair()
+    furnace = data[0].furnace
+    print("| structure (paper pair, 3311 + 3801 samples) | exact (ms) | differences (ms) "
+          "| differences / exact | columns by differences |")
+    print("|---|---|---|---|---|")
+    for name in ("baseline", *(n for n in EFFECTS if n != "radiation")):
+        effects = [] if name == "baseline" else [EFFECTS[name](furnace=furnace)]
+        structure = ModelStructure(effects, furnace=furnace)
+        prob = Problem(data, structure, {}, {})
+        z = prob.start(prob.to_z(np.array([structure.defaults()[n] for n in prob.names])))
+        t = {w: 1e3 * cpu(lambda f=f: f(prob, z), args.repeat, 20) for w, f in WAYS.items()}
+        timed = [n for n in prob.names if n in ("theta_dead", "t_fuel")]
+        print(f"| {name} | {t['exact']:.2f} | {t['differences']:.2f} | "
+              f"{t['differences'] / t['exact']:.1f} | {', '.join(timed) or '-'} |")
+    print()
+    rows = [("fit of paper_exp1_zone_burners, cold (GA + polish)",
+             lambda: fit(data[:1], ModelStructure(furnace=furnace)))]
+    if not args.no_diagnose:
+        diagnosis_pool.WORKERS = 1
+        rows.append(("diagnose the paper pair (one worker)", lambda: diagnose(data)))
+    print("| job | exact (s) | differences (s) | differences / exact |")
+    print("|---|---|---|---|")
+    for label, job in rows:
+        times: dict[str, list[float]] = {w: [] for w in WAYS}
+        for _ in range(args.repeat if "fit" in label else max(1, args.repeat // 2)):
+            for w in WAYS:
+                using(w)
+                times[w].append(cpu(job, 1))
+        using("exact")
+        med = {w: statistics.median(v) for w, v in times.items()}
+        print(f"| {label} | {med['exact']:.2f} | {med['differences']:.2f} | "
+              f"{med['differences'] / med['exact']:.2f} |")
+
+
+if __name__ == "__main__":
+    main()

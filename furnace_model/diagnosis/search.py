@@ -9,6 +9,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from ..blas import on_one_thread
 from ..effects import EFFECTS, Clues
 from ..errors import FurnaceError
 from ..experiment import Experiment
@@ -58,6 +59,7 @@ def check_effects(names) -> tuple[str, ...]:
     return names
 
 
+@on_one_thread
 def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
              effects: Sequence[str] | None = None, seed: int = 0,
              progress: Callable[[str, float], None] | None = None,

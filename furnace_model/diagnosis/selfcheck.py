@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..blas import on_one_thread
 from ..effects import EFFECTS
 from ..simulation.furnace import Furnace
 from .cases import SENSORS_SPEC, Case, case_rng, draw_case, draw_sensors, parse_label
@@ -111,6 +112,7 @@ def selfcheck_case(label: str, k: int, seed: int = 0, *, form: str = "candidate"
                      furnace=furnace)
 
 
+@on_one_thread
 def check(labels: list[str], draws: int, seed: int = 0, *, form: str = "candidate",
           candidates: tuple[str, ...] | None = None, noise: str = "white",
           report: Callable[[Outcome], None] | None = None, first: int = 0,

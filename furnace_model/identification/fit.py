@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..blas import on_one_thread
 from ..errors import FurnaceError
 from ..experiment import Experiment
 from ..simulation.structure import ModelStructure
@@ -58,6 +59,7 @@ criterion down the d/e valley to the same optimum."""
 
 
 
+@on_one_thread
 def fit(experiments: list[Experiment], structure: ModelStructure | None = None, *,
         method: str = "fast", runs: int = 1, population: int | None = None,
         generations: int | None = None, seed: int = 0,

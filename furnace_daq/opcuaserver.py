@@ -15,11 +15,8 @@ thermocouple is served with the status BadSensorFailure.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import logging
 import math
-import time
 from pathlib import Path
 
 from asyncua import Server, ua
@@ -123,9 +120,7 @@ class OpcUaPLC(ItemPLC):
         if self.port == 0:  # the port the system chose
             self.port = server.bserver._server.sockets[0].getsockname()[1]
         self._ua = server
-        self._t0 = time.monotonic()
-        await self.scan()
-        self._task = asyncio.create_task(self._run(), name="sim-plc scan")
+        await self._start_scanning()
 
     async def _add(self, server: Server, parent, idx: int, address: str, item):
         """The variable of one node of the map: at its NodeId under Objects/Furnace, or at
@@ -154,11 +149,7 @@ class OpcUaPLC(ItemPLC):
                                          varianttype=vtype)
 
     async def stop(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        await self._stop_scanning()
         if self._ua is not None:
             server, self._ua = self._ua, None
             await server.stop()

@@ -19,10 +19,8 @@ never sees half of one scan and half of the next.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
-import time
 
 from snap7.error import S7Error
 from snap7.server import Server
@@ -125,16 +123,10 @@ class S7PLC(ItemPLC):
         if self.port == 0:  # the port the system chose
             self.port = server.server_socket.getsockname()[1]
         self._s7 = server
-        self._t0 = time.monotonic()
-        await self.scan()
-        self._task = asyncio.create_task(self._run(), name="sim-plc scan")
+        await self._start_scanning()
 
     async def stop(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        await self._stop_scanning()
         if self._s7 is not None:
             server, self._s7 = self._s7, None
             await asyncio.to_thread(server.stop)  # joins the server's threads

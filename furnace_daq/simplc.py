@@ -319,16 +319,24 @@ class SimPLC:
         channel, interface = self._can_args
         if channel is not None:
             self._bus = can.Bus(interface=interface, channel=channel)
+        await self._start_scanning()
+
+    async def _start_scanning(self) -> None:
+        """The first scan now, then one every scan_s on the PLC's own clock: what every
+        served protocol starts once its server listens."""
         self._t0 = time.monotonic()
         await self.scan()
         self._task = asyncio.create_task(self._run(), name="sim-plc scan")
 
-    async def stop(self) -> None:
+    async def _stop_scanning(self) -> None:
         if self._task is not None:
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
             self._task = None
+
+    async def stop(self) -> None:
+        await self._stop_scanning()
         if self._server is not None:
             await self._server.shutdown()
             self._server = None

@@ -95,7 +95,7 @@ def test_the_demo_finds_its_scenarios_and_config_from_an_installation(installed,
     _, target = installed
     code = ("import argparse, pathlib;"
             "from furnace_daq.demo import _of_furnace;"
-            "a = argparse.Namespace(furnace={!r}, scenario=None, config=None,"
+            "a = argparse.Namespace(furnace={!r}, scenario=None, config=None, protocol=None,"
             " out=pathlib.Path('demo'));"
             "f = _of_furnace(a); print(f.name, a.scenario, a.config, sep='\\n')")
     for furnace, name in ((None, "paper"), ("six-zone", "six-zone")):

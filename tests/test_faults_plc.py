@@ -58,13 +58,26 @@ def test_plc_restarted_mid_run(tmp_path):
     """A new PLC process on the same port: its clock starts again from 0. The daemon
     reconnects, says so with a plc_clock_reset event, re-anchors publish time, and logs the
     new PLC's values as they are."""
+    async def until(condition, what: str, within_s: float = 20.0) -> None:
+        # on a busy machine the daemon's start can take longer than a fixed sleep: the PLC
+        # is restarted once the daemon is seen polling it, never before
+        t_end = time.monotonic() + within_s
+        while not condition():
+            assert time.monotonic() < t_end, f"not within {within_s} s: {what}"
+            await asyncio.sleep(0.02)
+
     async def scenario():
         port = free_port()
         plc = await sim(port)
-        daemon, task = start_daemon(config(port), tmp_path, 2.6)
-        await asyncio.sleep(1.2)
+        daemon, task = start_daemon(config(port), tmp_path, 60.0)
+        c = daemon.counters
+        await until(lambda: c.ok_polls >= 24, "24 polls of the first PLC")  # its clock > 600 s
         await plc.stop()
         plc = await sim(port)             # restarted at once: PLC clock back to 0
+        polled = c.ok_polls
+        await until(lambda: c.connects == 2 and c.ok_polls >= polled + 10,
+                    "10 polls of the restarted PLC")
+        daemon.stop()
         counters = await task
         await plc.stop()
         return counters

@@ -42,6 +42,7 @@ from .registers import (
     register_count,
 )
 from .s7map import S7Bits, S7Point
+from .scaling import parse_scaling
 from .writeback import WriteBackConfig, parse_write_back
 
 
@@ -310,21 +311,12 @@ def _point(node: Node, name: str, extra: tuple[str, ...] = (), numeric: bool = T
         raise node.child("length").error("applies to type: string only")
     count = register_count(dtype, length)
     address = node.get_integer("address", lo=0, hi=65536 - count)
-    sentinels = tuple(n.number() for n in node.child("sentinels", []).elements())
-    lo = hi = None
-    if node.has("range"):
-        rng = node.child("range")
-        lo, hi = (n.number() for n in rng.elements(2, 2))
-        if lo >= hi:
-            raise rng.error(f"expected [low, high] with low < high, got [{lo:g}, {hi:g}]")
-    scale = node.get_number("scale", 1.0)
-    if scale == 0:
-        raise node.child("scale").error("must not be 0")
+    scaling = parse_scaling(node)
     word_order, byte_order = _orders(node)
     return Point(name=name, table=table, address=address, dtype=dtype,
                  word_order=word_order, byte_order=byte_order,
-                 scale=scale, offset=node.get_number("offset", 0.0),
-                 sentinels=sentinels, lo=lo, hi=hi, length=length,
+                 scale=scaling.scale, offset=scaling.offset, sentinels=scaling.sentinels,
+                 lo=scaling.lo, hi=scaling.hi, length=length,
                  device=_device_of(node, devices))
 
 

@@ -3,10 +3,10 @@
 The model's linear algebra is many small products (a few states, a few thousand samples,
 a few dozen parameter sets) called in tight loops. OpenBLAS spreads any product above a
 small size over every core and spins its threads between calls: on the 2-core gateway, and
-under the diagnosis's own pool of one process per core, those threads only contend (the
-paper pair's diagnosis took 26 s with them and 16 s without, docs/performance.md).
-threadpoolctl finds whichever BLAS the installed numpy and scipy carry and sets its thread
-count while the block runs; the caller's setting is restored after.
+under the diagnosis's own pool of one process per core, those threads only contend
+(measured in docs/performance.md). threadpoolctl finds whichever BLAS the installed numpy
+and scipy carry and sets its thread count while the block runs; the caller's setting is
+restored after.
 """
 
 from __future__ import annotations

@@ -27,8 +27,8 @@ from .credit import CARRIED_Z, identifiable
 @dataclass
 class Task:
     """One candidate to fit: picklable, so a process pool can take it. Fits are bounded by
-    their iteration counts, never by the clock, so that a diagnosis does not depend on how
-    busy the machine is."""
+    their iteration counts, not by the clock, so that a diagnosis does not depend on how
+    busy the machine is; only a time limit the user asks for (`deadline`) cuts them."""
 
     effects: tuple[str, ...]
     options: dict[str, dict]

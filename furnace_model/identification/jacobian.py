@@ -8,8 +8,8 @@ differences of how the structure builds them (no simulation, and exact to about 
 the rational expressions they are); those of the response are closed-form. Two kinds of
 parameter stay with forward differences, one simulation per column: those that move the
 times at which the input steps (a dead time, the instant of a fuel change), where the
-response is not differentiable in the closed form's terms, and every parameter of a
-structure with a nonlinear term (radiation).
+response is not differentiable in the closed form's terms (and those that move what the
+sensors read, C), and every parameter of a structure with a nonlinear term (radiation).
 """
 
 from __future__ import annotations

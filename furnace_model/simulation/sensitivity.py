@@ -42,7 +42,7 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
                          d_du: np.ndarray | None, x0: np.ndarray, dx0: np.ndarray,
                          t0: float, t: np.ndarray, modes: Modes | None = None
                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Outputs and their derivatives for one parameter set.
+    """The outputs' derivatives for one parameter set.
 
     A (n, n), B (n, m), C (q, n); dA (p, n, n) and dB (p, n, m) their derivatives with
     respect to p parameters; `drive` with shared step times (one set); d_u0 (p, m) and

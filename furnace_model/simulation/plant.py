@@ -16,6 +16,8 @@ from scipy.signal import lfilter
 
 from ..experiment import Experiment
 from ..heldmeans import held_means, row_edges
+from .closedloop import ClosedLoop
+from .control import setpoint_signal
 from .furnace import Furnace
 from .scenario import Scenario, SensorSpec
 from .structure import Inputs, ModelStructure
@@ -33,11 +35,23 @@ class PlantRun:
     start_time: pd.Timestamp | None = None
     furnace: Furnace = field(kw_only=True)
     disturbances: np.ndarray | None = field(default=None, kw_only=True)  # (N, k)
+    setpoints: np.ndarray | None = field(default=None, kw_only=True)
+    """(N, zones) each zone's setpoint in a closed-loop run, NaN for a zone no loop
+    controls; None for an open-loop run."""
 
     def to_experiment(self, name: str = "simulated") -> Experiment:
+        """The record as logged; a closed-loop run's setpoints are among its signals
+        (`setpoint_<zone>`), as a PLC's setpoints are extra points of its register map."""
         return Experiment(name, self.t_min, self.tc, self.burners, self.t_air,
                           self.start_time, name, furnace=self.furnace,
-                          disturbances=self.disturbances)
+                          disturbances=self.disturbances, signals=self.setpoint_signals())
+
+    def setpoint_signals(self) -> dict[str, np.ndarray]:
+        if self.setpoints is None:
+            return {}
+        return {setpoint_signal(z): self.setpoints[:, i]
+                for i, z in enumerate(self.furnace.zones)
+                if np.isfinite(self.setpoints[:, i]).any()}
 
     def to_frame(self) -> pd.DataFrame:
         """The run as the tabular contract (CONTRACTS.md section 1)."""
@@ -108,25 +122,53 @@ class Plant:
             start_time: pd.Timestamp | None = None) -> PlantRun:
         t = np.asarray(t, dtype=float)
         run = self.structure.simulate(self.values, inputs, t, x0_zone, states=True)
-        j = np.searchsorted(inputs.t, t, side="right") - 1
         nz = self.structure.n_zones
-        # Whole burners are logged as they stand at the sample; an analog input (a rate, a
-        # pulse-fired zone's count, a disturbance) as its mean over the row.
-        burners = inputs.burners[j].astype(float)
-        analog = [i for i, h in enumerate(self.furnace.heat_inputs) if not h.whole]
-        if analog:
-            burners[:, analog] = row_means(inputs.t, inputs.burners[:, analog], t)
-        dist = row_means(inputs.t, inputs.disturbances, t)
+        burners, t_air, dist = logged_inputs(inputs, t, self.furnace)
         return PlantRun(t, run.states[0, :, :nz], self.read(run.zones[0], t), burners,
-                        inputs.t_air[j], start_time, furnace=self.furnace, disturbances=dist)
+                        t_air, start_time, furnace=self.furnace, disturbances=dist)
 
     def run_scenario(self, scenario: Scenario) -> PlantRun:
+        """The scenario's run: its schedule, or its loops when it has a `control` section."""
+        if scenario.control is not None:
+            return self.run_closed_loop(scenario)
         return self.run(scenario.plant_inputs(), scenario.sample_times(), scenario.initial_c,
                         scenario.start_time)
+
+    def run_closed_loop(self, scenario: Scenario) -> PlantRun:
+        """The scenario under its PLC's loops (`ClosedLoop`), sampled as an open-loop run is:
+        the readings are the scans the loops read where a sample falls on a control
+        instant, and the inputs logged are those fired."""
+        t = scenario.sample_times()
+        stepper = self.stepper(scenario.initial_c, scenario.burners_at(0.0), scenario.t_air_c,
+                               disturbances=scenario.disturbances_at(0.0))
+        loop = ClosedLoop(stepper, scenario)
+        nz = self.structure.n_zones
+        zone_true, tc = np.empty((t.size, nz)), np.empty((t.size, self.n_sensors))
+        setpoints = np.empty((t.size, nz))
+        for k, tk in enumerate(t):
+            loop.advance(float(tk))
+            zone_true[k], tc[k], setpoints[k] = stepper.zone_true(), loop.readings(), \
+                loop.setpoints
+        burners, t_air, dist = logged_inputs(stepper.history(), t, self.furnace)
+        return PlantRun(t, zone_true, tc, burners, t_air, scenario.start_time,
+                        furnace=self.furnace, disturbances=dist, setpoints=setpoints)
 
     def stepper(self, x0_zone: np.ndarray, burners: np.ndarray, t_air: float,
                 t0: float = 0.0, disturbances: np.ndarray | None = None) -> PlantStepper:
         return PlantStepper(self, x0_zone, burners, t_air, t0, disturbances)
+
+
+def logged_inputs(inputs: Inputs, t: np.ndarray, furnace: Furnace
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Heat inputs, ambient and disturbances as a logger records them at rows t: whole
+    burners as they stand at the sample; an analog input (a rate, a pulse-fired zone's
+    count, a disturbance) as its mean over the row."""
+    j = np.searchsorted(inputs.t, t, side="right") - 1
+    burners = inputs.burners[j].astype(float)
+    analog = [i for i, h in enumerate(furnace.heat_inputs) if not h.whole]
+    if analog:
+        burners[:, analog] = row_means(inputs.t, inputs.burners[:, analog], t)
+    return burners, inputs.t_air[j], row_means(inputs.t, inputs.disturbances, t)
 
 
 def row_means(t_in: np.ndarray, levels: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -192,12 +234,30 @@ class PlantStepper:
             self._air.append(a)
             self._dist.append(d)
 
+    def follow(self, inputs: Inputs) -> None:
+        """Inputs known ahead from now (a control period's, pulses included): they replace
+        whatever was set from their first time on, which must not lie in the past."""
+        start = float(inputs.t[0])
+        if start < self.t:
+            raise ValueError(f"inputs from {start:g} min lie before the plant's time "
+                             f"{self.t:g} min")
+        keep = int(np.searchsorted(self._t, start, side="left"))
+        k = len(self.plant.furnace.disturbances)
+        del self._t[keep:], self._burners[keep:], self._air[keep:], self._dist[keep:]
+        self._t += [float(v) for v in inputs.t]
+        self._burners += [np.asarray(b, dtype=float) for b in inputs.burners]
+        self._air += [float(a) for a in inputs.t_air]
+        self._dist += [np.asarray(d, dtype=float).reshape(k) for d in inputs.disturbances]
+
+    def history(self) -> Inputs:
+        """Every input set so far, as the model takes them."""
+        return Inputs(np.array(self._t), np.array(self._burners), np.array(self._air),
+                      np.array(self._dist).reshape(len(self._t), -1))
+
     def advance(self, t_new: float) -> None:
         if t_new <= self.t:
             return
-        inputs = Inputs(np.array(self._t), np.array(self._burners), np.array(self._air),
-                        np.array(self._dist))
-        self.x = self.plant.structure.simulate(self.plant.values, inputs, np.array([t_new]),
+        self.x = self.plant.structure.simulate(self.plant.values, self.history(), np.array([t_new]),
                                                self.x[None], t0=self.t,
                                                states=True).final_state[0]
         self.t = float(t_new)

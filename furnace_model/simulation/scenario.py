@@ -23,6 +23,7 @@ import pandas as pd
 from ..config import Node, load_yaml
 from ..effects import EFFECTS, Effect, Option
 from ..errors import ConfigError
+from .control import Control, control_from_node
 from .furnace import PAPER, Furnace
 from .furnacefile import named_furnace
 from .network import parameters
@@ -67,6 +68,9 @@ class Scenario:
     furnace: Furnace = field(kw_only=True)
     steps_disturbances: np.ndarray | None = field(default=None, kw_only=True)  # (J, k)
     pulse_cycle_min: float = field(default=1.0, kw_only=True)
+    control: Control | None = field(default=None, kw_only=True)
+    """The PLC's zone loops (`furnace_model.simulation.control`); None: open loop, every
+    input follows the schedule."""
 
     def __post_init__(self) -> None:
         if self.steps_disturbances is None:
@@ -156,7 +160,7 @@ def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
     root = load_yaml(path).mapping({
         "name", "description", "duration_min", "sample_min", "start_time", "t_air_c",
         "initial_c", "model", "burners", "sensors", "effects", "furnace", "disturbances",
-        "pulse_cycle_min"})
+        "pulse_cycle_min", "control"})
     own = (named_furnace(root.child("furnace"), Path(path).parent, "the scenario")
            if root.has("furnace") else PAPER)
     if furnace is not None and furnace != own:
@@ -184,7 +188,11 @@ def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
     model = root.child("model", {}).mapping({p.name for p in network})
     params = {p.name: model.get_number(p.name, p.default, lo=p.lo, hi=p.hi) for p in network}
 
-    burners = root.child("burners").mapping({"fill_order", "steps"})
+    control = (control_from_node(root.child("control"), furnace, initial, duration)
+               if root.has("control") else None)
+    # In closed loop the schedule is for the zones no loop drives: all off when absent.
+    off = () if control is None else ({"steps": [{"at_min": 0}]},)
+    burners = root.child("burners", *off).mapping({"fill_order", "steps"})
     order_node = burners.child("fill_order", list(zones))
     fill = tuple(n.string(zones) for n in order_node.elements(nz, nz))
     if sorted(fill) != sorted(zones):
@@ -246,7 +254,7 @@ def load_scenario(path: str | Path, furnace: Furnace | None = None) -> Scenario:
     return Scenario(
         name=name, duration_min=duration, sample_min=sample, t_air_c=t_air, initial_c=initial,
         params=params, steps_t=np.array(times), steps_burners=np.array(counts, dtype=float),
-        steps_disturbances=dist, pulse_cycle_min=cycle,
+        steps_disturbances=dist, pulse_cycle_min=cycle, control=control,
         effects=effects, effect_values=values, sensors=sensors,
         description=root.get_string("description", ""), start_time=start_time, file=str(path),
         furnace=furnace,

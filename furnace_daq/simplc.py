@@ -32,6 +32,8 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import SimData, SimDevice
 from pymodbus.simulator.simdata import DataType
 
+from furnace_model.simulation.closedloop import ClosedLoop
+from furnace_model.simulation.control import setpoint_signal
 from furnace_model.simulation.furnace import Furnace
 from furnace_model.simulation.plant import Plant, PlantAhead
 from furnace_model.simulation.scenario import Scenario
@@ -175,18 +177,30 @@ class ValueSource(Protocol):
 class PlantSource:
     """The plant simulator running a scenario: burners follow its schedule or, in manual
     mode, the commands the server passes on from the coils (rate-fired zones and
-    disturbances keep the schedule's, taken at each scan)."""
+    disturbances keep the schedule's, taken at each scan). A scenario with a `control`
+    section runs in closed loop: the PLC runs its loops at its own clock, each control
+    period on the scan of that instant, and serves what they fire and their setpoints
+    (`setpoint_<zone>`, for a map that declares them as signals)."""
 
     end_s: int | None = None
 
     def __init__(self, scenario: Scenario, *, seed: int = 0, manual: bool = False):
+        if manual and scenario.control is not None:
+            raise ValueError(f"scenario '{scenario.name}' runs in closed loop: its loops "
+                             "set the burners, not commands by hand")
         self.scenario, self.manual = scenario, manual
         self.furnace = furnace = scenario.furnace
         self.plant = Plant.from_scenario(scenario, seed=seed)
         self._commands: list[bool] | None = None
         self._switched = list(furnace.switched)
         self._rated = list(furnace.rated)
-        if manual:  # the schedule is not known ahead: the plant is stepped as commands come
+        self.loop: ClosedLoop | None = None
+        if scenario.control is not None:
+            self.stepper = self.plant.stepper(scenario.initial_c, scenario.burners_at(0.0),
+                                              scenario.t_air_c,
+                                              disturbances=scenario.disturbances_at(0.0))
+            self.loop = ClosedLoop(self.stepper, scenario)
+        elif manual:  # the schedule is not known ahead: the plant is stepped as commands come
             self.stepper = self.plant.stepper(scenario.initial_c, scenario.burners_at(0.0),
                                               scenario.t_air_c,
                                               disturbances=scenario.disturbances_at(0.0))
@@ -202,7 +216,19 @@ class PlantSource:
         scenario, furnace = self.scenario, self.furnace
         levels = scenario.burners_at(t)
         disturbances = scenario.disturbances_at(t)
-        if self.manual:
+        signals: dict[str, float | bool] = {}
+        if self.loop is not None:
+            loop = self.loop
+            loop.advance(t)
+            readings = loop.readings()
+            driven = list(loop.control.driven)
+            levels[driven] = loop.levels[driven]
+            since = max(loop.last_min, float(scenario.steps_t[scenario.step_index(t)]))
+            states = self._states(levels, t, since)
+            signals = {setpoint_signal(z): float(v)
+                       for z, v in zip(furnace.zones, loop.setpoints, strict=True)
+                       if np.isfinite(v)}
+        elif self.manual:
             self.stepper.advance(t)
             inputs = self.stepper.burners.astype(float)
             if self._commands is not None:
@@ -215,21 +241,20 @@ class PlantSource:
             levels = inputs
         else:
             readings = self.ahead.readings(plc_seconds)
-            states = self._states(levels, t)
+            states = self._states(levels, t, float(scenario.steps_t[scenario.step_index(t)]))
         return PlcValues(list(readings), scenario.t_air_c, states,
                          {furnace.zones[i]: float(levels[i]) for i in self._rated},
                          {d.name: float(v) for d, v in zip(furnace.disturbances, disturbances,
-                                                           strict=True)})
+                                                           strict=True)}, signals)
 
-    def _states(self, levels: np.ndarray, t: float) -> list[bool]:
-        """Every burner of the zones fired by burners at the schedule's `levels`: whole
-        burners the first ones of their zone, a pulse-fired zone's pulsing as it fires in
-        the middle of the second shown (pulses of a few seconds, judged at the second's
+    def _states(self, levels: np.ndarray, t: float, set_at: float) -> list[bool]:
+        """Every burner of the zones fired by burners at `levels`, set at minute `set_at`:
+        whole burners the first ones of their zone, a pulse-fired zone's pulsing as it fires
+        in the middle of the second shown (pulses of a few seconds, judged at the second's
         start, would show the zone's extra burner for the whole second its pulse begins in:
         a duty too high by half a second per cycle on average)."""
         scenario, furnace = self.scenario, self.furnace
-        steps = scenario.steps_t
-        since = t + 0.5 / 60.0 - steps[max(int(np.searchsorted(steps, t, side="right")) - 1, 0)]
+        since = t + 0.5 / 60.0 - set_at
         out: list[bool] = []
         for i in self._switched:
             n = furnace.burners[i]

@@ -114,7 +114,12 @@ def run(args: argparse.Namespace) -> int:
             raise FurnaceError("--loop works with --from-log only")
         scenario = load_scenario(scenario_path(args.scenario), furnace)
         source = scenario
-        what = f"{scenario.name}: {'manual' if args.manual else 'schedule'} burners"
+        if scenario.control is not None and args.manual:
+            raise FurnaceError(f"--manual: scenario '{scenario.name}' runs in closed loop "
+                               "(its control section): its loops set the burners")
+        mode = ("closed loop" if scenario.control is not None
+                else "manual" if args.manual else "schedule")
+        what = f"{scenario.name}: {mode} burners"
     if args.protocol != "modbus":
         return asyncio.run(_serve_nodes(source, what, args))
     served, map_from = _served_map(args)

@@ -47,6 +47,11 @@ class ClosedLoop:
         self._scan: tuple[float, np.ndarray] | None = None
 
     @property
+    def last_min(self) -> float:
+        """The last control instant run (0 before the first)."""
+        return max(self._k - 1, 0) * self.control.period_min
+
+    @property
     def next_min(self) -> float:
         """The next control instant."""
         return self._k * self.control.period_min

@@ -96,12 +96,13 @@ class Scenario:
 
     def burners_at(self, t_min: float) -> np.ndarray:
         """Heat input per zone (zones,) the schedule asks for at time t_min."""
-        return self.steps_burners[self._step(t_min)].copy()
+        return self.steps_burners[self.step_index(t_min)].copy()
 
     def disturbances_at(self, t_min: float) -> np.ndarray:
-        return self.steps_disturbances[self._step(t_min)].copy()
+        return self.steps_disturbances[self.step_index(t_min)].copy()
 
-    def _step(self, t_min: float) -> int:
+    def step_index(self, t_min: float) -> int:
+        """The schedule's step in force at t_min."""
         return max(int(np.searchsorted(self.steps_t, t_min, side="right")) - 1, 0)
 
     def sample_times(self) -> np.ndarray:

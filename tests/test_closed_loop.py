@@ -1,0 +1,222 @@
+"""Closed-loop scenarios: the PLC's PI loops on the plant simulator, their setpoint
+programmes, anti-windup, whole burners, a drifting thermocouple under control, and the
+open-loop scenarios untouched."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from furnace_model.errors import ConfigError
+from furnace_model.shipped import SCENARIOS, shipped_named
+from furnace_model.simulation.control import Loop, PIController, staged
+from furnace_model.simulation.furnace import PAPER
+from furnace_model.simulation.plant import Plant, PlantRun
+from furnace_model.simulation.programme import Programme, ProgrammeStep
+from furnace_model.simulation.scenario import Scenario, load_scenario
+
+ROOT = Path(__file__).resolve().parent.parent
+REFERENCE = ROOT / "tests" / "data" / "open_loop_reference.npz"
+
+PLANT = """\
+furnace: paper-charging
+sample_min: 1.0
+t_air_c: 30.0
+initial_c: 30.0
+model: {a: 0.020121, b: 0.299049, c: 0.061544, d: 0.873573, e: 0.727504, f: 0.224131,
+        gain_charging_heat: -0.1, gain_charging_preheat: -0.05}
+disturbances: {charging: {steps: [{at_min: 0, value: 0}]}}
+"""
+"""paper_production.yaml's plant, whose zones each have burners of their own."""
+
+
+def scenario_of(tmp_path: Path, text: str, name: str = "s", effect: str = "") -> Scenario:
+    """The plant with `text` (duration, control) and one more `effect` (a line of YAML)."""
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(PLANT + text + "effects:\n  zone_burners: {f_heat: 8.0, f_preheat: 8.0}\n"
+                    + (f"  {effect}\n" if effect else ""))
+    return load_scenario(path)
+
+
+def run(scenario: Scenario, seed: int = 1) -> PlantRun:
+    return Plant.from_scenario(scenario, seed=seed).run_scenario(scenario)
+
+
+def soak_loop(steps: str, extra: str = "") -> str:
+    """paper_production.yaml's loops, with the soaking zone's programme `steps` (and
+    `extra` keys for its loop); the heating and preheating zones ramp up and hold."""
+    return f"""\
+control:
+  zones:
+    soak:
+      kp: 0.2
+      ti_min: 60{extra}
+      setpoint:
+        steps: {steps}
+    heat:
+      kp: 0.05
+      ti_min: 10
+      setpoint:
+        steps: [{{at_min: 0, target_c: 1150, ramp_c_per_min: 2}}]
+    preheat:
+      kp: 0.2
+      ti_min: 5
+      setpoint:
+        steps: [{{at_min: 0, target_c: 660, ramp_c_per_min: 1.1}}]
+"""
+
+
+def test_pi_tracks_a_ramp_and_a_step_on_the_paper_furnace(tmp_path):
+    """The soaking zone's loop: a start-up ramp of 2 °C/min to 1200 °C, a hold, a step of
+    +40 °C at minute 900. What the loop controls (the zone's mean reading) stays within
+    8 °C of the ramp once the integral has caught up with it (from minute 175; before, the
+    loop lags the ramp while it heats the cold furnace), and after the step
+    overshoots by less than 15 °C and is back within 5 °C (the mean of 15 minutes) by 150
+    minutes after it."""
+    s = scenario_of(tmp_path, "duration_min: 1200\n" + soak_loop(
+        "[{at_min: 0, target_c: 1200, ramp_c_per_min: 2}, {at_min: 900, target_c: 1240}]"))
+    r = run(s)
+    measured = PAPER.zone_means(r.tc)[:, 0]
+    sp = r.setpoints[:, 0]
+    ramp = (r.t_min >= 175) & (r.t_min < 585)
+    assert np.abs(measured[ramp] - sp[ramp]).max() < 8.0
+    after = r.t_min >= 900
+    assert measured[after].max() < 1240 + 15.0
+    settled = (r.t_min >= 1050) & (r.t_min < 1065)
+    assert abs(measured[settled].mean() - 1240.0) < 5.0
+
+
+def test_programme_ramps_holds_and_steps():
+    p = Programme(30.0, (ProgrammeStep(0.0, 1000.0, 2.0), ProgrammeStep(600.0, 900.0),
+                         ProgrammeStep(700.0, 1100.0, 1.0), ProgrammeStep(750.0, 1000.0, 4.0),
+                         ProgrammeStep(800.0, 800.0, 5.0)))
+    assert p.at(0.0) == 30.0
+    assert p.at(100.0) == 230.0
+    assert p.at(485.0) == 1000.0  # reached at 485 and held
+    assert p.at(599.0) == 1000.0
+    assert p.at(600.0) == 900.0  # a step
+    assert p.at(740.0) == 940.0
+    assert p.at(750.0) == 950.0  # a ramp cut short by the next step, from where it stood
+    assert p.at(760.0) == 990.0  # on at 4 °C/min
+    assert p.at(762.5) == 1000.0  # and held
+    assert p.at(820.0) == 900.0  # down at 5 °C/min
+    assert p.at(1e6) == 800.0
+
+
+def test_clamping_keeps_the_integral_from_winding_up():
+    """Saturated for 1000 periods with a large error, the PI leaves its limit the first
+    period the error changes sign; a PI that kept integrating would stay there."""
+    pi = PIController(kp=0.2, ti_min=60.0, lo=0.0, hi=10.0)
+    for _ in range(1000):
+        assert pi.update(300.0, 1.0) == 10.0
+    assert pi.update(-2.0, 1.0) < 10.0
+    assert pi.integral <= 60.0 * 10.0 / 0.2  # at most what the limit needs
+
+
+def test_no_overshoot_blow_up_after_saturation(tmp_path):
+    """An unreachable setpoint (1800 °C) holds the soaking zone's burners at their limit
+    for 600 minutes; set back to 1300 °C, the zone overshoots by less than 15 °C: the
+    integral did not grow while saturated."""
+    s = scenario_of(tmp_path, "duration_min: 1400\n" + soak_loop(
+        "[{at_min: 0, target_c: 1800}, {at_min: 600, target_c: 1300}]"))
+    r = run(s)
+    assert (r.burners[200:600, 0] == 10).all()
+    measured = PAPER.zone_means(r.tc)[:, 0]
+    assert measured[:600].max() < 1300.0  # still below the new setpoint when it comes
+    assert measured[600:].max() < 1300.0 + 15.0
+    assert abs(measured[-60:].mean() - 1300.0) < 5.0
+
+
+def test_a_drifting_controlled_thermocouple_moves_the_true_zone_by_the_drift(tmp_path):
+    """The loop on soak_1 alone; soak_1 drifts at -0.05 °C/min from minute 800. The loop
+    holds the reading at its setpoint, so the true soaking zone rises by the drift: at the
+    end 20 °C hotter than the same run without the drift, within 2 °C."""
+    loop = soak_loop("[{at_min: 0, target_c: 1200, ramp_c_per_min: 2}]",
+                     "\n      sensor: soak_1")
+    clean = scenario_of(tmp_path, "duration_min: 1200\n" + loop, "clean")
+    drift = scenario_of(tmp_path, "duration_min: 1200\n" + loop, "drift",
+                        "sensor_drift: {sensor: soak_1, drift_rate: -0.05, t_drift: 800}")
+    assert [e.name for e in drift.effects] == ["zone_burners", "sensor_drift"]
+    a, b = run(clean), run(drift)
+    end = b.t_min >= 1140
+    shift = (b.zone_true[end, 0] - a.zone_true[end, 0]).mean()
+    expected = 0.05 * (b.t_min[end] - 800.0).mean()
+    assert abs(shift - expected) < 2.0, (shift, expected)
+    assert np.allclose(a.zone_true[b.t_min < 800], b.zone_true[b.t_min < 800])
+
+
+def test_staged_output_is_whole_burners_within_limits():
+    r = run(dataclasses.replace(load_scenario(shipped_named(SCENARIOS, "paper_production")),
+                                duration_min=900.0))
+    assert np.array_equal(r.burners, np.round(r.burners))
+    assert (r.burners >= 0).all() and (r.burners <= np.array(PAPER.burners)).all()
+    assert (r.burners.max(axis=0) > 0).all()  # every zone's loop fires
+    both = Loop(0, None, (0, 1, 2), 0.2, 60.0, Programme(30.0, ()))
+    assert staged(13.4, both, PAPER) == {0: 10.0, 1: 3.0, 2: 0.0}
+    assert staged(13.5, both, PAPER) == {0: 10.0, 1: 4.0, 2: 0.0}
+    assert staged(26.0, both, PAPER) == {0: 10.0, 1: 8.0, 2: 8.0}
+    assert staged(0.0, both, PAPER) == {0: 0.0, 1: 0.0, 2: 0.0}
+
+
+def test_the_run_logs_what_was_fired_and_the_setpoints(tmp_path):
+    """The record carries the setpoints as signals beside the burners fired, which are
+    exactly the loops' output (the plant re-run open loop on them reads the same truth)."""
+    s = dataclasses.replace(load_scenario(shipped_named(SCENARIOS, "paper_production")),
+                            duration_min=300.0)
+    r = run(s)
+    exp = r.to_experiment()
+    assert sorted(exp.signals) == ["setpoint_heat", "setpoint_preheat", "setpoint_soak"]
+    assert exp.signals["setpoint_soak"][100] == 30.0 + 2.0 * 100
+    again = Plant.from_scenario(s, seed=1).run(
+        _held(r), r.t_min, s.initial_c)
+    assert np.allclose(again.zone_true, r.zone_true, atol=1e-6)
+
+
+def _held(r: PlantRun):
+    from furnace_model.simulation.structure import Inputs
+    return Inputs(r.t_min, r.burners, r.t_air, r.disturbances)
+
+
+@pytest.mark.parametrize("name", ["paper_exp1", "modulated_production", "six_zone_effects"])
+def test_open_loop_scenarios_run_bit_for_bit_as_before(name):
+    """Runs recorded before closed-loop scenarios existed (240 minutes, seed 7)."""
+    ref = np.load(REFERENCE)
+    s = dataclasses.replace(load_scenario(shipped_named(SCENARIOS, name)), duration_min=240.0)
+    assert s.control is None
+    r = Plant.from_scenario(s, seed=7).run_scenario(s)
+    for key in ("t_min", "zone_true", "tc", "burners", "t_air", "disturbances"):
+        assert np.array_equal(ref[f"{name}.{key}"], getattr(r, key)), key
+    assert r.setpoints is None and not r.to_experiment().signals
+
+
+@pytest.mark.parametrize("control, match", [
+    ("control: {zones: {bogus: {}}}", r"control.zones.bogus: unknown key"),
+    ("control: {zones: {}}", r"control.zones: name at least one zone"),
+    ("control: {zones: {soak: {ti_min: 60, setpoint: {steps: [{at_min: 0, target_c: 900}]}}}}",
+     r"control.zones.soak.kp: required key is missing"),
+    ("control: {zones: {soak: {kp: -1, ti_min: 60, setpoint: {steps: [{at_min: 0, "
+     "target_c: 900}]}}}}", r"control.zones.soak.kp: must be at least"),
+    ("control: {zones: {soak: {kp: 1, ti_min: 60, sensor: heat_1, setpoint: {steps: "
+     "[{at_min: 0, target_c: 900}]}}}}", r"control.zones.soak.sensor: must be one of"),
+    ("control: {zones: {soak: {kp: 1, ti_min: 60, setpoint: {steps: [{at_min: 50, "
+     "target_c: 900}, {at_min: 10, target_c: 950}]}}}}",
+     r"control.zones.soak.setpoint.steps\[1\].at_min: steps must be in time order"),
+    ("control: {zones: {soak: {kp: 1, ti_min: 60, setpoint: {steps: [{at_min: 0, "
+     "target_c: 900, ramp_c_per_min: 0}]}}}}",
+     r"control.zones.soak.setpoint.steps\[0\].ramp_c_per_min: must be at least"),
+    ("control: {zones: {soak: {kp: 1, ti_min: 60, drives: [soak, heat], setpoint: {steps: "
+     "[{at_min: 0, target_c: 900}]}}, heat: {kp: 1, ti_min: 9, setpoint: {steps: [{at_min: 0, "
+     "target_c: 900}]}}}}",
+     r"control.zones.heat.kp: zone heat's input is already set by the loop of zone soak"),
+    ("control: {period_min: 0, zones: {soak: {kp: 1, ti_min: 60, setpoint: {steps: "
+     "[{at_min: 0, target_c: 900}]}}}}", r"control.period_min: must be at least"),
+])
+def test_bad_control_sections_name_the_key(tmp_path, control, match):
+    path = tmp_path / "bad.yaml"
+    path.write_text(PLANT + "duration_min: 100\n" + control + "\n")
+    with pytest.raises(ConfigError, match=match) as info:
+        load_scenario(path)
+    assert str(path) in str(info.value)

@@ -22,12 +22,14 @@ ROOT = Path(__file__).resolve().parent.parent
 REFERENCE = ROOT / "tests" / "data" / "open_loop_reference.npz"
 
 PLANT = """\
-furnace: paper-charging
+furnace: paper-production
 sample_min: 1.0
 t_air_c: 30.0
 initial_c: 30.0
-model: {a: 0.020121, b: 0.299049, c: 0.061544, d: 0.873573, e: 0.727504, f: 0.224131,
-        gain_charging_heat: -0.1, gain_charging_preheat: -0.05}
+model: {k_soak_heat: 0.020121, k_heat_soak: 0.299049, k_heat_preheat: 0.061544,
+        k_preheat_heat: 0.873573, loss_preheat: 0.727504, gain_soak: 0.224131,
+        gain_heat: 8.0, gain_preheat: 8.0, gain_charging_heat: -0.1,
+        gain_charging_preheat: -0.05}
 disturbances: {charging: {steps: [{at_min: 0, value: 0}]}}
 """
 """paper_production.yaml's plant, whose zones each have burners of their own."""
@@ -36,8 +38,7 @@ disturbances: {charging: {steps: [{at_min: 0, value: 0}]}}
 def scenario_of(tmp_path: Path, text: str, name: str = "s", effect: str = "") -> Scenario:
     """The plant with `text` (duration, control) and one more `effect` (a line of YAML)."""
     path = tmp_path / f"{name}.yaml"
-    path.write_text(PLANT + text + "effects:\n  zone_burners: {f_heat: 8.0, f_preheat: 8.0}\n"
-                    + (f"  {effect}\n" if effect else ""))
+    path.write_text(PLANT + text + (f"effects:\n  {effect}\n" if effect else ""))
     return load_scenario(path)
 
 
@@ -139,7 +140,7 @@ def test_a_drifting_controlled_thermocouple_moves_the_true_zone_by_the_drift(tmp
     clean = scenario_of(tmp_path, "duration_min: 1200\n" + loop, "clean")
     drift = scenario_of(tmp_path, "duration_min: 1200\n" + loop, "drift",
                         "sensor_drift: {sensor: soak_1, drift_rate: -0.05, t_drift: 800}")
-    assert [e.name for e in drift.effects] == ["zone_burners", "sensor_drift"]
+    assert [e.name for e in drift.effects] == ["sensor_drift"]
     a, b = run(clean), run(drift)
     end = b.t_min >= 1140
     shift = (b.zone_true[end, 0] - a.zone_true[end, 0]).mean()
@@ -220,3 +221,51 @@ def test_bad_control_sections_name_the_key(tmp_path, control, match):
     with pytest.raises(ConfigError, match=match) as info:
         load_scenario(path)
     assert str(path) in str(info.value)
+
+
+def test_the_simulated_plc_serves_its_loops_burners():
+    """paper_production.yaml in the simulated PLC over Modbus, on thermocouples without noise
+    or bias so that the loops are reproducible: the flame states served at each PLC second
+    are what the same loops fire offline at that second."""
+    import asyncio
+
+    from pymodbus.client import AsyncModbusTcpClient
+
+    from furnace_daq.registers import decode
+    from furnace_daq.simplc import SimPLC, states_from_counts
+    from furnace_model.simulation.scenario import SensorSpec
+
+    s = dataclasses.replace(load_scenario(shipped_named(SCENARIOS, "paper_production")),
+                            duration_min=400.0,
+                            sensors=SensorSpec(noise_sd_c=0.0, bias_c=(0.0,) * 6))
+    offline = run(s)
+
+    async def serve() -> list[tuple[int, list[bool]]]:
+        plc = SimPLC(s, speed=3000.0, port=0, scan_s=0.05)
+        await plc.start()
+        client = AsyncModbusTcpClient("127.0.0.1", port=plc.port)
+        reads = []
+        try:
+            await client.connect()
+            for _ in range(8):
+                await asyncio.sleep(0.3)
+                plc.frozen = True  # one scan's registers, read whole
+                ir = await client.read_input_registers(0, count=10, device_id=1)
+                di = await client.read_discrete_inputs(0, count=26, device_id=1)
+                plc.frozen = False
+                assert not ir.isError() and not di.isError()
+                reads.append((decode(ir.registers[7:9], "uint32", "big"), di.bits[:26]))
+        finally:
+            client.close()
+            await plc.stop()
+        return reads
+
+    reads = asyncio.run(serve())
+    seconds = [sec for sec, _ in reads]
+    assert seconds == sorted(seconds) and seconds[-1] > seconds[0]
+    fired = 0
+    for sec, bits in reads:
+        row = min(int(sec // 60), offline.burners.shape[0] - 1)
+        assert bits == states_from_counts(offline.burners[row], PAPER), sec
+        fired += sum(bits)
+    assert fired > 0

@@ -37,8 +37,10 @@ deb: $(STAMP) system-deps
 # `make demo FURNACE=config/furnaces/six-zone.yaml` (or a name in config/furnaces/, e.g.
 # FURNACE=modulated): the same chain on another furnace. `make demo PROTOCOL=opcua` (or s7):
 # the simulated PLC and the daemon speak that protocol instead of Modbus.
+# `make demo SCENARIO=config/scenarios/paper_production.yaml` (or a shipped name): that
+# scenario, on its own furnace (a closed-loop one runs its loops in the simulated PLC).
 demo: $(STAMP)
-	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo$(if $(FURNACE), --furnace $(FURNACE))$(if $(PROTOCOL), --protocol $(PROTOCOL))
+	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo$(if $(FURNACE), --furnace $(FURNACE))$(if $(SCENARIO), --scenario $(SCENARIO))$(if $(PROTOCOL), --protocol $(PROTOCOL))
 
 # Two workers (pytest-xdist), one per core of the 2-core target; a test module stays on one
 # worker, so its module-wide fixtures (a live daemon run, a fitted record) are built once.

@@ -135,7 +135,14 @@ def _of_furnace(args: argparse.Namespace) -> Furnace:
         args.furnace = furnace_path(args.furnace)
     if args.scenario is not None:
         args.scenario = scenario_path(args.scenario)
-    furnace = PAPER if args.furnace is None else load_furnace(args.furnace)
+    if args.furnace is not None:
+        furnace = load_furnace(args.furnace)
+    elif args.scenario is not None:  # the scenario's own furnace
+        furnace = load_scenario(args.scenario).furnace
+        if furnace != PAPER:
+            args.furnace = _scenario_furnace_file(Path(args.scenario))
+    else:
+        furnace = PAPER
     if args.scenario is None:
         if furnace == PAPER:
             args.scenario = shipped(DEFAULT_SCENARIO)
@@ -163,6 +170,16 @@ def _of_furnace(args: argparse.Namespace) -> Furnace:
             args.config.write_text(gateway_yaml(furnace, str(args.furnace.resolve()))
                                    + _signals_yaml(furnace))
     return furnace
+
+
+def _scenario_furnace_file(path: Path) -> Path:
+    """The description file a (loaded, so valid) scenario's `furnace` key names."""
+    from furnace_model.config import load_yaml
+    from furnace_model.simulation.furnacefile import furnace_file
+
+    found = furnace_file(load_yaml(path).child("furnace").string(), path.parent)
+    assert found is not None, "load_scenario has resolved it"
+    return found
 
 
 def _scenario_furnace(path: Path) -> Furnace | None:

@@ -49,11 +49,12 @@ import pandas as pd
 
 from ..effects import EFFECTS, Effect
 from ..experiment import Experiment
+from ..shipped import shipped
 from ..simulation.furnace import Furnace
 from ..simulation.network import parameters, terms
 from ..simulation.parameters import PAPER_TABLE_V
 from ..simulation.plant import Plant
-from ..simulation.scenario import SensorSpec
+from ..simulation.scenario import Scenario, SensorSpec, load_scenario
 from ..simulation.structure import Inputs, ModelStructure
 from .faults import FAULTS
 
@@ -200,6 +201,64 @@ def draw_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
     description = (", ".join(f"{n}({_short(truth[n], many)})" for n in names)
                    or "no effect") + \
         f"; form {form}; durations {durations[0]:g} and {durations[1]:g} min"
+    return Case(fit=[exps[0]], holdout=[exps[1]], truth=truth, description=description,
+                form=form, effects=names)
+
+
+PRODUCTION = "config/scenarios/paper_production.yaml"
+"""The closed-loop cases' scenario (`draw_closed_loop_case`), a shipped file."""
+
+
+def draw_closed_loop_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
+                          form: str = "candidate",
+                          sensors: tuple[SensorSpec, SensorSpec] = (SENSORS_SPEC, SENSORS_SPEC),
+                          scenario: Scenario | None = None) -> Case:
+    """`draw_case` in production: two records of a closed-loop `scenario` (default the
+    shipped paper_production) with `effect` drawn on its furnace, the PLC's loops reading
+    the thermocouples (so a drifting one they read moves the true zone) and firing what the
+    records carry. The held-out record runs the same programmes with the slabs charged in
+    another order. Perturbations outside the library are not drawn in closed loop."""
+    scenario = scenario or load_scenario(shipped(PRODUCTION))
+    if scenario.control is None:
+        raise ValueError(f"scenario '{scenario.name}' has no control section")
+    names: tuple[str, ...] = () if effect is None else (
+        (effect,) if isinstance(effect, str) else tuple(effect))
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        raise ValueError(f"closed-loop cases draw effects of the library, not {unknown}")
+    furnace = scenario.furnace
+    effects, values = list(scenario.effects), scenario.values()
+    truth: dict[str, dict] = {}
+    seen_as = furnace
+    for name in names:
+        other = EFFECTS[name].drawn.check_furnace(furnace)
+        if other != furnace:
+            seen_as = other
+            truth[name] = {"as_furnace": other.name,
+                           **{k: v for k, v in values.items() if k.startswith("gain_")}}
+            continue
+        eff, vals, info = _draw_effect(name, rng, form, scenario.duration_min, furnace)
+        effects.append(eff)
+        values.update(vals)
+        truth[name] = {**vals, **info}
+    structure = ModelStructure(effects, furnace=furnace)
+    start = pd.Timestamp("2026-01-05T06:00:00Z") + pd.Timedelta(days=int(rng.integers(0, 300)))
+    exps = []
+    for j in range(2):
+        dist = scenario.steps_disturbances
+        if j == 1:  # the same day's slabs in another order, after the start-up's
+            charged = np.flatnonzero(scenario.steps_t > 0)
+            dist = dist.copy()
+            dist[charged] = dist[rng.permutation(charged)]
+        run_of = dataclasses.replace(scenario, steps_disturbances=dist,
+                                     start_time=start + pd.Timedelta(days=7 * j))
+        plant = Plant(structure, values, sensors[j], seed=int(rng.integers(2**31)))
+        exp = plant.run_closed_loop(run_of).to_experiment(f"exp{j + 1}")
+        if seen_as != furnace:
+            exp = dataclasses.replace(exp, furnace=seen_as)
+        exps.append(exp)
+    description = (", ".join(f"{n}({_short(truth[n])})" for n in names) or "no effect") + \
+        f"; closed loop ({scenario.name}); form {form}"
     return Case(fit=[exps[0]], holdout=[exps[1]], truth=truth, description=description,
                 form=form, effects=names)
 

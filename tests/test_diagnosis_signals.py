@@ -56,6 +56,10 @@ def test_unused_signals_are_those_every_record_has_and_that_move():
     a = _door_record("paper_exp1", 1)
     flat = dataclasses.replace(a, signals={**a.signals, "flat": np.full(len(a), 3.0)})
     assert unused_signals([flat]) == ("door",)
+    moving = np.linspace(900.0, 1200.0, len(a))
+    references = {name: moving for name in ("setpoint_soak", "heat_sp", "SP preheat")}
+    controlled = dataclasses.replace(a, signals={**a.signals, **references, "spare": moving})
+    assert unused_signals([controlled]) == ("door", "spare")
     assert unused_signals([flat, dataclasses.replace(a, signals={})]) == ()
 
 

@@ -11,6 +11,7 @@ input is the signal's own time course.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -31,12 +32,19 @@ UNMODELLED_INPUT = "unmodelled_input"
 """The candidate's name in the JSON (`effect`), with the signal in `signal`."""
 
 
+SETPOINT = re.compile(r"(^|[_\W])(setpoint|sp)([_\W]|$)", re.IGNORECASE)
+"""A controller's reference (`setpoint_soak`, `soak_sp`, `SP heat`): heat reaches the furnace
+through the burners, which the model has, never through a setpoint. In closed loop a
+setpoint follows the zone's own temperature, so as an input it would absorb any misfit."""
+
+
 def unused_signals(records: list[Experiment]) -> tuple[str, ...]:
     """Signals every record carries and that move within the records: a constant column
-    is no input; one that some record lacks cannot be carried onto it."""
+    is no input; one that some record lacks cannot be carried onto it; a setpoint is none."""
     if not records:
         return ()
-    names = [n for n in records[0].signals if all(n in r.signals for r in records)]
+    names = [n for n in records[0].signals
+             if all(n in r.signals for r in records) and not SETPOINT.search(n)]
     out = []
     for n in names:
         values = np.concatenate([r.signals[n] for r in records])

@@ -281,3 +281,34 @@ def test_a_diverged_set_is_nan_and_leaves_the_batch_alone():
     alone = ms.simulate({**PAPER_TABLE_V, "rad_share": 0.5}, inputs, t, x0[:1]).zones
     assert np.isnan(y[1]).all()
     np.testing.assert_allclose(y[0], alone[0], rtol=0, atol=1e-9)
+
+
+def test_a_record_about_its_operating_point_is_relaxed_and_exact():
+    """Hourly inputs that move a few percent about a hold near the law's reference
+    temperature: the waveform relaxation takes the whole record (no step-by-step
+    integration) and stays within 1e-4 degC of Radau at 1e-12; a heat-up from cold with a
+    strong radiative share does not converge and is left to the stepping integrator."""
+    rng = np.random.default_rng(3)
+    hours = np.arange(0.0, 4 * 1440.0, 60.0)
+    burners = np.array([6.0, 3.0, 2.0]) * (1.0 + 0.05 * rng.standard_normal((hours.size, 3)))
+    inputs = Inputs(hours, burners, np.full(hours.size, 25.0))
+    hold = Inputs(np.array([0.0]), burners[:1], np.array([25.0]))
+    ms = ModelStructure([Radiation(t_ref_c=1200.0, furnace=PAPER)], furnace=PAPER)
+    values = {**PAPER_TABLE_V, "rad_share": 0.8}
+    x0 = ms.simulate(values, hold, np.array([3e4]), np.full(3, 1200.0)).zones[0, 0]
+    t = np.arange(0.0, 4 * 1440.0 + 1, 60.0)
+    theta = ms.theta(values)
+    sysm = ms.system(theta)
+    _, relaxed, _ = ms._relaxed(theta, sysm, ms.drive(theta, inputs), x0[None], 0.0, t)
+    assert relaxed.all()
+    y = ms.simulate(values, inputs, t, x0).zones[0]
+    ref = reference_nonlinear(ms, values, inputs, t, x0)
+    assert np.ptp(ref) > 20  # the record moves, and radiation bends it
+    assert np.max(np.abs(y - ref)) < 1e-4
+
+    heatup = Inputs(np.array([0.0, 700.0]), np.array([[2, 0, 0], [8, 3, 2.0]]), np.full(2, 25.0))
+    cold = ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER)
+    theta = cold.theta(values)
+    _, relaxed, _ = cold._relaxed(theta, cold.system(theta), cold.drive(theta, heatup),
+                               np.full((1, 3), 25.0), 0.0, np.arange(0.0, 1401.0))
+    assert not relaxed.any()

@@ -14,6 +14,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -255,27 +256,18 @@ class ModelStructure:
         t = np.asarray(t, dtype=float)
         modes = Modes.of(sys.A)
         x_lin = response(sys.A, sys.B, x0, t0, drive, t, modes=modes)
-        end = max(float(t[-1]), t0) if t.size else t0
-        cuts = np.unique(np.ravel(drive.s))
-        edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
-        starts, lengths, levels = [], [], []
-        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-            if hi <= lo:
-                continue
-            bounds = _step_bounds(lo, hi)
-            starts.append(bounds[:-1])
-            lengths.append(np.diff(bounds))
-            u = np.broadcast_to(drive.level_at(lo), (P, sys.B.shape[2]))
-            levels.append(np.repeat(u[:, None], bounds.size - 1, axis=1))
-        if not starts:
+        grid = _Grid.of(drive, t0, max(float(t[-1]), t0) if t.size else t0, P)
+        if grid is None:
             return np.einsum("pqn,pNn->pNq", sys.C, x_lin)
-        a, h = np.concatenate(starts), np.concatenate(lengths)
-        u = np.concatenate(levels, axis=1)  # (P, K, m): the input on each step
-        K = a.size
-        nodes = np.empty(2 * K + 1)
-        nodes[0:-1:2], nodes[1::2], nodes[-1] = a, a + h / 2, a[-1] + h[-1]
-        x_nodes = response(sys.A, sys.B, x0, t0, drive, nodes, modes=modes)  # (P, 2K+1, n)
-        X = np.stack([x_nodes[:, 0:-1:2], x_nodes[:, 1::2], x_nodes[:, 2::2]], axis=2)
+        X = grid.at_nodes(response(sys.A, sys.B, x0, t0, drive, grid.nodes, modes=modes))
+        g = self._nonlinear_rhs(theta, sys, X, grid.u)
+        x = x_lin + grid.convolved(modes, g, t, t0)
+        return np.einsum("pqn,pNn->pNq", sys.C, x)
+
+    def _nonlinear_rhs(self, theta, sys, X: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """The effects' nonlinear terms at states X (P, K, 3, n) under the inputs u (P, K, m)
+        of each step."""
+        P, K, _, n = X.shape
         S = 3 * K
         rep = {k: np.repeat(v, S) for k, v in theta.items()}
         g = np.zeros((P * S, n))
@@ -284,31 +276,80 @@ class ModelStructure:
         for eff in self.effects:
             if not eff.linear:
                 g += eff.nonlinear_rhs(rep, X.reshape(P * S, n), As, Bs, uu)
-        lam, V, Vinv = modes.lam, modes.V, modes.Vinv
-        gm = np.einsum("pij,pksj->pksi", Vinv, g.reshape(P, K, 3, n))  # modal forcing
-        g0, gh, g1 = gm[:, :, 0], gm[:, :, 1], gm[:, :, 2]
-        hh = h[None, :, None]
-        c1 = (4.0 * gh - 3.0 * g0 - g1) / hh  # N(x_l(a + s)) = g0 + c1 s + c2 s^2
-        c2 = 2.0 * (g1 - 2.0 * gh + g0) / (hh * hh)
+        return g.reshape(P, K, 3, n)
 
-        def convolve(sig, tau, c0, c1, c2):
-            z = lam[:, None, :] * tau
-            e, p1, p2, p3 = _phi123(z)
-            return e * sig + tau * (p1 * c0 + tau * (p2 * c1 + 2.0 * tau * p3 * c2))
+    def _relaxed(self, theta, sys, drive, x0, t0, t) -> tuple[np.ndarray, np.ndarray,
+                                                              np.ndarray]:
+        """States (P, N, n) of a weakly nonlinear structure by waveform relaxation, which
+        sets converged (the others are to be integrated step by step), and which cannot be
+        simulated at all (not finite from the start).
 
-        zero = np.zeros((P, 1, n), dtype=gm.dtype)
-        step = convolve(zero, hh, g0, c1, c2)  # each step's own contribution
-        E = np.exp(lam[:, None, :] * hh)
-        sig = np.empty((P, K, n), dtype=gm.dtype)  # d at each step's start, modal
-        sig[:, 0] = 0.0
-        for k in range(1, K):
-            sig[:, k] = E[:, k - 1] * sig[:, k - 1] + step[:, k - 1]
-        k_of = np.clip(np.searchsorted(a, t, side="left") - 1, 0, K - 1)
-        tau = np.maximum(t - a[k_of], 0.0)[None, :, None]
-        d = convolve(sig[:, k_of], tau, g0[:, k_of], c1[:, k_of], c2[:, k_of])
-        d[:, t <= t0] = 0.0
-        x = x_lin + np.einsum("pij,pNj->pNi", V, d).real
-        return np.einsum("pqn,pNn->pNq", sys.C, x)
+        Why: `_exprb` steps through time, a linearisation and an eigendecomposition per step
+        and a dozen steps after every input change; on a record of hourly rows with an input
+        that moves every hour, that is thousands of small steps, each costing the same
+        whatever the batch. Where the nonlinear term departs little from its linearisation
+        over the whole record (a room within a few degrees, or a furnace near its reference
+        temperature), the trajectory is instead the fixed point of
+        x = x_A'(t) + (e^{A' t} * R(x))(t), with A' = A + J the linear part at the trajectory's
+        mean state and R(x) = N(x) - J x what is left: each sweep is one closed-form response
+        and one quadrature over all steps at once (as `simulate_first_order`), vectorised
+        over time. A set whose sweeps do not contract (strongly nonlinear over its range, as
+        a heat-up from cold with radiation) is reported unconverged after a few sweeps.
+
+        The sweeps run on the same steps as `_exprb`, which depend on the inputs only, and to
+        a tolerance far below a finite difference's effect, so the result is a smooth
+        function of the parameters as the fit's Jacobian needs."""
+        P, n = sys.A.shape[0], self.n_states
+        x0 = np.broadcast_to(x0, (P, n))
+        end = max(float(t[-1]), t0) if t.size else t0
+        grid = _Grid.of(drive, t0, end, P)
+        ok = np.zeros(P, dtype=bool)
+        if grid is None:
+            return np.empty((P, t.size, n)), ok, ok
+        nodes = grid.at_nodes(response(sys.A, sys.B, x0, t0, drive, grid.nodes,
+                                       modes=Modes.of(sys.A)))
+        u0 = np.broadcast_to(drive.level_at(t0), (P, sys.B.shape[2]))
+        nonlinear = _Nonlinear(self.effects, theta, sys, u0)
+
+        def centred(X):
+            """The linear part at X's mean state and the response it alone gives."""
+            _, J = _Linearised.jacobian(nonlinear, X.mean(axis=(1, 2)))
+            A = sys.A + J
+            finite = np.isfinite(A).all(axis=(1, 2))
+            A = np.where(finite[:, None, None], A, -_eye(n))
+            modes = Modes.of(A)
+            usable = finite & (np.abs(modes.V).sum(axis=1).max(axis=1)
+                               * np.abs(modes.Vinv).sum(axis=1).max(axis=1) < 1e10)
+            base = grid.at_nodes(response(A, sys.B, x0, t0, drive, grid.nodes, modes=modes))
+            return J, A, modes, usable, base
+
+        def rest(X, J):
+            return self._nonlinear_rhs(theta, sys, X, grid.u) - np.einsum("pij,pksj->pksi", J, X)
+
+        X = nodes
+        lost = ~np.isfinite(X).all(axis=(1, 2, 3))
+        X = np.where(lost[:, None, None, None], 0.0, X)
+        scale = 1.0 + np.abs(X).max(axis=(1, 2, 3))
+        change = np.full(P, np.inf)
+        active = ~lost
+        for sweep in range(RELAX_SWEEPS):
+            if sweep <= RELAX_CENTRINGS:
+                J, A, modes, usable, base = centred(X)
+                active &= usable
+            new = base + grid.at_nodes(grid.convolved(modes, rest(X, J), grid.nodes, t0))
+            step = np.abs(new - X).max(axis=(1, 2, 3))
+            bad = ~np.isfinite(step)
+            step = np.where(bad, np.inf, step)
+            slow = (sweep > RELAX_CENTRINGS + 1) & (step > RELAX_CONTRACTION * change)
+            active &= ~bad & ~slow
+            X = np.where(active[:, None, None, None], new, X)
+            change = step
+            ok = active & (step <= RELAX_TOL * scale)
+            if not (active | lost).all() or (ok | lost).all():
+                break
+        x = response(A, sys.B, x0, t0, drive, t, modes=modes) \
+            + grid.convolved(modes, rest(X, J), t, t0)
+        return x, ok, lost
 
     def sensor_offsets(self, values: Mapping[str, float | np.ndarray], t: np.ndarray) -> np.ndarray:
         """Per-thermocouple additive errors (P, N, thermocouples) from sensor effects; zeros
@@ -324,7 +365,7 @@ class ModelStructure:
 
     def _integrate(self, theta, sys, drive, x0, t0, t, C):
         """Nonlinear structures: the sets whose nonlinear terms all vanish (radiation's share
-        at zero) are linear and take the closed form, the others `_exprb`. Both are the same
+        at zero) are linear and take the closed form, the others `_stepped`. Both are the same
         function of the parameters: on a linear system the exponential scheme is exact, so
         the two agree to rounding and a finite difference may straddle them."""
         P, n = sys.A.shape[0], self.n_states
@@ -332,8 +373,10 @@ class ModelStructure:
         for eff in self.effects:
             if not eff.linear:
                 off &= eff.nonlinear_off(theta)
-        if not off.any() or (t.size and t[0] < t0):
+        if t.size and t[0] < t0:
             return self._exprb(theta, sys, drive, x0, t0, t, C)
+        if not off.any():
+            return self._stepped(theta, sys, drive, x0, t0, t, C)
         x0 = np.broadcast_to(x0, (P, n))
         lin = np.nonzero(off)[0]
         A, B = sys.A[lin], sys.B[lin]
@@ -344,11 +387,27 @@ class ModelStructure:
         out = np.empty((P,) + y_lin.shape[1:])
         out[lin] = y_lin
         rest = np.nonzero(~off)[0]
-        out[rest] = self._exprb({k: v[rest] for k, v in theta.items()},
+        out[rest] = self._stepped({k: v[rest] for k, v in theta.items()},
                                 System(sys.A[rest], sys.B[rest], sys.C[rest]),
                                 _take_drive(drive, rest), x0[rest], t0, t,
                                 None if C is None else C[rest])
         return out
+
+    def _stepped(self, theta, sys, drive, x0, t0, t, C):
+        """Sets with nonlinear terms: by waveform relaxation where it converges for every set
+        of the call, by `_exprb` otherwise. The two differ by their discretisations (up to a
+        few ten-thousandths of a degree on a heat-up with a strong radiative share), as much
+        as a forward difference moves the response: the sets of one call, which a Jacobian
+        differences against each other, are all taken by the same scheme."""
+        P, n = sys.A.shape[0], self.n_states
+        x0 = np.broadcast_to(x0, (P, n))
+        x, ok, lost = self._relaxed(theta, sys, drive, x0, t0, t)
+        if not (ok | lost).all():
+            return self._exprb(theta, sys, drive, x0, t0, t, C)
+        x[lost] = np.nan  # as `_exprb` leaves a set that diverges, without costing the others
+        if C is None:
+            return x
+        return np.einsum("pqn,pNn->pNq", C, x)
 
     def _exprb(self, theta, sys, drive, x0, t0, t, C):
         """Nonlinear structures (radiation): all parameter sets at once by an exponential
@@ -463,6 +522,93 @@ def _step_bounds(lo: float, hi: float) -> np.ndarray:
     return np.array(ends)
 
 
+RELAX_SWEEPS = 40
+"""Most sweeps of the waveform relaxation; a set that contracts converges in a handful."""
+RELAX_TOL = 1e-11
+"""Relaxation converged: the last sweep moved no state by more than this share of the
+record's largest temperature."""
+RELAX_CENTRINGS = 2
+"""Sweeps after which the linear part is taken anew at the iterate's mean state: the linear
+model's own mean can lie far from the nonlinear one's (a strong radiative share moves a
+zone's level by hundreds of degrees)."""
+RELAX_CONTRACTION = 0.5
+"""From the third sweep on, a set whose sweep moves it by more than this share of the
+previous one is left to the step-by-step integrator: it would take too many sweeps, or
+none would do."""
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """The steps of the nonlinear integrators (`_step_bounds` on every constant-input piece):
+    starts a (K,), lengths h (K,) and the input on each, u (P, K, m). A forcing is sampled
+    at the nodes: each step's start and middle, and the last step's end."""
+
+    a: np.ndarray
+    h: np.ndarray
+    u: np.ndarray
+
+    @classmethod
+    def of(cls, drive: Drive, t0: float, end: float, P: int) -> _Grid | None:
+        cuts = np.unique(np.ravel(drive.s))
+        edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
+        starts, lengths, levels = [], [], []
+        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+            if hi <= lo:
+                continue
+            bounds = _step_bounds(lo, hi)
+            starts.append(bounds[:-1])
+            lengths.append(np.diff(bounds))
+            u = np.broadcast_to(drive.level_at(lo), (P, drive.u0.shape[-1]))
+            levels.append(np.repeat(u[:, None], bounds.size - 1, axis=1))
+        if not starts:
+            return None
+        return cls(np.concatenate(starts), np.concatenate(lengths),
+                   np.concatenate(levels, axis=1))
+
+    @cached_property
+    def nodes(self) -> np.ndarray:
+        nodes = np.empty(2 * self.a.size + 1)
+        nodes[0:-1:2], nodes[1::2] = self.a, self.a + self.h / 2
+        nodes[-1] = self.a[-1] + self.h[-1]
+        return nodes
+
+    @staticmethod
+    def at_nodes(x: np.ndarray) -> np.ndarray:
+        """Values (P, 2K+1, n) at the nodes as (P, K, 3, n): each step's start, middle, end."""
+        return np.stack([x[:, 0:-1:2], x[:, 1::2], x[:, 2::2]], axis=2)
+
+    def convolved(self, modes: Modes, g: np.ndarray, t: np.ndarray, t0: float) -> np.ndarray:
+        """d (P, N, n) at times t, where d' = A d + g(t) and d(t0) = 0, for the forcing g
+        quadratic in time on each step through its values g (P, K, 3, n) at the step's start,
+        middle and end: integrated exactly against the modes of A."""
+        lam, V, Vinv = modes.lam, modes.V, modes.Vinv
+        a, K = self.a, self.a.size
+        P, n = lam.shape
+        gm = np.einsum("pij,pksj->pksi", Vinv, g)  # modal forcing
+        g0, gh, g1 = gm[:, :, 0], gm[:, :, 1], gm[:, :, 2]
+        hh = self.h[None, :, None]
+        c1 = (4.0 * gh - 3.0 * g0 - g1) / hh  # g(a + s) = g0 + c1 s + c2 s^2
+        c2 = 2.0 * (g1 - 2.0 * gh + g0) / (hh * hh)
+
+        def convolve(sig, tau, c0, c1, c2):
+            z = lam[:, None, :] * tau
+            e, p1, p2, p3 = _phi123(z)
+            return e * sig + tau * (p1 * c0 + tau * (p2 * c1 + 2.0 * tau * p3 * c2))
+
+        zero = np.zeros((P, 1, n), dtype=gm.dtype)
+        step = convolve(zero, hh, g0, c1, c2)  # each step's own contribution
+        E = np.exp(lam[:, None, :] * hh)
+        sig = np.empty((P, K, n), dtype=gm.dtype)  # d at each step's start, modal
+        sig[:, 0] = 0.0
+        for k in range(1, K):
+            sig[:, k] = E[:, k - 1] * sig[:, k - 1] + step[:, k - 1]
+        k_of = np.clip(np.searchsorted(a, t, side="left") - 1, 0, K - 1)
+        tau = np.maximum(t - a[k_of], 0.0)[None, :, None]
+        d = convolve(sig[:, k_of], tau, g0[:, k_of], c1[:, k_of], c2[:, k_of])
+        d[:, t <= t0] = 0.0
+        return np.einsum("pij,pNj->pNi", V, d).real
+
+
 class _Nonlinear:
     """The effects' nonlinear terms on one constant-input piece, for states (P, S, n): the
     parameters and matrices repeated S times are built once per S and kept."""
@@ -493,12 +639,7 @@ class _Linearised:
 
     def __init__(self, nonlinear: _Nonlinear, A: np.ndarray, Bu: np.ndarray, x: np.ndarray):
         P, n = x.shape
-        delta = 1e-5 * np.maximum(1.0, np.abs(x))
-        probes = np.repeat(x[:, None], n + 1, axis=1)
-        probes[:, 1:] += _eye(n) * delta[:, :, None]
-        Np = nonlinear(probes)  # (P, 1 + n, n): at x, then x moved along each state
-        self.N0 = Np[:, 0]
-        self.Jn = np.swapaxes(Np[:, 1:] - self.N0[:, None], 1, 2) / delta[:, None, :]
+        self.N0, self.Jn = self.jacobian(nonlinear, x)
         F = (A @ x[:, :, None])[:, :, 0] + Bu + self.N0
         J = A + self.Jn
         # A set that has blown up (non-finite state or Jacobian) must not stop the batch: it
@@ -514,6 +655,18 @@ class _Linearised:
                     * np.abs(self.Vinv).sum(axis=1).max(axis=1) > 1e10)
         self.Fm = self.Vinv @ F[:, :, None]
         self.x, self.nonlinear = x, nonlinear
+
+    @staticmethod
+    def jacobian(nonlinear: _Nonlinear, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The nonlinear terms N(x) (P, n) and their Jacobian (P, n, n), by forward
+        differences."""
+        n = x.shape[1]
+        delta = 1e-5 * np.maximum(1.0, np.abs(x))
+        probes = np.repeat(x[:, None], n + 1, axis=1)
+        probes[:, 1:] += _eye(n) * delta[:, :, None]
+        Np = nonlinear(probes)  # (P, 1 + n, n): at x, then x moved along each state
+        N0 = Np[:, 0]
+        return N0, np.swapaxes(Np[:, 1:] - N0[:, None], 1, 2) / delta[:, None, :]
 
     def _u(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         phi1, phi3 = _phi13(self.lam[:, :, None] * tau)

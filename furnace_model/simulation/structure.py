@@ -551,19 +551,16 @@ class _Grid:
     def of(cls, drive: Drive, t0: float, end: float, P: int) -> _Grid | None:
         cuts = np.unique(np.ravel(drive.s))
         edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
-        starts, lengths, levels = [], [], []
-        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-            if hi <= lo:
-                continue
-            bounds = _step_bounds(lo, hi)
-            starts.append(bounds[:-1])
-            lengths.append(np.diff(bounds))
-            u = np.broadcast_to(drive.level_at(lo), (P, drive.u0.shape[-1]))
-            levels.append(np.repeat(u[:, None], bounds.size - 1, axis=1))
-        if not starts:
+        pieces = [(lo, _step_bounds(lo, hi)) for lo, hi in zip(edges[:-1], edges[1:],
+                                                                strict=True) if hi > lo]
+        if not pieces:
             return None
-        return cls(np.concatenate(starts), np.concatenate(lengths),
-                   np.concatenate(levels, axis=1))
+        los = np.array([lo for lo, _ in pieces])
+        counts = np.array([b.size - 1 for _, b in pieces])
+        u = np.broadcast_to(_levels_at(drive, los), (P, los.size, drive.u0.shape[-1]))
+        return cls(np.concatenate([b[:-1] for _, b in pieces]),
+                   np.concatenate([np.diff(b) for _, b in pieces]),
+                   np.repeat(u, counts, axis=1))
 
     @cached_property
     def nodes(self) -> np.ndarray:
@@ -597,16 +594,48 @@ class _Grid:
 
         zero = np.zeros((P, 1, n), dtype=gm.dtype)
         step = convolve(zero, hh, g0, c1, c2)  # each step's own contribution
-        E = np.exp(lam[:, None, :] * hh)
-        sig = np.empty((P, K, n), dtype=gm.dtype)  # d at each step's start, modal
-        sig[:, 0] = 0.0
-        for k in range(1, K):
-            sig[:, k] = E[:, k - 1] * sig[:, k - 1] + step[:, k - 1]
+        sig = _carried(lam, np.append(a, a[-1] + self.h[-1]), step)  # d at steps' starts
         k_of = np.clip(np.searchsorted(a, t, side="left") - 1, 0, K - 1)
         tau = np.maximum(t - a[k_of], 0.0)[None, :, None]
         d = convolve(sig[:, k_of], tau, g0[:, k_of], c1[:, k_of], c2[:, k_of])
         d[:, t <= t0] = 0.0
         return np.einsum("pij,pNj->pNi", V, d).real
+
+
+CARRY_BLOCK = 16
+"""Steps per block of `_carried`: its work grows with it, its Python loop shrinks."""
+
+
+def _carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """sig (P, K, n) with sig[0] = 0 and sig[k] = e^(lam (T[k] - T[k-1])) sig[k-1] + c[k-1]:
+    what steps starting at T[:K] (T[K] the last one's end) carry from one to the next, per
+    mode lam (P, n), for contributions c (P, K, n).
+
+    Why blocks: a step-by-step loop over thousands of steps costs more than all the
+    arithmetic of a sweep. Within a block of CARRY_BLOCK steps the sum is one product with
+    the matrix of e^(lam (T[k] - T[j+1])), j < k (exponents never positive for a decaying
+    mode, so nothing overflows), and only what each block hands the next is a loop."""
+    P, K, n = c.shape
+    B = CARRY_BLOCK
+    nb = -(-K // B)
+    Tp = np.concatenate([T[:K], np.full(nb * B - K + 1, T[K])])
+    cp = np.concatenate([c, np.zeros((P, nb * B - K, n), dtype=c.dtype)], axis=1)
+    cp = cp.reshape(P, nb, B, n)
+    start, nxt = Tp[:-1].reshape(nb, B), Tp[1:].reshape(nb, B)
+    lower = np.tri(B, B, -1, dtype=bool)  # j < k within the block
+    D = np.where(lower, start[:, :, None] - nxt[:, None, :], 0.0)
+    M = np.exp(lam[:, None, None, None, :] * D[None, :, :, :, None]) * lower[None, None, :, :, None]
+    inner = np.einsum("pbrcn,pbcn->pbrn", M, cp)
+    first, end = Tp[0:nb * B:B], Tp[B::B]
+    G = np.exp(lam[:, None, :] * (end - first)[None, :, None])
+    handed = np.einsum("pbcn,pbcn->pbn", np.exp(lam[:, None, None, :]
+                                                * (end[:, None] - nxt)[None, :, :, None]), cp)
+    S = np.empty((P, nb, n), dtype=inner.dtype)
+    S[:, 0] = 0.0
+    for b in range(1, nb):
+        S[:, b] = G[:, b - 1] * S[:, b - 1] + handed[:, b - 1]
+    R = np.exp(lam[:, None, None, :] * (start - first[:, None])[None, :, :, None])
+    return (R * S[:, :, None, :] + inner).reshape(P, nb * B, n)[:, :K]
 
 
 class _Nonlinear:
@@ -739,6 +768,18 @@ def _phi123(z: np.ndarray) -> tuple[np.ndarray, ...]:
 
 _FACT = np.cumprod(np.concatenate(([1.0], np.arange(1.0, 21.0))))
 """k! for k = 0..20."""
+
+
+def _levels_at(drive: Drive, times: np.ndarray) -> np.ndarray:
+    """The inputs in force at each of the times (increments at exactly a time included),
+    (P|1, T, m): `Drive.level_at` for many times at once."""
+    if drive.s.ndim > 1:
+        return np.stack([drive.level_at(float(x)) for x in times], axis=1)
+    order = np.argsort(drive.s, kind="stable")
+    summed = np.cumsum(drive.du[:, order], axis=1)
+    k = np.searchsorted(drive.s[order], times, side="right")
+    summed = np.concatenate([np.zeros((summed.shape[0], 1, summed.shape[2])), summed], axis=1)
+    return drive.u0[:, None] + summed[:, k]
 
 
 def _take_drive(drive: Drive, p: np.ndarray) -> Drive:

@@ -1,35 +1,42 @@
-"""Diagnosis speed: `diagnose` of two heat-ups of about 3500 minutes at 1-minute samples
-across all nine candidates, wall time per case. Prints a markdown table for
-docs/performance.md.
+"""Diagnosis speed: `furnace-model diagnose` as a user runs it, wall time per case, and the
+same cases run alternately from another source tree (`--against`) as a ratio. Prints a
+markdown table for docs/performance.md.
 
-    .venv/bin/python bench/bench_diagnose.py [--quick] [--repeat 3]
+    PYTHONPATH=. .venv/bin/python bench/bench_diagnose.py [--quick] [--repeat 3]
+        [--against TREE] [--cases NAME...]
 
 The headline case is the worked example of docs/diagnosis.md: the paper's two heat-ups
 (3310 and 3800 minutes) on a furnace with zone burners, given together so that the
-diagnosis picks the holdout. The others come from furnace_model.diagnosis.cases.draw_case (the
-plant simulator with one effect, random strengths and schedules): a control (no gap: only
-the baseline is fitted), a case the baseline absorbs badly (zone burners: every candidate
-fitted, warm and cold), a lag, and a nonlinear effect (radiation: exponent 4, then its
-exponent fitted).
+diagnosis picks the holdout. The others come from furnace_model.diagnosis.cases.draw_case
+(the plant simulator with one effect, random strengths and schedules): a control (no gap:
+only the baseline is fitted), a case the baseline absorbs badly (zone burners: every
+candidate fitted, warm and cold), a lag, a nonlinear effect (radiation); and the shape of a
+measured building record (furnace_model.diagnosis.hourlyroom: one zone, four weeks of
+hourly rows, a wall and a sensor lag). Every case is written to files first, so that both
+trees diagnose the same bytes through the command line.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from furnace_model.diagnosis import diagnose
 from furnace_model.diagnosis.cases import draw_case
+from furnace_model.diagnosis.hourlyroom import ROOM, hourly_room
 from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
-CASES = ("paper pair", None, "zone_burners", "sensor_lag", "radiation")
+CASES = ("paper pair", "control", "zone_burners", "sensor_lag", "radiation", "hourly room")
 SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"
 
 
@@ -41,30 +48,78 @@ def paper_pair() -> list:
     return out
 
 
+def write_case(name: str, d: Path) -> list[str]:
+    """The case's records as CSV files in d; the diagnose arguments that use them."""
+    def csv(exp, stem):
+        path = d / f"{stem}.csv"
+        exp.to_frame().to_csv(path, index=False)
+        return str(path)
+
+    if name == "paper pair":
+        a, b = paper_pair()
+        return [csv(a, "exp1"), csv(b, "exp2")]
+    if name == "hourly room":
+        (d / "room.yaml").write_text(ROOM)
+        effects = ("wall_storage", "sensor_lag")
+        return [csv(hourly_room(1, effects), "a"), "--holdout",
+                csv(hourly_room(2, effects), "b"), "--furnace", str(d / "room.yaml")]
+    case = draw_case(None if name == "control" else name, np.random.default_rng(7000),
+                     furnace=PAPER)
+    return [csv(case.fit[0], "fit"), "--holdout", csv(case.holdout[0], "holdout")]
+
+
+def run(args: list[str], env: dict, out: Path) -> tuple[float, dict]:
+    cmd = [sys.executable, "-m", "furnace_model.cli", "diagnose", *args, "--quiet",
+           "--json", str(out)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr}")
+    return wall, json.loads(out.read_text())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="one run per case")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--against", type=Path, metavar="TREE",
+                    help="another source tree, run alternately with this one")
+    ap.add_argument("--cases", nargs="+", choices=CASES, default=CASES)
     args = ap.parse_args()
     repeat = 1 if args.quick else args.repeat
-    print(f"cores available: {os.cpu_count()}\n")
-    print("| case | samples (fit + held out) | verdict | candidates | median wall time (s) | runs |")
-    print("|---|---|---|---|---|---|")
-    for name in CASES:
-        times = []
-        for r in range(repeat):
-            if name == "paper pair":
-                data, hold = paper_pair(), None
-            else:
-                case = draw_case(name, np.random.default_rng(7000 + r), furnace=PAPER)
-                data, hold = case.fit, case.holdout
-            t0 = time.perf_counter()
-            d = diagnose(data, hold)
-            times.append(time.perf_counter() - t0)
-        n = " + ".join(str(len(e)) for e in d.fit_data + d.holdout)
-        print(f"| {name or 'control'} | {n} | {d.verdict.status} "
-              f"{'+'.join(d.verdict.effects)} | {len(d.candidates)} | "
-              f"{statistics.median(times):.1f} | {repeat} |", flush=True)
+    here = str(Path(__file__).resolve().parent.parent)
+    trees = [here] + ([str(args.against.resolve())] if args.against else [])
+    envs = [{**os.environ, "PYTHONPATH": tree} for tree in trees]
+    print(f"cores available: {os.cpu_count()}; load average at start "
+          f"{os.getloadavg()[0]:.1f}\n")
+    head = "| case | verdict | candidates | median wall time (s) | runs |"
+    if args.against:
+        head += f" {args.against}: verdict | median wall time (s) | ratio |"
+    print(head)
+    print("|---" * (head.count("|") - 1) + "|", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.cases:
+            d = Path(tmp) / name.replace(" ", "_")
+            d.mkdir()
+            files = write_case(name, d)
+            times: list[list[float]] = [[] for _ in trees]
+            answers: list[dict] = [{} for _ in trees]
+            for _ in range(repeat):
+                for k, env in enumerate(envs):  # alternately, so both see the same load
+                    wall, answers[k] = run(files, env, d / f"out{k}.json")
+                    times[k].append(wall)
+            cells = []
+            for k in range(len(trees)):
+                v = answers[k]["verdict"]
+                cells += [f"{v['status']} {'+'.join(v['effects'])}".strip(),
+                          f"{statistics.median(times[k]):.1f}"]
+            row = f"| {name} | {cells[0]} | {len(answers[0]['candidates'])} | {cells[1]} | " \
+                  f"{repeat} |"
+            if args.against:
+                ratio = statistics.median(times[1]) / statistics.median(times[0])
+                row += f" {cells[2]} | {cells[3]} | {ratio:.2f} |"
+            print(row, flush=True)
 
 
 if __name__ == "__main__":

@@ -7,50 +7,14 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
-import pandas as pd
 import pytest
 
 from furnace_model.cli import main
-from furnace_model.effects import EFFECTS
-from furnace_model.simulation.furnacefile import parse_furnace
-from furnace_model.simulation.plant import Plant
-from furnace_model.simulation.scenario import SensorSpec
-from furnace_model.simulation.structure import Inputs, ModelStructure
-
-ROOM = """
-name: room
-zones:
-  - {name: room, burners: 1, thermocouples: 1, heat: {kind: rate, unit: kW, max: 12}}
-disturbances:
-  - {name: solar, unit: W/m2, zones: [room], range: [0, 1000]}
-"""
-TRUTH = {"loss_room": 1 / 1500, "gain_room": 2.2e-3, "gain_solar_room": 5e-6}
-WALL = {"k_gw": 2e-3, "k_wg": 6e-4}
+from furnace_model.diagnosis.hourlyroom import ROOM, TRUTH, hourly_room
 
 
 def hourly_record(seed: int, path, wall: bool = False, days: int = 28) -> None:
-    """A heated room: heating modulated every hour around a daily cycle, sun by day with
-    the weather of the day, ambient in a daily cycle, each held for the hour as the record
-    logs it (so that the model is the plant's, and its intervals can be held to the truth);
-    the plant runs by the minute and the record holds hourly rows."""
-    furnace = parse_furnace(ROOM)
-    rng = np.random.default_rng(seed)
-    t = np.arange(0.0, days * 1440 + 1)
-    hours = np.floor(t / 60)
-    heat = np.clip(6 + 3 * np.sin(2 * np.pi * hours / 24 + 1)
-                   + np.repeat(rng.normal(0, 1.5, t.size // 60 + 1), 60)[:t.size], 0, 12)
-    sun = np.clip(800 * np.sin(2 * np.pi * (hours % 24 - 6) / 24), 0, None) \
-        * np.repeat(rng.uniform(0.3, 1.0, t.size // 1440 + 1), 1440)[:t.size]
-    air = 5 + 5 * np.sin(2 * np.pi * hours / 24 - 2)
-    inputs = Inputs.from_samples(t, heat[:, None], air, disturbances=sun[:, None])
-    effects = [EFFECTS["wall_storage"](zones=("room",), furnace=furnace)] if wall else []
-    structure = ModelStructure(effects, furnace=furnace)
-    values = {**structure.defaults(), **TRUTH, **(WALL if wall else {})}
-    plant = Plant(structure, values, SensorSpec(noise_sd_c=0.05, bias_sd_c=0.1), seed)
-    run = plant.run(inputs, np.arange(0.0, days * 1440 + 1, 60.0), np.array([18.0]),
-                    pd.Timestamp("2026-01-05T00:00:00Z"))
-    run.to_experiment().to_frame().to_csv(path, index=False)
+    hourly_room(seed, ("wall_storage",) if wall else (), days).to_frame().to_csv(path, index=False)
 
 
 @pytest.fixture(scope="module")

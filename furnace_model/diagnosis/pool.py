@@ -11,7 +11,7 @@ import os
 import signal
 import sys
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 
 from .candidate import CandidateResult
 from .fitting import Task, run_task, structure_of
@@ -39,11 +39,13 @@ def run_all(tasks: list[Task], progress: Callable[[float], None],
         with ProcessPoolExecutor(max_workers=WORKERS, mp_context=ctx,
                                  initializer=die_with_parent,
                                  initargs=(os.getpid(),)) as pool:
-            futures = {i: pool.submit(run_task, tasks[i]) for i in order}
+            futures = {pool.submit(run_task, tasks[i]): i for i in order}
             results = {}
-            for k, i in enumerate(order):
-                results[i] = futures[i].result()
-                done(results[i])
+            # heard as each finishes: the slow fit submitted first must not hold back the
+            # lines of the quick ones that finish beside it
+            for k, future in enumerate(as_completed(futures)):
+                results[futures[future]] = future.result()
+                done(results[futures[future]])
                 progress((k + 1) / len(tasks))
         return [results[i] for i in range(len(tasks))]
     for k, t in enumerate(tasks):

@@ -164,9 +164,9 @@ class FitJob:
     budget_s: float
     recent_from_min: float | None = None
     """Start of the recent span (minutes on the experiment's time) whose f is estimated."""
-    method: str = "ga_polish"
-    population: int = 16
-    generations: int = 40
+    method: str = "polish"
+    population: int = 20
+    generations: int = 2000
     """The genetic search's size (methods ga and ga_polish: `RefitConfig.ga_size`)."""
     warm: WarmStart | None = None
     """The previous window's offsets and intervals, with `init` its parameters; with

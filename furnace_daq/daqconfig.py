@@ -91,9 +91,10 @@ generations."""
 SEEDED_POPULATION = 16
 """`ga_polish`'s population: a small one, since it searches near the previous optimum; up to
 about 20 sets a batch costs little more than one simulation (docs/performance.md)."""
-SEEDED_GENERATIONS_MAX = 40
-"""`ga_polish`'s generations when the budget allows more: further ones found nothing the
-polish did not on the shipped week (docs/performance.md) and only cost time."""
+SEEDED_GENERATIONS_MAX = 30
+"""`ga_polish`'s generations when the budget allows more: as many as `fit`'s offline fast
+search runs; more found nothing the polish did not on the shipped week
+(docs/performance.md) and only cost time."""
 SEEDED_BUDGET_SHARE = 0.25
 """The share of `budget_s` that `ga_polish`'s generations may take at `NOMINAL_SET_SAMPLE_S`;
 the search stops at half the budget on the wall clock and the polish has the rest."""

@@ -371,13 +371,18 @@ def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: i
                 offsets: list[np.ndarray] | None, damping: float) -> _Run:
     """A warm start's search: the GA in `box` (see `_around`) on the criterion the polish
     minimises (the records' own unknowns held where the start puts them), the start one of
-    its first population; then the polish from the start and from the search's best, the
-    better kept. Elitism keeps the start until a member scores better, and the start's own
-    polish is among those compared, so the result is never worse than the warm polish
-    alone. The search gets half the time left at most, the polish the rest."""
+    its first population; then the polish from the start and, where the search found
+    better, from its best, the better kept. Elitism keeps the start until a member scores
+    better, and the start's own polish is among those compared, so the result is never
+    worse than the warm polish alone. A best that scores below the start by less than the
+    residual variance is the same fit as far as the data can tell (in the flat d/e valley
+    the search always finds such a point): it is not polished. The search gets half the
+    time left at most, the polish the rest."""
     lo, hi = box
     start = np.clip(start, lo, hi)
     own = prob.start(start, offsets)[prob.k:]
+    at_start = float(prob.sse_params(start[None], own)[0])
+    variance = at_start / max(prob.n_obs - prob.n, 1)
     ga_deadline = None if deadline is None else \
         time.perf_counter() + 0.5 * (deadline - time.perf_counter())
     found = genetic_search(lambda zp: prob.sse_params(zp, own), lo, hi, population=population,
@@ -385,7 +390,7 @@ def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: i
                            spread=SEEDED_SPREAD, progress=lambda f: report(0.8 * f),
                            deadline=ga_deadline)
     ga_cut = found.generations < generations  # only the deadline ends it early
-    picked = [start] if np.array_equal(found.best, start) else [start, found.best]
+    picked = [start, found.best] if found.best_f < at_start - variance else [start]
     polished = [prob.polish(prob.start(z, offsets), deadline, damping=damping) for z in picked]
     report(1.0)
     best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))

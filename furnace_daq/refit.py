@@ -8,7 +8,7 @@ The seed is one of the search's first population and elitism keeps it, and its o
 compared with the search's, so a window never ends worse than the polish alone from the
 previous model would (`method: polish`, which costs a little less). With `method: ga` every
 window is the paper's genetic search from scratch with a fixed seed: it depends on its own
-data alone, costs 8-15 times as much, and ends where the GA stalls rather than at the optimum
+data alone, costs 10-30 times as much, and ends where the GA stalls rather than at the optimum
 (docs/performance.md); the chain still carries the drift references. The live daemon and
 `furnace-daq replay` each hold one `RefitChain` and push the same windows through it in the
 same order: the same log gives the same timeline. No I/O here; the worker process

@@ -89,8 +89,9 @@ PAPER_GA_SIZE = (20, 2000)
 """`ga`'s (population, generations): the paper's population, `fit --method ga`'s
 generations."""
 SEEDED_POPULATION = 16
-"""`ga_polish`'s population: a small one, since it searches near the previous optimum; up to
-about 20 sets a batch costs little more than one simulation (docs/performance.md)."""
+"""`ga_polish`'s population: a small one, since it searches near the previous optimum, and
+one whose batches stay on the simulator's path for a few sets, where 16 cost about twice
+one (docs/performance.md, "Online refit")."""
 SEEDED_GENERATIONS_MAX = 30
 """`ga_polish`'s generations when the budget allows more: as many as `fit`'s offline fast
 search runs; more found nothing the polish did not on the shipped week
@@ -100,8 +101,8 @@ SEEDED_BUDGET_SHARE = 0.25
 the search stops at half the budget on the wall clock and the polish has the rest."""
 NOMINAL_SET_SAMPLE_S = 200e-9
 """The cost assumed for one parameter set at one sample of a window in a GA generation: four
-times what a 2-core plant PC measured, so that a slower or busier host still ends the
-generations well inside the budget."""
+times what a 2-core machine measured (docs/performance.md, "Online refit"), so that a slower
+or busier host still ends the generations well inside the budget."""
 
 
 

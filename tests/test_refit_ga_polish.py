@@ -123,7 +123,7 @@ def test_a_search_cut_by_the_budget_fails_the_window_and_keeps_the_model(windows
     chain.config = replace(CFG, budget_s=0.3, generations=10_000_000)
     msg = chain.process(windows[-1])[0].to_json()
     assert msg["status"] == "failed" and "time budget" in msg["detail"], msg["detail"]
-    assert msg["elapsed_s"] >= 0.15 and 0 < msg["search"]["generations"] < 10_000_000
+    assert msg["elapsed_s"] >= 0.15 and msg["search"]["generations"] < 10_000_000
     assert msg["model_window_end"] == kept.window_end
     assert all(msg[p] == kept.params[p] for p in PARAM_NAMES)
 

@@ -6,7 +6,10 @@ The logs are written directly from a plant run (config/scenarios/week_steps.yaml
 with the daemon's LogWriter, hourly files as the daemon rotates them, no Modbus; they are
 kept in a cache directory so a second run measures the replay only.
 
-    .venv/bin/python bench/bench_replay.py [--days D] [--cache DIR] [--quick]
+    .venv/bin/python bench/bench_replay.py [--days D] [--cache DIR] [--quick] [--method M]
+
+`--method` replays with that `refit.method` (config/gateway.yaml's settings otherwise, the
+built-in ones); without it the built-in method.
 """
 
 from __future__ import annotations
@@ -15,9 +18,10 @@ import argparse
 import resource
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
-from furnace_daq.daqconfig import RefitConfig
+from furnace_daq.daqconfig import REFIT_METHODS, RefitConfig, load_config
 from furnace_daq.mcaplog import LogWriter
 from furnace_daq.plantlog import write_run
 from furnace_daq.replay import replay
@@ -27,6 +31,7 @@ from furnace_model.simulation.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "config" / "scenarios" / "week_steps.yaml"
+GATEWAY = ROOT / "config" / "gateway.yaml"
 
 
 def make_logs(days: float, out: Path) -> tuple[list[Path], int, float]:
@@ -54,7 +59,10 @@ def main() -> None:
     ap.add_argument("--days", type=float, default=7.0)
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "bench_replay")
     ap.add_argument("--quick", action="store_true", help="two days instead of seven")
+    ap.add_argument("--method", choices=REFIT_METHODS, help="refit.method (default: built-in)")
     args = ap.parse_args()
+    config = None if args.method is None else \
+        replace(load_config(GATEWAY), refit=RefitConfig(method=args.method))
     days = 2.0 if args.quick else args.days
     files, n, t_make = make_logs(days, args.cache / f"{days:g}d")
     size = sum(f.stat().st_size for f in files)
@@ -67,7 +75,7 @@ def main() -> None:
 
     t0, c0 = time.perf_counter(), time.process_time()
     w0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    msgs = [m.to_json() for m in replay(files, None, args.cache / "replay-out.mcap")]
+    msgs = [m.to_json() for m in replay(files, config, args.cache / "replay-out.mcap")]
     t_replay, c_replay = time.perf_counter() - t0, time.process_time() - c0
     w1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     c_worker = (w1.ru_utime + w1.ru_stime) - (w0.ru_utime + w0.ru_stime)
@@ -75,7 +83,8 @@ def main() -> None:
     fit_s = sum(m["elapsed_s"] for m in ok)
 
     print(f"{days:g} simulated days at 1 Hz ({n} messages, {len(files)} hourly files, "
-          f"{size / 2**20:.0f} MiB){'' if t_make == 0 else f'; written in {t_make:.0f} s'}\n")
+          f"{size / 2**20:.0f} MiB){'' if t_make == 0 else f'; written in {t_make:.0f} s'}; "
+          f"refit.method {(config.refit if config else RefitConfig()).method}\n")
     print("| step | wall time | CPU time | rate |")
     print("|---|---|---|---|")
     print(f"| read + bin the logs (`logs export`, {len(frame)} rows) | {t_read:.1f} s | "

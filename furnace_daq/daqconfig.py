@@ -78,9 +78,31 @@ def _addressing(node: Node) -> Addressing | None:
 
 
 BURNER_SOURCES = ("modbus", "can", "both")
-REFIT_METHODS = ("polish", "ga")
-"""How each refit window is fitted: `polish` starts from the previous window's model (the
-first window: `fit`'s fast search), `ga` runs the paper's genetic algorithm from scratch."""
+REFIT_METHODS = ("ga_polish", "ga", "polish")
+"""How each refit window is fitted (furnace_daq.refit): `ga_polish` (the default) runs the
+genetic search seeded with the previous window's model, then the polish; `ga` the paper's
+genetic algorithm alone, from scratch; `polish` the polish alone from the previous model.
+The first window of `ga_polish` and `polish` is `fit`'s offline fast search."""
+GA_METHODS = ("ga_polish", "ga")
+"""The methods that take `population` and `generations`."""
+PAPER_GA_SIZE = (20, 2000)
+"""`ga`'s (population, generations): the paper's population, `fit --method ga`'s
+generations."""
+SEEDED_POPULATION = 16
+"""`ga_polish`'s population: a small one, since it searches near the previous optimum, and
+one whose batches stay on the simulator's path for a few sets, where 16 cost about twice
+one (docs/performance.md, "Online refit")."""
+SEEDED_GENERATIONS_MAX = 30
+"""`ga_polish`'s generations when the budget allows more: as many as `fit`'s offline fast
+search runs; more found nothing the polish did not on the shipped week
+(docs/performance.md) and only cost time."""
+SEEDED_BUDGET_SHARE = 0.25
+"""The share of `budget_s` that `ga_polish`'s generations may take at `NOMINAL_SET_SAMPLE_S`;
+the search stops at half the budget on the wall clock and the polish has the rest."""
+NOMINAL_SET_SAMPLE_S = 200e-9
+"""The cost assumed for one parameter set at one sample of a window in a GA generation: four
+times what a 2-core machine measured (docs/performance.md, "Online refit"), so that a slower
+or busier host still ends the generations well inside the budget."""
 
 
 
@@ -168,17 +190,33 @@ class RefitConfig:
     window_s: float = 86400.0
     step_s: float = 60.0
     budget_s: float = 30.0
-    method: str = "polish"
-    population: int = 20
-    generations: int = 2000
-    """The GA's knobs (method ga only): the paper's population, and `fit --method ga`'s
-    generations."""
+    method: str = "ga_polish"
+    population: int | None = None
+    generations: int | None = None
+    """The GA's knobs (methods ga and ga_polish); None: the method's own (`ga_size`)."""
     max_gap_fraction: float = 0.2
     min_burner_steps: int = 1
     drift_windows: int = 2
     drift_min_change: float = 0.03
     queue_max: int = 4
     state_dir: Path = Path("state")
+
+    def ga_size(self) -> tuple[int, int]:
+        """(population, generations) of the method's genetic search: as configured, else
+        the method's own. `ga_polish`'s generations follow from `budget_s` and the window's
+        samples at a nominal cost, never from a measurement of the host: the same settings
+        give the same search on any host, so a replay repeats the live windows
+        (furnace_daq.refit)."""
+        if self.method != "ga_polish":
+            population, generations = PAPER_GA_SIZE
+            return self.population or population, self.generations or generations
+        population = self.population or SEEDED_POPULATION
+        if self.generations is not None:
+            return population, self.generations
+        samples = self.window_s / self.step_s
+        afford = SEEDED_BUDGET_SHARE * self.budget_s / (population * samples
+                                                        * NOMINAL_SET_SAMPLE_S)
+        return population, max(0, min(SEEDED_GENERATIONS_MAX, int(afford)))
 
 
 @dataclass(frozen=True)
@@ -522,17 +560,20 @@ def parse_refit(node: Node) -> RefitConfig | None:
     if window / step < 10:
         raise node.child("window_s").error(f"holds only {window / step:g} samples of "
                                            f"step_s; at least 10 are needed to fit")
-    method = node.get_string("method", "polish", choices=REFIT_METHODS)
+    method = node.get_string("method", RefitConfig.method, choices=REFIT_METHODS)
     for key in ("population", "generations"):
-        if method != "ga" and node.has(key):
-            raise node.child(key).error(f"applies to method: ga only (method is {method})")
+        if method not in GA_METHODS and node.has(key):
+            raise node.child(key).error(f"applies to methods {' and '.join(GA_METHODS)} only "
+                                        f"(method is {method})")
     default_dir = os.environ.get("STATE_DIRECTORY", "state").split(":")[0]
     return RefitConfig(
         period_s=period, window_s=window, step_s=step,
         budget_s=node.get_number("budget_s", 30.0, lo=0.01, hi=86400.0),
         method=method,
-        population=node.get_integer("population", 20, lo=4, hi=10000),
-        generations=node.get_integer("generations", 2000, lo=1, hi=10_000_000),
+        population=(node.get_integer("population", lo=4, hi=10000)
+                    if node.has("population") else None),
+        generations=(node.get_integer("generations", lo=1, hi=10_000_000)
+                     if node.has("generations") else None),
         max_gap_fraction=node.get_number("max_gap_fraction", 0.2, lo=0.0, hi=1.0),
         min_burner_steps=node.get_integer("min_burner_steps", 1, lo=0, hi=100000),
         drift_windows=node.get_integer("drift_windows", 2, lo=1, hi=1000),

@@ -104,11 +104,12 @@ def recorded_refit(metadata: Mapping[str, str] | None) -> dict | None:
 
 def refit_config(recorded: Mapping[str, Any]) -> Any:
     """A RefitConfig from recorded settings: the fields it knows, the rest left at their
-    defaults (a log from a newer version may record more)."""
+    defaults (a log from a newer version may record more). A log that records no method was
+    written before there was a choice, by the polish alone."""
     from .daqconfig import RefitConfig
 
     known = {f.name: f for f in dataclasses.fields(RefitConfig)}
-    values = {k: v for k, v in recorded.items() if k in known}
+    values = {"method": "polish", **{k: v for k, v in recorded.items() if k in known}}
     if "state_dir" in values:
         values["state_dir"] = Path(values["state_dir"])
     return RefitConfig(**values)

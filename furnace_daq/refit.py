@@ -1,15 +1,29 @@
 """Online identification as a pure pipeline: windows cut on the data clock, one fit per
 window, the /model/parameters message and any /model/events (drift).
 
-Why a chain. With `method: polish` (the default) window k is fitted starting from the result
-of window k-1, so the result of a window depends only on the data and on the windows before
-it, never on when the host got round to fitting it. With `method: ga` every window is the
-paper's genetic search from scratch with a fixed seed: it depends on its own data alone,
-costs 35-80 times as much, and ends where the GA stalls rather than at the optimum
+Why a chain. With `method: ga_polish` (the default) window k is searched around the result of
+window k-1: the genetic search seeded with it, in a box of that window's uncertainty, then
+the polish (`fit` with `WarmStart.reach`; the first window is `fit`'s offline fast search).
+The seed is one of the search's first population and elitism keeps it, and its own polish is
+compared with the search's, so a window never ends worse than the polish alone from the
+previous model would (`method: polish`, which costs a little less). With `method: ga` every
+window is the paper's genetic search from scratch with a fixed seed: it depends on its own
+data alone, costs 10-30 times as much, and ends where the GA stalls rather than at the optimum
 (docs/performance.md); the chain still carries the drift references. The live daemon and
 `furnace-daq replay` each hold one `RefitChain` and push the same windows through it in the
 same order: the same log gives the same timeline. No I/O here; the worker process
 (refitworker) runs `run_fit`, the daemon and replay move messages.
+
+Why the same log gives the same search. A window's result may depend on the data, the windows
+before it and the settings, never on the host: replay runs on another machine, at another
+load. So `ga_polish`'s random generator is seeded from the window's end on the data clock
+(whole seconds: `window_seed`), and its number of generations is fixed by the settings
+(`RefitConfig.ga_size`: `budget_s` and the window's samples at a nominal cost, capped),
+not by how many the host manages in its time; the result records both (`search`). The time
+budget stays a wall-clock guard: the search stops at half of it and the polish has the rest,
+and a fit cut short by it is `failed` (`run_fit`), the model in force kept, as for every
+method. A search that stopped at the budget and published what it had would give a faster
+replay host a different model.
 
 Windows. A refit is due at every multiple of `period_s` of the PLC clock (publish time,
 aligned to the Unix epoch); its window is the `window_s` of data before that instant,
@@ -83,6 +97,11 @@ from furnace_model.simulation.structure import ModelStructure
 from .daqconfig import RefitConfig
 
 FITTING_SEED = 0
+"""Seed of `polish`'s first (cold) fit and of every `ga` search: fixed, as it always was, so
+that their logs replay exactly."""
+SEEDED_REACH = 10.0
+"""`ga_polish` searches a box of this many of the previous window's standard deviations
+around its model: the scatter from one window to the next is about one."""
 WINDOW_INTERVAL_FACTOR = 2.0
 """The window test asks for this multiple of the two half-widths combined: the intervals come
 from residuals that are not independent, and over a steady week with the default windows a
@@ -93,7 +112,6 @@ RECENT_MIN_CHANGE_FACTOR = 2.0
 """The recent test asks for this multiple of `drift_min_change`: half an hour of data gives
 an f that scatters by 3-7% about the truth over two steady days (plant seeds 1-5), where a
 fuel switch moves it by 20%."""
-"""Seed of the first (cold) fit's search: fixed, so that replay repeats it exactly."""
 
 
 @dataclass
@@ -131,6 +149,12 @@ def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
     return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps)
 
 
+def window_seed(window: Window) -> int:
+    """The seed of `ga_polish`'s search on this window: its end on the data clock in whole
+    seconds, the same live and in replay, and a different stream for every window."""
+    return window.end_ns // 1_000_000_000
+
+
 @dataclass(frozen=True)
 class FitJob:
     """What the worker process needs for one fit: picklable, no state of the chain."""
@@ -143,8 +167,12 @@ class FitJob:
     method: str = "polish"
     population: int = 20
     generations: int = 2000
+    """The genetic search's size (methods ga and ga_polish: `RefitConfig.ga_size`)."""
     warm: WarmStart | None = None
-    """The previous window's offsets and intervals, with `init` its parameters."""
+    """The previous window's offsets and intervals, with `init` its parameters; with
+    `ga_polish` also the reach of the search around them."""
+    seed: int = FITTING_SEED
+    """The search's random seed: `window_seed` for ga_polish."""
 
 
 def run_fit(job: FitJob) -> dict:
@@ -152,23 +180,30 @@ def run_fit(job: FitJob) -> dict:
     runs out of its time budget has status `failed`: a truncated search depends on the
     host's speed, and a result that depends on the host is not one to keep.
 
-    `polish` fits with zone offsets from `init` (the fast search when there is none); `ga`
-    is the paper's search on the paper's criterion, which has no offsets (the GA holds them
-    at zero), so none are fitted or reported. The model is the experiment's furnace's
-    network (the paper's eq. 11 for its furnace)."""
+    `ga_polish` and `polish` fit with zone offsets from `init` (`ga_polish` searching
+    around it first, as `job.warm` says; both the fast search when there is none); `ga` is
+    the paper's search on the paper's criterion, which has no offsets (the GA holds them at
+    zero), so none are fitted or reported. The model is the experiment's furnace's network
+    (the paper's eq. 11 for its furnace)."""
     t0 = time.perf_counter()
     furnace = job.experiment.furnace
     structure = ModelStructure(furnace=furnace)
     if job.method == "ga":
         res = fit([job.experiment], structure, method="ga", population=job.population,
-                  generations=job.generations, seed=FITTING_SEED, time_budget_s=job.budget_s)
+                  generations=job.generations, seed=job.seed, time_budget_s=job.budget_s)
     else:
-        res = fit([job.experiment], structure, init=job.init, seed=FITTING_SEED,
-                  zone_offsets=True, time_budget_s=job.budget_s, warm=job.warm)
+        around = job.warm is not None and job.warm.reach is not None
+        res = fit([job.experiment], structure, init=job.init, seed=job.seed,
+                  zone_offsets=True, time_budget_s=job.budget_s, warm=job.warm,
+                  population=job.population if around else None,
+                  generations=job.generations if around else None)
     over = any(w.startswith("time budget") for w in res.warnings)
     search = {"method": job.method, "warm_start": job.init is not None}
     if job.method == "ga":
         search.update(population=job.population, generations=int(res.runs[0]["generations"]))
+    elif job.method == "ga_polish":
+        search.update(population=int(res.runs[0]["population"]),
+                      generations=int(res.runs[0]["generations"]), seed=job.seed)
     return {
         "status": "failed" if over else "ok",
         "detail": "; ".join(res.warnings),
@@ -324,9 +359,10 @@ class RefitChain:
         warm = None
         if init is not None and self.model is not None:
             warm = WarmStart([self.model.zone_offsets_c],
-                             {p: tuple(v) for p, v in (self.model.ci95 or {}).items()})
-        return FitJob(exp, init, cfg.budget_s, recent, cfg.method, cfg.population,
-                      cfg.generations, warm)
+                             {p: tuple(v) for p, v in (self.model.ci95 or {}).items()},
+                             SEEDED_REACH if cfg.method == "ga_polish" else None)
+        seed = window_seed(window) if cfg.method == "ga_polish" else FITTING_SEED
+        return FitJob(exp, init, cfg.budget_s, recent, cfg.method, *cfg.ga_size(), warm, seed)
 
     def process(self, window: Window, fitter: Callable[[FitJob], dict] = run_fit
                 ) -> tuple[ModelParameters, list[ModelEvent]]:

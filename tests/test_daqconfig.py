@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import yaml
 
-from furnace_daq.daqconfig import DaqConfig, load_config, parse_config
+from furnace_daq.daqconfig import DaqConfig, RefitConfig, load_config, parse_config
 from furnace_daq.registers import ReadRequest, plan_reads
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
@@ -80,12 +81,12 @@ def test_cli_bad_configs_exit_2_with_one_line(tmp_path):
     overlap = gateway()
     overlap["heartbeat"]["address"] = 8
     knob = gateway()
-    knob["refit"]["generations"] = 500  # the default method, polish, has no generations
+    knob["refit"].update(method="polish", generations=500)  # the polish has no generations
     cases = []
     for name, doc, words in [("a", unknown, "plc.prot: unknown key"),
                              ("b", wrong, "thermocouples.soak_1.address: expected a whole number"),
                              ("c", overlap, "heartbeat: overlaps clock"),
-                             ("d", knob, "refit.generations: applies to method: ga only")]:
+                             ("d", knob, "refit.generations: applies to methods ga_polish and ga only")]:
         (tmp_path / name).mkdir()
         cases.append((write(tmp_path / name, doc), words))
     cases.append((tmp_path / "missing.yaml", "file not found"))
@@ -100,10 +101,31 @@ def test_cli_bad_configs_exit_2_with_one_line(tmp_path):
 
 def test_refit_method_and_its_ga_knobs():
     doc = gateway()
-    assert load_config(GATEWAY).refit.method == "polish"  # the default: warm polish
+    assert load_config(GATEWAY).refit.method == "ga_polish"
+    del doc["refit"]["method"]
+    refit = parse(doc).refit
+    assert refit.method == "ga_polish" and refit.ga_size() == (16, 30)  # the default
     doc["refit"].update(method="ga", population=12, generations=300)
     refit = parse(doc).refit
     assert (refit.method, refit.population, refit.generations) == ("ga", 12, 300)
+    assert refit.ga_size() == (12, 300)
+    doc["refit"].update(method="ga_polish", population=8, generations=5)
+    assert parse(doc).refit.ga_size() == (8, 5)
+    del doc["refit"]["population"], doc["refit"]["generations"]
+    assert parse({**doc, "refit": {**doc["refit"], "method": "ga"}}).refit.ga_size() \
+        == (20, 2000)  # the paper's
+
+
+def test_ga_polish_generations_follow_the_budget_not_the_host():
+    """Fixed by the settings alone (a replay elsewhere repeats them): fewer for a small
+    budget or a long window, none when even one does not fit, never more than the cap."""
+    base = RefitConfig(window_s=86400, step_s=60)
+    assert base.ga_size() == (16, 30)
+    small = replace(base, budget_s=0.3).ga_size()[1]
+    assert 0 < small < 30 and replace(base, budget_s=0.3).ga_size() == (16, small)
+    assert replace(base, budget_s=0.3, step_s=1).ga_size() == (16, 0)
+    assert replace(base, budget_s=0.45).ga_size()[1] in (3 * small // 2, 3 * small // 2 + 1)
+    assert replace(base, method="ga").ga_size() == (20, 2000)
 
 
 @pytest.mark.parametrize("changes, path, words", [
@@ -111,8 +133,13 @@ def test_refit_method_and_its_ga_knobs():
     ({"method": "ga", "population": 2}, "refit.population", "at least 4"),
     ({"method": "ga", "generations": 0}, "refit.generations", "at least 1"),
     ({"method": "ga", "generations": 1.5}, "refit.generations", "expected a whole number"),
-    ({"population": 40}, "refit.population", "applies to method: ga only"),
-    ({"method": "polish", "generations": 100}, "refit.generations", "applies to method: ga"),
+    ({"method": "polish", "population": 40}, "refit.population",
+     "applies to methods ga_polish and ga only (method is polish)"),
+    ({"method": "polish", "generations": 100}, "refit.generations", "applies to methods"),
+    ({"method": "ga+polish"}, "refit.method", "must be one of ga_polish, ga, polish"),
+    ({"method": "fast"}, "refit.method", "got 'fast'"),
+    ({"method": 3}, "refit.method", "expected text"),
+    ({"method": "ga_polish", "population": 3}, "refit.population", "at least 4"),
 ])
 def test_refit_method_mistakes_name_the_key_path(changes, path, words):
     doc = gateway()

@@ -199,10 +199,10 @@ def test_state_file_is_replaced_whole_and_kept_on_failure(tmp_path):
 
 
 def test_chain_warm_starts_from_the_previous_window():
-    """Window k's fit starts at window k-1's result (its parameters, and as `WarmStart` its
-    zone offsets and intervals): the same as fitting it by hand so."""
+    """`method: polish`: window k's fit starts at window k-1's result (its parameters, and as
+    `WarmStart` its zone offsets and intervals): the same as fitting it by hand so."""
     s = scenario("week_steps", duration_min=12 * 60)
-    cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR)
+    cfg = RefitConfig(period_s=2 * HOUR, window_s=6 * HOUR, method="polish")
     cutter, chain = WindowCutter(cfg, furnace=PAPER), RefitChain(cfg, furnace=PAPER)
     windows, out = [], []
     for topic, msg, t in run_messages(simulate(s)):

@@ -107,6 +107,7 @@ def assert_same_timeline(got: list[dict], want: list[dict]) -> None:
     for g, w in zip(common(got, want), want, strict=True):
         assert (g["window_start"], g["window_end"], g["status"]) == \
             (w["window_start"], w["window_end"], w["status"])
+        assert g.get("search") == w.get("search")  # the same seed, the same generations
         for p in PARAM_NAMES:
             if w.get(p) is None:
                 assert g.get(p) is None
@@ -123,6 +124,7 @@ def test_live_refits_while_polling(live):
     statuses = [m["status"] for m in params]
     assert statuses[:2] == ["insufficient_excitation"] * 2  # 6-h windows still filling
     assert statuses.count("ok") >= 3, [m.get("detail") for m in params]
+    assert {m["search"]["method"] for m in params if m["status"] == "ok"} == {"ga_polish"}
     assert [m["window_end"][11:16] for m in params[:3]] == ["02:00", "04:00", "06:00"]
     assert live["seen"] == params  # on_model saw each message
     state = json.loads((live["tmp"] / "state" / "model.json").read_text())

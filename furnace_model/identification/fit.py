@@ -13,6 +13,11 @@ Two methods:
   Jacobian evaluated as one batched simulation of all perturbed parameter sets.
 Both search positive parameters on the log scale. The Jacobian at the optimum gives the
 intervals and the determined combinations (furnace_model.identification.uncertainty).
+
+A sliding window's refit starts from the window before (`init`, `WarmStart`): the polish
+alone, or, with `WarmStart.reach`, the `fast` method's two stages around that start: the
+genetic search seeded with it in a box of the previous window's uncertainty, then the
+polish from the start and from the search's best.
 """
 
 from __future__ import annotations
@@ -56,6 +61,17 @@ WARM_DAMPING = 1e-7
 previous window's optimum is next to this one's, where undamped Gauss-Newton steps converge
 in a few; a larger first damping spends its steps walking the last millionths of the
 criterion down the d/e valley to the same optimum."""
+SEEDED_SPREAD = 0.1
+"""A search around a warm start (`WarmStart.reach`) draws its first population with this sd
+as a share of its box, and the GA's mutations are scaled by the same box: at a reach of 10,
+two of the previous window's standard deviations, narrowing over the run."""
+SEEDED_SD_MISSING = 0.02
+"""The standard deviation, as a share of the search box, of a parameter whose previous
+interval is unusable (absent, not finite, or the value on a bound of the box): the spread
+`init` gets offline."""
+SEEDED_SD_FLOOR = 1e-4
+"""No parameter's search around a warm start is narrower than this share of its box: a
+parameter the data pin to a millionth still gets a neighbourhood to search."""
 
 
 
@@ -84,7 +100,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
 
     `warm` (with `init`): a sliding window's refit, which starts from the window before
     (see `WarmStart`); the same optimum and intervals, to the optimiser's and the profile's
-    tolerances, for less work.
+    tolerances, for less work. With its `reach` (method fast), the genetic search of
+    `population` and `generations` runs around `init` before the polish.
     """
     t_start = time.perf_counter()
     if method not in METHODS:
@@ -115,6 +132,12 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         # on top of a baseline fit) over half their box around their defaults.
         spread = np.array([0.02 if n in init else 0.5 for n in prob.names])
 
+    box = None
+    if warm is not None and warm.reach is not None:
+        if not init or method != "fast":
+            raise FurnaceError("a search around a warm start (WarmStart.reach) needs `init` "
+                               "and method fast")
+        box = _around(prob, start, warm.intervals or {}, float(warm.reach))
     offsets = None
     if warm is not None and zone_offsets and warm.offsets is not None:
         if len(warm.offsets) != len(experiments):
@@ -132,8 +155,13 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
             if progress is not None:
                 progress(min((r + frac) / runs, 1.0))
 
-        run = _one_run(prob, method, population, generations, rng, start, spread, deadline,
-                       report, offsets, 1e-3 if warm is None else WARM_DAMPING)
+        damping = 1e-3 if warm is None else WARM_DAMPING
+        if box is not None and prob.k > 0:
+            run = _seeded_run(prob, box, population, generations, rng, start, deadline, report,
+                              offsets, damping)
+        else:
+            run = _one_run(prob, method, population, generations, rng, start, spread,
+                           deadline, report, offsets, damping)
         results.append((run, seed + r, time.perf_counter() - t_run))
     report_done = progress or (lambda _f: None)
     report_done(1.0)
@@ -257,6 +285,11 @@ class WarmStart:
     intervals: Mapping[str, tuple[float, float]] | None = None
     """{name: (low, high)}, own units: where each profile's search starts
     (`furnace_model.identification.profile.profile_interval`'s `start`)."""
+    reach: float | None = None
+    """With `intervals` (the previous window's 95% intervals): the genetic search runs in
+    the box of this many of their standard deviations around `init` (inside the search box),
+    seeded with it, before the polish; None: the polish alone. What the data pinned down is
+    searched near, what they left loose widely; see `_seeded_run`."""
 
 
 @dataclass
@@ -311,6 +344,58 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
         else:
             out[name] = (float(lo), float(hi))
     return out
+
+
+def _around(prob: Problem, start: np.ndarray, intervals: Mapping[str, tuple[float, float]],
+            reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """The box (search scale) of `reach` standard deviations around `start`, each from its
+    95% interval (own units), inside the search box."""
+    width = prob.hi - prob.lo
+    sd = SEEDED_SD_MISSING * width
+    on_bound = prob.at_bound(start)
+    for i, name in enumerate(prob.names):
+        ends = np.asarray(intervals.get(name, (np.nan, np.nan)), dtype=float)
+        if prob.log[i]:
+            ends = np.log(np.where(ends > 0, ends, np.nan))
+        half = 0.5 * float(ends[1] - ends[0]) / Z95
+        if np.isfinite(half) and half > 0 and name not in on_bound:
+            sd[i] = half
+    sd = np.maximum(sd, SEEDED_SD_FLOOR * width)
+    z = np.clip(start, prob.lo, prob.hi)
+    return np.maximum(prob.lo, z - reach * sd), np.minimum(prob.hi, z + reach * sd)
+
+
+def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: int,
+                generations: int, rng: np.random.Generator, start: np.ndarray,
+                deadline: float | None, report: Callable[[float], None],
+                offsets: list[np.ndarray] | None, damping: float) -> _Run:
+    """A warm start's search: the GA in `box` (see `_around`) on the criterion the polish
+    minimises (the records' own unknowns held where the start puts them), the start one of
+    its first population; then the polish from the start and, where the search found
+    better, from its best, the better kept. Elitism keeps the start until a member scores
+    better, and the start's own polish is among those compared, so the result is never
+    worse than the warm polish alone. A best that scores below the start by less than the
+    residual variance is the same fit as far as the data can tell (in the flat d/e valley
+    the search always finds such a point): it is not polished. The search gets half the
+    time left at most, the polish the rest."""
+    lo, hi = box
+    start = np.clip(start, lo, hi)
+    own = prob.start(start, offsets)[prob.k:]
+    at_start = float(prob.sse_params(start[None], own)[0])
+    variance = at_start / max(prob.n_obs - prob.n, 1)
+    ga_deadline = None if deadline is None else \
+        time.perf_counter() + 0.5 * (deadline - time.perf_counter())
+    found = genetic_search(lambda zp: prob.sse_params(zp, own), lo, hi, population=population,
+                           generations=generations, rng=rng, start=start,
+                           spread=SEEDED_SPREAD, progress=lambda f: report(0.8 * f),
+                           deadline=ga_deadline)
+    ga_cut = found.generations < generations  # only the deadline ends it early
+    picked = [start, found.best] if found.best_f < at_start - variance else [start]
+    polished = [prob.polish(prob.start(z, offsets), deadline, damping=damping) for z in picked]
+    report(1.0)
+    best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
+    cut = ga_cut or any(p.reason == "time_budget" for p in polished)
+    return _Run(best.z, best.reason, best.iterations, found.generations, cut, best.free_cost)
 
 
 def _one_run(prob: Problem, method: str, population: int, generations: int,

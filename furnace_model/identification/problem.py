@@ -221,16 +221,28 @@ class Problem:
         diff = self.predict(j, values, x0, first_order) - r.y
         return diff.reshape(diff.shape[0], -1) if r.complete else diff[:, r.mask]
 
-    def sse_params(self, zp: np.ndarray) -> np.ndarray:
+    def sse_params(self, zp: np.ndarray, own: np.ndarray | None = None) -> np.ndarray:
         """SSE (P,) for parameter sets (P, k), initial states at the first readings: the
         GA's objective, one simulation call per experiment for the whole population (in
-        slices of about _CELLS values, so a long 1-second window stays within memory)."""
+        slices of about _CELLS values, so a long 1-second window stays within memory).
+
+        `own`: the records' own unknowns (n - k,: initial states, and zone offsets when
+        fitted) held there instead. A search around a warm start then scores the criterion
+        its polish minimises, not one that the thermocouples' offsets bend."""
         total = np.zeros(zp.shape[0])
         for j, r in enumerate(self.records):
+            x0, offsets = r.x0_guess, None
+            if own is not None:
+                at = self.block * j
+                x0 = own[at:at + self.nz]
+                if self.offsets_fitted:
+                    offsets = own[at + self.nz:at + 2 * self.nz][r.zone_of]
             step = max(1, _CELLS // (self.nz * r.t.size))
             for p0 in range(0, zp.shape[0], step):
                 sl = slice(p0, p0 + step)
-                res = self.residuals(j, self.values(zp[sl]), r.x0_guess[None])
+                res = self.residuals(j, self.values(zp[sl]), x0[None])
+                if offsets is not None:
+                    res = res + offsets
                 total[sl] += np.einsum("pm,pm->p", res, res)
         return np.where(np.isfinite(total), total, np.inf)
 

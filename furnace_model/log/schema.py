@@ -405,12 +405,19 @@ def _model_parameters(furnace: Furnace) -> dict:
             "plc_time": _time("the window's end on the PLC's clock, when the register map has "
                               "one"),
             "search": _object({
-                "method": _string("refit.method: polish (from the previous model) or ga (the "
-                                  "paper's GA from scratch)", ("polish", "ga")),
+                "method": _string("refit.method: ga_polish (the GA seeded with the previous "
+                                  "model, then the polish), ga (the paper's GA from scratch) "
+                                  "or polish (from the previous model)",
+                                  ("ga_polish", "ga", "polish")),
                 "warm_start": {"type": "boolean",
                                "description": "started from the previous window's model"},
-                "population": {"type": "integer", "description": "GA population (ga only)"},
-                "generations": {"type": "integer", "description": "GA generations run (ga only)"},
+                "population": {"type": "integer",
+                               "description": "GA population (ga and ga_polish)"},
+                "generations": {"type": "integer",
+                                "description": "GA generations run (ga and ga_polish)"},
+                "seed": {"type": "integer",
+                         "description": "the GA's random seed (ga_polish: the window's end, "
+                                        "seconds of the data clock)"},
             }, "how this window was fitted"),
         },
         "an online refit of the three-zone model over one window of the data clock"

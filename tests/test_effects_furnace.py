@@ -282,6 +282,7 @@ def test_a_large_drift_of_one_of_a_pair_is_found_whichever_its_partner_blamed():
     assert max(drift.rmse_holdout_c.values()) < 2.0
 
 
+@pytest.mark.slow  # a whole six-zone diagnosis: a minute of one core
 def test_a_lag_whose_fit_has_side_valleys_is_named():
     """Known truth (the six-zone selfcheck's lag row, draw 2): soak_top's thermocouples lag
     14.4 minutes. With its offsets boxed from the start the lag's fit can stop in a side

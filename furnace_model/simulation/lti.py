@@ -242,6 +242,10 @@ def _modal_sum(lam: np.ndarray, tau: np.ndarray, G: np.ndarray, H: np.ndarray) -
     return out.real if np.iscomplexobj(out) else out
 
 
+_LOCAL_ELEMENTS = 1 << 21
+"""Elements of one chunk of `_impulse_response`'s in-block impulses (16 MB of complex)."""
+
+
 def _superposed(lam, z, w, s, dw, t_start, t):
     """Per-parameter step times (a fitted dead time or fuel-change instant).
 
@@ -293,34 +297,31 @@ def _impulse_response(lam, z, w, s, dw, t_start, t, dtype):
     M = -(-N // L)
     tt = np.concatenate([t, np.full(M * L - N, t[-1])]).reshape(M, L)
     steady = -w / lam
-    # impulses: (sample index (P,), alpha (P, n), beta (P, n)); the first is the start state
-    imps = [(np.zeros(P, dtype=int), (z - steady) * np.exp(lam * (t[0] - t_start)), steady)]
-    for k in range(s.shape[1]):
-        first = np.searchsorted(t, s[:, k], side="left")  # first sample on or after the step
-        a = dw[:, k] / lam
-        alpha = a * np.exp(lam * np.maximum(t[np.minimum(first, N - 1)] - s[:, k], 0.0)[:, None])
-        imps.append((first, alpha, -a))
-    rows = np.arange(P)
-    into = np.zeros((P, n, M + 1), dtype)  # exponential part carried to each block's start
-    level = np.zeros((P, n, M + 1), dtype)  # constant part added inside each block
+    # impulses (P, K + 1): the start state's, then one per step at the first sample on or
+    # after it; each adds alpha exp(lam (t_i - t_ik)) + beta from its sample on
+    first = np.searchsorted(t, s, side="left")
+    a = dw / lam[:, None, :]
+    late = np.maximum(t[np.minimum(first, N - 1)] - s, 0.0)
+    alpha = np.concatenate([((z - steady) * np.exp(lam * (t[0] - t_start)))[:, None],
+                            a * np.exp(lam[:, None, :] * late[:, :, None])], axis=1)
+    beta = np.concatenate([steady[:, None], -a], axis=1)
+    at = np.concatenate([np.zeros((P, 1), dtype=int), first], axis=1)
+    p, k = np.nonzero(at < N)  # p-major, k ascending: each sum in the order of the steps
+    i = at[p, k]
+    m, l0 = i // L, i % L
+    alpha, beta, lam_p = alpha[p, k], beta[p, k], lam[p]
     start = tt[:, 0]
     nxt = np.append(start[1:], start[-1])
-    local = []
-    for i, alpha, beta in imps:
-        inside = i < N
-        p, i = rows[inside], i[inside]
-        m, l0 = i // L, i % L
-        after = np.arange(L)[None, :] >= l0[:, None]  # (P', L)
-        grow = np.exp(lam[p][:, :, None] * np.where(after, tt[m] - t[i][:, None], 0.0)[:, None])
-        local.append((p, m, np.where(after[:, None, :], alpha[p][:, :, None] * grow
-                                     + beta[p][:, :, None], 0.0)))
-        into[p, :, m + 1] += alpha[p] * np.exp(lam[p] * (nxt[m] - t[i])[:, None])
-        level[p, :, m + 1] += beta[p]
+    into = np.zeros((P, M + 1, n), dtype)  # exponential part carried to each block's start
+    level = np.zeros((P, M + 1, n), dtype)  # constant part added inside each block
+    np.add.at(into, (p, m + 1), alpha * np.exp(lam_p * (nxt[m] - t[i])[:, None]))
+    np.add.at(level, (p, m + 1), beta)
+    into, level = into.transpose(0, 2, 1), level.transpose(0, 2, 1)
     SB = np.empty((P, n, M, 2), dtype)  # exponential and constant part at each block's start
     SB[:, :, 0, 0] = 0.0
     hop = np.exp(lam[:, :, None] * (nxt - start)[None, None, :])  # block start to the next
-    for m in range(1, M):
-        SB[:, :, m, 0] = hop[:, :, m - 1] * SB[:, :, m - 1, 0] + into[:, :, m]
+    for b in range(1, M):
+        SB[:, :, b, 0] = hop[:, :, b - 1] * SB[:, :, b - 1, 0] + into[:, :, b]
     SB[:, :, :, 1] = np.cumsum(level[:, :, :M], axis=2)
     d = np.diff(t)
     G1 = np.ones((P, n, 2, L), dtype)  # [exp(lam (t_l - t_block_start)); 1]
@@ -331,8 +332,16 @@ def _impulse_response(lam, z, w, s, dw, t_start, t, dtype):
         G1 = np.broadcast_to(G1[:, :, None], (P, n, M, 2, L)).copy()
         G1[:, :, :, 0, :] = np.exp(lam[:, :, None, None] * (tt - start[:, None]))
         y = (SB[:, :, :, None, :] @ G1)[:, :, :, 0, :]
-    for p, m, add in local:
-        y[p, :, m, :] += add
+    # each impulse inside its own block, from its sample on; in chunks that bound the memory
+    blocks = y.transpose(0, 2, 1, 3)  # (P, M, n, L), a view
+    chunk = max(1, _LOCAL_ELEMENTS // (n * L))
+    for c in range(0, i.size, chunk):
+        q = slice(c, c + chunk)
+        after = np.arange(L)[None, :] >= l0[q, None]  # (Q, L)
+        grow = np.exp(lam_p[q][:, :, None]
+                      * np.where(after, tt[m[q]] - t[i[q]][:, None], 0.0)[:, None])
+        np.add.at(blocks, (p[q], m[q]), np.where(after[:, None, :], alpha[q][:, :, None] * grow
+                                                 + beta[q][:, :, None], 0.0))
     return y.reshape(P, n, M * L)[:, :, :N]
 
 

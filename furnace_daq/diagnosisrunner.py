@@ -196,12 +196,12 @@ class DiagnosisRunner:
     thread-safe: call it from the refit runner's thread."""
 
     def __init__(self, config: DiagnosisConfig, emit: Emit,
-                 recorded: dict[str, ModelDiagnosis] | None = None):
+                 recorded: dict[int, ModelDiagnosis] | None = None):
         self.config = config
         self.emit = emit
         self.recorded = recorded
-        """Replay: the logged diagnoses by held-out window end; their `cut` replaces the
-        clock."""
+        """Replay: the logged diagnoses by publish time (`DiagnosisRequest.key`); their `cut`
+        replaces the clock."""
         self.queue: deque[DiagnosisRequest] = deque()
         self.in_flight: tuple[DiagnosisRequest, DiagnosisJob, DiagnosisProcess] | None = None
         self.kill_after_s = KILL_FACTOR * config.time_limit_s + KILL_MARGIN_S

@@ -19,7 +19,6 @@ from dataclasses import dataclass
 
 from furnace_model.experiment import Experiment
 from furnace_model.log.messages import ModelEvent, ModelEventKind, ModelParameters
-from furnace_model.log.read import iso_time
 
 from .daqconfig import DiagnosisConfig
 from .refit import Window, window_seed
@@ -38,9 +37,10 @@ class DiagnosisRequest:
     seed: int
 
     @property
-    def key(self) -> str:
-        """The held-out window's end: what a logged diagnosis is matched by in replay."""
-        return iso_time(self.recent_span[1])
+    def key(self) -> int:
+        """The end of the window that raised it, ns: the publish time of its
+        /model/diagnosis message, by which replay finds the logged one."""
+        return self.recent_span[1]
 
 
 class DiagnosisTrigger:

@@ -141,7 +141,7 @@ class RefitRunner:
 
     def __init__(self, config: RefitConfig, emit: Emit, *, t_air_default: float = 30.0,
                  max_queue: int | None = None, furnace: Furnace,
-                 recorded_diagnoses: dict[str, ModelDiagnosis] | None = None):
+                 recorded_diagnoses: dict[int, ModelDiagnosis] | None = None):
         """`recorded_diagnoses`: replay's logged diagnoses (diagnosisrunner)."""
         self.config = config
         self.emit = emit

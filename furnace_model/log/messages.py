@@ -621,11 +621,6 @@ class ModelDiagnosis(Message):
         values["seed"] = _int(values["seed"])
         return cls(**values, plc_time=_stamp(message))
 
-    @property
-    def held_out_end(self) -> str:
-        """The end of the held-out data: what replay matches a logged diagnosis by."""
-        return str(self.held_out[-1]["end"]) if self.held_out else ""
-
 
 @dataclass
 class LogLine(Message):

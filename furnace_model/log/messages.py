@@ -464,12 +464,12 @@ class ModelParameters(Message):
     model_window_start: str | None = None
     model_window_end: str | None = None
     recent_f: dict | None = None
+    plc_time: int | None = None
+    """The window's end on the PLC's clock, ns, when the register map has one."""
     noise_floor_c: dict[str, float] | None = None
     misfit_limit_c: dict[str, float] | None = None
     """Per zone, the fit RMSE above which the model misses the window: its noise floor
     widened by the floor's uncertainty, as a diagnosis judges a gap."""
-    plc_time: int | None = None
-    """The window's end on the PLC's clock, ns, when the register map has one."""
 
     _HEAD: ClassVar[tuple[str, ...]] = ("status", "detail", "window_start", "window_end",
                                         "n_samples", "gap_fraction", "burner_steps")

@@ -3,6 +3,8 @@ message, and a diagnosis in its own process that fails without taking the refit 
 
 from __future__ import annotations
 
+import contextlib
+import os
 import time
 from pathlib import Path
 
@@ -12,7 +14,7 @@ import pytest
 import yaml
 
 from furnace_daq.daqconfig import DaqConfig, DiagnosisConfig, RefitConfig, parse_config
-from furnace_daq.diagnosisrunner import DiagnosisRunner
+from furnace_daq.diagnosisrunner import NICE, DiagnosisRunner
 from furnace_daq.diagnosistrigger import DiagnosisTrigger
 from furnace_daq.logmeta import plain, refit_config
 from furnace_daq.refit import Window
@@ -152,4 +154,53 @@ def test_a_diagnosis_that_raises_is_published_as_failed_with_its_event():
     assert diag.held_out == [{"start": "1970-01-01T02:00:00.000Z",
                               "end": "1970-01-01T03:00:00.000Z"}]
     assert event.kind == ModelEventKind.DIAGNOSIS_FAILED and "failed" in event.detail
+    jsonschema.validate(diag.to_json(), topics(PAPER)[MODEL_DIAGNOSIS].schema)
+
+
+@pytest.mark.slow
+def test_refits_go_on_while_a_diagnosis_computes():
+    """A fuel switch raises a drift event, which starts a diagnosis in its own process at a
+    lower priority; the windows after it are fitted and published while it computes, and
+    its verdict arrives as a /model/diagnosis message with its event."""
+    from refit_helpers import scenario, simulate
+
+    from furnace_daq.plantlog import run_messages
+    from furnace_daq.refitworker import RefitRunner
+    from furnace_model.log.schema import MODEL_PARAMETERS
+
+    s = scenario("fuel_switch", duration_min=4 * 1440)
+    cfg = RefitConfig(period_s=6 * 3600.0, window_s=6 * 3600.0, diagnosis=DiagnosisConfig(
+        after_windows=2, time_limit_s=60.0, effects=("fuel_change", "dead_time")))
+    log: list[tuple[str, object, bool]] = []
+    runner: RefitRunner | None = None
+
+    def emit(topic: str, msg, ns: int) -> None:
+        assert runner is not None
+        log.append((topic, msg, runner.diagnosing()))
+
+    runner = RefitRunner(cfg, emit, max_queue=None, furnace=PAPER)
+    runner.start()
+    niceness = None
+    try:
+        for topic, msg, t in run_messages(simulate(s)):
+            runner.feed(topic, msg, t)
+            if runner.diagnoses is not None and runner.diagnoses.in_flight and niceness is None:
+                proc = runner.diagnoses.in_flight[2].proc
+                with contextlib.suppress(OSError):
+                    niceness = os.getpriority(os.PRIO_PROCESS, proc.pid) \
+                        - os.getpriority(os.PRIO_PROCESS, 0)
+            if len(runner.queue) > 2:
+                runner.pump(1.0)
+        assert runner.drain(240), "refits and the diagnosis did not finish in time"
+    finally:
+        runner.close()
+    topics_ = [t for t, _m, _d in log]
+    assert topics_.count(MODEL_DIAGNOSIS) == 1, [m.detail for t, m, _ in log if t == MODEL_EVENTS]
+    diag = next(m for t, m, _ in log if t == MODEL_DIAGNOSIS)
+    assert diag.trigger == "drift" and diag.status != "failed", diag.detail
+    start = next(i for i, (t, m, _) in enumerate(log)
+                 if t == MODEL_EVENTS and m.kind == ModelEventKind.DRIFT)
+    after = [d for t, _m, d in log[start:] if t == MODEL_PARAMETERS]
+    assert any(after), "no window was published while the diagnosis was in flight"
+    assert niceness is None or niceness in (0, NICE)  # seen before or after its os.nice
     jsonschema.validate(diag.to_json(), topics(PAPER)[MODEL_DIAGNOSIS].schema)

@@ -180,6 +180,18 @@ class LogConfig:
 
 
 @dataclass(frozen=True)
+class DiagnosisConfig:
+    """Online diagnosis of what the refit's model misses (furnace_daq.diagnosisrunner,
+    docs/operations.md "Online diagnosis")."""
+
+    after_windows: int = 3
+    """Fitted windows in a row above their misfit limit that start a diagnosis."""
+    time_limit_s: float = 600.0
+    effects: tuple[str, ...] | None = None
+    """The candidate effects; None: every effect that applies to the furnace."""
+
+
+@dataclass(frozen=True)
 class RefitConfig:
     """Online identification on a sliding window of the data clock (docs/operations.md).
 
@@ -200,6 +212,8 @@ class RefitConfig:
     drift_min_change: float = 0.03
     queue_max: int = 4
     state_dir: Path = Path("state")
+    diagnosis: DiagnosisConfig | None = None
+    """None: no online diagnosis (no `diagnosis:` block, or `enabled: false`)."""
 
     def ga_size(self) -> tuple[int, int]:
         """(population, generations) of the method's genetic search: as configured, else
@@ -547,7 +561,7 @@ def _log(node: Node) -> LogConfig:
 def parse_refit(node: Node) -> RefitConfig | None:
     node.mapping({"enabled", "period_s", "window_s", "step_s", "budget_s", "method",
                   "population", "generations", "max_gap_fraction", "min_burner_steps",
-                  "drift_windows", "drift_min_change", "queue_max", "state_dir"})
+                  "drift_windows", "drift_min_change", "queue_max", "state_dir", "diagnosis"})
     if not node.get_bool("enabled", True):
         return None
     step = node.get_number("step_s", 60.0, lo=0.001, hi=86400.0)
@@ -579,7 +593,31 @@ def parse_refit(node: Node) -> RefitConfig | None:
         drift_windows=node.get_integer("drift_windows", 2, lo=1, hi=1000),
         drift_min_change=node.get_number("drift_min_change", 0.03, lo=0.0, hi=10.0),
         queue_max=node.get_integer("queue_max", 4, lo=1, hi=10000),
-        state_dir=Path(node.get_string("state_dir", default_dir)))
+        state_dir=Path(node.get_string("state_dir", default_dir)),
+        diagnosis=parse_diagnosis(node.child("diagnosis")) if node.has("diagnosis") else None)
+
+
+def parse_diagnosis(node: Node) -> DiagnosisConfig | None:
+    """`refit.diagnosis`; the effects must be names of the contract (CONTRACTS.md section
+    4), each once."""
+    from furnace_model.effects import EFFECTS
+
+    node.mapping({"enabled", "after_windows", "time_limit_s", "effects"})
+    enabled = node.get_bool("enabled", True)
+    after = node.get_integer("after_windows", DiagnosisConfig.after_windows, lo=1, hi=100000)
+    limit = node.get_number("time_limit_s", DiagnosisConfig.time_limit_s, lo=1.0, hi=86400.0)
+    effects = None
+    if node.has("effects"):
+        effects = []
+        for item in node.child("effects").elements(min_len=1):
+            name = item.string(choices=tuple(EFFECTS))
+            if name in effects:
+                raise item.error(f"'{name}' is listed twice")
+            effects.append(name)
+        effects = tuple(effects)
+    if not enabled:
+        return None
+    return DiagnosisConfig(after_windows=after, time_limit_s=limit, effects=effects)
 
 
 def _live_view(node: Node) -> LiveViewConfig | None:

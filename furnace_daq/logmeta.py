@@ -106,12 +106,21 @@ def refit_config(recorded: Mapping[str, Any]) -> Any:
     """A RefitConfig from recorded settings: the fields it knows, the rest left at their
     defaults (a log from a newer version may record more). A log that records no method was
     written before there was a choice, by the polish alone."""
-    from .daqconfig import RefitConfig
+    from .daqconfig import DiagnosisConfig, RefitConfig
 
     known = {f.name: f for f in dataclasses.fields(RefitConfig)}
     values = {"method": "polish", **{k: v for k, v in recorded.items() if k in known}}
     if "state_dir" in values:
         values["state_dir"] = Path(values["state_dir"])
+    diagnosis = values.get("diagnosis")
+    if isinstance(diagnosis, Mapping):
+        names = {f.name for f in dataclasses.fields(DiagnosisConfig)}
+        given = {k: v for k, v in diagnosis.items() if k in names}
+        if given.get("effects") is not None:
+            given["effects"] = tuple(given["effects"])
+        values["diagnosis"] = DiagnosisConfig(**given)
+    else:
+        values["diagnosis"] = None
     return RefitConfig(**values)
 
 

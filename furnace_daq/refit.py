@@ -75,8 +75,10 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 
+from furnace_model.diagnosis.credit import GAP_RATIO, GAP_Z
 from furnace_model.experiment import Experiment
 from furnace_model.identification.fit import WarmStart, fit
+from furnace_model.identification.noisefloor import limits, record_floor
 from furnace_model.identification.result import FitResult
 from furnace_model.log.messages import (
     Ambient,
@@ -219,8 +221,22 @@ def run_fit(job: FitJob) -> dict:
         "sigma_c": float(res.sigma_c),
         "recent": None if over or job.recent_from_min is None or not furnace.paper_structure
         else recent_f(res, job.experiment, job.recent_from_min),
+        **misfit_limits(job.experiment),
         "elapsed_s": time.perf_counter() - t0,
     }
+
+
+def misfit_limits(exp: Experiment) -> dict[str, dict[str, float | None]]:
+    """The window's noise floor per zone and the fit RMSE above which the model misses it:
+    the floor widened by its uncertainty, as the diagnosis judges a gap (`GAP_RATIO`,
+    `GAP_Z`), so that the daemon's trigger and the diagnosis it starts agree on what a gap
+    is. None for a zone without a floor."""
+    floor = record_floor(exp)
+    limit = limits([floor], GAP_RATIO, GAP_Z)
+
+    def finite(d: dict[str, float]) -> dict[str, float | None]:
+        return {z: float(v) if math.isfinite(v) else None for z, v in d.items()}
+    return {"noise_floor_c": finite(floor.floor_c), "misfit_limit_c": finite(limit)}
 
 
 def recent_f(res: FitResult, exp: Experiment, from_min: float) -> dict | None:
@@ -419,6 +435,8 @@ class RefitChain:
         msg.model_window_end = msg.window_end
         recent = outcome.get("recent")
         msg.recent_f = recent
+        msg.noise_floor_c = outcome.get("noise_floor_c")
+        msg.misfit_limit_c = outcome.get("misfit_limit_c")
         events = self._drift(msg) or self._drift_recent(msg, recent)
         self.model = msg
         return msg, events

@@ -20,6 +20,7 @@ from furnace_model.log.messages import (
     DaqEventKind,
     Event,
     FurnaceMessage,
+    ModelDiagnosis,
     ModelEvent,
     ModelParameters,
 )
@@ -52,6 +53,8 @@ class RefitPump:
                                   t_air_default=t_air_default,
                                   max_queue=config.queue_max, furnace=furnace)
         self.state = StateWriter(config.state_dir, self._event_now)
+        self._model: dict | None = None  # the last /model/parameters message, as logged
+        self._diagnosis: dict | None = None  # the last /model/diagnosis message
 
     def start(self) -> None:
         self.resume()
@@ -98,7 +101,7 @@ class RefitPump:
             self.event(DaqEvent(DaqEventKind.REFIT_ERROR,
                                 f"refit pipeline: {type(exc).__name__}: {exc}"), now)
 
-    def _model_message(self, topic: str, message: ModelParameters | ModelEvent,
+    def _model_message(self, topic: str, message: ModelParameters | ModelEvent | ModelDiagnosis,
                        pub_ns: int) -> None:
         if self.plc_clock_seen():  # the data clock is the PLC's: say so in its field
             message.plc_time = pub_ns
@@ -107,6 +110,13 @@ class RefitPump:
         if isinstance(message, ModelEvent):
             self.tell(message)
             return
+        if isinstance(message, ModelDiagnosis):
+            # model.json carries the last diagnosis beside the model in force
+            self._diagnosis = data
+            if self._model is not None:
+                self.state.save({**self._model, "diagnosis": data}, None)
+            return
+        self._model = data
         if self.on_model is not None:  # a consumer sees the message as logged
             try:
                 self.on_model(data)
@@ -115,7 +125,8 @@ class RefitPump:
                 self.event(DaqEvent(DaqEventKind.ON_MODEL_ERROR,
                                     f"{type(exc).__name__}: {exc}"), now)
         # the chain has taken this window in already: its state goes with the model
-        self.state.save(data, self.runner.chain.state())
+        saved = data if self._diagnosis is None else {**data, "diagnosis": self._diagnosis}
+        self.state.save(saved, self.runner.chain.state())
 
     def resume(self) -> None:
         """Go on with the model in force and the drift references a previous run left, so

@@ -24,12 +24,20 @@ from collections import deque
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 
-from furnace_model.log.messages import FurnaceMessage, ModelEvent, ModelEventKind, ModelParameters
+from furnace_model.log.messages import (
+    FurnaceMessage,
+    ModelDiagnosis,
+    ModelEvent,
+    ModelEventKind,
+    ModelParameters,
+)
 from furnace_model.log.read import iso_time
 from furnace_model.log.schema import MODEL_EVENTS, MODEL_PARAMETERS
 from furnace_model.simulation.furnace import Furnace
 
 from .daqconfig import RefitConfig
+from .diagnosisrunner import DiagnosisRunner
+from .diagnosistrigger import DiagnosisTrigger
 from .refit import FitJob, RefitChain, Window, WindowCutter, run_fit
 
 KILL_FACTOR = 3.0
@@ -37,7 +45,7 @@ KILL_MARGIN_S = 5.0
 START_TIMEOUT_S = 120.0
 """A worker that has not imported numpy and scipy after this long is declared dead."""
 
-Emit = Callable[[str, ModelParameters | ModelEvent, int], None]
+Emit = Callable[[str, ModelParameters | ModelEvent | ModelDiagnosis, int], None]
 """emit(topic, message, publish time ns on the data clock)"""
 
 
@@ -132,7 +140,9 @@ class RefitRunner:
     Not thread-safe: call everything from one thread (the event loop, or replay's loop)."""
 
     def __init__(self, config: RefitConfig, emit: Emit, *, t_air_default: float = 30.0,
-                 max_queue: int | None = None, furnace: Furnace):
+                 max_queue: int | None = None, furnace: Furnace,
+                 recorded_diagnoses: dict[int, ModelDiagnosis] | None = None):
+        """`recorded_diagnoses`: replay's logged diagnoses (diagnosisrunner)."""
         self.config = config
         self.emit = emit
         self.max_queue = max_queue
@@ -147,6 +157,10 @@ class RefitRunner:
         self.failures = 0
         self._restart_delay = 0.0
         self._start_at = 0.0  # monotonic time of the next worker start while there is none
+        diagnosis = config.diagnosis
+        self.trigger = None if diagnosis is None else DiagnosisTrigger(diagnosis)
+        self.diagnoses = None if diagnosis is None else \
+            DiagnosisRunner(diagnosis, emit, recorded_diagnoses)
 
     def start(self) -> None:
         self.worker.start()
@@ -176,6 +190,8 @@ class RefitRunner:
     def pump(self, timeout: float = 0.0) -> None:
         """Collect a finished fit (waiting up to `timeout`), check the one in flight, hand
         out the next window. Cheap when nothing happened: call it on every poll tick."""
+        if self.diagnoses is not None:
+            self.diagnoses.pump()
         now = time.monotonic()
         if self.worker.proc is None:
             if now < self._start_at:
@@ -236,16 +252,31 @@ class RefitRunner:
         self.emit(MODEL_PARAMETERS, msg, window.end_ns)
         for event in events:
             self.emit(MODEL_EVENTS, event, window.end_ns)
+        if self.trigger is not None and self.diagnoses is not None:
+            request = self.trigger.observe(window, msg, events)
+            if request is not None:
+                self.diagnoses.request(request)
+
+    def diagnosing(self) -> bool:
+        return self.diagnoses is not None and self.diagnoses.busy()
 
     def drain(self, timeout: float) -> bool:
-        """Fit what is queued, waiting at most `timeout` seconds; True when all is done."""
+        """Fit what is queued and finish the diagnoses it asks for, waiting at most
+        `timeout` seconds; True when all is done."""
         deadline = time.monotonic() + timeout
-        while self.busy():
+        while self.busy() or self.diagnosing():
             left = deadline - time.monotonic()
             if left <= 0:
                 return False
-            self.pump(min(left, 0.05))
+            if self.busy():
+                self.pump(min(left, 0.05))
+            else:
+                self.pump()
+                time.sleep(min(left, 0.05))
         return True
 
     def close(self) -> None:
+        """End the worker and any diagnosis in flight (a diagnosis is not waited for)."""
         self.worker.stop(kill=True)
+        if self.diagnoses is not None:
+            self.diagnoses.close()

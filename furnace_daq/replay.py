@@ -12,6 +12,12 @@ those recorded in the logs' metadata record (the daemon writes its `refit:` sett
 every file), else the defaults: a log alone replays as it was fitted live. The output file
 carries a metadata record too, with the settings it was fitted with.
 
+Diagnoses. With `refit.diagnosis` the same windows take the same trigger decisions
+(diagnosistrigger), and each diagnosis is run again on the same records with the same seed.
+Where the logs hold the live run's /model/diagnosis for that window, its record of what the
+time limit cut replaces the clock (diagnosisrunner), so the verdict is the live one on any
+host; without one, the configured time limit applies.
+
 Reading and fitting overlap: the worker fits window k while this process reads and bins the
 data of window k + 1, which is what makes a week of 1 Hz data replay in about half a minute on
 two cores. Replay never drops a window: when the worker falls behind, reading waits.
@@ -27,11 +33,12 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from furnace_model.errors import DataError
-from furnace_model.log.messages import ModelEvent, ModelParameters, typed
+from furnace_model.log.messages import ModelDiagnosis, ModelEvent, ModelParameters, typed
 from furnace_model.log.read import read_messages, recorded_furnace
 from furnace_model.log.schema import (
     FURNACE_TOPICS,
     MESSAGE_ENCODING,
+    MODEL_DIAGNOSIS,
     SCHEMA_ENCODING,
     topic,
 )
@@ -92,7 +99,8 @@ def default_out(paths: list[Path]) -> Path:
 
 def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str | Path | None,
            speed: float | None = None,
-           echo: Callable[[str, ModelParameters | ModelEvent], None] | None = None
+           echo: Callable[[str, ModelParameters | ModelEvent | ModelDiagnosis], None]
+           | None = None
            ) -> list[ModelParameters]:
     """Run the logs through the refit pipeline; returns the /model/parameters messages in
     order. `speed` paces the data at that many data seconds per wall second (None: as fast
@@ -117,7 +125,8 @@ def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str 
     params: list[ModelParameters] = []
     log: ModelLog | None = None
 
-    def emit(name: str, message: ModelParameters | ModelEvent, pub_ns: int) -> None:
+    def emit(name: str, message: ModelParameters | ModelEvent | ModelDiagnosis,
+             pub_ns: int) -> None:
         assert log is not None
         log.write(name, message.to_json(), pub_ns, pub_ns)
         if isinstance(message, ModelParameters):
@@ -125,7 +134,8 @@ def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str 
         if echo is not None:
             echo(name, message)
 
-    runner = RefitRunner(refit, emit, t_air_default=t_air, max_queue=None, furnace=furnace)
+    runner = RefitRunner(refit, emit, t_air_default=t_air, max_queue=None, furnace=furnace,
+                         recorded_diagnoses=recorded_diagnoses(paths))
     messages = typed(read_messages(paths, FURNACE_TOPICS), furnace)
     first = next(messages, None)  # reads and checks every file before anything is written
     if first is None:
@@ -148,6 +158,13 @@ def replay(paths: Iterable[str | Path], config: DaqConfig | None, out_path: str 
         runner.close()
         log.close()
     return params
+
+
+def recorded_diagnoses(paths: list[Path]) -> dict[int, ModelDiagnosis]:
+    """The diagnoses the live run logged, by publish time (the end of the window that
+    raised each): what its time limit cut, which replay cuts in place of the clock."""
+    return {pub_ns: ModelDiagnosis.from_json(raw)
+            for _topic, raw, _log_ns, pub_ns in read_messages(paths, [MODEL_DIAGNOSIS])}
 
 
 def settings(paths: list[Path], config: DaqConfig | None

@@ -40,7 +40,8 @@ EVENT_PRIORITY: dict[DaqEventKind | ModelEventKind, int] = {
     _D.STATE_UNUSABLE: WARNING, _D.REFIT_ABANDONED: WARNING, _M.WINDOW_DROPPED: WARNING,
     _D.LOG_RECOVERED: WARNING, _D.LOG_GAP: WARNING,
     _D.PLC_CLOCK_RESET: NOTICE, _D.BURNER_AGREEMENT: NOTICE, _D.WRITE_BACK_OK: NOTICE,
-    _M.DRIFT: NOTICE, _D.REFIT_RESUMED: INFO,
+    _M.DRIFT: NOTICE, _M.DIAGNOSIS: NOTICE, _M.DIAGNOSIS_FAILED: WARNING,
+    _D.REFIT_RESUMED: INFO,
 }
 """Journal priority of each /daq/events and /model/events kind (others: notice). The kinds
 are str-valued, so a kind read back as its name finds its priority too."""

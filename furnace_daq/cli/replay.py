@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from furnace_model.cli.arguments import output_file
-from furnace_model.log.messages import ModelEvent, ModelParameters
+from furnace_model.log.messages import ModelDiagnosis, ModelEvent, ModelParameters
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -54,10 +54,10 @@ def run(args: argparse.Namespace) -> int:
               "using the refit defaults", file=sys.stderr)
     out = args.out or default_out(args.files)
 
-    def echo(topic: str, message: ModelParameters | ModelEvent) -> None:
+    def echo(topic: str, message: ModelParameters | ModelEvent | ModelDiagnosis) -> None:
         if isinstance(message, ModelParameters):
             print(summary(message), flush=True)
-        else:
+        elif isinstance(message, ModelEvent):  # a diagnosis is told by its event
             print(f"  EVENT {message.kind}: {message.detail}", flush=True)
 
     t0 = time.perf_counter()

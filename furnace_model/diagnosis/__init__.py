@@ -21,6 +21,7 @@ One concept per module, each importing only those above it in this list:
 - `verdict`: `Verdict` and `judge`, the verdict's status and sentence;
 - `result`: `Diagnosis` and its JSON;
 - `laws`: further laws of an effect and blends between two;
+- `limit`: `TimeLimit`, which fits a time limit cut, by the clock or as a run recorded them;
 - `pool`: candidates fitted side by side in processes;
 - `search`: `diagnose`, the order in which candidates are tried and kept.
 """
@@ -40,6 +41,7 @@ from .credit import (
 from .fitting import Task, rmse_per_zone, run_task
 from .holdout import MIN_FIT_SAMPLES, MIN_HOLDOUT_SAMPLES, TAIL_SHARE, split
 from .laws import blend_weight, further_laws
+from .limit import TimeLimit
 from .locate import MIN_SHARE, Located, WhereLine, locate, where_lines
 from .result import Diagnosis
 from .search import COLD_GENERATIONS, MAX_EFFECTS, STEP_TRIES, diagnose
@@ -48,7 +50,8 @@ from .verdict import Verdict, judge
 __all__ = [
     "COLD_GENERATIONS", "GAP_RATIO", "GAP_Z", "MAX_EFFECTS", "MIN_FIT_SAMPLES", "MIN_GAP_CLOSED",
     "MIN_HOLDOUT_SAMPLES", "MIN_SHARE", "NEAR_RATIO", "NEAR_Z", "RULE", "STEP_TRIES",
-    "TAIL_SHARE", "CandidateResult", "Diagnosis", "Located", "Task", "Verdict", "WhereLine",
+    "TAIL_SHARE", "CandidateResult", "Diagnosis", "Located", "Task", "TimeLimit", "Verdict",
+    "WhereLine",
     "blend_weight", "credited", "diagnose", "further_laws", "judge", "locate", "rmse_per_zone",
     "run_task", "score_against", "shortfall", "split", "where_lines",
 ]

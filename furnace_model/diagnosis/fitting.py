@@ -115,14 +115,21 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
              runs=runs, bounds=bounds, generations=task.generations, profile=False,
              time_budget_s=_budget(task))
-    if init is not None and not _late(task):
+    # A step the time limit leaves out makes the candidate not tried, never a lesser fit:
+    # a candidate that is named fitted ends as it would without a limit (limit.TimeLimit).
+    if init is not None and fr.stop_reason != "time_budget":
         fr = _restarted(fr, task, structure, init, bounds)
     off_floor = task.cold_above is None or any(
         fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in zones)
-    if init is not None and structure.linear and task.cold_too and off_floor and not _late(task):
+    if init is not None and structure.linear and task.cold_too and off_floor \
+            and fr.stop_reason != "time_budget":
+        if _late(task):
+            return not_tried(task)
         cold = fit(task.fit_data, structure, seed=task.seed + 1, zone_offsets=True,
                    bounds=bounds, profile=False, time_budget_s=_budget(task))
-        if cold.sse < fr.sse and cold.stop_reason != "time_budget":
+        if cold.stop_reason == "time_budget":
+            return not_tried(task)
+        if cold.sse < fr.sse:
             fr = cold
     if fr.stop_reason == "time_budget":
         return not_tried(task)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import dataclasses
 import multiprocessing
 import os
 import signal
@@ -15,21 +14,30 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 
 from .candidate import CandidateResult
 from .fitting import Task, run_task, structure_of
+from .limit import TimeLimit
 
 WORKERS = 2
 
 
 def run_all(tasks: list[Task], progress: Callable[[float], None],
             finished: Callable[[CandidateResult], None] | None = None,
-            deadline: float | None = None) -> list[CandidateResult]:
+            limit: TimeLimit | None = None) -> list[CandidateResult]:
     """The tasks' results in their order; `progress` hears the share done, `finished` each
-    result as it comes. `deadline` (time.monotonic()): the diagnosis's time limit, by which
-    each task ends, fitted or named as not tried (`CandidateResult.cut`)."""
-    done = finished or (lambda _c: None)
+    result as it comes. `limit`: the diagnosis's time limit, by which each task ends, fitted
+    or named as not tried (`CandidateResult.cut`); it hears which were cut."""
     if not tasks:
         return []
-    if deadline is not None:
-        tasks = [dataclasses.replace(t, deadline=deadline) for t in tasks]
+    names: list[str] = []
+    if limit is not None:
+        tasks, names = limit.batch(tasks)
+    results = _run(tasks, progress, finished or (lambda _c: None))
+    if limit is not None:
+        limit.heard(names, results)
+    return results
+
+
+def _run(tasks: list[Task], progress: Callable[[float], None],
+         done: Callable[[CandidateResult], None]) -> list[CandidateResult]:
     out: list[CandidateResult] = []
     if WORKERS > 1 and len(tasks) > 1:
         ctx = multiprocessing.get_context("fork")

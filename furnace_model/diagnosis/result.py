@@ -42,6 +42,9 @@ class Diagnosis:
     untried: list[str] = field(default_factory=list)
     """What the time limit left unfitted (candidates, searches from scratch, combinations):
     the verdict is judged without them."""
+    cut: list[str] = field(default_factory=list)
+    """The same fits as `limit.TimeLimit` names them: given back to `diagnose` (`cut=`), they
+    repeat this diagnosis without the clock."""
 
     def offset_lines(self) -> list[str]:
         """The baseline's thermocouple offsets, fitted and carried to the held-out records,

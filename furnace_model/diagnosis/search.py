@@ -5,7 +5,7 @@ added one at a time; the verdict is judged on what it keeps."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -33,6 +33,7 @@ from .credit import (
 from .fitting import Task, run_task, structure_of
 from .holdout import split, uncovered
 from .laws import between_laws, further_laws, opts_text
+from .limit import TimeLimit
 from .locate import Located, locate
 from .pool import run_all
 from .result import Diagnosis
@@ -63,18 +64,18 @@ def check_effects(names) -> tuple[str, ...]:
 def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
              effects: Sequence[str] | None = None, seed: int = 0,
              progress: Callable[[str, float], None] | None = None,
-             time_limit_s: float | None = None) -> Diagnosis:
+             time_limit_s: float | None = None, cut: Iterable[str] | None = None
+             ) -> Diagnosis:
     """Fit the baseline, locate its error, try every effect as an extension, and judge.
 
     `time_limit_s`: answer within about this long (the baseline always completes: every
     verdict is measured against it). What the limit leaves unfitted is named in
-    `Diagnosis.untried`, and the verdict is judged on what was fitted."""
+    `Diagnosis.untried`, and the verdict is judged on what was fitted. `cut`, in place of a
+    time: the fits a limited run cut (its `Diagnosis.cut`), to repeat that run on any host
+    (limit.TimeLimit)."""
     t_start = time.perf_counter()
-    deadline = None if time_limit_s is None else time.monotonic() + float(time_limit_s)
+    limit = TimeLimit(None if cut is not None else time_limit_s, cut)
     untried: list[str] = []
-
-    def late() -> bool:
-        return deadline is not None and time.monotonic() >= deadline
 
     def tried(results: list[CandidateResult]) -> list[CandidateResult]:
         untried.extend(c.label for c in results if c.cut and c.label not in untried)
@@ -114,7 +115,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         verdict = judge(base, None, [], floor, near, gap, where, furnace=furnace)
         say("done", 1.0)
         return Diagnosis(fit_data, hold, how, base, floor, where, tests, [], verdict,
-                         time.perf_counter() - t_start, gap, **noise, time_limit_s=time_limit_s)
+                         time.perf_counter() - t_start, gap, **noise, time_limit_s=time_limit_s,
+                         cut=limit.cut)
     clues.bent = bent = any(base.rmse_fit_c[z] > fit_limit[z] for z in zones)
     say("candidates", 0.1)
     trials = {n: EFFECTS[n].tried.trial(clues) for n in names}
@@ -127,7 +129,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                   bounds, fit_limit)
              for n in names]
     fitted = tried(run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f),
-                           counted(len(tasks), lambda w: say(w, 0.1)), deadline))
+                           counted(len(tasks), lambda w: say(w, 0.1)), limit))
     for c in fitted:
         score_against(c, base, floor)
     if bent:
@@ -146,7 +148,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         cold = run_all([Task(fitted[i].effects, fitted[i].options, fit_data, hold, tail_of,
                               None, seed + 1, bounds=bounds, generations=COLD_GENERATIONS)
                          for i in off], lambda f: say("candidates", 0.6 + 0.05 * f),
-                       deadline=deadline)
+                       limit=limit)
         for i, c in zip(off, cold, strict=True):
             if c.cut:
                 untried.append(f"{c.label} searched from scratch")
@@ -164,7 +166,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                  seed, cold_laws, bounds, fit_limit)
             for c, opts in further_laws(fitted, furnace)]
     more = tried(run_all(laws, lambda f: say("candidates", 0.65 + 0.05 * f),
-                         deadline=deadline))
+                         limit=limit))
     for c in more:
         score_against(c, base, floor)
     fitted += more
@@ -188,13 +190,13 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     combos, kept, steps = stepwise(singles, base, floor, gap_limit, fit_data, hold, tail_of,
                                    seed, options, bounds, starts, gap,
                                    lambda f: say("combinations", 0.7 + 0.3 * f),
-                                   deadline, untried)
+                                   limit, untried)
     signals = unused_signals(fit_data + hold)
     if signals:
         say("signals", 0.95)
     followed = tried(signal_candidates(signals, base, fit_data, hold, tail_of, seed, floor,
                                        counted(len(signals), lambda w: say(w, 0.95)),
-                                       deadline)
+                                       limit)
                      if signals else [])
     candidates = sorted(singles + combos + followed, key=rank)
 
@@ -214,7 +216,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     say("done", 1.0)
     return Diagnosis(fit_data, hold, how, base, floor, where, tests, candidates, verdict,
                      time.perf_counter() - t_start, gap, **noise, kept=kept,
-                     time_limit_s=time_limit_s, untried=untried)
+                     time_limit_s=time_limit_s, untried=untried, cut=limit.cut)
 
 
 def fitted_words(c: CandidateResult) -> str:
@@ -254,13 +256,13 @@ def _pooled_tc(floors: list[RecordFloor]) -> dict[str, float]:
 def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[str, float],
              gap_limit: dict[str, float], fit_data, hold, tail_of, seed: int, options: dict, bounds: dict, starts: dict,
              gap: tuple[str, ...],
-             progress: Callable[[float], None], deadline: float | None = None,
+             progress: Callable[[float], None], limit: TimeLimit | None = None,
              untried: list[str] | None = None
              ) -> tuple[list[CandidateResult], CandidateResult | None, list[CandidateResult]]:
     """Combinations tried, the set kept, and the kept set after each effect was added (the
     last is the set kept): the best single with credit, then one effect added at a time
     while the kept set leaves a clear gap and a further effect removes most of what is left
-    (and is itself determined by the data). Combinations the time limit (`deadline`) cut
+    (and is itself determined by the data). Combinations the time limit (`limit`) cut
     are added to `untried` and the search stops there."""
     untried = [] if untried is None else untried
     if not gap or not singles or not credited(singles[0]):
@@ -276,7 +278,7 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
                                               if k in kept.effects}, fit_data, hold, tail_of,
                               {k: v for k, v in combination.params.items()
                                if k in structure.names}, seed, bounds=bounds)], progress,
-                        deadline=deadline)[0]
+                        limit=limit)[0]
         if again.cut:
             untried.append(f"{kept.label} refitted from {combination.label}'s optimum")
             return again
@@ -296,7 +298,7 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
             tasks.append(Task(effs, opts, fit_data, hold, tail_of,
                               {**kept.params, **starts.get(n, {})}, seed,
                               bounds=bounds))
-        step = run_all(tasks, progress, deadline=deadline)
+        step = run_all(tasks, progress, limit=limit)
         untried.extend(c.label for c in step if c.cut)
         if any(c.cut for c in step):
             break  # a step judged on some of its combinations would not be the search's

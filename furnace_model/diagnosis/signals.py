@@ -23,6 +23,7 @@ from ..simulation.furnace import Disturbance, Furnace
 from .candidate import CandidateResult
 from .credit import credited, near_floor, rank, score_against
 from .fitting import Task
+from .limit import TimeLimit
 from .locate import Located
 from .pool import run_all
 from .verdict import Part, Verdict, remaining_of
@@ -88,10 +89,10 @@ def _held(v: np.ndarray) -> np.ndarray:
 def signal_candidates(names: tuple[str, ...], base: CandidateResult,
                       fit_data: list[Experiment], hold: list[Experiment],
                       tail_of: list[int | None], seed: int, floor: dict[str, float],
-                      finished=None, deadline: float | None = None) -> list[CandidateResult]:
+                      finished=None, limit: TimeLimit | None = None) -> list[CandidateResult]:
     """Each signal tried as an unmodelled input: fitted from the baseline's optimum, scored
     against the baseline like an effect; `finished` hears each as it is fitted. Those the
-    time limit (`deadline`) cut come back with `cut` set, unscored."""
+    time limit (`limit`) cut come back with `cut` set, unscored."""
     tasks, furnaces = [], []
     for name in names:
         furnace = with_signal(fit_data[0].furnace, name, fit_data + hold)
@@ -99,7 +100,7 @@ def signal_candidates(names: tuple[str, ...], base: CandidateResult,
         tasks.append(Task((), {}, [as_input(r, name, furnace) for r in fit_data],
                           [as_input(r, name, furnace) for r in hold], tail_of,
                           dict(base.params), seed, cold_too=True))
-    out = run_all(tasks, lambda _f: None, deadline=deadline)
+    out = run_all(tasks, lambda _f: None, limit=limit)
     for name, furnace, c in zip(names, furnaces, out, strict=True):
         c.signal = name
         if c.cut:

@@ -31,6 +31,7 @@ from .schema import (
     DISTURBANCES,
     HEAT,
     LOG,
+    MODEL_DIAGNOSIS,
     MODEL_EVENTS,
     MODEL_PARAMETERS,
     READING_FIELDS,
@@ -124,6 +125,8 @@ class ModelEventKind(StrEnum):
 
     DRIFT = "drift"
     WINDOW_DROPPED = "window_dropped"
+    DIAGNOSIS = "diagnosis"
+    DIAGNOSIS_FAILED = "diagnosis_failed"
 
 
 def _kind(value: object, kinds: type[StrEnum]) -> StrEnum | str:
@@ -463,6 +466,10 @@ class ModelParameters(Message):
     recent_f: dict | None = None
     plc_time: int | None = None
     """The window's end on the PLC's clock, ns, when the register map has one."""
+    noise_floor_c: dict[str, float] | None = None
+    misfit_limit_c: dict[str, float] | None = None
+    """Per zone, the fit RMSE above which the model misses the window: its noise floor
+    widened by the floor's uncertainty, as a diagnosis judges a gap."""
 
     _HEAD: ClassVar[tuple[str, ...]] = ("status", "detail", "window_start", "window_end",
                                         "n_samples", "gap_fraction", "burner_steps")
@@ -490,7 +497,8 @@ class ModelParameters(Message):
             values[name] = _int(values[name])
         for name in ("gap_fraction", "sigma_c", "elapsed_s"):
             values[name] = _float(values[name])
-        for name in ("ci95", "rmse_c", "combinations", "zone_offsets_c", "search", "recent_f"):
+        for name in ("ci95", "rmse_c", "combinations", "zone_offsets_c", "search", "recent_f",
+                     "noise_floor_c", "misfit_limit_c"):
             values[name] = _dict(values[name])
         for name in ("determined_combinations", "undetermined", "flags"):
             values[name] = _list(values[name])
@@ -502,6 +510,14 @@ class ModelParameters(Message):
     @property
     def fitted(self) -> bool:
         return self.status == "ok"
+
+    def misfit_zones(self) -> list[str]:
+        """The zones whose fit RMSE lies above their misfit limit (none unless fitted)."""
+        if not self.fitted or not self.rmse_c or not self.misfit_limit_c:
+            return []
+        return [z for z, v in self.rmse_c.items()
+                if _is_number(v) and _is_number(self.misfit_limit_c.get(z))
+                and v > self.misfit_limit_c[z]]
 
 
 @dataclass
@@ -553,6 +569,60 @@ class ModelEvent(Message):
 
 
 @dataclass
+class ModelDiagnosis(Message):
+    """An online diagnosis's verdict (refit.diagnosis): what the refit's model misses, judged
+    on data the candidates were not fitted on. `fitted` and `held_out` are lists of
+    {start, end}; `effects` of {effect, options, params}; `where` as the diagnosis locates
+    its error; `cut` names what the time limit cut, so that replay repeats the verdict."""
+
+    TOPIC: ClassVar[str] = MODEL_DIAGNOSIS
+
+    status: str
+    detail: str
+    trigger: str
+    trigger_detail: str = ""
+    effects: list[dict] = field(default_factory=list)
+    sensor: dict | None = None
+    where: list[dict] = field(default_factory=list)
+    shrink_pct: float | None = None
+    gap_closed_pct: float | None = None
+    rmse_holdout_c: dict[str, float] | None = None
+    noise_floor_c: dict[str, float] | None = None
+    fitted: list[dict] = field(default_factory=list)
+    held_out: list[dict] = field(default_factory=list)
+    reference_window: dict | None = None
+    effects_tried: list[str] | None = None
+    untried: list[str] = field(default_factory=list)
+    cut: list[str] = field(default_factory=list)
+    seed: int | None = None
+    time_limit_s: float | None = None
+    elapsed_s: float | None = None
+    plc_time: int | None = None
+
+    def to_json(self) -> dict:
+        out = super().to_json()
+        if self.plc_time is not None:
+            out["plc_time"] = plc_time(self.plc_time)
+        return out
+
+    @classmethod
+    def from_json(cls, message: dict) -> ModelDiagnosis:
+        values: dict[str, Any] = {f.name: message.get(f.name) for f in fields(cls)
+                                  if f.name != "plc_time"}
+        for name in ("status", "detail", "trigger", "trigger_detail"):
+            values[name] = "" if values[name] is None else str(values[name])
+        for name in ("effects", "where", "fitted", "held_out", "untried", "cut"):
+            values[name] = _list(values[name]) or []
+        for name in ("sensor", "rmse_holdout_c", "noise_floor_c", "reference_window"):
+            values[name] = _dict(values[name])
+        for name in ("shrink_pct", "gap_closed_pct", "time_limit_s", "elapsed_s"):
+            values[name] = _float(values[name])
+        values["effects_tried"] = _list(values["effects_tried"])
+        values["seed"] = _int(values["seed"])
+        return cls(**values, plc_time=_stamp(message))
+
+
+@dataclass
 class LogLine(Message):
     """One line of /log (foxglove.Log), for Foxglove's log panel."""
 
@@ -581,11 +651,11 @@ class LogLine(Message):
 Event = DaqEvent | ModelEvent
 FurnaceMessage = Thermocouples | Burners | Ambient | Heat | Disturbances | Signals
 AnyMessage = Thermocouples | Burners | Ambient | Heat | Disturbances | Signals | DaqStatus | \
-    DaqEvent | ModelParameters | ModelEvent | LogLine
+    DaqEvent | ModelParameters | ModelEvent | ModelDiagnosis | LogLine
 
 CLASSES: dict[str, type[Message]] = {c.TOPIC: c for c in (
     Thermocouples, Burners, Ambient, Heat, Disturbances, Signals, DaqStatus, DaqEvent,
-    ModelParameters, ModelEvent, LogLine)}
+    ModelParameters, ModelEvent, ModelDiagnosis, LogLine)}
 """The message class of each topic of the contract."""
 
 

@@ -39,6 +39,9 @@ QUALITIES: tuple[str, ...] = ("ok", "stale", "comm_error", "out_of_range", "sens
 DAQ_STATES: tuple[str, ...] = ("connected", "disconnected")
 BURNER_SOURCES: tuple[str, ...] = ("modbus", "can")
 MODEL_STATUSES: tuple[str, ...] = ("ok", "insufficient_excitation", "failed")
+DIAGNOSIS_STATUSES: tuple[str, ...] = ("explained", "explained_in_part", "unexplained", "no_gap",
+                                       "failed")
+"""A diagnosis's verdict (CONTRACTS.md section 6), or failed: it raised or ran out of time."""
 PARAM_NAMES: tuple[str, ...] = ("a", "b", "c", "d", "e", "f")
 """The paper's furnace's parameters; another furnace's are `param_names(furnace)`."""
 
@@ -61,6 +64,7 @@ DAQ_STATUS = "/daq/status"
 DAQ_EVENTS = "/daq/events"
 MODEL_PARAMETERS = "/model/parameters"
 MODEL_EVENTS = "/model/events"
+MODEL_DIAGNOSIS = "/model/diagnosis"
 LOG = "/log"
 FURNACE_TOPICS: tuple[str, ...] = (THERMOCOUPLES, BURNERS, AMBIENT, HEAT, DISTURBANCES,
                                    SIGNALS)
@@ -404,6 +408,14 @@ def _model_parameters(furnace: Furnace) -> dict:
             }, "what the newest data say about the heat per burner (drift detection)"),
             "plc_time": _time("the window's end on the PLC's clock, when the register map has "
                               "one"),
+            "noise_floor_c": _object({z: _number(f"noise floor of the {z} zone in °C: the RMSE "
+                                                 "a perfect model would reach on the window")
+                                      for z in zones}, "the window's noise floor per zone"),
+            "misfit_limit_c": _object({z: _number(f"fit RMSE of the {z} zone above which the "
+                                                  "model misses the window (°C)")
+                                       for z in zones},
+                                      "the noise floor widened by its uncertainty, as a "
+                                      "diagnosis judges a gap (refit.diagnosis)"),
             "search": _object({
                 "method": _string("refit.method: ga_polish (the GA seeded with the previous "
                                   "model, then the polish), ga (the paper's GA from scratch) "
@@ -430,7 +442,7 @@ def _model_parameters(furnace: Furnace) -> dict:
 
 def _model_events(furnace: Furnace) -> dict:
     return _object(
-        {"kind": _string("what happened: drift, window_dropped"),
+        {"kind": _string("what happened: drift, window_dropped, diagnosis, diagnosis_failed"),
          "detail": _string("the event in words"),
          "parameter": _string("drift: the parameter that moved"),
          "old": _number("drift: its reference value"),
@@ -450,6 +462,68 @@ def _model_events(furnace: Furnace) -> dict:
          "plc_time": _time("the window's end on the PLC's clock, when the register map has one")},
         "model events such as parameter drift",
         ("kind", "detail"),
+    )
+
+
+def _window(what: str) -> dict:
+    return _object({"start": _string(f"start of the {what}, ISO 8601 UTC (PLC clock)"),
+                    "end": _string(f"end of the {what}, ISO 8601 UTC (PLC clock)")},
+                   f"the {what}")
+
+
+def _model_diagnosis(furnace: Furnace) -> dict:
+    zones = furnace.zones
+    per_zone = lambda what: _object({z: _number(f"{what}, {z} zone (°C)") for z in zones},  # noqa: E731
+                                    what)
+    return _object(
+        {"status": _string("the verdict: explained (by the effects), explained_in_part, "
+                           "unexplained, no_gap, or failed (the diagnosis raised or ran past "
+                           "its time)", DIAGNOSIS_STATUSES),
+         "detail": _string("the verdict in a sentence; for a thermocouple drift, which one and "
+                           "since when"),
+         "trigger": _string("what started it: drift (a /model/events drift) or misfit (windows "
+                            "in a row fitted above their noise floor)", ("drift", "misfit")),
+         "trigger_detail": _string("the trigger in words"),
+         "effects": {"type": "array", "description": "the effects the verdict keeps, with their "
+                     "fitted parameters", "items": _object({
+                         "effect": _string("the effect's name (CONTRACTS.md section 4)"),
+                         "options": _open_map({}, "the effect's law (e.g. sensor: soak_1)"),
+                         "params": _open_map({"type": "number"}, "its fitted parameters")},
+                         "one effect kept")},
+         "sensor": _object({"thermocouple": _string("the thermocouple that drifts"),
+                            "onset": _string("when its drift began, ISO 8601 UTC"),
+                            "rate_c_per_h": _number("how fast its error grows, °C per hour")},
+                           "sensor_drift kept: the thermocouple, not the furnace, changed"),
+         "where": {"type": "array", "description": "where the model's error lies, largest "
+                   "share first", "items": _object({
+                       "zone": _string("the zone"),
+                       "sensor": _string("the thermocouple departing from its partner, if one"),
+                       "start": _string("start of the span"), "end": _string("end of the span"),
+                       "share_of_error": _number("share of the error above the floor"),
+                       "regime": _string("what the furnace did then"),
+                       "kind": _string("sensor, change, span or throughout")},
+                       "one place")},
+         "shrink_pct": _number("held-out RMSE reduction of the kept effects against the model"),
+         "gap_closed_pct": _number("share of the held-out error above the floor they remove"),
+         "rmse_holdout_c": per_zone("the model's held-out RMSE"),
+         "noise_floor_c": per_zone("the held-out data's noise floor"),
+         "fitted": {"type": "array", "items": _window("span fitted"),
+                    "description": "the spans the candidates were fitted on"},
+         "held_out": {"type": "array", "items": _window("span held out"),
+                      "description": "the spans they were judged on"},
+         "reference_window": _window("last refit window the model fitted to its floor"),
+         "effects_tried": _strings("the candidate effects (refit.diagnosis.effects)"),
+         "untried": _strings("what the time limit left unfitted: the verdict is judged "
+                             "without it"),
+         "cut": _strings("the same fits by batch and place: replay cuts these and no others, "
+                         "in place of the clock"),
+         "seed": _integer("the diagnosis's random seed: the held-out window's end in seconds"),
+         "time_limit_s": _number("refit.diagnosis.time_limit_s"),
+         "elapsed_s": _number("wall time of the diagnosis in s"),
+         "plc_time": _time("the held-out window's end on the PLC's clock, when the register "
+                           "map has one")},
+        "an online diagnosis of what the refit's model misses (refit.diagnosis)",
+        ("status", "detail", "trigger"),
     )
 
 
@@ -499,6 +573,7 @@ def _topics(furnace: Furnace, signals: tuple[SignalField, ...]) -> dict[str, Top
         Topic(DAQ_EVENTS, "daq.Event", _daq_events(furnace)),
         Topic(MODEL_PARAMETERS, "model.Parameters", _model_parameters(furnace)),
         Topic(MODEL_EVENTS, "model.Event", _model_events(furnace)),
+        Topic(MODEL_DIAGNOSIS, "model.Diagnosis", _model_diagnosis(furnace)),
         Topic(LOG, "foxglove.Log", _LOG),
     )}
 

@@ -149,6 +149,48 @@ def test_a_drifting_controlled_thermocouple_moves_the_true_zone_by_the_drift(tmp
     assert np.allclose(a.zone_true[b.t_min < 800], b.zone_true[b.t_min < 800])
 
 
+@pytest.mark.parametrize("effect", ["dead_time: {theta_dead: 30}",
+                                    "fuel_change: {t_fuel: 150, fuel_ratio: 0.75}"])
+def test_an_effect_that_reaches_back_runs_as_its_fired_inputs_run_whole(tmp_path, effect):
+    """A dead time or a fuel switch moves burner steps per parameter set; the stepped plant
+    simulates each control period from the inputs they can still need (`reach_back`), not
+    the whole past. The truth must be what the whole run of the inputs fired gives, and the
+    effect must have changed the firing (else the check would be empty)."""
+    text = "duration_min: 300\n" + soak_loop("[{at_min: 0, target_c: 1200, ramp_c_per_min: 2}]")
+    plain = scenario_of(tmp_path, text, "plain")
+    s = scenario_of(tmp_path, text, "effect", effect)
+    a, r = run(plain), run(s)
+    assert not np.array_equal(a.burners, r.burners)
+    again = Plant.from_scenario(s, seed=1).run(_held(r), r.t_min, s.initial_c)
+    assert np.allclose(again.zone_true, r.zone_true, atol=1e-6)
+
+
+def test_reach_back_is_what_the_effects_say_and_all_of_it_when_unsaid():
+    from furnace_model.effects import EFFECTS
+    from furnace_model.effects.base import Effect
+    from furnace_model.simulation.plant import reach_back
+    from furnace_model.simulation.structure import ModelStructure
+
+    class Moves(Effect):  # shifts steps in time and says nothing of how far
+        name, physics = "moves_steps", "test"
+
+        def _params(self):
+            return ()
+
+        def transform_drive(self, theta, drive):
+            return drive
+
+    def reach(*effects, **values):
+        ms = ModelStructure(effects, furnace=PAPER)
+        return reach_back(ms, {**ms.defaults(), **values})
+
+    assert reach() == 0.0
+    assert reach(*(EFFECTS[n](furnace=PAPER) for n in ("zone_losses", "sensor_lag",
+                                                        "fuel_change", "radiation"))) == 0.0
+    assert reach(EFFECTS["dead_time"](furnace=PAPER), theta_dead=17.5) == 17.5
+    assert reach(Moves(furnace=PAPER)) == np.inf
+
+
 def test_staged_output_is_whole_burners_within_limits():
     r = run(dataclasses.replace(load_scenario(shipped_named(SCENARIOS, "paper_production")),
                                 duration_min=900.0))

@@ -240,3 +240,23 @@ def test_stepper_matches_a_whole_run(name, scenarios):
             stepper.set_inputs(scn.burners_at(stepper.t))
             stepper.advance(sub)
         np.testing.assert_allclose(stepper.readings(), whole.tc[k], rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["dead_time", "fuel_change"])
+def test_look_ahead_matches_a_whole_run(name, scenarios):
+    """The simulated PLC's look-ahead simulates each hour from the inputs the effect can
+    still need (a dead time's worth before it), not the whole schedule; what it serves must
+    be the whole run."""
+    from furnace_model.simulation.plant import PlantAhead
+
+    scn = load_scenario(scenarios / "paper_exp2.yaml")
+    ms = ModelStructure([EFFECTS[name](furnace=PAPER)], furnace=PAPER)
+    values = {**ms.defaults(), **scn.params, "theta_dead": 40.0, "t_fuel": 2000.0}
+    values = {k: v for k, v in values.items() if k in ms.names}
+    plant = Plant(ms, values, SensorSpec(noise_sd_c=0.0, bias_sd_c=0.0))
+    t = np.arange(0.0, 3801.0, 100.0) + 0.5
+    whole = plant.run(scn.inputs(), t, scn.initial_c)
+    ahead = PlantAhead(plant, scn.inputs(), scn.initial_c)
+    for k, tt in enumerate(t):
+        np.testing.assert_allclose(ahead.readings(int(round(tt * 60))), whole.tc[k],
+                                   rtol=1e-6, atol=1e-6)

@@ -164,6 +164,23 @@ def test_selfcheck_draws_of_another_furnace_are_that_furnaces_cases(local, tmp_p
         (want.description, want.status, want.named, want.correct)
 
 
+@pytest.mark.slow
+def test_selfcheck_production_draws_as_tasks_are_the_closed_loop_cases(local, tmp_path):
+    """`fleet selfcheck --production`: the draws are the closed-loop cases
+    `furnace-model selfcheck --production` draws."""
+    from furnace_model.diagnosis.cases import production_scenario
+    from furnace_model.diagnosis.selfcheck import check
+
+    furnace = production_scenario().furnace
+    got, result = run_selfcheck(local["client"], ["none"], 1, tmp_path, quiet=True,
+                                mode="production", furnace=furnace)
+    (want,) = check(["none"], 1, 0, mode="production", furnace=furnace)
+    assert not result.failures and len(got) == 1
+    assert "closed loop" in want.description
+    assert (got[0].description, got[0].status, got[0].named, got[0].correct) == \
+        (want.description, want.status, want.named, want.correct)
+
+
 # -- a cluster started apart, a worker killed mid-run ----------------------------------------
 
 def _dask(*args: str) -> subprocess.Popen:

@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from furnace_model.cli.arguments import CommandParser, furnace_of, output_dir, positive_int
+from furnace_model.cli.arguments import CommandParser, output_dir, positive_int
 from furnace_model.extras import require
 
 
@@ -144,7 +144,7 @@ def run_selfcheck(args: argparse.Namespace) -> int:
                                first=args.first_draw, form=args.form,
                                candidates=args.candidates, noise=args.noise,
                                effects_from=effects, quiet=args.quiet,
-                               furnace=furnace_of(args))
+                               mode=sc.mode_of(args), furnace=sc.cases_furnace(args))
     rows = sc.report(args, outcomes, complete=not result.failures)
     code = _finish(args, result, [str(args.json)] if args.json else ["stdout"])
     failed = [r.label for r in rows if not r.passed]

@@ -270,7 +270,10 @@ class Draw:
     noise: str
     effects_from: tuple[str, ...] = ()
     furnace: Furnace = field(kw_only=True)
-    """The description the cases are heat-ups of (`selfcheck --furnace`)."""
+    """The description the cases run on (`selfcheck --furnace`, or the production
+    scenario's with `--production`)."""
+    mode: str = field(default="heat-up", kw_only=True)
+    """Heat-ups or production records (`furnace_model.diagnosis.selfcheck.MODES`)."""
 
 
 def selfcheck_draw(d: Draw) -> dict:
@@ -280,5 +283,5 @@ def selfcheck_draw(d: Draw) -> dict:
 
     prepare_worker(d.effects_from)
     (outcome,) = check([d.label], 1, d.seed, form=d.form, candidates=d.candidates,
-                       noise=d.noise, first=d.draw, furnace=d.furnace)
+                       noise=d.noise, first=d.draw, mode=d.mode, furnace=d.furnace)
     return {"rows": [outcome.to_json()]}

@@ -11,7 +11,13 @@ prints and writes (--json, "complete": false) the cases diagnosed so far and exi
 
 With --furnace the cases are heat-ups of that description (its zones, burners and
 thermocouples, a network of generic rates: docs/diagnosis.md); an effect that cannot apply
-to it is left out of the default rows and refused when named."""
+to it is left out of the default rows and refused when named.
+
+With --production each case is two records of production in closed loop instead of two
+heat-ups: the shipped scenario paper_production on its furnace, the PLC's PI loops setting
+each zone's burners from the thermocouples they read, the held-out record with the slabs
+charged in another order. The same rows, judging and table; the faults outside the library
+are drawn in heat-ups only."""
 
 from __future__ import annotations
 
@@ -41,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         f"once, or {', '.join(OUT_OF_LIBRARY)} (default: none and every "
                         "effect: the nine and those of plug-ins)")
     p.add_argument("--all", action="store_true",
-                   help=f"also {', '.join(EXTRA)}")
+                   help=f"also {', '.join(EXTRA)} (with --production the pair only)")
     p.add_argument("--form", choices=("candidate", "other"), default="candidate",
                    help="draw effects in the candidates' formulation or in another one")
     p.add_argument("--candidates", metavar="a,b", type=partial(effect_list, what="candidate"),
@@ -49,6 +55,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise", choices=NOISE, default="white",
                    help="the thermocouples: white noise (default), low-pass noise, or held-out "
                         "ones 1-3 times as noisy as the fitted ones")
+    p.add_argument("--production", action="store_true",
+                   help="draw production records in closed loop (the shipped scenario "
+                        "paper_production, its PLC's loops firing the burners) instead of "
+                        "heat-ups")
     p.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
     p.add_argument("--first-draw", type=int, default=0, metavar="K",
                    help="number the draws from K (default 0): --draws 3 --first-draw 2 are "
@@ -69,8 +79,17 @@ def labels_of(args: argparse.Namespace) -> list[str]:
         raise FurnaceError("--first-draw must be 0 or more")
     if args.draws < 1:
         raise FurnaceError("--draws must be at least 1")
+    production = mode_of(args) == "production"
+    if production and getattr(args, "furnace", None):
+        raise FurnaceError("--production runs the shipped scenario paper_production on its own "
+                           "furnace: leave out --furnace")
+    faults = sorted({n for label in args.effects or () for n in label.split("+")}
+                    & set(OUT_OF_LIBRARY))
+    if production and faults:
+        raise FurnaceError(f"{', '.join(faults)}: drawn in heat-ups only, not with "
+                           "--production (closed-loop cases draw the library's effects)")
     drawable = _drawable()
-    furnace = furnace_of(args)
+    furnace = cases_furnace(args)
     refused = _refused(furnace)
     if args.effects:
         for name in {n for label in args.effects for n in label.split("+")} - drawable:
@@ -81,10 +100,26 @@ def labels_of(args: argparse.Namespace) -> list[str]:
             if name in refused:
                 raise FurnaceError(f"{name} does not apply to furnace '{furnace.name}': "
                                    f"{refused[name]}")
-    extra = [x for x in EXTRA if not set(x.split("+")) & set(refused)]
+    extra = [x for x in EXTRA if not set(x.split("+")) & set(refused)
+             and not (production and x in OUT_OF_LIBRARY)]
     return list(args.effects or ("none", *(n for n in effect_names()
                                            if n in drawable and n not in refused))) + \
         (extra if args.all else [])
+
+
+def mode_of(args: argparse.Namespace) -> str:
+    """Heat-ups or production records (`diagnosis.selfcheck.MODES`)."""
+    return "production" if getattr(args, "production", False) else "heat-up"
+
+
+def cases_furnace(args: argparse.Namespace):
+    """The furnace the cases run on: the production scenario's with --production, else the
+    one --furnace names (the paper's by default)."""
+    if mode_of(args) == "production":
+        from ..diagnosis.cases import production_scenario
+
+        return production_scenario().furnace
+    return furnace_of(args)
 
 
 def _refused(furnace) -> dict[str, str]:
@@ -118,8 +153,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         check(labels, args.draws, args.seed, form=args.form, candidates=args.candidates,
-              noise=args.noise, report=progress, first=args.first_draw,
-              furnace=furnace_of(args))
+              noise=args.noise, report=progress, first=args.first_draw, mode=mode_of(args),
+              furnace=cases_furnace(args))
     except KeyboardInterrupt:
         bar.close()
         # A full check takes hours: stopping it must not throw away the cases diagnosed.
@@ -146,7 +181,7 @@ def report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool)
     print(table(rows, outcomes))
     if args.json:
         doc = {"seed": args.seed, "draws": args.draws, "first_draw": args.first_draw,
-               "form": args.form, "noise": args.noise,
+               "mode": mode_of(args), "form": args.form, "noise": args.noise,
                "candidates": list(args.candidates or effect_names()), "complete": complete,
                **({"furnace": args.furnace.as_posix()} if getattr(args, "furnace", None)
                   else {}),

@@ -209,6 +209,11 @@ PRODUCTION = "config/scenarios/paper_production.yaml"
 """The closed-loop cases' scenario (`draw_closed_loop_case`), a shipped file."""
 
 
+def production_scenario() -> Scenario:
+    """The closed-loop cases' scenario (`PRODUCTION`), loaded."""
+    return load_scenario(shipped(PRODUCTION))
+
+
 def draw_closed_loop_case(effect: str | tuple[str, ...] | None, rng: np.random.Generator, *,
                           form: str = "candidate",
                           sensors: tuple[SensorSpec, SensorSpec] = (SENSORS_SPEC, SENSORS_SPEC),
@@ -218,7 +223,7 @@ def draw_closed_loop_case(effect: str | tuple[str, ...] | None, rng: np.random.G
     the thermocouples (so a drifting one they read moves the true zone) and firing what the
     records carry. The held-out record runs the same programmes with the slabs charged in
     another order. Perturbations outside the library are not drawn in closed loop."""
-    scenario = scenario or load_scenario(shipped(PRODUCTION))
+    scenario = scenario or production_scenario()
     if scenario.control is None:
         raise ValueError(f"scenario '{scenario.name}' has no control section")
     names: tuple[str, ...] = () if effect is None else (

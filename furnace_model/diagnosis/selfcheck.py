@@ -14,7 +14,16 @@ import numpy as np
 from ..blas import on_one_thread
 from ..effects import EFFECTS
 from ..simulation.furnace import Furnace
-from .cases import SENSORS_SPEC, Case, case_rng, draw_case, draw_sensors, parse_label
+from .cases import (
+    SENSORS_SPEC,
+    Case,
+    case_rng,
+    draw_case,
+    draw_closed_loop_case,
+    draw_sensors,
+    parse_label,
+    production_scenario,
+)
 from .faults import FAULTS
 
 # --- the check: diagnose known-truth cases and count -------------------------------------
@@ -24,6 +33,10 @@ STATUSES = ("no_gap", "explained", "explained_in_part", "unexplained")
 """The verdicts counted, each in its own column of the table."""
 NAMING = ("explained", "explained_in_part")
 """The verdicts that name effects."""
+MODES = ("heat-up", "production")
+"""What a case's two records are: heat-ups under random burner schedules (`draw_case`), or
+production under the PLC's loops (`draw_closed_loop_case`, the shipped paper_production
+scenario), where the loops set the burners from the thermocouples they read."""
 
 
 @dataclass
@@ -104,31 +117,44 @@ def carried_limit(case: Case, diagnosis) -> dict[str, float]:
 
 
 def selfcheck_case(label: str, k: int, seed: int = 0, *, form: str = "candidate",
-                   noise: str = "white", furnace: Furnace) -> Case:
-    """Draw `k` of the selfcheck's row `label`: the same case `check` diagnoses."""
+                   noise: str = "white", mode: str = "heat-up", furnace: Furnace) -> Case:
+    """Draw `k` of the selfcheck's row `label`: the same case `check` diagnoses. In
+    production (`MODES`) the records are the production scenario's, on its own furnace,
+    which `furnace` must be: the rows were checked against it."""
     sensors = draw_sensors(noise, np.random.default_rng(
         [seed, zlib.crc32(label.encode()), k, zlib.crc32(noise.encode())]))
-    return draw_case(parse_label(label), case_rng(seed, label, k), form=form, sensors=sensors,
-                     furnace=furnace)
+    rng = case_rng(seed, label, k)
+    if mode == "production":
+        scenario = production_scenario()
+        if furnace != scenario.furnace:
+            raise ValueError(f"production cases run on furnace '{scenario.furnace.name}' "
+                             f"(scenario {scenario.name}), not '{furnace.name}'")
+        return draw_closed_loop_case(parse_label(label), rng, form=form, sensors=sensors,
+                                     scenario=scenario)
+    if mode != "heat-up":
+        raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
+    return draw_case(parse_label(label), rng, form=form, sensors=sensors, furnace=furnace)
 
 
 @on_one_thread
 def check(labels: list[str], draws: int, seed: int = 0, *, form: str = "candidate",
           candidates: tuple[str, ...] | None = None, noise: str = "white",
           report: Callable[[Outcome], None] | None = None, first: int = 0,
-          furnace: Furnace) -> list[Outcome]:
+          mode: str = "heat-up", furnace: Furnace) -> list[Outcome]:
     """Draw `draws` cases per label, diagnose each with its effect withheld (the diagnosis is
     told nothing about it), and judge the verdict against the truth. The thermocouples
     (`noise`) are drawn from a stream of their own, so that a case's furnace and schedule
     are the same whatever its thermocouples. `first`: the first draw's number, so that a
     check can be split into runs (draws 0-1, then 2-4) that together are the longer one.
-    `furnace`: the description the cases are heat-ups of."""
+    `mode`: heat-ups or production records (`MODES`); `furnace`: the description the cases
+    run on."""
     from . import diagnose  # the diagnosis is the checked party, not a dependency
 
     out = []
     for label in labels:
         for k in range(first, first + draws):
-            case = selfcheck_case(label, k, seed, form=form, noise=noise, furnace=furnace)
+            case = selfcheck_case(label, k, seed, form=form, noise=noise, mode=mode,
+                                  furnace=furnace)
             t0 = time.perf_counter()
             d = diagnose(case.fit, case.holdout, effects=candidates, seed=seed)
             correct, absorbed, reason = judge_case(case, d)

@@ -7,7 +7,8 @@ nowhere else. Its physics hooks may
 
 - add states and change the matrices of x' = A x + B u (`extend`),
 - reshape the input levels before they become steps (`transform_levels`),
-- add, scale or shift input steps per parameter set (`transform_drive`),
+- add, scale or shift input steps per parameter set (`transform_drive`), saying how far
+  back in time the inputs then act (`reach_back_min`),
 - add a term that is not linear in the state (`nonlinear_rhs`; radiation),
 - offset individual thermocouples (`sensor_offsets`).
 
@@ -178,6 +179,17 @@ class Effect:
 
     def transform_drive(self, theta: Theta, drive: Drive) -> Drive:
         return drive
+
+    def reach_back_min(self, theta: Theta) -> float:
+        """How long before an instant the inputs still act after it, other than through the
+        state and the input then in force (a transport delay's length, in minutes). A plant
+        stepped one control period at a time simulates each period from the inputs this far
+        back only, so that a long run costs its periods, not their square. An effect with a
+        `transform_drive` of its own may move steps in time: unless it says how far, the
+        whole past is kept (inf)."""
+        if type(self).transform_drive is Effect.transform_drive:
+            return 0.0
+        return float("inf")
 
     def nonlinear_rhs(self, theta: Theta, x: np.ndarray, A: np.ndarray, B: np.ndarray,
                       u: np.ndarray) -> np.ndarray:

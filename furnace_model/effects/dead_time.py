@@ -35,3 +35,7 @@ class DeadTime(Effect):
         s_new = np.concatenate([s + theta["theta_dead"][:, None], s], axis=1)
         du_new = np.concatenate([du * burners, du * (1.0 - burners)], axis=1)
         return Drive(drive.t0, drive.u0, s_new, du_new)
+
+    def reach_back_min(self, theta):
+        """The burners fired a dead time ago are still on their way to the zone."""
+        return float(np.max(theta["theta_dead"]))

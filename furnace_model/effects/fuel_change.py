@@ -50,3 +50,9 @@ class FuelChange(Effect):
         jump[:, 0, self.u_burners] = (rho - 1.0)[:, None] * u_at[:, self.u_burners]
         return Drive(drive.t0, drive.u0, np.concatenate([s, tc[:, None]], axis=1),
                      np.concatenate([du, jump], axis=1))
+
+    def reach_back_min(self, theta):
+        """No reach: a switch already passed scales the input in force (the jump it adds falls
+        before the start and is folded into that input), and one still to come reads the
+        level in force at its instant from the inputs ahead."""
+        return 0.0

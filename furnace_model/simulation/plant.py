@@ -7,6 +7,7 @@ effects the scenario switches on. Runs are reproducible from a seed.
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -180,12 +181,23 @@ def row_means(t_in: np.ndarray, levels: np.ndarray, t: np.ndarray) -> np.ndarray
     return held_means(np.asarray(t_in, dtype=float), levels, row_edges(t, 1.0))
 
 
+def reach_back(structure: ModelStructure, values: Mapping[str, float]) -> float:
+    """How far back (minutes) the inputs still act other than through the state and the
+    input in force: what a plant stepped in pieces simulates each piece from (the effects'
+    `reach_back_min`, added up, since delays in series add)."""
+    theta = structure.theta(values)
+    return float(sum(e.reach_back_min(theta) for e in structure.effects))
+
+
 class PlantStepper:
     """The plant advanced in increments, for a simulated PLC whose burners may be switched
     by hand: the schedule is not known ahead, so it is built up as commands arrive.
 
-    Each advance is exact (same simulator as a whole run); the input history is kept, so
-    a dead time sees burner changes made before the current step.
+    Each advance is exact (same simulator as a whole run). The whole input history is kept
+    (`history`: what was fired, for the record), but an advance simulates from the inputs
+    the effects can still need (`reach_back`: a dead time sees burner changes made that
+    long before the current step), so that a run of many control periods costs each period
+    alike instead of the history so far.
     """
 
     def __init__(self, plant: Plant, x0_zone: np.ndarray, burners: np.ndarray, t_air: float,
@@ -201,6 +213,7 @@ class PlantStepper:
                       else np.asarray(disturbances, dtype=float).reshape(k)]
         C = plant.structure.system(plant.structure.theta(plant.values)).C[0]
         self._C = C
+        self._reach = reach_back(plant.structure, plant.values)
 
     @property
     def burners(self) -> np.ndarray:
@@ -241,7 +254,7 @@ class PlantStepper:
         if start < self.t:
             raise ValueError(f"inputs from {start:g} min lie before the plant's time "
                              f"{self.t:g} min")
-        keep = int(np.searchsorted(self._t, start, side="left"))
+        keep = bisect.bisect_left(self._t, start)
         k = len(self.plant.furnace.disturbances)
         del self._t[keep:], self._burners[keep:], self._air[keep:], self._dist[keep:]
         self._t += [float(v) for v in inputs.t]
@@ -249,16 +262,20 @@ class PlantStepper:
         self._air += [float(a) for a in inputs.t_air]
         self._dist += [np.asarray(d, dtype=float).reshape(k) for d in inputs.disturbances]
 
-    def history(self) -> Inputs:
-        """Every input set so far, as the model takes them."""
-        return Inputs(np.array(self._t), np.array(self._burners), np.array(self._air),
-                      np.array(self._dist).reshape(len(self._t), -1))
+    def history(self, since: float = -np.inf) -> Inputs:
+        """Every input set so far, as the model takes them; from the one in force at
+        `since` (minutes) on."""
+        lo = max(bisect.bisect_right(self._t, since) - 1, 0)
+        n = len(self._t) - lo
+        return Inputs(np.array(self._t[lo:]), np.array(self._burners[lo:]),
+                      np.array(self._air[lo:]), np.array(self._dist[lo:]).reshape(n, -1))
 
     def advance(self, t_new: float) -> None:
         if t_new <= self.t:
             return
-        self.x = self.plant.structure.simulate(self.plant.values, self.history(), np.array([t_new]),
-                                               self.x[None], t0=self.t,
+        self.x = self.plant.structure.simulate(self.plant.values,
+                                               self.history(since=self.t - self._reach),
+                                               np.array([t_new]), self.x[None], t0=self.t,
                                                states=True).final_state[0]
         self.t = float(t_new)
 
@@ -278,9 +295,9 @@ class PlantAhead:
     Pulse firing switches a zone's inputs every few seconds, thousands of times a day; a
     stepper advanced scan by scan would integrate its growing history at each scan. Here
     each `span_min` is simulated once, exactly, at every second of it, so a scan costs a
-    lookup. Without effects the state at a span's start carries all of the past and the
-    span is simulated from the inputs since then; an effect may reach back (a transport
-    delay, a switch at an instant), and then the whole schedule up to the span goes in.
+    lookup. The state at a span's start carries the past but for what the effects reach
+    back to (`reach_back`: a transport delay's length); the span is simulated from the
+    inputs since then, or from the whole schedule where an effect sets no bound.
     """
 
     def __init__(self, plant: Plant, inputs: Inputs, x0_zone: np.ndarray,
@@ -291,14 +308,15 @@ class PlantAhead:
         self._x = plant.structure.full_state(np.asarray(x0_zone, dtype=float))[0]
         self._C = plant.structure.system(plant.structure.theta(plant.values)).C[0]
         self._first_s = int(round(self._t0 * 60.0))
+        self._reach = reach_back(plant.structure, plant.values)
         self._states = self._x[None]  # the span's states at each of its seconds
 
     def _simulate(self, start_s: int) -> None:
         """The span starting at second `start_s`, from the state there."""
         inputs, t0 = self.inputs, start_s / 60.0
         seconds = np.arange(start_s, start_s + int(round(self.span_min * 60.0)) + 1)
-        if not self.plant.structure.effects:
-            lo = max(int(np.searchsorted(inputs.t, t0, side="right")) - 1, 0)
+        if np.isfinite(self._reach):
+            lo = max(int(np.searchsorted(inputs.t, t0 - self._reach, side="right")) - 1, 0)
             hi = int(np.searchsorted(inputs.t, seconds[-1] / 60.0, side="right"))
             inputs = Inputs(inputs.t[lo:hi], inputs.burners[lo:hi], inputs.t_air[lo:hi],
                             inputs.disturbances[lo:hi])

@@ -18,8 +18,8 @@ if TYPE_CHECKING:
 def run_selfcheck(client, labels: list[str], draws: int, out_dir: Path, *, furnace: Furnace,
                   seed: int = 0, first: int = 0, form: str = "candidate",
                   candidates: tuple[str, ...] | None = None, noise: str = "white",
-                  effects_from: tuple[str, ...] = (), quiet: bool = False
-                  ) -> tuple[list, JobResult]:
+                  effects_from: tuple[str, ...] = (), mode: str = "heat-up",
+                  quiet: bool = False) -> tuple[list, JobResult]:
     """Every (label, draw) of the selfcheck as a task; the Outcomes in the order
     `furnace-model selfcheck` reports them."""
     from furnace_model.diagnosis.selfcheck import Outcome
@@ -31,7 +31,8 @@ def run_selfcheck(client, labels: list[str], draws: int, out_dir: Path, *, furna
     specs = []
     for label in labels:
         for k in range(first, first + draws):
-            d = Draw(label, k, seed, form, candidates, noise, effects_from, furnace=furnace)
+            d = Draw(label, k, seed, form, candidates, noise, effects_from, furnace=furnace,
+                     mode=mode)
             key = task_key("selfcheck", label, [file_id(p) for p in effects_from], d)
             specs.append(TaskSpec("selfcheck", label, f"draw {k}", selfcheck_draw, d, key))
     result = JobResult()

@@ -49,6 +49,12 @@ EXAMPLES = {
                           "window_end": "2026-03-02T06:00:00Z",
                           "rmse_c": {"soak": 1.5, "heat": 1.4, "preheat": 1.2}, "status": "ok"},
     "/model/events": {"kind": "drift", "detail": "b moved 12%", "parameters": {"b": 0.336}},
+    "/model/diagnosis": {"status": "explained", "detail": "soak_1 drifts from 06:40",
+                         "trigger": "drift",
+                         "effects": [{"effect": "sensor_drift", "options": {"sensor": "soak_1"},
+                                      "params": {"drift_rate": 0.02}}],
+                         "sensor": {"thermocouple": "soak_1", "onset": "2026-03-02T06:40:00Z",
+                                    "rate_c_per_h": 1.2}},
     "/log": {"timestamp": {"sec": 1_772_431_200, "nsec": 5}, "level": 3, "message": "m",
              "name": "furnace-daq", "file": "/daq/events", "line": 0},
 }

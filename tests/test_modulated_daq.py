@@ -172,7 +172,8 @@ def test_the_papers_log_has_its_channels_and_nothing_more():
     shipped = load_config(ROOT / "config" / "gateway.yaml")
     assert list(topics(PAPER)) == ["/furnace/thermocouples", "/furnace/burners",
                                    "/furnace/ambient", "/daq/status", "/daq/events",
-                                   "/model/parameters", "/model/events", "/log"]
+                                   "/model/parameters", "/model/events", "/model/diagnosis",
+                                   "/log"]
     assert "signals" not in build_metadata(shipped, software_version="t", host="h")
     sample = Sample(values=dict.fromkeys(PAPER.sensors, 500.0) | {"t_air": 20.0},
                     quality=dict.fromkeys([*PAPER.sensors, "t_air"], "ok"),

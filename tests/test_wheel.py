@@ -88,7 +88,7 @@ def test_an_unknown_name_lists_the_shipped_ones(installed, tmp_path):
     _, target = installed
     out = run(target, tmp_path, "-m", "furnace_daq.cli", "config", "--furnace", "tunnel")
     assert out.returncode == 2 and "Traceback" not in out.stderr
-    assert "tunnel" in out.stderr and "modulated, paper, six-zone" in out.stderr, out.stderr
+    assert "tunnel" in out.stderr and "modulated, paper, paper-production, six-zone" in out.stderr, out.stderr
 
 
 def test_the_demo_finds_its_scenarios_and_config_from_an_installation(installed, tmp_path):

@@ -99,8 +99,8 @@ from furnace_model.simulation.structure import ModelStructure
 from .daqconfig import RefitConfig
 
 FITTING_SEED = 0
-"""Seed of `polish`'s first (cold) fit and of every `ga` search: fixed, as it always was, so
-that their logs replay exactly."""
+"""Seed of `polish`'s first (cold) fit and of every `ga` search: fixed, so that
+their logs replay exactly."""
 SEEDED_REACH = 10.0
 """`ga_polish` searches a box of this many of the previous window's standard deviations
 around its model: the scatter from one window to the next is about one."""

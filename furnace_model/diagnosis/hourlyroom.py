@@ -11,7 +11,6 @@ import pandas as pd
 
 from ..effects import EFFECTS
 from ..experiment import Experiment
-from ..simulation.furnace import Furnace
 from ..simulation.furnacefile import parse_furnace
 from ..simulation.plant import Plant
 from ..simulation.scenario import SensorSpec
@@ -33,17 +32,13 @@ EFFECT_TRUTH = {"wall_storage": {"k_gw": 2e-3, "k_wg": 6e-4}, "sensor_lag": {"ta
 """The values of the effects a room record can carry: a heavy wall, a sensor in a housing."""
 
 
-def room_furnace() -> Furnace:
-    return parse_furnace(ROOM)
-
-
 def hourly_room(seed: int, effects: tuple[str, ...] = (), days: int = 28) -> Experiment:
     """A heated room: heating modulated every hour around a daily cycle, sun by day with the
     weather of the day, ambient in a daily cycle; `effects` among EFFECT_TRUTH's."""
     unknown = [e for e in effects if e not in EFFECT_TRUTH]
     if unknown:
         raise ValueError(f"a room record carries {sorted(EFFECT_TRUTH)}, not {unknown}")
-    furnace = room_furnace()
+    furnace = parse_furnace(ROOM)
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, days * 1440 + 1)
     hours = np.floor(t / 60)

@@ -48,6 +48,18 @@ class Drive:
             return self.u0 + np.einsum("k,pkm->pm", on, self.du)
         return self.u0 + np.einsum("pk,pkm->pm", on, self.du)
 
+    def levels_at(self, times: np.ndarray) -> np.ndarray:
+        """`level_at` for many times at once, (P|1, T, m): one cumulative sum of the steps
+        instead of a pass over them per time."""
+        if self.s.ndim > 1:
+            return np.stack([self.level_at(float(x)) for x in times], axis=1)
+        order = np.argsort(self.s, kind="stable")
+        summed = np.cumsum(self.du[:, order], axis=1)
+        k = np.searchsorted(self.s[order], times, side="right")
+        summed = np.concatenate([np.zeros((summed.shape[0], 1, summed.shape[2])), summed],
+                                axis=1)
+        return self.u0[:, None] + summed[:, k]
+
     def breakpoints(self, p: int = 0) -> np.ndarray:
         """Sorted distinct step times of parameter set p."""
         s = self.s if self.s.ndim == 1 else self.s[p]

@@ -557,7 +557,7 @@ class _Grid:
             return None
         los = np.array([lo for lo, _ in pieces])
         counts = np.array([b.size - 1 for _, b in pieces])
-        u = np.broadcast_to(_levels_at(drive, los), (P, los.size, drive.u0.shape[-1]))
+        u = np.broadcast_to(drive.levels_at(los), (P, los.size, drive.u0.shape[-1]))
         return cls(np.concatenate([b[:-1] for _, b in pieces]),
                    np.concatenate([np.diff(b) for _, b in pieces]),
                    np.repeat(u, counts, axis=1))
@@ -768,18 +768,6 @@ def _phi123(z: np.ndarray) -> tuple[np.ndarray, ...]:
 
 _FACT = np.cumprod(np.concatenate(([1.0], np.arange(1.0, 21.0))))
 """k! for k = 0..20."""
-
-
-def _levels_at(drive: Drive, times: np.ndarray) -> np.ndarray:
-    """The inputs in force at each of the times (increments at exactly a time included),
-    (P|1, T, m): `Drive.level_at` for many times at once."""
-    if drive.s.ndim > 1:
-        return np.stack([drive.level_at(float(x)) for x in times], axis=1)
-    order = np.argsort(drive.s, kind="stable")
-    summed = np.cumsum(drive.du[:, order], axis=1)
-    k = np.searchsorted(drive.s[order], times, side="right")
-    summed = np.concatenate([np.zeros((summed.shape[0], 1, summed.shape[2])), summed], axis=1)
-    return drive.u0[:, None] + summed[:, k]
 
 
 def _take_drive(drive: Drive, p: np.ndarray) -> Drive:

@@ -12,7 +12,15 @@ takes up the thermocouples' constant offsets (which enter the integrals as offse
 A genetic search in twenty-odd dimensions finds the basin far less surely, and far more
 slowly, than this one solve; a polish from a baseline bent to absorb an effect may not
 leave the side valley it is in at all (seen: a loss from one zone of six, the baseline's
-exchange rates at hundreds of times the truth)."""
+exchange rates at hundreds of times the truth).
+
+A furnace held at its setpoints breaks the offsets' term: a zone whose temperature barely
+moves has an integral that is nearly a multiple of t, so the term in t takes up the zone's
+whole exchange, and a zone that settles within a sample (a preheating zone under a minute)
+comes out with no exchange, loss or heat at all, a start the polish cannot leave. Without
+that term the solve keeps each zone's balance, at the price of the offsets' small share of
+the level. `equation_error_starts` gives both; which is the better start is for the records
+to say (`fit` takes the one whose simulation misses them less)."""
 
 from __future__ import annotations
 
@@ -24,10 +32,12 @@ from ..simulation.network import parameter_names
 from ..simulation.structure import ModelStructure
 
 
-def equation_error(structure: ModelStructure, records: list[Experiment]) -> dict[str, float]:
+def equation_error(structure: ModelStructure, records: list[Experiment], offsets: bool = True
+                   ) -> dict[str, float]:
     """Values of the structure's affine parameters (the rest keep their defaults) from
     `records`, Experiments of its furnace; values outside a parameter's box come back
-    clipped to it."""
+    clipped to it. `offsets`: a term in t per record and zone for the thermocouples'
+    offsets."""
     furnace = structure.furnace
     nz = furnace.n_zones
     affine = set(parameter_names(furnace)) | {
@@ -61,7 +71,8 @@ def equation_error(structure: ModelStructure, records: list[Experiment]) -> dict
             X[at:at + n, :k] = Xj[i]
             col = k + 2 * (nz * j + i)
             X[at:at + n, col] = 1.0
-            X[at:at + n, col + 1] = tt
+            if offsets:
+                X[at:at + n, col + 1] = tt
             b[at:at + n] = yy[:, i]
             at += n
     used = np.abs(X).max(axis=0) > 0  # a parameter no zone row holds stays at its default
@@ -74,6 +85,17 @@ def equation_error(structure: ModelStructure, records: list[Experiment]) -> dict
         v = coef[i]
         out[name] = float(np.clip(v, p.lo, p.hi)) if used[i] and np.isfinite(v) else p.default
     return out
+
+
+def equation_error_starts(structure: ModelStructure, records: list[Experiment]
+                          ) -> list[dict[str, float]]:
+    """`equation_error` with the offsets' terms, and without them where that gives another
+    start (any value a third or more away): one or two candidate starts."""
+    with_offsets = equation_error(structure, records)
+    without = equation_error(structure, records, offsets=False)
+    far = any(abs(np.log(max(abs(a), 1e-12) / max(abs(b), 1e-12))) > np.log(1.3)
+              for a, b in ((with_offsets[n], without[n]) for n in with_offsets))
+    return [with_offsets, without] if far else [with_offsets]
 
 
 def _rows(structure: ModelStructure, names: list[str]) -> tuple[np.ndarray, np.ndarray]:

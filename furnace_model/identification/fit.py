@@ -121,10 +121,16 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         # a network of many zones: the search starts where the equations' least squares put
         # it, and a warm-started polish takes it from there (the parameters of an effect
         # that is not zone-affine from their defaults, searched over half their box)
-        from .equationerror import equation_error
+        from .equationerror import equation_error_starts
 
-        init = {n: v for n, v in equation_error(structure, experiments).items()
-                if n not in (fixed or {})}
+        starts = [{n: v for n, v in st.items() if n not in (fixed or {})}
+                  for st in equation_error_starts(structure, experiments)]
+        init = starts[0]
+        if len(starts) > 1:
+            defaults = structure.defaults()
+            z = np.array([prob.to_z(np.array([{**defaults, **st}[n] for n in prob.names]))
+                          for st in starts])
+            init = starts[int(np.nanargmin(np.nan_to_num(prob.sse_params(z), nan=np.inf)))]
     if init:
         start_vals = {**structure.defaults(), **init}
         start = prob.to_z(np.array([start_vals[n] for n in prob.names]))

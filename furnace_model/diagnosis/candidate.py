@@ -38,6 +38,10 @@ class CandidateResult:
     warnings: list[str] = field(default_factory=list)
     offsets_c: dict[str, float] | None = None
     """The zone offsets the fit carries to other records (its thermocouples' biases)."""
+    offsets_undetermined: tuple[str, ...] = ()
+    """Zones whose offset the fitted records do not determine (a 95% interval wider than
+    the offset's physical box, or none): its value is where the fit left it within a
+    thermocouple's bias, not an estimate of one."""
     holdout_offsets_c: list[dict[str, float]] | None = None
     """Per whole held-out record, its offsets: the carried ones corrected within a
     thermocouple's bias."""

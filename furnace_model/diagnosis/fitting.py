@@ -158,10 +158,28 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         held_out_fitted=unseen, carried_c=_carried(fr, task, refined),
         elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings),
         offsets_c=None if carried is None else dict(zip(zones, map(float, carried), strict=True)),
+        offsets_undetermined=undetermined_offsets(fr),
         holdout_offsets_c=None if refined is None else refined.zone_offsets_c,
         rmse_holdout_carried_c=(None if task.effects else
                                 _with_carried_offsets(fr, task, hold_pred, unseen)),
         flags=[f.words() for f in [*fr.flags, *(refined.flags if refined else [])]])
+
+
+def undetermined_offsets(fr: FitResult) -> tuple[str, ...]:
+    """The zones whose offset some fitted record leaves undetermined: an interval wider
+    than the box a thermocouple's bias allows. A furnace held at its setpoints cannot tell
+    a shift of its readings from a shift of its level, which its rates take up."""
+    if not fr.zone_offsets_c or not fr.bounds_c:
+        return ()
+    out = []
+    for z in fr.zone_offsets_c[0]:
+        for j in range(len(fr.zone_offsets_c)):
+            ci = (fr.zone_offsets_ci95_c or [{}] * (j + 1))[j].get(z)
+            lo, hi = fr.bounds_c[j]["offset"][z]
+            if ci is not None and ci[1] - ci[0] > hi - lo:
+                out.append(z)
+                break
+    return tuple(out)
 
 
 def _late(task: Task) -> bool:

@@ -59,6 +59,12 @@ class Diagnosis:
 
         out = [f"Zone offsets the baseline carries ({'/'.join(zones)}): {values(b.offsets_c)} "
                "°C, a thermocouple's bias at most"]
+        if b.offsets_undetermined:
+            out.append(f"- not determined by the fitted records in the "
+                       f"{', '.join(b.offsets_undetermined)} zone(s): their 95% interval is "
+                       "wider than a thermocouple's bias allows (a furnace held at its "
+                       "setpoints cannot tell a shift of its readings from one of its level), "
+                       "so the value is where the fit left it, not a bias")
         for e, o in zip(self.holdout, b.holdout_offsets_c or [], strict=False):  # whole records
             out.append(f"- {e.name} (held out): {values(o)} °C")
         if b.rmse_holdout_carried_c is not None:

@@ -144,12 +144,12 @@ def test_missing_readings_are_masked_not_filled(paper_1min):
 
 
 def test_paper_ga_is_reproducible_and_reports_its_runs(paper_1min):
-    kw = dict(method="ga", runs=2, population=20, generations=60)
+    kw = dict(method="ga", runs=2, population=20, generations=20)
     a = fit([paper_1min], seed=5, **kw)
     b = fit([paper_1min], seed=5, **kw)
     assert a.params == b.params
     assert [r["seed"] for r in a.runs] == [5, 6]
-    assert all(r["population"] == 20 and r["generations"] == 60 for r in a.runs)
+    assert all(r["population"] == 20 and r["generations"] == 20 for r in a.runs)
     assert a.runs[0]["params"] != a.runs[1]["params"]
     for k in a.params:
         assert a.genetic_mean[k] == pytest.approx(np.mean([r["params"][k] for r in a.runs]))

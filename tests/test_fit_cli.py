@@ -65,11 +65,11 @@ def test_two_files_fit_jointly(exp_files, tmp_path):
 def test_paper_ga_method_from_the_command_line(exp_files, tmp_path):
     out_json = tmp_path / "ga.json"
     r = cli("fit", str(exp_files["paper_exp1"]), "--method", "ga", "--population", "20",
-            "--generations", "40", "--json", str(out_json))
+            "--generations", "15", "--json", str(out_json))
     assert r.returncode == 0, r.stderr
     doc = json.loads(out_json.read_text())
     assert doc["method"] == "ga"
-    assert doc["runs"][0]["population"] == 20 and doc["runs"][0]["generations"] == 40
+    assert doc["runs"][0]["population"] == 20 and doc["runs"][0]["generations"] == 15
 
 
 @pytest.mark.parametrize("args, expect", [

@@ -12,8 +12,11 @@ diagnosis picks the holdout. The others come from furnace_model.diagnosis.cases.
 only the baseline is fitted), a case the baseline absorbs badly (zone burners: every
 candidate fitted, warm and cold), a lag, a nonlinear effect (radiation); and the shape of a
 measured building record (furnace_model.diagnosis.hourlyroom: one zone, four weeks of
-hourly rows, a wall and a sensor lag). Every case is written to files first, so that both
-trees diagnose the same bytes through the command line.
+hourly rows, a wall and a sensor lag); and a day of production in closed loop
+(draw_closed_loop_case, its control record from minute 720 to 2160: the loops change the
+burners nearly every minute), with the candidates `sensor_drift` and `zone_losses`. Every
+case is written to files first, so that both trees diagnose the same bytes through the
+command line.
 """
 
 from __future__ import annotations
@@ -30,13 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
-from furnace_model.diagnosis.cases import draw_case
+from furnace_model.diagnosis.cases import draw_case, draw_closed_loop_case
 from furnace_model.diagnosis.hourlyroom import ROOM, hourly_room
 from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
-CASES = ("paper pair", "control", "zone_burners", "sensor_lag", "radiation", "hourly room")
+CASES = ("paper pair", "control", "zone_burners", "sensor_lag", "radiation", "hourly room",
+         "production day")
 SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"
 
 
@@ -63,6 +67,10 @@ def write_case(name: str, d: Path) -> list[str]:
         effects = ("wall_storage", "sensor_lag")
         return [csv(hourly_room(1, effects), "a"), "--holdout",
                 csv(hourly_room(2, effects), "b"), "--furnace", str(d / "room.yaml")]
+    if name == "production day":
+        case = draw_closed_loop_case(None, np.random.default_rng(3))
+        return [csv(case.fit[0].between(720.0, 2160.0), "day"), "--furnace",
+                "paper-production", "--effects", "sensor_drift,zone_losses"]
     case = draw_case(None if name == "control" else name, np.random.default_rng(7000),
                      furnace=PAPER)
     return [csv(case.fit[0], "fit"), "--holdout", csv(case.holdout[0], "holdout")]

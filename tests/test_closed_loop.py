@@ -225,13 +225,18 @@ def _held(r: PlantRun):
 
 @pytest.mark.parametrize("name", ["paper_exp1", "modulated_production", "six_zone_effects"])
 def test_open_loop_scenarios_run_bit_for_bit_as_before(name):
-    """Runs recorded before closed-loop scenarios existed (240 minutes, seed 7)."""
+    """Runs recorded before closed-loop scenarios existed (240 minutes, seed 7): the inputs
+    bit for bit, the temperatures to the rounding of sums taken in another order (the
+    segment walks run in blocks)."""
     ref = np.load(REFERENCE)
     s = dataclasses.replace(load_scenario(shipped_named(SCENARIOS, name)), duration_min=240.0)
     assert s.control is None
     r = Plant.from_scenario(s, seed=7).run_scenario(s)
-    for key in ("t_min", "zone_true", "tc", "burners", "t_air", "disturbances"):
+    for key in ("t_min", "burners", "t_air", "disturbances"):
         assert np.array_equal(ref[f"{name}.{key}"], getattr(r, key)), key
+    for key in ("zone_true", "tc"):
+        np.testing.assert_allclose(getattr(r, key), ref[f"{name}.{key}"], rtol=0, atol=1e-9,
+                                   err_msg=key)
     assert r.setpoints is None and not r.to_experiment().signals
 
 

@@ -182,8 +182,14 @@ def _segments(lam, out, z, w, s, dw, t_start, t):
     last_idx = np.searchsorted(s, bounds, side="right") - 1
     P, q = out.shape[0], out.shape[1]
     seg_of = np.searchsorted(bounds, t, side="right") - 1
-    if P * lam.shape[1] * t.size <= _DIRECT_CELLS:
+    cells = lam.shape[1] * t.size
+    if P * cells <= _DIRECT_CELLS:
         return _direct(lam, out, z, w, w_after, bounds, last_idx, seg_of, t)
+    if bounds.size > max(t.size // 16, 1):  # a segment every few samples: sets in chunks
+        c = max(1, _CHUNK_CELLS // cells)
+        return np.concatenate([_direct(lam[p:p + c], out[p:p + c], z[p:p + c], w[p:p + c],
+                                       w_after[p:p + c], bounds, last_idx, seg_of, t)
+                               for p in range(0, P, c)])
     pieces = []
     for k, b in enumerate(bounds):
         wk = w if last_idx[k] < 0 else w_after[:, last_idx[k]]
@@ -202,29 +208,92 @@ def _segments(lam, out, z, w, s, dw, t_start, t):
     return Y
 
 
+def segment_starts(lam: np.ndarray, z: np.ndarray, steady: np.ndarray, bounds: np.ndarray
+                   ) -> np.ndarray:
+    """Modal states (P, K, n) at each segment's start `bounds` (K,), from z (P, n) at the
+    first, with the state settling toward steady[:, k] (P, K, n) on segment k:
+    z_(k+1) = e^(lam d_k) z_k + (1 - e^(lam d_k)) steady_k, in blocks (`carried`)."""
+    ends = np.append(bounds, bounds[-1])
+    fade = -np.expm1(lam[:, None, :] * np.diff(ends)[None, :, None])
+    return (carried(lam, ends, fade * steady)
+            + np.exp(lam[:, None, :] * (bounds - bounds[0])[None, :, None]) * z[:, None])
+
+
+def _segment_starts(lam, z, w, w_after, bounds, last_idx):
+    """(K, P, n) each segment's start less its steady state, and the steady state."""
+    inputs = np.concatenate([w[:, None], w_after], axis=1)  # (P, 1 + steps, n)
+    steady = -inputs[:, last_idx + 1] / lam[:, None]  # (P, K, n)
+    states = segment_starts(lam, z, steady, bounds)
+    return np.moveaxis(states - steady, 1, 0), np.moveaxis(steady, 1, 0)
+
+
 def _direct(lam, out, z, w, w_after, bounds, last_idx, seg_of, t):
     """`_segments` for a few parameter sets: every sample's modal state at once, from its
     segment's start and steady state, then one matrix product, instead of a table product
     per segment. A refit's simulations are of one to a dozen sets over a day of samples with
     a burner change every hour or two: there the per-segment calls cost more than their
     arithmetic."""
-    K = bounds.size
-    start = np.empty((K,) + z.shape, np.result_type(z, w, lam))  # (K, P, n): z - steady
-    steady = np.empty_like(start)
-    for k in range(K):
-        wk = w if last_idx[k] < 0 else w_after[:, last_idx[k]]
-        steady[k] = -wk / lam
-        start[k] = z - steady[k]
-        if k + 1 < K:
-            z = start[k] * np.exp(lam * (bounds[k + 1] - bounds[k])) + steady[k]
+    start, steady = _segment_starts(lam, z, w, w_after, bounds, last_idx)
     tau = t - bounds[seg_of]
     modal = start[seg_of] * np.exp(lam[None] * tau[:, None, None]) + steady[seg_of]  # (N, P, n)
     Y = out @ np.moveaxis(modal, 0, -1)  # (P, q, N)
     return Y.real if np.iscomplexobj(Y) else Y
 
 
+CARRY_SPAN = 500.0
+"""The most a mode may decay (in e-folds) within one block of `carried`: e^500 and e^-500
+are far inside a float's range, so a block's scaled sums neither overflow nor go
+subnormal."""
+CARRY_BLOCK_MAX = 256
+
+
+def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """sig (P, K, n) with sig[0] = 0 and sig[k] = e^(lam (T[k] - T[k-1])) sig[k-1] + c[k-1]:
+    what steps starting at T[:K] (T[K] the last one's end) carry from one to the next, per
+    mode lam (P, n), for contributions c (P, K, n); T ascending.
+
+    Why blocks: a step-by-step loop over thousands of steps (a furnace in closed loop
+    changes its burners every minute) costs more than all the arithmetic. Within a block
+    starting at T0, e^(lam (T[k] - T[j+1])) = E_k / E_(j+1) with E_k = e^(lam (T[k] - T0)),
+    so the block's sums are E_k times a cumulative sum of c[j] / E_(j+1): each term keeps
+    its relative precision, and a block is short enough (CARRY_SPAN e-folds of its fastest
+    mode) that 1 / E never overflows. Only what each block hands the next is a loop."""
+    P, K, n = c.shape
+    T = np.asarray(T, dtype=float)
+    gaps = np.diff(T[:K + 1])
+    fastest = float(np.max(np.abs(np.real(lam)), initial=0.0)) * float(np.max(gaps, initial=0.0))
+    L = int(np.clip(CARRY_SPAN // fastest if fastest > 0 else CARRY_BLOCK_MAX, 1,
+                    CARRY_BLOCK_MAX))
+    nb = -(-K // L)
+    pad = nb * L - K
+    Tp = np.concatenate([T[:K + 1], np.full(pad, T[K])])  # nb * L + 1 times
+    cp = np.concatenate([c, np.zeros((P, pad, n), dtype=c.dtype)], axis=1).reshape(P, nb, L, n)
+    first = Tp[0:nb * L:L]  # each block's start
+    at = Tp[:-1].reshape(nb, L) - first[:, None]  # T[k] - T0, k in the block
+    after = Tp[1:].reshape(nb, L) - first[:, None]  # T[j+1] - T0
+    lam4 = lam[:, None, None, :]
+    E = np.exp(lam4 * at[None, :, :, None])
+    inner = np.zeros(cp.shape, np.result_type(cp, E))
+    if L > 1:  # sums over j < k: the cumulative sum shifted by one within the block
+        summed = np.cumsum(cp * np.exp(-lam4 * after[None, :, :, None]), axis=2)
+        inner[:, :, 1:] = E[:, :, 1:] * summed[:, :, :-1]
+    # what block b hands block b+1: its sum carried to the next block's start (exponents
+    # never positive: one step may span more than CARRY_SPAN e-folds)
+    span = Tp[L::L] - first  # (nb,)
+    to_end = np.exp(lam[:, None, :] * span[None, :, None])  # (P, nb, n)
+    handed = np.sum(cp * np.exp(lam4 * (span[:, None] - after)[None, :, :, None]), axis=2)
+    S = np.empty((P, nb, n), dtype=inner.dtype)
+    S[:, 0] = 0.0
+    for b in range(1, nb):
+        S[:, b] = to_end[:, b - 1] * S[:, b - 1] + handed[:, b - 1]
+    return (E * S[:, :, None, :] + inner).reshape(P, nb * L, n)[:, :K]
+
+
 _DIRECT_CELLS = 100_000
 """Parameter sets x states x samples up to which `_direct` is the cheaper walk."""
+_CHUNK_CELLS = 1_000_000
+"""Sets x states x samples of one chunk of `_direct` where segments are many (a furnace in
+closed loop): one chunk's work arrays stay within tens of MB."""
 
 
 def _modal_sum(lam: np.ndarray, tau: np.ndarray, G: np.ndarray, H: np.ndarray) -> np.ndarray:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lti import Drive, Modes
+from .lti import Drive, Modes, carried, segment_starts
 
 _BLOCK = 4096
 """Samples per block of the per-sample coefficient tables."""
@@ -85,12 +85,8 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
         "ij,pkj->pki", W, np.einsum("pnm,km->pkn", dB, U) + np.einsum("nm,pkm->pkn", B, dU))
     gaps = np.diff(bounds)
     decay = _exp(lam[None, :] * gaps[:, None])  # (Kb-1, n)
-    c = np.empty((Kb, n), np.result_type(lam, W, float))
     zeta = W @ np.asarray(x0, dtype=float)
-    for k in range(Kb):
-        c[k] = zeta - steady[k]
-        if k + 1 < Kb:
-            zeta = c[k] * decay[k] + steady[k]
+    c = segment_starts(lam[None], zeta[None], steady[None], bounds)[0] - steady  # (Kb, n)
     longest = max(float(gaps.max()) if gaps.size else 0.0,
                   float(t[-1] - bounds[-1]) if t.size else 0.0, 1e-300)
     coef = _coefficients(F, lam, c, h, longest)
@@ -99,35 +95,38 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
         basis = _basis(lam, gaps, coef.M.shape[2]).reshape(Kb - 1, -1, n)
         step = (np.einsum("kbj,pkbj->pkj", basis, coef.M[:, :-1])
                 + np.einsum("kj,pkij->pki", decay, coef.G[:, :-1]) + coef.const[:, :-1])
-        for k in range(Kb - 1):
-            sig[:, k + 1] = decay[k] * sig[:, k] + step[:, k]
+        # sig[k + 1] = decay[k] sig[k] + step[k], in blocks
+        sig = carried(np.broadcast_to(lam, (p, n)), np.append(bounds, bounds[-1]),
+                      np.concatenate([step, np.zeros_like(step[:, :1])], axis=1))
     CVt = (C @ V).T  # (n, q)
     nb = coef.M.shape[2]
-    # dy = sum over the basis of its coefficients times C V, per segment; laid out (basis,
-    # output, parameter) so that each segment is one matrix product into (N, q, p)
+    q = C.shape[0]
     M = coef.M.copy()
     M[:, :, 0] += sig
-    out_M = np.einsum("pkbj,jq->kbjqp", M, CVt)
-    out_M[:, 0] += np.einsum("pkij,iq->kjqp", coef.G, CVt)
-    q = C.shape[0]
-    out_M = out_M.reshape(Kb, nb * n, q * p)
-    out_c = np.einsum("pkj,jq->kqp", coef.const, CVt).reshape(Kb, q * p)
     seg = np.searchsorted(bounds, t, side="right") - 1
     dy = np.empty((t.size, q, p))
-    flat = dy.reshape(t.size, q * p)
     if Kb <= max(t.size // 16, 1):  # few long segments: a product each
+        # dy = sum over the basis of its coefficients times C V, per segment; laid out
+        # (basis, output, parameter) so that each segment is one matrix product
+        out_M = np.einsum("pkbj,jq->kbjqp", M, CVt)
+        out_M[:, 0] += np.einsum("pkij,iq->kjqp", coef.G, CVt)
+        out_M = out_M.reshape(Kb, nb * n, q * p)
+        out_c = np.einsum("pkj,jq->kqp", coef.const, CVt).reshape(Kb, q * p)
+        flat = dy.reshape(t.size, q * p)
         runs = np.searchsorted(seg, np.arange(Kb + 1))
         for k in range(Kb):
             lo, hi = runs[k], runs[k + 1]
             if hi > lo:
                 X = _basis(lam, t[lo:hi] - bounds[k], nb)
                 flat[lo:hi] = np.real(X @ out_M[k] + out_c[k])
-    else:  # many short ones: each sample's segment gathered
+    else:  # many short ones (a furnace in closed loop): each sample's modal sensitivity
         for b0 in range(0, t.size, _BLOCK):
             blk = slice(b0, b0 + _BLOCK)
             k = seg[blk]
-            X = _basis(lam, t[blk] - bounds[k], nb)
-            flat[blk] = np.real(np.einsum("tb,tbc->tc", X, out_M[k]) + out_c[k])
+            X = _basis(lam, t[blk] - bounds[k], nb).reshape(-1, nb, n)  # (T, nb, n)
+            sigma = ((M[:, k] * X).sum(axis=2)  # (p, T, n)
+                     + (coef.G[:, k] * X[None, :, None, 0, :]).sum(axis=3) + coef.const[:, k])
+            dy[blk] = np.real(sigma @ CVt).transpose(1, 2, 0)
     free = _exp(lam[None, :] * (t - t0)[:, None])  # (N, n): the response to the start
     start = np.asarray(dx0, dtype=float) @ W.T  # (r, n)
     dy0 = np.real(free @ np.einsum("rj,jq->jqr", start, CVt).reshape(n, -1))

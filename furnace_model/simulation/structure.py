@@ -22,7 +22,7 @@ from scipy.integrate import solve_ivp
 
 from ..effects import Effect, Theta
 from .furnace import Furnace
-from .lti import Drive, Modes, response
+from .lti import Drive, Modes, carried, response
 from .network import fill, parameters
 from .parameters import Param
 from .response import Response
@@ -594,48 +594,12 @@ class _Grid:
 
         zero = np.zeros((P, 1, n), dtype=gm.dtype)
         step = convolve(zero, hh, g0, c1, c2)  # each step's own contribution
-        sig = _carried(lam, np.append(a, a[-1] + self.h[-1]), step)  # d at steps' starts
+        sig = carried(lam, np.append(a, a[-1] + self.h[-1]), step)  # d at steps' starts
         k_of = np.clip(np.searchsorted(a, t, side="left") - 1, 0, K - 1)
         tau = np.maximum(t - a[k_of], 0.0)[None, :, None]
         d = convolve(sig[:, k_of], tau, g0[:, k_of], c1[:, k_of], c2[:, k_of])
         d[:, t <= t0] = 0.0
         return np.einsum("pij,pNj->pNi", V, d).real
-
-
-CARRY_BLOCK = 16
-"""Steps per block of `_carried`: its work grows with it, its Python loop shrinks."""
-
-
-def _carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """sig (P, K, n) with sig[0] = 0 and sig[k] = e^(lam (T[k] - T[k-1])) sig[k-1] + c[k-1]:
-    what steps starting at T[:K] (T[K] the last one's end) carry from one to the next, per
-    mode lam (P, n), for contributions c (P, K, n).
-
-    Why blocks: a step-by-step loop over thousands of steps costs more than all the
-    arithmetic of a sweep. Within a block of CARRY_BLOCK steps the sum is one product with
-    the matrix of e^(lam (T[k] - T[j+1])), j < k (exponents never positive for a decaying
-    mode, so nothing overflows), and only what each block hands the next is a loop."""
-    P, K, n = c.shape
-    B = CARRY_BLOCK
-    nb = -(-K // B)
-    Tp = np.concatenate([T[:K], np.full(nb * B - K + 1, T[K])])
-    cp = np.concatenate([c, np.zeros((P, nb * B - K, n), dtype=c.dtype)], axis=1)
-    cp = cp.reshape(P, nb, B, n)
-    start, nxt = Tp[:-1].reshape(nb, B), Tp[1:].reshape(nb, B)
-    lower = np.tri(B, B, -1, dtype=bool)  # j < k within the block
-    D = np.where(lower, start[:, :, None] - nxt[:, None, :], 0.0)
-    M = np.exp(lam[:, None, None, None, :] * D[None, :, :, :, None]) * lower[None, None, :, :, None]
-    inner = np.einsum("pbrcn,pbcn->pbrn", M, cp)
-    first, end = Tp[0:nb * B:B], Tp[B::B]
-    G = np.exp(lam[:, None, :] * (end - first)[None, :, None])
-    handed = np.einsum("pbcn,pbcn->pbn", np.exp(lam[:, None, None, :]
-                                                * (end[:, None] - nxt)[None, :, :, None]), cp)
-    S = np.empty((P, nb, n), dtype=inner.dtype)
-    S[:, 0] = 0.0
-    for b in range(1, nb):
-        S[:, b] = G[:, b - 1] * S[:, b - 1] + handed[:, b - 1]
-    R = np.exp(lam[:, None, None, :] * (start - first[:, None])[None, :, :, None])
-    return (R * S[:, :, None, :] + inner).reshape(P, nb * B, n)[:, :K]
 
 
 class _Nonlinear:

@@ -162,8 +162,10 @@ class DiagnosisProcess:
     def __init__(self, job: DiagnosisJob):
         ctx = mp.get_context("spawn")
         parent, child = ctx.Pipe(duplex=False)
+        # Not daemonic: a daemonic process may not start the candidates' pool. It still
+        # ends with the daemon, by the parent-death signal or by `stop`.
         self.proc = ctx.Process(target=_serve, args=(child, job, os.getpid()),
-                                name="furnace-diagnosis", daemon=True)
+                                name="furnace-diagnosis", daemon=False)
         self.proc.start()
         child.close()
         self.conn: Connection | None = parent

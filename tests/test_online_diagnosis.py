@@ -157,7 +157,6 @@ def test_a_diagnosis_that_raises_is_published_as_failed_with_its_event():
     jsonschema.validate(diag.to_json(), topics(PAPER)[MODEL_DIAGNOSIS].schema)
 
 
-@pytest.mark.slow
 def test_refits_go_on_while_a_diagnosis_computes():
     """A fuel switch raises a drift event, which starts a diagnosis in its own process at a
     lower priority; the windows after it are fitted and published while it computes, and

@@ -13,8 +13,9 @@ only the baseline is fitted), a case the baseline absorbs badly (zone burners: e
 candidate fitted, warm and cold), a lag, a nonlinear effect (radiation); and the shape of a
 measured building record (furnace_model.diagnosis.hourlyroom: one zone, four weeks of
 hourly rows, a wall and a sensor lag); and a day of production in closed loop
-(draw_closed_loop_case, its control record from minute 720 to 2160: the loops change the
-burners nearly every minute), with the candidates `sensor_drift` and `zone_losses`. Every
+(draw_closed_loop_case with a drifting thermocouple, its fitted record from minute 720 to
+2160: the loops change the burners nearly every minute), with the candidates
+`sensor_drift` and `zone_losses`. Every
 case is written to files first, so that both trees diagnose the same bytes through the
 command line.
 """
@@ -68,7 +69,7 @@ def write_case(name: str, d: Path) -> list[str]:
         return [csv(hourly_room(1, effects), "a"), "--holdout",
                 csv(hourly_room(2, effects), "b"), "--furnace", str(d / "room.yaml")]
     if name == "production day":
-        case = draw_closed_loop_case(None, np.random.default_rng(3))
+        case = draw_closed_loop_case("sensor_drift", np.random.default_rng(3))
         return [csv(case.fit[0].between(720.0, 2160.0), "day"), "--furnace",
                 "paper-production", "--effects", "sensor_drift,zone_losses"]
     case = draw_case(None if name == "control" else name, np.random.default_rng(7000),

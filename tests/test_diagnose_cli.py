@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from proctree import alive, children
 
 from furnace_model.diagnosis.cases import draw_case
 from furnace_model.experiment import write_table
@@ -137,15 +138,6 @@ def test_progress_lines_on_stderr_unless_quiet(case_files):
     assert quiet.stdout == r.stdout
 
 
-def _children(pid: int) -> set[int]:
-    """The live child processes of pid (Linux /proc)."""
-    out: set[int] = set()
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        with contextlib.suppress(OSError):
-            out |= {int(x) for x in (task / "children").read_text().split()}
-    return out
-
-
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
 def test_a_killed_diagnosis_leaves_no_worker_behind(case_files):
     """SIGKILL, as a batch runner's timeout sends it, while the candidates are fitted in
@@ -164,20 +156,18 @@ def test_a_killed_diagnosis_leaves_no_worker_behind(case_files):
         for line in proc.stderr:
             if "fitting the candidate effects" in line:
                 while not workers and time.monotonic() < deadline:
-                    workers = _children(proc.pid)
+                    workers = children(proc.pid)
                     time.sleep(0.05)
                 break
         assert workers, "no worker process was started"
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=30)
         deadline = time.monotonic() + 20
-        alive = workers
-        while alive and time.monotonic() < deadline:
-            alive = {w for w in alive if Path(f"/proc/{w}").exists()
-                     and "Z" not in (Path(f"/proc/{w}/stat").read_text().split()[2]
-                                     if Path(f"/proc/{w}/stat").exists() else "Z")}
+        left = alive(workers)
+        while left and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert not alive, f"workers {sorted(alive)} outlived the killed diagnosis"
+            left = alive(left)
+        assert not left, f"workers {sorted(left)} outlived the killed diagnosis"
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from proctree import alive, children
 
 from furnace_daq.daqconfig import DiagnosisConfig
 from furnace_daq.diagnosisrunner import DiagnosisRunner
@@ -23,24 +24,6 @@ from furnace_model.simulation.furnace import PAPER
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc")
-
-
-def children(pid: int) -> set[int]:
-    out: set[int] = set()
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        with contextlib.suppress(OSError):
-            out |= {int(x) for x in (task / "children").read_text().split()}
-    return out
-
-
-def alive(pids: set[int]) -> set[int]:
-    """Those of pids still running (a zombie has ended)."""
-    out = set()
-    for p in pids:
-        with contextlib.suppress(OSError):
-            if Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
-                out.add(p)
-    return out
 
 
 def request() -> DiagnosisRequest:

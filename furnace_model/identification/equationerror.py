@@ -90,7 +90,7 @@ def equation_error(structure: ModelStructure, records: list[Experiment], offsets
 def equation_error_starts(structure: ModelStructure, records: list[Experiment]
                           ) -> list[dict[str, float]]:
     """`equation_error` with the offsets' terms, and without them where that gives another
-    start (any value a third or more away): one or two candidate starts."""
+    start (any value more than 30% apart): one or two candidate starts."""
     with_offsets = equation_error(structure, records)
     without = equation_error(structure, records, offsets=False)
     far = any(abs(np.log(max(abs(a), 1e-12) / max(abs(b), 1e-12))) > np.log(1.3)

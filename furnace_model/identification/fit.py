@@ -130,7 +130,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
             defaults = structure.defaults()
             z = np.array([prob.to_z(np.array([{**defaults, **st}[n] for n in prob.names]))
                           for st in starts])
-            init = starts[int(np.nanargmin(np.nan_to_num(prob.sse_params(z), nan=np.inf)))]
+            init = starts[int(np.argmin(np.nan_to_num(prob.sse_params(z), nan=np.inf)))]
     if init:
         start_vals = {**structure.defaults(), **init}
         start = prob.to_z(np.array([start_vals[n] for n in prob.names]))

@@ -219,7 +219,7 @@ def segment_starts(lam: np.ndarray, z: np.ndarray, steady: np.ndarray, bounds: n
             + np.exp(lam[:, None, :] * (bounds - bounds[0])[None, :, None]) * z[:, None])
 
 
-def _segment_starts(lam, z, w, w_after, bounds, last_idx):
+def _starts_and_steady(lam, z, w, w_after, bounds, last_idx):
     """(K, P, n) each segment's start less its steady state, and the steady state."""
     inputs = np.concatenate([w[:, None], w_after], axis=1)  # (P, 1 + steps, n)
     steady = -inputs[:, last_idx + 1] / lam[:, None]  # (P, K, n)
@@ -233,7 +233,7 @@ def _direct(lam, out, z, w, w_after, bounds, last_idx, seg_of, t):
     per segment. A refit's simulations are of one to a dozen sets over a day of samples with
     a burner change every hour or two: there the per-segment calls cost more than their
     arithmetic."""
-    start, steady = _segment_starts(lam, z, w, w_after, bounds, last_idx)
+    start, steady = _starts_and_steady(lam, z, w, w_after, bounds, last_idx)
     tau = t - bounds[seg_of]
     modal = start[seg_of] * np.exp(lam[None] * tau[:, None, None]) + steady[seg_of]  # (N, P, n)
     Y = out @ np.moveaxis(modal, 0, -1)  # (P, q, N)
@@ -245,6 +245,7 @@ CARRY_SPAN = 500.0
 are far inside a float's range, so a block's scaled sums neither overflow nor go
 subnormal."""
 CARRY_BLOCK_MAX = 256
+"""The longest block of `carried` (slow modes): its arrays stay a few times the input's."""
 
 
 def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:

@@ -202,8 +202,8 @@ class Daemon:
                 if self._stop.is_set():
                     break
             if self._poll_now:
-                # A new connection is polled at once, not up to a period later; the grid
-                # restarts from here, so no two polls come closer than a period.
+                # A new connection is polled at once, not up to a period later, and the grid
+                # restarts from here: that poll may follow the last one by less than a period.
                 t0, k = time.monotonic(), 0
                 if end is not None and t0 >= end:
                     break

@@ -334,7 +334,8 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
         def sse_at(z_i: float, i=i, rest=rest, along=along) -> float:
             start = rest.copy()
             start[:along.size] += along * (z_i - z[i])
-            r = prob.holding(i, z_i).polish(start, deadline, 30, PROFILE_GAIN_TOL, 1e-7).r
+            r = prob.holding(i, z_i).polish(start, deadline, 30, PROFILE_GAIN_TOL, 1e-7,
+                                                   free_first=False).r
             return float(r @ r)
 
         start = None

@@ -354,7 +354,8 @@ class Problem:
         return self.remembered("jac", z, lambda: jacobian(self, z))
 
     def polish(self, z0: np.ndarray, deadline: float | None, max_iter: int = POLISH_MAX_ITER,
-               gain_tol: float = 1e-10, damping: float = 1e-3) -> Polished:
+               gain_tol: float = 1e-10, damping: float = 1e-3, free_first: bool = True
+               ) -> Polished:
         """Levenberg-Marquardt from z0, parameters kept in their box and the records' own
         unknowns in theirs; converged when a step lowers the cost by less than `gain_tol`
         of it. `damping`: the first step's, small for a start already near the minimum
@@ -364,7 +365,11 @@ class Problem:
         the answer, reached by the path the parameters would take anyway; where it is not,
         the polish goes on from it inside their box. Boxed from the start, a bound that the
         optimum does not touch can still block the path to it and leave the fit in a side
-        valley (docs/identification.md)."""
+        valley (docs/identification.md). `free_first=False`: boxed from the start, for a start
+        next to a boxed optimum already found (a profile's trial values), whose bounds are
+        already the ones that hold."""
+        if not free_first:
+            return self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=True)
         free = self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=False)
         own = free.z[self.k:]
         if free.reason == "not_finite" or np.all(

@@ -40,3 +40,21 @@ def test_offsets_a_window_at_setpoint_cannot_tell_from_the_level_are_said_to_be_
     assert set(undetermined_offsets(held)) >= {"soak", "heat"}, held.zone_offsets_ci95_c
     heat_up = fit([case.fit[0].between(0.0, 1500.0)], zone_offsets=True, seed=1, profile=False)
     assert undetermined_offsets(heat_up) == (), heat_up.zone_offsets_ci95_c
+
+
+def test_the_sampled_start_keeps_the_scale_of_a_zone_that_settles_within_a_sample():
+    """Held at setpoint, the preheating zone (a time constant under the minute a sample
+    spans) shows its balance but not its rates' scale to the integrated equations, which
+    shrink it; the equations over one sample keep it."""
+    from furnace_model.identification.equationerror import equation_error, sampled_start
+    from furnace_model.simulation.structure import ModelStructure
+
+    case = draw_closed_loop_case(None, np.random.default_rng(3))
+    window = case.fit[0].between(720.0, 2880.0)
+    structure = ModelStructure(furnace=window.furnace)
+    truth = production_scenario().values()
+    fast = ("k_preheat_heat", "loss_preheat", "gain_preheat")
+    sampled = sampled_start(structure, [window])
+    integrated = equation_error(structure, [window])
+    assert all(0.7 < sampled[k] / truth[k] < 1.4 for k in fast), sampled
+    assert all(integrated[k] / truth[k] < 0.6 for k in fast), integrated

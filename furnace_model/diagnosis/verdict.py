@@ -105,7 +105,7 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
             "explained", list(best.effects), best.shrink_pct, gap_closed_pct=best.gap_closed_pct,
             sentence=
             f"The model's error comes from {what} it leaves out: {physics} "
-            f"({', '.join(best.effects)}). Adding {it} cuts the held-out error in the "
+            f"({', '.join(best.effects)}){_found_words(best)}. Adding {it} cuts the held-out error in the "
             f"{ZONE_WORDS[worst]} zone from {temp_c(base.rmse_holdout_c[worst])} to "
             f"{temp_c(best.rmse_holdout_c[worst])} °C (pooled over zones "
             f"{best.shrink_pct:.0f}% smaller), down to about the thermocouple noise of "
@@ -154,7 +154,7 @@ def _in_part(base: CandidateResult, kept: CandidateResult, floor: dict[str, floa
                  f"error {place}.")
     sentence = (
         f"The model's error comes in part from {what} it leaves out: {physics} "
-        f"({', '.join(kept.effects)}). {closes}"
+        f"({', '.join(kept.effects)}){_found_words(kept)}. {closes}"
         + ("" if one else f" ({kept.gap_closed_pct:.0f}% together)")
         + f": the held-out error in the {ZONE_WORDS[worst]} zone falls from "
         f"{temp_c(base.rmse_holdout_c[worst])} to {temp_c(kept.rmse_holdout_c[worst])} °C "
@@ -217,6 +217,13 @@ def _place(where: list[Located], zones: tuple[str, ...]) -> str:
         return f"lies in {who} throughout {w.experiment} ({w.regime})"
     how = "shows first and most sharply" if w.kind == "change" else "lies mainly"
     return f"{how} in {who}, {w.span} of {w.experiment} ({w.regime})"
+
+
+def _found_words(c: CandidateResult) -> str:
+    """": " and what the fitted effects say the plant has (`Effect.found`), where they say."""
+    said = [w for w in (EFFECTS[n].found(c.params, c.options.get(n, {})) for n in c.effects)
+            if w]
+    return f": {'; '.join(said)}" if said else ""
 
 
 def _unseen_words(c: CandidateResult, furnace: Furnace) -> str:

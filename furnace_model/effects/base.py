@@ -137,6 +137,12 @@ class Effect:
         """`physics` in this furnace's words."""
         return cls.physics
 
+    @classmethod
+    def found(cls, params: dict[str, float], options: dict[str, Any]) -> str:
+        """What the fitted values say the plant has, in words, where a user acts on them (a
+        thermocouple to replace, from when); empty where the effect's name says it all."""
+        return ""
+
     @property
     def n_zones(self) -> int:
         return self.furnace.n_zones

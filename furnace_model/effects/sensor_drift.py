@@ -52,6 +52,30 @@ class TriedSensorDrift(Tried):
             return [{"drift_rate": -given["drift_rate"]}]
         return []
 
+    def named(self, options, params, records):
+        """On a zone's mean any of its thermocouples drifting at the fitted rate is the same
+        fit; the one drifting is the one whose departure from its partners' mean grows at
+        that rate after the onset (a pair's difference moves one way for the one, the other
+        way for its partner). The rate stays: on the mean it is the same for each."""
+        sensor, rate = options.get("sensor"), params.get("drift_rate", 0.0)
+        if not records or sensor is None or not rate:
+            return options
+        furnace = records[0].furnace
+        zone = furnace.sensor_zone[furnace.sensors.index(sensor)]
+        own = np.flatnonzero(furnace.sensor_zone == zone)
+        if own.size < 2:
+            return options
+        slopes = np.zeros(own.size)
+        for e in records:
+            ramp = np.maximum(np.asarray(e.t_min, dtype=float) - params["t_drift"], 0.0)
+            for k, i in enumerate(own):
+                away = e.tc[:, i] - np.nanmean(e.tc[:, own[own != i]], axis=1)
+                ok = np.isfinite(away)
+                if ok.sum() < 3 or np.ptp(ramp[ok]) == 0:
+                    continue
+                slopes[k] += np.polyfit(ramp[ok], away[ok], 1)[0] * ok.sum()
+        return {**options, "sensor": furnace.sensors[own[int(np.argmax(slopes * np.sign(rate)))]]}
+
     def trial(self, clues: Clues) -> Trial:
         """On the thermocouple found drifting, from the onset and rate of the hinge fitted to
         its pair's difference; else on the one whose pair's difference changes most (or, in
@@ -98,6 +122,13 @@ class SensorDrift(Effect):
             return cls.physics
         return ("one thermocouple drifts away from the gas temperature it reads (from its "
                 "zone's other thermocouples, where the zone has more than one)")
+
+    @classmethod
+    def found(cls, params, options):
+        """The thermocouple to check and since when: the sensor changed, not the furnace."""
+        rate = params["drift_rate"]
+        return (f"thermocouple {options['sensor']} drifts {60.0 * rate:+.2f} °C/h from minute "
+                f"{params['t_drift']:.0f}")
 
     def _params(self):
         return (

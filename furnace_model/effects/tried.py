@@ -114,6 +114,13 @@ class Tried(Part):
         within the fitted records, not 0-1e6 min)."""
         return {}
 
+    def named(self, options: dict[str, Any], params: dict[str, float],
+              records: Sequence[Experiment]) -> dict[str, Any]:
+        """The options to report for a fit with `options` and `params`: among laws that fit
+        the zone means alike (any thermocouple of a zone drifting at the same rate), the
+        one the records' own readings name."""
+        return options
+
     def starts(self, effect: Effect, given: dict[str, float],
                bounds: dict[str, tuple[float, float]]) -> list[dict[str, float]]:
         """Further starts of this form's own parameters where the data leave them ambiguous

@@ -1,5 +1,5 @@
-"""Starting values by linear least squares on the integrated zone equations: where a fit of
-a many-zone network, with or without an effect, starts.
+"""Starting values by linear least squares on the zone equations: where a fit of a many-zone
+network, with or without an effect, starts.
 
 Every zone is measured, so each zone's equation is linear in the parameters that enter it
 affinely: the network's exchanges, losses and heats per burner, and an effect's own where
@@ -19,8 +19,12 @@ moves has an integral that is nearly a multiple of t, so the term in t takes up 
 whole exchange, and a zone that settles within a sample (a preheating zone under a minute)
 comes out with no exchange, loss or heat at all, a start the polish cannot leave. Without
 that term the solve keeps each zone's balance, at the price of the offsets' small share of
-the level. `equation_error_starts` gives both; which is the better start is for the records
-to say (`fit` takes the one whose simulation misses them less)."""
+the level; but a zone that settles within a sample has its rates' scale nowhere in the
+integrated equations, and the noise in the integrals shrinks it to nothing either way.
+`sampled_start` keeps it: each zone's equation over one sample, where such a zone's balance
+is what the regression sees. `equation_error_starts` gives the distinct ones; which is the
+better start is for the records to say (`fit` polishes each a little and goes on from the
+best)."""
 
 from __future__ import annotations
 
@@ -38,12 +42,8 @@ def equation_error(structure: ModelStructure, records: list[Experiment], offsets
     `records`, Experiments of its furnace; values outside a parameter's box come back
     clipped to it. `offsets`: a term in t per record and zone for the thermocouples'
     offsets."""
-    furnace = structure.furnace
-    nz = furnace.n_zones
-    affine = set(parameter_names(furnace)) | {
-        p.name for e in structure.effects if e.tried.zone_affine for p in e.params}
-    box = {p.name: p for p in structure.params}
-    names = [n for n in structure.names if n in affine]
+    nz = structure.furnace.n_zones
+    names = _affine_names(structure)
     rows = _rows(structure, names)
     blocks = []  # per record: (regressors (zones, N, names), t - t0, readings (N, zones))
     for r in records:
@@ -79,23 +79,87 @@ def equation_error(structure: ModelStructure, records: list[Experiment], offsets
     scale = np.where(used, np.abs(X).max(axis=0), 1.0)
     coef = np.zeros(X.shape[1])
     coef[used] = np.linalg.lstsq(X[:, used] / scale[used], b, rcond=None)[0] / scale[used]
-    out = {}
-    for i, name in enumerate(names):
-        p = box[name]
-        v = coef[i]
-        out[name] = float(np.clip(v, p.lo, p.hi)) if used[i] and np.isfinite(v) else p.default
-    return out
+    return _boxed(structure, names, coef[:k], used[:k])
+
+
+def sampled_start(structure: ModelStructure, records: list[Experiment],
+                  settled: float = 0.02) -> dict[str, float]:
+    """Values of the affine parameters from each zone's reading one sample on: a zone's
+    equation with its neighbours and inputs held over the sample is
+    T_i(k+1) = alpha T_i(k) + beta . x(k), linear in (alpha, beta), and its exact hold maps
+    them back to the zone's row, rate ln(alpha)/h and coefficients beta ln(alpha)/(h (alpha-1)).
+    A zone that settles within a sample still has its balance in beta where the integrated
+    equations lose it in the noise; its rate is then only bounded below, and is put where
+    alpha is `settled`. The rows are matched by the parameters in least squares, each zone's
+    row scaled by its rate. Only steps of the records' usual sample interval are used."""
+    nz = structure.furnace.n_zones
+    names = _affine_names(structure)
+    dA, dB = _rows(structure, names)
+    lhs, rhs = [], []
+    samples: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in range(nz)]
+    h = float(np.median(np.concatenate([np.diff(np.asarray(r.t_min, dtype=float))
+                                        for r in records])))
+    for r in records:
+        t = np.asarray(r.t_min, dtype=float)
+        y = _filled(r.zone_temp, t)
+        air = np.asarray(r.t_air, dtype=float)[:, None]
+        mid_air = 0.5 * (air[:-1] + air[1:])
+        u = np.concatenate([r.burners[:-1], mid_air, r.disturbances[:-1]], axis=1).astype(float)
+        step = np.abs(np.diff(t) - h) <= 1e-6 * h
+        mid = 0.5 * (y[:-1] + y[1:])
+        for i in range(nz):
+            others = np.delete(mid, i, axis=1)
+            X = np.concatenate([y[:-1, [i]], others, u], axis=1)
+            samples[i].append((X[step], y[1:, i][step]))
+    for i in range(nz):
+        X = np.concatenate([x for x, _ in samples[i]])
+        b = np.concatenate([v for _, v in samples[i]])
+        if b.size <= X.shape[1]:  # too few steps of the usual interval: nothing to say
+            return _boxed(structure, names, np.zeros(len(names)), np.zeros(len(names), bool))
+        scale = np.abs(X).max(axis=0)
+        scale[scale == 0] = 1.0
+        c = np.linalg.lstsq(X / scale, b, rcond=None)[0] / scale
+        alpha = float(np.clip(c[0], settled, 1.0 - 1e-9))
+        rate = np.log(alpha) / h
+        gain = rate / (alpha - 1.0)
+        row = np.concatenate([np.insert(c[1:nz] * gain, i, rate), c[nz:] * gain])
+        lhs.append(np.concatenate([dA[:, i, :], dB[:, i, :]], axis=1).T / abs(rate))
+        rhs.append(row / abs(rate))
+    theta = np.linalg.lstsq(np.concatenate(lhs), np.concatenate(rhs), rcond=None)[0]
+    return _boxed(structure, names, theta, np.ones(len(names), dtype=bool))
 
 
 def equation_error_starts(structure: ModelStructure, records: list[Experiment]
                           ) -> list[dict[str, float]]:
-    """`equation_error` with the offsets' terms, and without them where that gives another
-    start (any value more than 30% apart): one or two candidate starts."""
-    with_offsets = equation_error(structure, records)
-    without = equation_error(structure, records, offsets=False)
-    far = any(abs(np.log(max(abs(a), 1e-12) / max(abs(b), 1e-12))) > np.log(1.3)
-              for a, b in ((with_offsets[n], without[n]) for n in with_offsets))
-    return [with_offsets, without] if far else [with_offsets]
+    """The candidate starts, each a different one: `equation_error` with the offsets' terms,
+    without them, and `sampled_start` (starts closer than 30% in every value count once)."""
+    out: list[dict[str, float]] = []
+    for start in (equation_error(structure, records),
+                  equation_error(structure, records, offsets=False),
+                  sampled_start(structure, records)):
+        if not any(_near(start, other) for other in out):
+            out.append(start)
+    return out
+
+
+def _near(a: dict[str, float], b: dict[str, float]) -> bool:
+    return all(abs(np.log(max(abs(a[n]), 1e-12) / max(abs(b[n]), 1e-12))) <= np.log(1.3)
+               for n in a)
+
+
+def _affine_names(structure: ModelStructure) -> list[str]:
+    affine = set(parameter_names(structure.furnace)) | {
+        p.name for e in structure.effects if e.tried.zone_affine for p in e.params}
+    return [n for n in structure.names if n in affine]
+
+
+def _boxed(structure: ModelStructure, names: list[str], values: np.ndarray,
+           used: np.ndarray) -> dict[str, float]:
+    """Values clipped to their parameters' boxes; a value not determined (not `used`, not
+    finite) is the parameter's default."""
+    box = {p.name: p for p in structure.params}
+    return {n: float(np.clip(v, box[n].lo, box[n].hi)) if ok and np.isfinite(v)
+            else box[n].default for n, v, ok in zip(names, values, used, strict=True)}
 
 
 def _rows(structure: ModelStructure, names: list[str]) -> tuple[np.ndarray, np.ndarray]:

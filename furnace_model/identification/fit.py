@@ -56,6 +56,10 @@ coverage)."""
 PROFILE_GAIN_TOL = 1e-7
 """A profile's refit is converged to this share of the criterion: its rise is wanted to a
 few percent, and it is thousands of times smaller than the criterion."""
+SCOUT_STEPS = 10
+"""Polish steps each of several starts takes before the best goes on alone: enough to leave
+a start's own misfit (its offsets and initial states, a zone's scale) behind, and for one in
+a valley the polish cannot leave to show it."""
 WARM_DAMPING = 1e-7
 """The first Levenberg-Marquardt damping of a sliding window's refit (`WarmStart`): the
 previous window's optimum is next to this one's, where undamped Gauss-Newton steps converge
@@ -116,24 +120,22 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     population = int(population or pop_default)
     generations = int(generations if generations is not None else gen_default)
     deadline = None if time_budget_s is None else t_start + float(time_budget_s)
-    start, spread = None, None
+    starts: list[np.ndarray] = []
+    spread, others = None, []
     if not init and method == "fast" and not structure.furnace.paper_structure:
         # a network of many zones: the search starts where the equations' least squares put
         # it, and a warm-started polish takes it from there (the parameters of an effect
-        # that is not zone-affine from their defaults, searched over half their box)
+        # that is not zone-affine from their defaults, searched over half their box). The
+        # solves disagree where the records are poor in them (a furnace held at setpoint):
+        # each is polished and the best end kept, since a start that misses the records less
+        # may still lie in a valley the polish cannot leave.
         from .equationerror import equation_error_starts
 
-        starts = [{n: v for n, v in st.items() if n not in (fixed or {})}
-                  for st in equation_error_starts(structure, experiments)]
-        init = starts[0]
-        if len(starts) > 1:
-            defaults = structure.defaults()
-            z = np.array([prob.to_z(np.array([{**defaults, **st}[n] for n in prob.names]))
-                          for st in starts])
-            init = starts[int(np.argmin(np.nan_to_num(prob.sse_params(z), nan=np.inf)))]
+        init, *others = [{n: v for n, v in st.items() if n not in (fixed or {})}
+                         for st in equation_error_starts(structure, experiments)]
     if init:
-        start_vals = {**structure.defaults(), **init}
-        start = prob.to_z(np.array([start_vals[n] for n in prob.names]))
+        starts = [prob.to_z(np.array([{**structure.defaults(), **st}[n] for n in prob.names]))
+                  for st in (init, *others)]
         # Given values are searched near where they are; the others (an effect's parameters
         # on top of a baseline fit) over half their box around their defaults.
         spread = np.array([0.02 if n in init else 0.5 for n in prob.names])
@@ -143,7 +145,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         if not init or method != "fast":
             raise FurnaceError("a search around a warm start (WarmStart.reach) needs `init` "
                                "and method fast")
-        box = _around(prob, start, warm.intervals or {}, float(warm.reach))
+        box = _around(prob, starts[0], warm.intervals or {}, float(warm.reach))
     offsets = None
     if warm is not None and zone_offsets and warm.offsets is not None:
         if len(warm.offsets) != len(experiments):
@@ -163,11 +165,11 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
 
         damping = 1e-3 if warm is None else WARM_DAMPING
         if box is not None and prob.k > 0:
-            run = _seeded_run(prob, box, population, generations, rng, start, deadline, report,
+            run = _seeded_run(prob, box, population, generations, rng, starts[0], deadline, report,
                               offsets, damping)
         else:
-            run = _one_run(prob, method, population, generations, rng, start, spread,
-                           deadline, report, offsets, damping)
+            run = _one_run(prob, method, population, generations, rng,
+                           starts, spread, deadline, report, offsets, damping)
         results.append((run, seed + r, time.perf_counter() - t_run))
     report_done = progress or (lambda _f: None)
     report_done(1.0)
@@ -406,17 +408,26 @@ def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: i
 
 
 def _one_run(prob: Problem, method: str, population: int, generations: int,
-             rng: np.random.Generator, start: np.ndarray | None, spread: np.ndarray | None,
+             rng: np.random.Generator, starts: list[np.ndarray], spread: np.ndarray | None,
              deadline: float | None, report: Callable[[float], None],
              offsets: list[np.ndarray] | None = None, damping: float = 1e-3) -> _Run:
+    """One run from `starts` (none: the GA over the whole box; several: each polished, the
+    first is the GA's centre)."""
     if prob.k == 0:
         p = prob.polish(prob.start(np.zeros(0)), deadline)
         return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget", p.free_cost)
-    if method == "fast" and start is not None and np.all(spread < 0.1):
-        # every value given: polish
-        p = prob.polish(prob.start(start, offsets), deadline, damping=damping)
+    if method == "fast" and starts and np.all(spread < 0.1):
+        # every value given: polish (several starts: a few steps each, then the best on)
+        if len(starts) == 1:
+            p = prob.polish(prob.start(starts[0], offsets), deadline, damping=damping)
+        else:
+            p = _lowest([prob.polish(prob.start(z, offsets), deadline, SCOUT_STEPS,
+                                     damping=damping) for z in starts])
+            if p.reason == "iteration_limit":
+                p = prob.polish(p.z, deadline)
         report(1.0)
         return _Run(p.z, p.reason, p.iterations, 0, p.reason == "time_budget", p.free_cost)
+    start = starts[0] if starts else None
     ga_deadline = deadline
     if deadline is not None and method == "fast":
         ga_deadline = time.perf_counter() + 0.5 * (deadline - time.perf_counter())
@@ -429,11 +440,11 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
     if method == "ga":
         return _Run(prob.start(found.best), "time_budget" if ga_cut else "ga_generations", 0,
                     found.generations, ga_cut)
-    # Polish the best few distinct members: the GA's best may sit in a side valley. A warm
-    # start is always among them: the extended model may be the baseline with its effect off.
+    # Polish the best few distinct members: the GA's best may sit in a side valley. The
+    # starts are always among them: the extended model may be the baseline with its effect off.
     polished: list[Polished] = []
     picked: list[np.ndarray] = []
-    first = [] if start is None else [np.clip(start, prob.lo, prob.hi)]
+    first = [np.clip(z, prob.lo, prob.hi) for z in starts]
     for cand in [*first, *found.population]:
         if len(picked) == 3 + len(first):
             break
@@ -442,9 +453,13 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
         picked.append(cand)
         polished.append(prob.polish(prob.start(cand, offsets), deadline))
     report(1.0)
-    best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
+    best = _lowest(polished)
     cut = ga_cut or any(p.reason == "time_budget" for p in polished)
     return _Run(best.z, best.reason, best.iterations, found.generations, cut, best.free_cost)
+
+
+def _lowest(polished: list[Polished]) -> Polished:
+    return min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
 
 
 def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: list[str],

@@ -114,6 +114,8 @@ def sampled_start(structure: ModelStructure, records: list[Experiment],
     for i in range(nz):
         X = np.concatenate([x for x, _ in samples[i]])
         b = np.concatenate([v for _, v in samples[i]])
+        whole = np.isfinite(X).all(axis=1) & np.isfinite(b)
+        X, b = X[whole], b[whole]
         if b.size <= X.shape[1]:  # too few steps of the usual interval: nothing to say
             return _boxed(structure, names, np.zeros(len(names)), np.zeros(len(names), bool))
         scale = np.abs(X).max(axis=0)

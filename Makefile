@@ -39,8 +39,10 @@ deb: $(STAMP) system-deps
 # the simulated PLC and the daemon speak that protocol instead of Modbus.
 # `make demo SCENARIO=config/scenarios/paper_production.yaml` (or a shipped name): that
 # scenario, on its own furnace (a closed-loop one runs its loops in the simulated PLC).
+# `SPEED=1000`: simulated seconds per wall second (default 5000), slower where the host must
+# keep up with refits and an online diagnosis.
 demo: $(STAMP)
-	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo$(if $(FURNACE), --furnace $(FURNACE))$(if $(SCENARIO), --scenario $(SCENARIO))$(if $(PROTOCOL), --protocol $(PROTOCOL))
+	$(BIN)/python -m furnace_daq.demo --out $(OUT)/demo$(if $(FURNACE), --furnace $(FURNACE))$(if $(SCENARIO), --scenario $(SCENARIO))$(if $(PROTOCOL), --protocol $(PROTOCOL))$(if $(SPEED), --speed $(SPEED))
 
 # Two workers (pytest-xdist), one per core of the 2-core target; a test module stays on one
 # worker, so its module-wide fixtures (a live daemon run, a fitted record) are built once.

@@ -42,9 +42,25 @@ from furnace_model.experiment import experiment_from_frame, write_table
 from furnace_model.identification.fit import fit
 from furnace_model.identification.model import Model
 from furnace_model.identification.result import FitResult
-from furnace_model.log.messages import Burners, Heat, ModelParameters, Thermocouples, number
+from furnace_model.log.messages import (
+    Burners,
+    Heat,
+    ModelDiagnosis,
+    ModelEvent,
+    ModelEventKind,
+    ModelParameters,
+    Thermocouples,
+    number,
+)
 from furnace_model.log.resample import resample_logs
-from furnace_model.log.schema import BURNERS, HEAT, THERMOCOUPLES, param_names
+from furnace_model.log.schema import (
+    BURNERS,
+    HEAT,
+    MODEL_DIAGNOSIS,
+    MODEL_EVENTS,
+    THERMOCOUPLES,
+    param_names,
+)
 from furnace_model.shipped import SCENARIOS, shipped
 from furnace_model.simulation.furnace import PAPER, Furnace
 from furnace_model.simulation.furnacefile import load_furnace
@@ -52,7 +68,7 @@ from furnace_model.simulation.scenario import Scenario, load_scenario
 from furnace_model.simulation.structure import ModelStructure
 
 from .daemon import EVENT_PRIORITY, Daemon
-from .daqconfig import RefitConfig, load_config
+from .daqconfig import DiagnosisConfig, RefitConfig, load_config
 from .logmeta import build_metadata, signal_fields
 from .mcaplog import LogWriter
 from .protocols import NAMES as PROTOCOL_NAMES
@@ -254,9 +270,10 @@ def run(args: argparse.Namespace) -> int:
 class _Tap:
     """The daemon's log, seen in passing: the display shows what was acquired and logged."""
 
-    def __init__(self, log: LogWriter, furnace: Furnace):
+    def __init__(self, log: LogWriter, furnace: Furnace, start: pd.Timestamp | None):
         self.inner = log
         self.furnace = furnace
+        self.start = start
         self.latest: dict[str, Thermocouples | Burners | Heat] = {}
 
     @property
@@ -273,6 +290,12 @@ class _Tap:
             self.latest[topic] = Burners.from_json(message, self.furnace)
         elif topic == HEAT:
             self.latest[topic] = Heat.from_json(message, self.furnace)
+        elif topic == MODEL_EVENTS:
+            event = ModelEvent.from_json(message)
+            if event.kind == ModelEventKind.DRIFT:
+                print(f"   drift event: {event.detail}", flush=True)
+        elif topic == MODEL_DIAGNOSIS:
+            print(_diagnosis_line(ModelDiagnosis.from_json(message), self.start), flush=True)
         self.inner.write(topic, message, log_time_ns, publish_time_ns)
 
     def maybe_flush(self, now_monotonic: float) -> None:
@@ -318,9 +341,12 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
         raise FurnaceError(f"--protocol {args.protocol}: the first device of {args.config} "
                            f"speaks {spoken}")
     plc, port = await _start_plc(args, poll_s)
-    refit = replace(config.refit or RefitConfig(), period_s=args.refit_period_h * 3600.0,
+    refit = config.refit or RefitConfig()
+    refit = replace(refit, period_s=args.refit_period_h * 3600.0,
                     window_s=args.refit_window_h * 3600.0, step_s=60.0,
-                    state_dir=args.out / "state")
+                    state_dir=args.out / "state",
+                    diagnosis=refit.diagnosis or DiagnosisConfig(
+                        after_windows=2, time_limit_s=DEMO_DIAGNOSIS_S))
     plc_config = replace(config.plc, host="127.0.0.1", port=port)
     if plc_config.opcua is not None:
         # one Read per poll: a subscription sampled every 500 ms of the wall clock would
@@ -335,7 +361,7 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
     log = _Tap(LogWriter(log_dir, prefix=config.log.prefix, flush_interval_s=1.0,
                          file_mode=config.log.file_mode, metadata=build_metadata(config),
                          event_priority=EVENT_PRIORITY, signals=signal_fields(config)),
-               config.furnace)
+               config.furnace, scenario.start_time)
     refits: list[ModelParameters] = []
 
     def on_model(message: dict) -> None:
@@ -363,9 +389,14 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
             print(_progress_line(log.latest, config.furnace), flush=True)
 
     shower = asyncio.create_task(show())
+    running = asyncio.create_task(daemon.run())
     try:
-        counters = await daemon.run(duration)
+        await asyncio.wait([running], timeout=duration)
+        await _diagnoses_done(daemon, refit.diagnosis, running)
+        daemon.stop()
+        counters = await running
     finally:
+        daemon.stop()
         shower.cancel()
         if plc.returncode is None:
             plc.terminate()
@@ -379,6 +410,38 @@ async def _acquire(scenario: Scenario, args: argparse.Namespace, log_dir: Path) 
         print(f"   note: {100 * skipped:.0f}% of the poll ticks were skipped: this host is too "
               f"busy for {args.speed:g}x, so windows miss samples; a lower --speed helps")
     return refits
+
+
+DEMO_DIAGNOSIS_S = 300.0
+"""The online diagnosis's time limit where the config sets none: it answers within it with
+the candidates it did not reach named."""
+
+
+async def _diagnoses_done(daemon: Daemon, config: DiagnosisConfig,
+                          running: asyncio.Task) -> None:
+    """At the scenario's end, the diagnosis in flight (and any queued) is waited for, within
+    its time limit and the margin its runner gives it, with the PLC still polled: the
+    verdict on the last fault is what the demo is there to show."""
+    from .diagnosisrunner import KILL_FACTOR, KILL_MARGIN_S
+
+    runner = daemon.refit.runner if daemon.refit is not None else None
+    if runner is None or running.done() or not runner.diagnosing():
+        return
+    print(f"   the scenario has ended; waiting for the online diagnosis (at most "
+          f"{config.time_limit_s:g} s, its time limit)", flush=True)
+    deadline = time.monotonic() + KILL_FACTOR * config.time_limit_s + KILL_MARGIN_S
+    while runner.diagnosing() and not running.done() and time.monotonic() < deadline:
+        await asyncio.sleep(0.2)
+
+
+def _diagnosis_line(d: ModelDiagnosis, start: pd.Timestamp | None) -> str:
+    """An online diagnosis as the demo shows it: its verdict, on which window, why."""
+    window = ""
+    if d.fitted:
+        window = (f" of {_hours(d.fitted[0]['start'], start)}-"
+                  f"{_hours((d.held_out or d.fitted)[-1]['end'], start)} h")
+    took = f", {d.elapsed_s:.0f} s" if d.elapsed_s is not None else ""
+    return f"   online diagnosis{window} ({d.trigger}{took}): {d.status}: {d.detail}"
 
 
 LINE_TCS = 8

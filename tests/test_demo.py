@@ -136,3 +136,24 @@ def test_demo_refuses_a_protocol_its_config_does_not_speak(tmp_path):
     assert done.returncode == 1 and "Traceback" not in done.stderr
     assert "--protocol s7: the first device of " in done.stderr
     assert "gateway-opcua.yaml speaks opcua" in done.stderr
+
+
+def test_an_online_diagnosis_is_shown_with_its_window_trigger_and_verdict():
+    """The demo runs the daemon's online diagnosis; its verdict is a line of the run, on
+    the scenario's hours."""
+    import pandas as pd
+
+    from furnace_daq.demo import _diagnosis_line
+    from furnace_model.log.messages import ModelDiagnosis
+
+    start = pd.Timestamp("2026-04-06T06:00:00Z")
+    d = ModelDiagnosis(
+        status="explained", trigger="misfit",
+        detail="thermocouple soak_1 drifts (-1.13 °C/h since 2026-04-07T06:49:22Z): the "
+               "sensor changed, not the furnace.",
+        fitted=[{"start": "2026-04-06T12:00:00Z", "end": "2026-04-07T13:12:00Z"}],
+        held_out=[{"start": "2026-04-07T13:13:00Z", "end": "2026-04-08T00:00:00Z"}],
+        elapsed_s=226.4)
+    line = _diagnosis_line(d, start)
+    assert line.startswith("   online diagnosis of 6-42 h (misfit, 226 s): explained: ")
+    assert "thermocouple soak_1 drifts" in line

@@ -21,7 +21,8 @@ def _around_onset(effect: str, draw: int):
     return case.fit[0].between(max(0.0, onset - ONSET_BEFORE), onset + AFTER), truth
 
 
-@pytest.mark.parametrize("draw", [5, 6])  # 6: the partner of the drifting one looks high
+@pytest.mark.parametrize("draw", [pytest.param(5, marks=pytest.mark.slow), 6])
+# 6: the partner of the drifting one looks high
 def test_a_drifting_thermocouple_under_control_is_named_with_its_onset(draw):
     record, truth = _around_onset("sensor_drift", draw)
     d = diagnose([record], None, effects=("sensor_drift", "fuel_change"))

@@ -69,6 +69,7 @@ from furnace_model.simulation.structure import ModelStructure
 
 from .daemon import EVENT_PRIORITY, Daemon
 from .daqconfig import DiagnosisConfig, RefitConfig, load_config
+from .diagnosisrunner import KILL_FACTOR, KILL_MARGIN_S
 from .logmeta import build_metadata, signal_fields
 from .mcaplog import LogWriter
 from .protocols import NAMES as PROTOCOL_NAMES
@@ -422,8 +423,6 @@ async def _diagnoses_done(daemon: Daemon, config: DiagnosisConfig,
     """At the scenario's end, the diagnosis in flight (and any queued) is waited for, within
     its time limit and the margin its runner gives it, with the PLC still polled: the
     verdict on the last fault is what the demo is there to show."""
-    from .diagnosisrunner import KILL_FACTOR, KILL_MARGIN_S
-
     runner = daemon.refit.runner if daemon.refit is not None else None
     if runner is None or running.done() or not runner.diagnosing():
         return

@@ -105,8 +105,8 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
             "explained", list(best.effects), best.shrink_pct, gap_closed_pct=best.gap_closed_pct,
             sentence=
             f"The model's error comes from {what} it leaves out: {physics} "
-            f"({', '.join(best.effects)}){_found_words(best)}. Adding {it} cuts the held-out error in the "
-            f"{ZONE_WORDS[worst]} zone from {temp_c(base.rmse_holdout_c[worst])} to "
+            f"({', '.join(best.effects)}){_found_words(best)}. Adding {it} cuts the held-out "
+            f"error in the {ZONE_WORDS[worst]} zone from {temp_c(base.rmse_holdout_c[worst])} to "
             f"{temp_c(best.rmse_holdout_c[worst])} °C (pooled over zones "
             f"{best.shrink_pct:.0f}% smaller), down to about the thermocouple noise of "
             f"{temp_c(floor[worst])} °C."

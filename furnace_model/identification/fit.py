@@ -165,8 +165,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
 
         damping = 1e-3 if warm is None else WARM_DAMPING
         if box is not None and prob.k > 0:
-            run = _seeded_run(prob, box, population, generations, rng, starts[0], deadline, report,
-                              offsets, damping)
+            run = _seeded_run(prob, box, population, generations, rng, starts[0], deadline,
+                              report, offsets, damping)
         else:
             run = _one_run(prob, method, population, generations, rng,
                            starts, spread, deadline, report, offsets, damping)

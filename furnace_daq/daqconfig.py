@@ -189,6 +189,10 @@ class DiagnosisConfig:
     time_limit_s: float = 600.0
     effects: tuple[str, ...] | None = None
     """The candidate effects; None: every effect that applies to the furnace."""
+    set_aside: bool = True
+    """Leave a thermocouple a diagnosis finds drifting out of the later windows."""
+    trusted: tuple[str, ...] = ()
+    """Thermocouples never set aside (one replaced after it was: list it and restart)."""
 
 
 @dataclass(frozen=True)
@@ -558,7 +562,8 @@ def _log(node: Node) -> LogConfig:
         file_mode=file_mode)
 
 
-def parse_refit(node: Node) -> RefitConfig | None:
+def parse_refit(node: Node, furnace: Furnace | None = None) -> RefitConfig | None:
+    """`refit`; `furnace`: the one its thermocouple names must be of (None: a fleet's)."""
     node.mapping({"enabled", "period_s", "window_s", "step_s", "budget_s", "method",
                   "population", "generations", "max_gap_fraction", "min_burner_steps",
                   "drift_windows", "drift_min_change", "queue_max", "state_dir", "diagnosis"})
@@ -594,15 +599,17 @@ def parse_refit(node: Node) -> RefitConfig | None:
         drift_min_change=node.get_number("drift_min_change", 0.03, lo=0.0, hi=10.0),
         queue_max=node.get_integer("queue_max", 4, lo=1, hi=10000),
         state_dir=Path(node.get_string("state_dir", default_dir)),
-        diagnosis=parse_diagnosis(node.child("diagnosis")) if node.has("diagnosis") else None)
+        diagnosis=parse_diagnosis(node.child("diagnosis"), furnace)
+        if node.has("diagnosis") else None)
 
 
-def parse_diagnosis(node: Node) -> DiagnosisConfig | None:
+def parse_diagnosis(node: Node, furnace: Furnace | None = None) -> DiagnosisConfig | None:
     """`refit.diagnosis`; the effects must be names of the contract (CONTRACTS.md section
-    4), each once."""
+    4), each once, and the trusted thermocouples the furnace's."""
     from furnace_model.effects import EFFECTS
 
-    node.mapping({"enabled", "after_windows", "time_limit_s", "effects"})
+    node.mapping({"enabled", "after_windows", "time_limit_s", "effects", "set_aside",
+                  "trusted"})
     enabled = node.get_bool("enabled", True)
     after = node.get_integer("after_windows", DiagnosisConfig.after_windows, lo=1, hi=100000)
     limit = node.get_number("time_limit_s", DiagnosisConfig.time_limit_s, lo=1.0, hi=86400.0)
@@ -615,9 +622,13 @@ def parse_diagnosis(node: Node) -> DiagnosisConfig | None:
                 raise item.error(f"'{name}' is listed twice")
             effects.append(name)
         effects = tuple(effects)
+    set_aside = node.get_bool("set_aside", True)
+    trusted = tuple(item.string(choices=None if furnace is None else furnace.sensors)
+                    for item in node.child("trusted", []).elements())
     if not enabled:
         return None
-    return DiagnosisConfig(after_windows=after, time_limit_s=limit, effects=effects)
+    return DiagnosisConfig(after_windows=after, time_limit_s=limit, effects=effects,
+                           set_aside=set_aside, trusted=trusted)
 
 
 def _live_view(node: Node) -> LiveViewConfig | None:
@@ -721,7 +732,7 @@ def parse_config(root: Node, furnace: Furnace | None = None) -> DaqConfig:
         status_interval_s=root.get_number("status_interval_s", 10.0, lo=0.1, hi=86400.0),
         stderr_interval_s=root.get_number("stderr_interval_s", 60.0, lo=0.0, hi=86400.0),
         log=_log(root.child("log", {})), file=root.file,
-        refit=parse_refit(root.child("refit")) if root.has("refit") else None,
+        refit=parse_refit(root.child("refit"), furnace) if root.has("refit") else None,
         write_back=parse_write_back(root.child("write_back", None)),
         device_list=device_list, live_view=_live_view(root.child("live_view", {})),
         document=root.value, furnace=furnace, heat=heat, disturbances=disturbances,

@@ -45,6 +45,7 @@ KILL_MARGIN_S = 60.0
 cuts) and answer."""
 
 Emit = Callable[[str, ModelDiagnosis | ModelEvent, int], None]
+Verdict = Callable[[DiagnosisRequest, ModelDiagnosis], None]
 
 
 @dataclass(frozen=True)
@@ -198,9 +199,13 @@ class DiagnosisRunner:
     thread-safe: call it from the refit runner's thread."""
 
     def __init__(self, config: DiagnosisConfig, emit: Emit,
-                 recorded: dict[int, ModelDiagnosis] | None = None):
+                 recorded: dict[int, ModelDiagnosis] | None = None,
+                 on_verdict: Verdict | None = None):
+        """`on_verdict`: told each published verdict (replay: the logged one, which a
+        diagnosis that failed live may not reproduce)."""
         self.config = config
         self.emit = emit
+        self.on_verdict = on_verdict
         self.recorded = recorded
         """Replay: the logged diagnoses by publish time (`DiagnosisRequest.key`); their `cut`
         replaces the clock."""
@@ -215,6 +220,17 @@ class DiagnosisRunner:
 
     def busy(self) -> bool:
         return self.in_flight is not None or bool(self.queue)
+
+    def in_flight_since(self) -> float:
+        """When the diagnosis in flight started (monotonic seconds; now when none is)."""
+        return self.in_flight[2].started if self.in_flight is not None else time.monotonic()
+
+    def waiting_since(self) -> int | None:
+        """The key of the oldest request not yet answered (ns on the data clock)."""
+        keys = [r.key for r in self.queue]
+        if self.in_flight is not None:
+            keys.append(self.in_flight[0].key)
+        return min(keys, default=None)
 
     def job(self, request: DiagnosisRequest) -> DiagnosisJob:
         logged = None if self.recorded is None else self.recorded.get(request.key)
@@ -264,6 +280,9 @@ class DiagnosisRunner:
             + (f"failed: {msg.detail}" if failed else f"{msg.status}: {msg.detail}"),
             window_start=iso_time(request.recent_span[0]), window_end=iso_time(end_ns)),
             end_ns)
+        if self.on_verdict is not None:
+            logged = None if self.recorded is None else self.recorded.get(request.key)
+            self.on_verdict(request, msg if logged is None else logged)
 
     def close(self) -> None:
         if self.in_flight is not None:

@@ -5,9 +5,19 @@ miss their data by more than the noise (a zone's fit RMSE above its misfit limit
 widened as the diagnosis widens it to call a gap: `ModelParameters.misfit_zones`). It looks
 at the window that raised it, with the last window that fitted to its floor as reference.
 Before a window has fitted to its floor there is no reference (a start-up's first windows
-hold the furnace's transient) and no diagnosis. One diagnosis per episode: none again until a window fits to its floor again (the episode
-is over) or a new drift event fires (a new one). Windows that were not fitted (failed, too
-little excitation) neither count nor end a run.
+hold the furnace's transient) and no diagnosis. One diagnosis per episode: none again until
+a window fits to its floor again (the episode is over), a new drift event fires, or a
+thermocouple is set aside (`Window.set_aside`: the windows hold other readings from then on);
+each of those opens a new one. Windows that were not fitted (failed, too little excitation)
+neither count nor end a run.
+
+When. The diagnosis fits the first 1 - TAIL_SHARE of the window and judges the rest: an
+effect that began in the held-out part cannot be fitted, only missed (a fuel change seen by a
+window's last hours would be 'unexplained'). The change came after the reference ended (that
+window fitted; or after the window whose verdict set a thermocouple aside, which the model
+with the drift explained), so the request waits for the first window whose fitted part
+reaches `CHANGE_SHARE` of a window beyond that end: with a window of 36 h every 6 h, the
+third after it.
 
 The rule reads nothing but the windows and their messages, in order, so replay takes the
 same decisions from the log as the live daemon did.
@@ -17,11 +27,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from furnace_model.diagnosis.holdout import TAIL_SHARE
 from furnace_model.experiment import Experiment
 from furnace_model.log.messages import ModelEvent, ModelEventKind, ModelParameters
 
 from .daqconfig import DiagnosisConfig
 from .refit import Window, window_seed
+
+CHANGE_SHARE = 0.1
+"""How much of a window after the reference's end the fitted part must hold: enough samples
+after a change to fit the effect's parameters (2.4 h of a day-long window)."""
 
 
 @dataclass(frozen=True)
@@ -51,38 +66,62 @@ class DiagnosisTrigger:
         self.misfits = 0
         self.fired = False
         """A diagnosis was requested in this episode."""
+        self.pending: tuple[str, str, int] | None = None
+        """The episode's trigger, its detail and `fit_until` when it opened, while its
+        request waits for a window whose fitted part holds the change."""
+        self.set_aside: tuple[str, ...] = ()
+        self.fit_until: int | None = None
+        """The end of the last window the model fitted, or that a verdict which set a
+        thermocouple aside explained: a change the episode diagnoses came after it."""
 
     def observe(self, window: Window, msg: ModelParameters, events: list[ModelEvent]
                 ) -> DiagnosisRequest | None:
         """The window's outcome; the diagnosis it calls for, if any."""
         if not msg.fitted or window.experiment is None:
             return None
+        if window.set_aside != self.set_aside:  # the readings changed: a new episode
+            self.set_aside = window.set_aside
+            self.misfits, self.fired, self.pending = 0, False, None
+            if window.explained_until is not None:
+                self.fit_until = max(self.fit_until or 0, window.explained_until)
         drift = [e for e in events if e.kind == ModelEventKind.DRIFT]
         misfit = msg.misfit_zones()
+        if self.reference is not None:  # else nothing has fitted yet: no model to diagnose
+            if drift:  # a new episode
+                self.fired = False
+                assert self.fit_until is not None  # set with the reference
+                self.pending = ("drift", "; ".join(e.detail for e in drift), self.fit_until)
+            elif misfit:
+                self.misfits += 1
+                if self.misfits >= self.config.after_windows and not self.fired \
+                        and self.pending is None and self.fit_until is not None:
+                    self.pending = ("misfit", (
+                        f"{self.misfits} fitted windows in a row above their noise floor; "
+                        f"this one in the {', '.join(misfit)} zone(s): "
+                        + ", ".join(f"{z} {msg.rmse_c[z]:.2f} °C > "
+                                    f"{msg.misfit_limit_c[z]:.2f} °C" for z in misfit)),
+                        self.fit_until)
         request = None
-        if self.reference is None:
-            pass  # nothing has fitted yet: no model to diagnose
-        elif drift:
-            self.fired = False  # a new episode
-            request = self._request(window, "drift", "; ".join(e.detail for e in drift))
-        elif misfit:
-            self.misfits += 1
-            if self.misfits >= self.config.after_windows and not self.fired:
-                request = self._request(window, "misfit", (
-                    f"{self.misfits} fitted windows in a row above their noise floor; this "
-                    f"one in the {', '.join(misfit)} zone(s): "
-                    + ", ".join(f"{z} {msg.rmse_c[z]:.2f} °C > {msg.misfit_limit_c[z]:.2f} °C"
-                                for z in misfit)))
+        if self.pending is not None and (misfit or self.pending[0] == "drift") \
+                and _holds(window, self.pending[2]):
+            request = self._request(window, *self.pending[:2])
         if not misfit:
-            self.reference, self.misfits = window, 0
-            if not drift:
-                self.fired = False  # the model fits again: the episode is over
+            self.reference, self.misfits, self.fit_until = window, 0, window.end_ns
+            if not drift and (self.pending is None or self.pending[0] == "misfit"):
+                # the model fits again: the episode is over
+                self.fired, self.pending = False, None
         return request
 
     def _request(self, window: Window, trigger: str, detail: str) -> DiagnosisRequest:
-        self.fired = True
+        self.fired, self.pending = True, None
         ref = self.reference
         assert window.experiment is not None and ref is not None and ref.experiment is not None
         return DiagnosisRequest(
             trigger, detail, window.experiment, (window.start_ns, window.end_ns),
             ref.experiment, (ref.start_ns, ref.end_ns), window_seed(window))
+
+
+def _holds(window: Window, change_after_ns: int) -> bool:
+    """Whether the window's fitted part reaches CHANGE_SHARE of a window past the change."""
+    span = window.end_ns - window.start_ns
+    return window.start_ns + (1 - TAIL_SHARE) * span >= change_after_ns + CHANGE_SHARE * span

@@ -118,6 +118,9 @@ def refit_config(recorded: Mapping[str, Any]) -> Any:
         given = {k: v for k, v in diagnosis.items() if k in names}
         if given.get("effects") is not None:
             given["effects"] = tuple(given["effects"])
+        given["trusted"] = tuple(given.get("trusted") or ())
+        # A log written before verdicts set thermocouples aside was refitted with them all.
+        given.setdefault("set_aside", False)
         values["diagnosis"] = DiagnosisConfig(**given)
     else:
         values["diagnosis"] = None

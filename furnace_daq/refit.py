@@ -70,7 +70,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -126,6 +126,11 @@ class Window:
     expected_bins: int
     complete_bins: int
     burner_steps: int
+    set_aside: tuple[str, ...] = ()
+    """Thermocouples left out of the zone means (`RefitChain.trusted`)."""
+    explained_until: int | None = None
+    """The end of the last window a verdict that set one aside explained (ns): the model
+    with the drift fitted the data until then."""
 
     @property
     def gap_fraction(self) -> float:
@@ -302,6 +307,10 @@ class RefitChain:
     """Window end of the last drift event: later windows that overlap it are not judged."""
     recent_streak: int = 0
     recent_direction: int = 0
+    set_aside: dict[str, tuple[int, int]] = field(default_factory=dict)
+    """Thermocouples an online diagnosis found drifting, each with the data-clock instants
+    (ns) from which windows leave it out and until which the verdict explained the data
+    (`set_aside_from`)."""
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -322,7 +331,8 @@ class RefitChain:
                 "references": {p: {**asdict(r), "ci95": list(r.ci95)}
                                for p, r in self.references.items()},
                 "quiet_until": self.quiet_until, "recent_streak": self.recent_streak,
-                "recent_direction": self.recent_direction}
+                "recent_direction": self.recent_direction, "set_aside": {s: {"from": f, "explained_until": u}
+                              for s, (f, u) in self.set_aside.items()}}
 
     def restore(self, state: object) -> None:
         """Take over a saved `state()`. Raises ValueError, naming what is wrong, and leaves
@@ -342,11 +352,49 @@ class RefitChain:
                     for p, r in state["references"].items() if p in self.names}
             quiet = state["quiet_until"]
             streak, direction = int(state["recent_streak"]), int(state["recent_direction"])
+            aside = {str(k): (int(v["from"]), int(v["explained_until"]))
+                     for k, v in (state.get("set_aside") or {}).items()
+                     if k in self.furnace.sensors and k not in self._trusted}
         except (KeyError, TypeError, IndexError, AttributeError) as exc:
             raise ValueError(f"malformed chain state ({type(exc).__name__}: {exc})") from None
         self.model, self.references = model, refs
         self.quiet_until = None if quiet is None else str(quiet)
         self.recent_streak, self.recent_direction = streak, direction
+        self.set_aside = aside
+
+    def set_aside_from(self, sensor: str, from_ns: int, explained_until_ns: int) -> bool:
+        """Leave a drifting thermocouple out of the windows that end at or after `from_ns`:
+        a reading that moves away from the furnace would otherwise be fitted as a furnace
+        that changed, every window, and the model would never fit again. Its zone keeps its
+        other thermocouples; a zone's last one is never set aside (the zone would go
+        unmeasured). False when it is not set aside."""
+        furnace = self.furnace
+        if sensor not in furnace.sensors or sensor in self.set_aside or sensor in self._trusted:
+            return False
+        zone = furnace.sensor_zone[furnace.sensors.index(sensor)]
+        kept = [s for s, z in zip(furnace.sensors, furnace.sensor_zone, strict=True)
+                if z == zone and s != sensor and s not in self.set_aside]
+        if not kept:
+            return False
+        self.set_aside[sensor] = (from_ns, explained_until_ns)
+        return True
+
+    @property
+    def _trusted(self) -> tuple[str, ...]:
+        """Thermocouples the config says never to set aside."""
+        return () if self.config.diagnosis is None else self.config.diagnosis.trusted
+
+    def trusted(self, window: Window) -> Window:
+        """The window with the thermocouples set aside by its end left out (NaN readings:
+        the zone's mean is its other thermocouples')."""
+        out = {s: u for s, (t, u) in self.set_aside.items() if window.end_ns >= t}
+        if not out or window.experiment is None:
+            return window
+        exp = window.experiment
+        tc = exp.tc.copy()
+        tc[:, [self.furnace.sensors.index(s) for s in out]] = np.nan
+        return replace(window, experiment=replace(exp, tc=tc), set_aside=tuple(out),
+                       explained_until=max(out.values()))
 
     def check(self, window: Window) -> str | None:
         """Why the window cannot identify the model, or None when it can be fitted."""

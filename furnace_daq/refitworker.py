@@ -35,15 +35,17 @@ from furnace_model.log.read import iso_time
 from furnace_model.log.schema import MODEL_EVENTS, MODEL_PARAMETERS
 from furnace_model.simulation.furnace import Furnace
 
-from .daqconfig import RefitConfig
+from .daqconfig import DiagnosisConfig, RefitConfig
 from .diagnosisrunner import DiagnosisRunner
-from .diagnosistrigger import DiagnosisTrigger
+from .diagnosistrigger import DiagnosisRequest, DiagnosisTrigger
 from .refit import FitJob, RefitChain, Window, WindowCutter, run_fit
 
 KILL_FACTOR = 3.0
 KILL_MARGIN_S = 5.0
 START_TIMEOUT_S = 120.0
 """A worker that has not imported numpy and scipy after this long is declared dead."""
+CREDITED = ("explained", "explained_in_part")
+"""Verdicts whose named effect earned its credit: a drift named by one is acted on."""
 
 Emit = Callable[[str, ModelParameters | ModelEvent | ModelDiagnosis, int], None]
 """emit(topic, message, publish time ns on the data clock)"""
@@ -160,7 +162,14 @@ class RefitRunner:
         diagnosis = config.diagnosis
         self.trigger = None if diagnosis is None else DiagnosisTrigger(diagnosis)
         self.diagnoses = None if diagnosis is None else \
-            DiagnosisRunner(diagnosis, emit, recorded_diagnoses)
+            DiagnosisRunner(diagnosis, emit, recorded_diagnoses, self._verdict)
+        self.verdict_lag_ns = None if self.diagnoses is None or not _sets_aside(diagnosis) \
+            else int(round((self.kill_after_s + self.diagnoses.kill_after_s) * 1e9))
+        """A verdict applies to the windows that end this long after the window it judged:
+        by then, on the live clock, its refit and its diagnosis have answered or been
+        killed, so the refit never waits for it; a replay, or a plant clock run faster,
+        waits (`_awaits_verdict`) and so meets the same windows. None: no verdict can set a
+        thermocouple aside, and nothing waits."""
 
     def start(self) -> None:
         self.worker.start()
@@ -221,7 +230,9 @@ class RefitRunner:
                 and now - self.worker.started_at > START_TIMEOUT_S:
             self._restart(f"the refit worker did not start within {START_TIMEOUT_S:g} s")
         while self.in_flight is None and self.queue:
-            window = self.queue[0]
+            if self._awaits_verdict(self.queue[0]):
+                return
+            window = self.chain.trusted(self.queue[0])
             reason = self.chain.check(window)
             if reason is not None:
                 self.queue.popleft()
@@ -233,6 +244,29 @@ class RefitRunner:
             self.queue.popleft()
             self.worker.send(self.chain.job(window))
             self.in_flight = (window, time.monotonic())
+
+    def _awaits_verdict(self, window: Window) -> bool:
+        """Whether a verdict still to come may set a thermocouple aside for this window."""
+        if self.diagnoses is None or self.verdict_lag_ns is None:
+            return False
+        since = self.diagnoses.waiting_since()
+        return since is not None and window.end_ns >= since + self.verdict_lag_ns
+
+    def _verdict(self, request: DiagnosisRequest, msg: ModelDiagnosis) -> None:
+        """A verdict that credits a drifting thermocouple sets it aside (RefitChain)."""
+        sensor = (msg.sensor or {}).get("thermocouple")
+        if self.verdict_lag_ns is None or sensor is None or msg.status not in CREDITED:
+            return
+        from_ns = request.key + self.verdict_lag_ns
+        if self.chain.set_aside_from(sensor, from_ns, request.key):
+            self.emit(MODEL_EVENTS, ModelEvent(
+                ModelEventKind.SENSOR_SET_ASIDE,
+                f"thermocouple {sensor} set aside: it drifts "
+                f"({msg.sensor.get('rate_c_per_h', float('nan')):+.2f} °C/h since "
+                f"{msg.sensor.get('onset')}); the refit's windows that end at or after "
+                f"{iso_time(from_ns)} leave it out. Once it is replaced, list it under "
+                "refit.diagnosis.trusted and restart.",
+                window_end=iso_time(from_ns)), request.key)
 
     def _restart(self, why: str) -> None:
         """Kill the worker; a new one starts at the next pump, later after each failure in a
@@ -280,3 +314,8 @@ class RefitRunner:
         self.worker.stop(kill=True)
         if self.diagnoses is not None:
             self.diagnoses.close()
+
+
+def _sets_aside(config: DiagnosisConfig) -> bool:
+    """Whether a verdict may set a thermocouple aside: one that can name a drift."""
+    return config.set_aside and (config.effects is None or "sensor_drift" in config.effects)

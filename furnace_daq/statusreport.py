@@ -41,6 +41,7 @@ EVENT_PRIORITY: dict[DaqEventKind | ModelEventKind, int] = {
     _D.LOG_RECOVERED: WARNING, _D.LOG_GAP: WARNING,
     _D.PLC_CLOCK_RESET: NOTICE, _D.BURNER_AGREEMENT: NOTICE, _D.WRITE_BACK_OK: NOTICE,
     _M.DRIFT: NOTICE, _M.DIAGNOSIS: NOTICE, _M.DIAGNOSIS_FAILED: WARNING,
+    _M.SENSOR_SET_ASIDE: WARNING,
     _D.REFIT_RESUMED: INFO,
 }
 """Journal priority of each /daq/events and /model/events kind (others: notice). The kinds

@@ -81,8 +81,8 @@ def _windows(scenarios, noise: str, draws: int, seed0: int):
         yield exp.between(t0, t0 + 1440.0)
 
 
-@pytest.mark.parametrize("noise", [
-    pytest.param(n, marks=() if n == HARDEST else pytest.mark.slow) for n in NOISE])
+@pytest.mark.slow
+@pytest.mark.parametrize("noise", list(NOISE))
 def test_online_refit_intervals_hold_the_truth(scenarios, noise):
     """The daemon's own call on its own windows."""
     intervals = []

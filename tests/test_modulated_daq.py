@@ -433,12 +433,13 @@ def test_the_export_holds_the_logged_inputs_as_time_means(logged):
                                    "door_open"]
     assert len(frame) >= 0.5 * RUN_S * SPEED / 60, len(frame)
     scenario = logged["scenario"]
-    _, stamps = _stamped(logged, HEAT)
-    held = np.diff(stamps).max()  # the longest a logged value was held into a row
     width = np.diff(t).min()
-    for column, series in (("heat_soak", lambda x: scenario.burners_at(x)[0]),
-                           ("heat_heat", lambda x: scenario.burners_at(x)[1]),
-                           ("throughput", lambda x: scenario.disturbances_at(x)[0])):
+    for column, topic, series in (
+            ("heat_soak", HEAT, lambda x: scenario.burners_at(x)[0]),
+            ("heat_heat", HEAT, lambda x: scenario.burners_at(x)[1]),
+            ("throughput", DISTURBANCES, lambda x: scenario.disturbances_at(x)[0])):
+        _, stamps = _stamped(logged, topic)
+        held = np.diff(stamps).max()  # the longest a logged value was held into a row
         got = frame[column].to_numpy()
         for lo, value in zip(t, got, strict=True):
             span = np.linspace(lo - held - EDGE_S / 60, lo + width, 200)

@@ -203,3 +203,56 @@ def test_refits_go_on_while_a_diagnosis_computes():
     assert any(after), "no window was published while the diagnosis was in flight"
     assert niceness is None or niceness in (0, NICE)  # seen before or after its os.nice
     jsonschema.validate(diag.to_json(), topics(PAPER)[MODEL_DIAGNOSIS].schema)
+
+
+def long_window(k: int, hours: int = 10, aside: tuple[str, ...] = ()) -> Window:
+    """The window of `hours` ending at hour k + hours: one every hour, as the daemon cuts
+    them (each holds the hours of the one before but the first)."""
+    w = window(0, n=hours * 20)
+    return Window(k * HOUR_NS, (k + hours) * HOUR_NS, w.experiment, w.expected_bins,
+                  w.complete_bins, 1, aside)
+
+
+def test_the_request_waits_for_a_window_whose_fitted_part_holds_the_change():
+    """Windows of 10 h every hour: the reference ends at 10 h, so the change came later,
+    and a diagnosis fitting a window's first 7 h must reach 11 h (a tenth of a window past
+    it) to fit it: the window from 4 h. Before it the misfit is counted, not diagnosed."""
+    trigger = DiagnosisTrigger(DiagnosisConfig(after_windows=2))
+    assert trigger.observe(long_window(0), model(0, 1.0), []) is None  # the reference
+    assert [trigger.observe(long_window(k), model(k, 5.0), []) for k in (1, 2, 3)] \
+        == [None] * 3
+    asked = trigger.observe(long_window(4), model(4, 5.0), [])
+    assert asked is not None and asked.trigger == "misfit"
+    assert asked.reference_span == (0, 10 * HOUR_NS)
+    assert asked.recent_span == (4 * HOUR_NS, 14 * HOUR_NS)
+    # a drift event waits the same way, from the reference before it
+    trigger = DiagnosisTrigger(DiagnosisConfig(after_windows=2))
+    trigger.observe(long_window(0), model(0, 1.0), [])
+    assert trigger.observe(long_window(1), model(1, 1.0), [DRIFT]) is None
+    assert [trigger.observe(long_window(k), model(k, 1.0), []) for k in (2, 3)] == [None] * 2
+    drift = trigger.observe(long_window(4), model(4, 1.0), [])
+    assert drift is not None and drift.trigger == "drift" and "f fell" in drift.trigger_detail
+    # a misfit that ends before its window comes is no episode
+    trigger = DiagnosisTrigger(DiagnosisConfig(after_windows=2))
+    trigger.observe(long_window(0), model(0, 1.0), [])
+    for k, rmse in ((1, 5.0), (2, 5.0), (3, 1.0), (4, 5.0)):
+        assert trigger.observe(long_window(k), model(k, rmse), []) is None, k
+
+
+def test_a_thermocouple_set_aside_opens_a_new_episode():
+    """The drift's episode never ends while the drifting reading is fitted; once it is left
+    out, a misfit that stays is another fault and is diagnosed on its own, once the fitted
+    part holds what came after the window the drift's verdict explained."""
+    trigger = DiagnosisTrigger(DiagnosisConfig(after_windows=1))
+    trigger.observe(long_window(0), model(0, 1.0), [])
+    first = trigger.observe(long_window(4), model(4, 5.0), [])
+    assert first is not None and first.key == 14 * HOUR_NS
+    assert trigger.observe(long_window(5), model(5, 5.0), []) is None  # the same episode
+    def aside(k: int) -> Window:
+        w = long_window(k, aside=("soak_1",))
+        return Window(w.start_ns, w.end_ns, w.experiment, w.expected_bins, w.complete_bins,
+                      1, w.set_aside, explained_until=first.key)
+    # a new episode, its change after 14 h: the fitted part must reach 15 h
+    assert [trigger.observe(aside(k), model(k, 5.0), []) for k in (6, 7)] == [None] * 2
+    again = trigger.observe(aside(8), model(8, 5.0), [])
+    assert again is not None and again.recent_span == (8 * HOUR_NS, 18 * HOUR_NS)

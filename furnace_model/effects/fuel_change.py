@@ -32,6 +32,13 @@ class FuelChange(Effect):
     drawn = DrawnFuelChange(ranges={"t_fuel_frac": (0.3, 0.8), "fuel_ratio": (0.65, 0.9)})
     drive_stage = 0  # at the burner: a transport delay then carries it to the zone
 
+    @classmethod
+    def found(cls, params, options):
+        """How much heat a burner gives now, and since when: a fuel to check with the plant."""
+        ratio = params["fuel_ratio"]
+        return (f"each burner gives {100.0 * (ratio - 1.0):+.0f}% heat (x{ratio:.2f}) from "
+                f"minute {params['t_fuel']:.0f}")
+
     def _params(self):
         return (
             Param("t_fuel", 1000.0, 0.0, 1e6, log=False, unit="min", doc="time of the switch"),

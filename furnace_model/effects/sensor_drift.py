@@ -69,7 +69,10 @@ class TriedSensorDrift(Tried):
         for e in records:
             ramp = np.maximum(np.asarray(e.t_min, dtype=float) - params["t_drift"], 0.0)
             for k, i in enumerate(own):
-                away = e.tc[:, i] - np.nanmean(e.tc[:, own[own != i]], axis=1)
+                partners = e.tc[:, own[own != i]]
+                seen = np.isfinite(partners).sum(axis=1)  # a missed poll leaves none
+                away = e.tc[:, i] - np.where(seen > 0, np.nansum(partners, axis=1), np.nan) \
+                    / np.maximum(seen, 1)
                 ok = np.isfinite(away)
                 if ok.sum() < 3 or np.ptp(ramp[ok]) == 0:
                     continue

@@ -127,6 +127,7 @@ class ModelEventKind(StrEnum):
     WINDOW_DROPPED = "window_dropped"
     DIAGNOSIS = "diagnosis"
     DIAGNOSIS_FAILED = "diagnosis_failed"
+    SENSOR_SET_ASIDE = "sensor_set_aside"
 
 
 def _kind(value: object, kinds: type[StrEnum]) -> StrEnum | str:

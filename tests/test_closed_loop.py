@@ -316,3 +316,24 @@ def test_the_simulated_plc_serves_its_loops_burners():
         assert bits == states_from_counts(offline.burners[row], PAPER), sec
         fired += sum(bits)
     assert fired > 0
+
+
+def test_the_modulated_furnace_in_production_holds_its_setpoints_with_rates():
+    """The shipped modulated scenario in closed loop: the loops' outputs are the soaking
+    zone's firing rate and the heating zone's fuel flow, continuous, within their ranges and
+    off their limits in production, and hold the zones' mean readings on the programmes;
+    the preheating zone, driven by no loop, fires its hand-set pulse counts."""
+    s = load_scenario(shipped_named(SCENARIOS, "modulated_closed_loop"))
+    r = run(s)
+    furnace = s.furnace
+    measured = furnace.zone_means(r.tc)
+    production = r.t_min >= 2400  # after the start-up's ramps and their first hold
+    for i, zone in enumerate(("soak", "heat")):
+        miss = measured[production, i] - r.setpoints[production, i]
+        assert abs(np.median(miss)) < 2.0 and np.percentile(np.abs(miss), 95) < 8.0, zone
+        out = r.burners[production, i]
+        top = furnace.heat_inputs[i].max
+        assert ((out > 0.01 * top) & (out < 0.99 * top)).mean() > 0.9, zone
+        assert len(np.unique(np.round(out, 3))) > 50, f"{zone}: a rate, not staged burners"
+    late = r.burners[r.t_min >= 3300, 2]
+    assert np.all(np.isclose(late, 3.0) | np.isclose(late, 5.0))

@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from logcheck import check_files
 
@@ -157,3 +158,40 @@ def test_an_online_diagnosis_is_shown_with_its_window_trigger_and_verdict():
     line = _diagnosis_line(d, start)
     assert line.startswith("   online diagnosis of 6-42 h (misfit, 226 s): explained: ")
     assert "thermocouple soak_1 drifts" in line
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(2400)
+def test_production_faults_demo_names_the_sensor_then_the_fuel_change(tmp_path):
+    """The shipped production scenario with two faults, the daemon's online diagnosis on:
+    the drifting thermocouple is named with its onset and set aside, and the fuel change a
+    day later is diagnosed on its own, in that order, in the log and on the terminal."""
+    from furnace_model.log.messages import ModelDiagnosis, ModelEvent, ModelEventKind
+    from furnace_model.log.schema import MODEL_DIAGNOSIS, MODEL_EVENTS
+
+    scenario = ROOT / "config" / "scenarios" / "paper_production_faults.yaml"
+    done, _ = run_demo(tmp_path, "--scenario", str(scenario), "--speed", "1000",
+                       timeout=2300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    story = []
+    for topic, msg, _, pub in read_messages(sorted((tmp_path / "logs").glob("*.mcap")),
+                                            (MODEL_DIAGNOSIS, MODEL_EVENTS)):
+        if topic == MODEL_DIAGNOSIS:
+            story.append(("diagnosis", ModelDiagnosis.from_json(msg), pub))
+        elif msg["kind"] == ModelEventKind.SENSOR_SET_ASIDE:
+            story.append(("aside", ModelEvent.from_json(msg), pub))
+    kinds = [k for k, _, _ in story]
+    assert kinds[:3] == ["diagnosis", "aside", "diagnosis"], [
+        (k, getattr(m, "detail", "")[:120]) for k, m, _ in story]
+    sensor, aside, fuel = (m for _, m, _ in story[:3])
+    assert sensor.status == "explained" and sensor.sensor["thermocouple"] == "soak_1"
+    onset_h = (np.datetime64(sensor.sensor["onset"].rstrip("Z"))
+               - np.datetime64("2026-04-06T06:00:00")) / np.timedelta64(1, "h")
+    assert abs(onset_h - 25.0) < 2.0 and abs(sensor.sensor["rate_c_per_h"] + 1.2) < 0.2
+    assert "soak_1" in aside.detail
+    assert fuel.status in ("explained", "explained_in_part"), fuel.detail
+    assert [e["effect"] for e in fuel.effects] == ["fuel_change"], fuel.detail
+    assert fuel.sensor is None
+    shown = done.stdout
+    assert shown.index("thermocouple soak_1 drifts") < shown.index("soak_1 set aside") \
+        < shown.index("fuel_change")

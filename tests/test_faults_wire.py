@@ -150,10 +150,13 @@ def test_stall_is_comm_error_at_the_poll_timeout_and_one_missed_tick_event(tmp_p
 
 
 def test_latency_below_the_timeout_loses_nothing(tmp_path):
-    """10 ms per response, two responses a poll: well inside the 50 ms period, no fault."""
+    """10 ms per response, two responses a poll: well inside the 50 ms period, no fault:
+    every poll answered, no connection lost. (A tick the host was too busy to start is
+    skipped and counted, on the grid `check_schedule` holds: that is the host's, not the
+    latency's.)"""
     run = run_with_fault(tmp_path, "delay", delay_s=0.01)
     c = run.counters
-    assert c.comm_errors == 0 and c.disconnects == 0 and c.skipped_ticks <= 0.05 * c.polls, c
+    assert c.comm_errors == 0 and c.disconnects == 0 and c.ok_polls == c.polls, c
     check_schedule(run)
     ok = check_every_answer_logged(run)
     assert len(ok) >= 0.9 * grid_ticks(run)

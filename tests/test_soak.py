@@ -33,6 +33,7 @@ def _judge(result, min_faults: int, max_rss_growth: float) -> None:
     assert not late, summary
 
 
+@pytest.mark.slow
 def test_half_hour_soak_with_faults_and_refits(tmp_path) -> None:
     result = soak(tmp_path, sim_minutes=30, speed=120, fault_every_sim_min=4)
     _judge(result, min_faults=6, max_rss_growth=0.05)

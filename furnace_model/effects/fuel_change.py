@@ -35,6 +35,8 @@ class FuelChange(Effect):
     @classmethod
     def found(cls, params, options):
         """How much heat a burner gives now, and since when: a fuel to check with the plant."""
+        if "fuel_ratio" not in params or "t_fuel" not in params:
+            return ""  # a derived effect with parameters of its own
         ratio = params["fuel_ratio"]
         return (f"each burner gives {100.0 * (ratio - 1.0):+.0f}% heat (x{ratio:.2f}) from "
                 f"minute {params['t_fuel']:.0f}")

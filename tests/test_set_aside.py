@@ -90,3 +90,63 @@ def test_the_config_names_trusted_thermocouples_of_its_furnace():
     old = plain(RefitConfig(diagnosis=DiagnosisConfig()))
     del old["diagnosis"]["set_aside"], old["diagnosis"]["trusted"]
     assert refit_config(old).diagnosis.set_aside is False
+
+
+def test_a_window_waits_for_a_verdict_that_may_set_a_thermocouple_aside_for_it():
+    """Replay's path: the diagnosis of a window is still running; a later window that ends
+    before the verdict's instant goes on, one that ends after it waits for the verdict; the
+    logged verdict (here it named soak_1 drifting, while this run's diagnosis cannot even
+    start) sets soak_1 aside, announced before the waiting window is published."""
+    import time
+
+    from furnace_daq import diagnosisrunner, refitworker
+    from furnace_daq.diagnosistrigger import DiagnosisRequest
+    from furnace_daq.refitworker import RefitRunner
+    from furnace_model.log.messages import ModelDiagnosis, ModelEventKind
+    from furnace_model.log.schema import MODEL_DIAGNOSIS, MODEL_EVENTS, MODEL_PARAMETERS
+
+    blind = window(2)
+    blind.experiment.tc[:, :2] = np.nan  # the soaking zone reads nothing: it fails at once
+    request = DiagnosisRequest("misfit", "two windows above the floor", blind.experiment,
+                               (2 * HOUR_NS, 3 * HOUR_NS), blind.experiment,
+                               (HOUR_NS, 2 * HOUR_NS), 3 * 3600)
+    logged = ModelDiagnosis(
+        "explained", "thermocouple soak_1 drifts", "misfit", "two windows above the floor",
+        sensor={"thermocouple": "soak_1", "onset": "1970-01-01T02:10:00.000Z",
+                "rate_c_per_h": -1.5})
+    got: list[tuple[str, object, int]] = []
+    cfg = RefitConfig(period_s=3600.0, window_s=3600.0,
+                      diagnosis=DiagnosisConfig(after_windows=1, time_limit_s=30.0))
+    runner = RefitRunner(cfg, lambda topic, msg, ns: got.append((topic, msg, ns)),
+                         furnace=PAPER, recorded_diagnoses={request.key: logged})
+    lag = runner.verdict_lag_ns
+    refit_kill = refitworker.KILL_FACTOR * 30.0 + refitworker.KILL_MARGIN_S
+    diagnosis_kill = diagnosisrunner.KILL_FACTOR * 30.0 + diagnosisrunner.KILL_MARGIN_S
+    assert lag == int((refit_kill + diagnosis_kill) * 1e9)  # both answered or killed by then
+
+    def still(end_ns: int) -> Window:  # no burner change: published without a fit
+        w = window(0)
+        return Window(end_ns - HOUR_NS, end_ns, w.experiment, w.expected_bins,
+                      w.complete_bins, 0)
+
+    before, after = still(request.key + lag - 10**9), still(request.key + lag)
+    try:
+        assert runner.diagnoses is not None
+        runner.diagnoses.request(request)
+        runner.queue.extend([before, after])
+        runner.pump()
+        published = [ns for t, _, ns in got if t == MODEL_PARAMETERS]
+        assert published == [before.end_ns] and list(runner.queue) == [after]
+        deadline = time.monotonic() + 120
+        while runner.queue and time.monotonic() < deadline:
+            runner.pump(0.1)
+        assert not runner.queue, "the window did not go on after the verdict"
+    finally:
+        runner.close()
+    order = [(t, getattr(m, "kind", None)) for t, m, _ in got]
+    assert order == [(MODEL_PARAMETERS, None), (MODEL_DIAGNOSIS, None),
+                     (MODEL_EVENTS, ModelEventKind.DIAGNOSIS_FAILED),
+                     (MODEL_EVENTS, ModelEventKind.SENSOR_SET_ASIDE), (MODEL_PARAMETERS, None)]
+    aside = got[3][1]
+    assert "soak_1" in aside.detail and aside.window_end == "1970-01-01T03:03:35.000Z"
+    assert runner.chain.set_aside == {"soak_1": (request.key + lag, request.key)}

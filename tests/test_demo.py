@@ -25,7 +25,6 @@ from furnace_model.simulation.parameters import PAPER_TABLE_V
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = ROOT / "tests" / "data" / "demo_quick.yaml"
 BRIEF = ROOT / "tests" / "data" / "demo_brief.yaml"
-FAULTS = ROOT / "tests" / "data" / "demo_faults_quick.yaml"
 ROW = re.compile(r"^\s+(\S+)\s+([-+.\deE]+)\s+([-+.\deE]+)\s+([-+][\d.]+)% \(±([\d.e+]+)%\)")
 TRUTH_COMBINATIONS = {"b/c": PAPER_TABLE_V["b"] / PAPER_TABLE_V["c"],
                       "d/e": PAPER_TABLE_V["d"] / PAPER_TABLE_V["e"]}
@@ -197,41 +196,3 @@ def test_production_faults_demo_names_the_sensor_then_the_fuel_change(tmp_path):
     assert shown.index("thermocouple soak_1 drifts") < shown.index("soak_1 set aside") \
         < shown.index("fuel_change")
 
-
-def test_production_faults_in_brief_sensor_then_fuel_on_loopback(tmp_path):
-    """The same story in a day of production (tests/data/demo_faults_quick.yaml: soak_1
-    drifting from 8 h, each burner 25% weaker from 18 h), with 8-hour windows every hour and
-    the diagnosis's candidates given in the daemon's config: the drift is named, soak_1 set
-    aside, and the fuel change diagnosed after it, in that order."""
-    import yaml
-
-    from furnace_daq.gatewayconfig import gateway_yaml
-    from furnace_model.log.messages import ModelDiagnosis, ModelEventKind
-    from furnace_model.log.schema import MODEL_DIAGNOSIS, MODEL_EVENTS
-    from furnace_model.simulation.furnacefile import load_furnace
-
-    furnace_file = ROOT / "config" / "furnaces" / "paper-production.yaml"
-    doc = yaml.safe_load(gateway_yaml(load_furnace(furnace_file), str(furnace_file)))
-    doc["refit"]["diagnosis"] = {"effects": ["sensor_drift", "fuel_change"],
-                                 "time_limit_s": 60, "after_windows": 2}
-    config = tmp_path / "gateway.yaml"
-    config.write_text(yaml.safe_dump(doc))
-    done, _ = run_demo(tmp_path / "demo", "--scenario", str(FAULTS), "--config", str(config),
-                       "--speed", "3000", "--refit-window-h", "8", "--refit-period-h", "1",
-                       timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
-    story = []
-    for topic, msg, _, _ in read_messages(sorted((tmp_path / "demo" / "logs").glob("*.mcap")),
-                                          (MODEL_DIAGNOSIS, MODEL_EVENTS)):
-        if topic == MODEL_DIAGNOSIS:
-            story.append(ModelDiagnosis.from_json(msg))
-        elif msg["kind"] == ModelEventKind.SENSOR_SET_ASIDE:
-            story.append(msg["detail"])
-    assert len(story) >= 3, story
-    sensor, aside, fuel = story[:3]
-    assert isinstance(sensor, ModelDiagnosis) and sensor.status == "explained", sensor
-    assert sensor.sensor["thermocouple"] == "soak_1" and "soak_1" in aside
-    assert isinstance(fuel, ModelDiagnosis) and fuel.status in ("explained", "explained_in_part")
-    assert [e["effect"] for e in fuel.effects] == ["fuel_change"], fuel.detail
-    ratio = fuel.effects[0]["params"]["fuel_ratio"]
-    assert abs(ratio - 0.75) < 0.05, fuel.effects

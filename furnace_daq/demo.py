@@ -623,8 +623,8 @@ def plot_refits(refits: list[ModelParameters], scenario: Scenario, path: Path) -
             lo, hi = c["ci95"]
             x.append(end + 0.25 * (k - (len(shown) - 1) / 2))
             y.append(100 * (c["value"] / want - 1))
-            # A fit the budget cut short can end outside the interval its profile found
-            # (a lower misfit lies there): no bar on that side.
+            # A published value can lie outside its own interval (docs/diagnosis.md,
+            # "Online, end to end"): that side gets no bar rather than stopping the demo.
             err.append([100 * max(c["value"] - lo, 0.0) / abs(want),
                         100 * max(hi - c["value"], 0.0) / abs(want)])
         if x:

@@ -127,7 +127,7 @@ class Window:
     complete_bins: int
     burner_steps: int
     set_aside: tuple[str, ...] = ()
-    """Thermocouples left out of the zone means (`RefitChain.trusted`)."""
+    """Thermocouples left out of the zone means (`RefitChain.without_set_aside`)."""
     explained_until: int | None = None
     """The end of the last window a verdict that set one aside explained (ns): the model
     with the drift fitted the data until then."""
@@ -331,7 +331,8 @@ class RefitChain:
                 "references": {p: {**asdict(r), "ci95": list(r.ci95)}
                                for p, r in self.references.items()},
                 "quiet_until": self.quiet_until, "recent_streak": self.recent_streak,
-                "recent_direction": self.recent_direction, "set_aside": {s: {"from": f, "explained_until": u}
+                "recent_direction": self.recent_direction,
+                "set_aside": {s: {"from": f, "explained_until": u}
                               for s, (f, u) in self.set_aside.items()}}
 
     def restore(self, state: object) -> None:
@@ -384,7 +385,7 @@ class RefitChain:
         """Thermocouples the config says never to set aside."""
         return () if self.config.diagnosis is None else self.config.diagnosis.trusted
 
-    def trusted(self, window: Window) -> Window:
+    def without_set_aside(self, window: Window) -> Window:
         """The window with the thermocouples set aside by its end left out (NaN readings:
         the zone's mean is its other thermocouples')."""
         out = {s: u for s, (t, u) in self.set_aside.items() if window.end_ns >= t}

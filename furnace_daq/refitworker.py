@@ -24,6 +24,7 @@ from collections import deque
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 
+from furnace_model.diagnosis.verdict import NAMING
 from furnace_model.log.messages import (
     FurnaceMessage,
     ModelDiagnosis,
@@ -44,8 +45,6 @@ KILL_FACTOR = 3.0
 KILL_MARGIN_S = 5.0
 START_TIMEOUT_S = 120.0
 """A worker that has not imported numpy and scipy after this long is declared dead."""
-CREDITED = ("explained", "explained_in_part")
-"""Verdicts whose named effect earned its credit: a drift named by one is acted on."""
 
 Emit = Callable[[str, ModelParameters | ModelEvent | ModelDiagnosis, int], None]
 """emit(topic, message, publish time ns on the data clock)"""
@@ -232,7 +231,7 @@ class RefitRunner:
         while self.in_flight is None and self.queue:
             if self._awaits_verdict(self.queue[0]):
                 return
-            window = self.chain.trusted(self.queue[0])
+            window = self.chain.without_set_aside(self.queue[0])
             reason = self.chain.check(window)
             if reason is not None:
                 self.queue.popleft()
@@ -255,7 +254,7 @@ class RefitRunner:
     def _verdict(self, request: DiagnosisRequest, msg: ModelDiagnosis) -> None:
         """A verdict that credits a drifting thermocouple sets it aside (RefitChain)."""
         sensor = (msg.sensor or {}).get("thermocouple")
-        if self.verdict_lag_ns is None or sensor is None or msg.status not in CREDITED:
+        if self.verdict_lag_ns is None or sensor is None or msg.status not in NAMING:
             return
         from_ns = request.key + self.verdict_lag_ns
         if self.chain.set_aside_from(sensor, from_ns, request.key):

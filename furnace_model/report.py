@@ -21,6 +21,7 @@ from matplotlib.backends.backend_svg import FigureCanvasSVG
 from matplotlib.figure import Figure
 
 from .diagnosis import MIN_GAP_CLOSED, RULE, CandidateResult, Diagnosis, shortfall, where_lines
+from .diagnosis.verdict import NAMING
 from .diagnosis.words import baseline_label, model_words, paper_like, temp_c
 from .experiment import Experiment
 from .identification.residuals import ZONE_WORDS
@@ -29,8 +30,6 @@ STATUS_WORDS = {"no_gap": "no gap", "explained": "explained",
                 "explained_in_part": "explained in part", "unexplained": "unexplained"}
 STATUS_COLOURS = {"no_gap": "#2e7d32", "explained": "#1565c0", "explained_in_part": "#ef6c00",
                   "unexplained": "#c62828"}
-NAMING = ("explained", "explained_in_part")
-"""The verdicts that name effects: the report shows the kept model beside the baseline."""
 LONG_RECORD_MIN = 3 * 24 * 60.0
 """A record longer than this is plotted in days, not minutes, when it has no start time."""
 

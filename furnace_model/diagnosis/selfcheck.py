@@ -25,14 +25,11 @@ from .cases import (
     production_scenario,
 )
 from .faults import FAULTS
+from .verdict import NAMING, STATUSES
 
 # --- the check: diagnose known-truth cases and count -------------------------------------
 
 ABSORBED_REASON = "baseline already at the noise floor on held-out data"
-STATUSES = ("no_gap", "explained", "explained_in_part", "unexplained")
-"""The verdicts counted, each in its own column of the table."""
-NAMING = ("explained", "explained_in_part")
-"""The verdicts that name effects."""
 MODES = ("heat-up", "production")
 """What a case's two records are: heat-ups under random burner schedules (`draw_case`), or
 production under the PLC's loops (`draw_closed_loop_case`, the shipped paper_production

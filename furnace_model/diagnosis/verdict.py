@@ -17,6 +17,8 @@ from .locate import Located, where_lines
 from .words import capital, model_words, temp_c, zones_words
 
 STATUSES = ("no_gap", "explained", "explained_in_part", "unexplained")
+NAMING = ("explained", "explained_in_part")
+"""The verdicts that name effects: each earned its credit."""
 
 
 @dataclass

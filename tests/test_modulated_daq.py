@@ -35,6 +35,7 @@ from furnace_daq.sources import Sample
 from furnace_model.config import Node
 from furnace_model.errors import ConfigError
 from furnace_model.experiment import read_table
+from furnace_model.heldmeans import row_edges
 from furnace_model.log.messages import Burners, Disturbances, Heat, Signals
 from furnace_model.log.read import log_furnace, read_messages
 from furnace_model.log.resample import Resampler
@@ -433,7 +434,7 @@ def test_the_export_holds_the_logged_inputs_as_time_means(logged):
                                    "door_open"]
     assert len(frame) >= 0.5 * RUN_S * SPEED / 60, len(frame)
     scenario = logged["scenario"]
-    width = np.diff(t).min()
+    ends = row_edges(t, 1.0)[1:]  # each row spans to the next, as the export takes it
     for column, topic, series in (
             ("heat_soak", HEAT, lambda x: scenario.burners_at(x)[0]),
             ("heat_heat", HEAT, lambda x: scenario.burners_at(x)[1]),
@@ -441,8 +442,8 @@ def test_the_export_holds_the_logged_inputs_as_time_means(logged):
         _, stamps = _stamped(logged, topic)
         held = np.diff(stamps).max()  # the longest a logged value was held into a row
         got = frame[column].to_numpy()
-        for lo, value in zip(t, got, strict=True):
-            span = np.linspace(lo - held - EDGE_S / 60, lo + width, 200)
+        for lo, hi, value in zip(t, ends, got, strict=True):
+            span = np.linspace(lo - held - EDGE_S / 60, hi, 200)
             around = np.array([series(x) for x in span])
             assert around.min() - 1e-3 <= value <= around.max() + 1e-3, (column, lo, value)
             if np.ptp(around) == 0:
@@ -463,9 +464,9 @@ def test_the_pulse_fired_zones_count_is_its_pulses_and_the_export_its_mean(logge
     got = frame["burners_preheat"].to_numpy()
     assert (got % 1 != 0).any(), "a mean count, not whole burners"
     # each row a mean of the whole counts the pulses take around the mean counts set
-    held, width = np.diff(t).max(), np.diff(rows).min()
-    for lo, value in zip(rows, got, strict=True):
-        span = np.linspace(lo - held - EDGE_S / 60, lo + width, 200)
+    held = np.diff(t).max()
+    for lo, hi, value in zip(rows, row_edges(rows, 1.0)[1:], got, strict=True):
+        span = np.linspace(lo - held - EDGE_S / 60, hi, 200)
         levels = np.array([scenario.burners_at(x)[2] for x in span])
         assert np.floor(levels.min()) - 1e-9 <= value <= np.ceil(levels.max()) + 1e-9, lo
 

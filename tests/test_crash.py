@@ -79,7 +79,7 @@ def _sigkill_series(tmp_path: Path, kills: int, seed: int) -> None:
 
 
 def test_sigkill_at_random_moments_loses_at_most_the_flush_interval(tmp_path: Path) -> None:
-    _sigkill_series(tmp_path, kills=6, seed=1)
+    _sigkill_series(tmp_path, kills=3, seed=1)
 
 
 @pytest.mark.slow

@@ -41,6 +41,7 @@ def test_a_steady_week_raises_no_drift_event():
     assert events == [], [e["detail"] for e in events]
 
 
+@pytest.mark.slow
 def test_default_windows_raise_one_drift_event_on_f_within_two_periods():
     """The shipped 24-h windows, refitted every 30 min here (every 15 min as shipped in the
     slow tests below, at twice the cost): the window's f would move only once hours of the

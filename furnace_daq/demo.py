@@ -623,10 +623,7 @@ def plot_refits(refits: list[ModelParameters], scenario: Scenario, path: Path) -
             lo, hi = c["ci95"]
             x.append(end + 0.25 * (k - (len(shown) - 1) / 2))
             y.append(100 * (c["value"] / want - 1))
-            # A published value can lie outside its own interval (docs/diagnosis.md,
-            # "Online, end to end"): that side gets no bar rather than stopping the demo.
-            err.append([100 * max(c["value"] - lo, 0.0) / abs(want),
-                        100 * max(hi - c["value"], 0.0) / abs(want)])
+            err.append([100 * (c["value"] - lo) / abs(want), 100 * (hi - c["value"]) / abs(want)])
         if x:
             ax.errorbar(x, y, yerr=np.array(err).T, fmt="o", ms=4, capsize=2, label=name)
     for t in scenario.steps_t[1:]:

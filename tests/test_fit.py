@@ -94,6 +94,22 @@ def test_a_parameter_unseen_differs_from_two_that_trade():
     assert unc.unseen(lo, hi) == ["f"]
 
 
+def test_an_estimate_on_its_bound_lies_within_its_own_interval():
+    """On the log scale a bound comes back an ulp off (exp(log 10) > 10, exp(log 50) < 50):
+    the interval, cut to the box, must still hold the value published beside it."""
+    rng = np.random.default_rng(1)
+    names, bounds = ["b", "d", "x"], np.array([10.0, 50.0, 2.0])
+    J = rng.normal(size=(200, 3))
+    for side in (-1, 1):
+        box = (np.full(3, -1e9), bounds) if side > 0 else (bounds, np.full(3, 1e9))
+        unc = from_jacobian(J, rng.normal(size=200), names, np.array([True, True, False]),
+                            np.array([np.log(10.0), np.log(50.0), 2.0]))
+        values = [float(np.exp(unc.z[0])), float(np.exp(unc.z[1])), float(unc.z[2])]
+        assert values[0] != 10.0 and values[1] != 50.0  # the rounding this is about
+        for (lo, hi), v in zip(unc.ci95(*box), values, strict=True):
+            assert lo <= v <= hi, (lo, v, hi)
+
+
 def test_ten_seeds_agree_on_the_determined_quantities(paper_1min):
     results = [fit([paper_1min], seed=s) for s in range(10)]
     names = results[0].determined_combinations

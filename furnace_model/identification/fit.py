@@ -39,7 +39,7 @@ from .plausible import Flag
 from .problem import POLISH_MAX_ITER, Polished, Problem
 from .profile import profile_interval
 from .result import FitResult
-from .uncertainty import WIDE, Z95, Uncertainty, from_jacobian
+from .uncertainty import WIDE, Z95, Uncertainty, from_jacobian, within
 
 __all__ = ["METHODS", "FitResult", "Model", "Refinement", "WarmStart", "fit", "score"]
 """The fitting surface: the driver and the objects it hands back."""
@@ -349,9 +349,9 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
         lo, hi = profile_interval(sse_at, float(z[i]), Z95 * float(np.sqrt(unc.cov[i, i])),
                                   sse, rise, float(prob.lo[i]), float(prob.hi[i]), start)
         if prob.log[i]:
-            out[name] = (float(np.exp(lo)), float(np.exp(hi)))
+            out[name] = within((float(np.exp(lo)), float(np.exp(hi))), float(np.exp(z[i])))
         else:
-            out[name] = (float(lo), float(hi))
+            out[name] = within((float(lo), float(hi)), float(z[i]))
     return out
 
 

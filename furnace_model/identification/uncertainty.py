@@ -26,6 +26,13 @@ STRONG_CORR = 0.99
 _EPS = 1e-13
 
 
+def within(interval: tuple[float, float], value: float) -> tuple[float, float]:
+    """The interval widened to hold its own estimate: an estimate on its bound, taken to the
+    parameter's units (exp of the log-scale bound), can land an ulp beyond the bound the
+    interval is cut to, and a published value outside its own interval reads as a false one."""
+    return min(interval[0], value), max(interval[1], value)
+
+
 @dataclass
 class Uncertainty:
     names: list[str]  # the fitted (free) parameters, in order
@@ -66,8 +73,8 @@ class Uncertainty:
     def ci95(self, lo: np.ndarray, hi: np.ndarray,
              white: bool = False) -> list[tuple[float, float]]:
         """Intervals in the parameters' own units, cut to the search box (an interval that
-        reaches the box edge says: anywhere in the range the search was allowed); `white`:
-        as if the residuals were white (`cov_white`)."""
+        reaches the box edge says: anywhere in the range the search was allowed) but never
+        past the estimate (`within`); `white`: as if the residuals were white (`cov_white`)."""
         cov = self.cov_white if white and self.cov_white is not None else self.cov
         half = Z95 * np.sqrt(np.maximum(np.diag(cov), 0.0))
         a, b = self.z - half, self.z + half
@@ -76,9 +83,11 @@ class Uncertainty:
             if self.log[i]:
                 with np.errstate(over="ignore"):
                     pair = (float(np.exp(a[i])), float(np.exp(b[i])))
+                value = float(np.exp(self.z[i]))
             else:
                 pair = (float(a[i]), float(b[i]))
-            out.append((max(pair[0], float(lo[i])), min(pair[1], float(hi[i]))))
+                value = float(self.z[i])
+            out.append(within((max(pair[0], float(lo[i])), min(pair[1], float(hi[i]))), value))
         return out
 
     def undetermined(self, values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[str]:

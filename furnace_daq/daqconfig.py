@@ -18,6 +18,7 @@ import pandas as pd
 
 from furnace_model.config import Node, load_yaml
 from furnace_model.errors import ConfigError
+from furnace_model.experiment import OUTAGE_PERIODS
 from furnace_model.simulation.furnace import PAPER, Furnace
 from furnace_model.simulation.furnacefile import named_furnace
 from furnace_model.simulation.network import parameter_names
@@ -211,6 +212,10 @@ class RefitConfig:
     generations: int | None = None
     """The GA's knobs (methods ga and ga_polish); None: the method's own (`ga_size`)."""
     max_gap_fraction: float = 0.2
+    max_outage_s: float | None = None
+    """A window is fitted from its first reading after the last span this long without one
+    (the burners' states in it are unknown, and a fit across it would hold the last ones);
+    None: OUTAGE_PERIODS steps, 0: never cut."""
     min_burner_steps: int = 1
     drift_windows: int = 2
     drift_min_change: float = 0.03
@@ -218,6 +223,12 @@ class RefitConfig:
     state_dir: Path = Path("state")
     diagnosis: DiagnosisConfig | None = None
     """None: no online diagnosis (no `diagnosis:` block, or `enabled: false`)."""
+
+    @property
+    def outage_ns(self) -> int | None:
+        """`max_outage_s` in ns; None when windows are never cut."""
+        s = OUTAGE_PERIODS * self.step_s if self.max_outage_s is None else self.max_outage_s
+        return int(round(s * 1e9)) if s > 0 else None
 
     def ga_size(self) -> tuple[int, int]:
         """(population, generations) of the method's genetic search: as configured, else
@@ -565,7 +576,8 @@ def _log(node: Node) -> LogConfig:
 def parse_refit(node: Node, furnace: Furnace | None = None) -> RefitConfig | None:
     """`refit`; `furnace`: the one its thermocouple names must be of (None: a fleet's)."""
     node.mapping({"enabled", "period_s", "window_s", "step_s", "budget_s", "method",
-                  "population", "generations", "max_gap_fraction", "min_burner_steps",
+                  "population", "generations", "max_gap_fraction", "max_outage_s",
+                  "min_burner_steps",
                   "drift_windows", "drift_min_change", "queue_max", "state_dir", "diagnosis"})
     if not node.get_bool("enabled", True):
         return None
@@ -584,6 +596,10 @@ def parse_refit(node: Node, furnace: Furnace | None = None) -> RefitConfig | Non
         if method not in GA_METHODS and node.has(key):
             raise node.child(key).error(f"applies to methods {' and '.join(GA_METHODS)} only "
                                         f"(method is {method})")
+    outage = node.get_number("max_outage_s", lo=0.0) if node.has("max_outage_s") else None
+    if outage is not None and 0 < outage < step:
+        raise node.child("max_outage_s").error(f"must be 0 (never cut) or at least step_s "
+                                               f"({step:g} s): a shorter span is one row's")
     default_dir = os.environ.get("STATE_DIRECTORY", "state").split(":")[0]
     return RefitConfig(
         period_s=period, window_s=window, step_s=step,
@@ -594,6 +610,7 @@ def parse_refit(node: Node, furnace: Furnace | None = None) -> RefitConfig | Non
         generations=(node.get_integer("generations", lo=1, hi=10_000_000)
                      if node.has("generations") else None),
         max_gap_fraction=node.get_number("max_gap_fraction", 0.2, lo=0.0, hi=1.0),
+        max_outage_s=outage,
         min_burner_steps=node.get_integer("min_burner_steps", 1, lo=0, hi=100000),
         drift_windows=node.get_integer("drift_windows", 2, lo=1, hi=1000),
         drift_min_change=node.get_number("drift_min_change", 0.03, lo=0.0, hi=10.0),

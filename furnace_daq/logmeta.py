@@ -110,6 +110,8 @@ def refit_config(recorded: Mapping[str, Any]) -> Any:
 
     known = {f.name: f for f in dataclasses.fields(RefitConfig)}
     values = {"method": "polish", **{k: v for k, v in recorded.items() if k in known}}
+    # A log written before windows were cut at outages was refitted across them.
+    values.setdefault("max_outage_s", 0.0)
     if "state_dir" in values:
         values["state_dir"] = Path(values["state_dir"])
     diagnosis = values.get("diagnosis")

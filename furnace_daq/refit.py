@@ -90,7 +90,7 @@ from furnace_model.log.messages import (
     as_message,
 )
 from furnace_model.log.read import iso_time
-from furnace_model.log.resample import Resampler
+from furnace_model.log.resample import Binned, Resampler
 from furnace_model.log.schema import param_names
 from furnace_model.simulation.furnace import Furnace
 from furnace_model.simulation.network import parameters
@@ -131,6 +131,8 @@ class Window:
     explained_until: int | None = None
     """The end of the last window a verdict that set one aside explained (ns): the model
     with the drift fitted the data until then."""
+    outage: tuple[int, int] | None = None
+    """(last reading before, first after) of the outage whose rows before were left out."""
 
     @property
     def gap_fraction(self) -> float:
@@ -138,22 +140,43 @@ class Window:
 
 
 def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
-               t_air_default: float, name: str = "window") -> Window:
+               t_air_default: float, name: str = "window", outage_ns: int | None = None
+               ) -> Window:
     """The window's resampled rows as an experiment of the resampler's furnace (None when no
     row has a burner state): the rows `logs export` writes for the same span, burner-change
-    rows included."""
+    rows included. With `outage_ns`, only the rows after the window's last span that long
+    without a reading: the burners' states in it were not read, and a fit across it would
+    hold the last ones while the plant's control moved them."""
     rows = resampler.table(start_ns, end_ns)
     expected = int(round((end_ns - start_ns) / step_ns))
     if rows.t.size == 0:
         return Window(start_ns, end_ns, None, expected, 0, 0)
+    complete = int((np.all(np.isfinite(resampler.furnace.zone_means(rows.tc)), axis=1)
+                    & rows.reading).sum())
+    outage = None
+    read = rows.t[rows.reading]
+    if outage_ns is not None and read.size > 1:
+        k = np.flatnonzero(np.diff(read) > outage_ns)
+        if k.size:
+            outage = (int(read[k[-1]]), int(read[k[-1] + 1]))
+            keep = rows.t >= outage[1]
+            rows = Binned(*(f[keep] for f in rows[:-1]),
+                          {n: v[keep] for n, v in rows.signals.items()})
     # As logs export -> load: a missing ambient holds the last reading, the default before any.
     air = pd.Series(rows.t_air).ffill().fillna(t_air_default).to_numpy()
     t0 = int(rows.t[0])
     exp = Experiment(name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
                      pd.Timestamp(t0, unit="ns", tz="UTC"), name, furnace=resampler.furnace,
                      disturbances=rows.disturbances)
-    complete = int((np.all(np.isfinite(exp.zone_temp), axis=1) & rows.reading).sum())
-    return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps)
+    return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps, outage=outage)
+
+
+def _after_outage(window: Window, verb: str) -> str:
+    """Which of the window's rows were used (`verb`: what they were used for), and why."""
+    lo, hi = window.outage  # type: ignore[misc]
+    return (f"only the rows after the outage from {iso_time(lo)} to {iso_time(hi)} {verb} "
+            f"(no reading for {(hi - lo) / 60e9:.0f} min: the burners' states in it are "
+            "unknown)")
 
 
 def window_seed(window: Window) -> int:
@@ -399,6 +422,12 @@ class RefitChain:
 
     def check(self, window: Window) -> str | None:
         """Why the window cannot identify the model, or None when it can be fitted."""
+        reason = self._unfit(window)
+        if reason is None or window.outage is None:
+            return reason
+        return f"{reason}; {_after_outage(window, 'count')}"
+
+    def _unfit(self, window: Window) -> str | None:
         cfg = self.config
         if window.experiment is None or len(window.experiment) < 10:
             n = 0 if window.experiment is None else len(window.experiment)
@@ -420,7 +449,7 @@ class RefitChain:
             else {p: self.model.params[p] for p in self.names}
         recent_ns = window.end_ns - int(round(RECENT_PERIODS * cfg.period_s * 1e9))
         t0 = exp.start_time.value if exp.start_time is not None else window.start_ns
-        recent = (recent_ns - t0) / 60e9 if recent_ns > window.start_ns else None
+        recent = (recent_ns - t0) / 60e9 if recent_ns > max(window.start_ns, t0) else None
         warm = None
         if init is not None and self.model is not None:
             warm = WarmStart([self.model.zone_offsets_c],
@@ -445,6 +474,8 @@ class RefitChain:
 
     def _base(self, window: Window, status: str, detail: str) -> ModelParameters:
         exp = window.experiment
+        if window.outage and status == "ok":
+            detail = "; ".join(x for x in (_after_outage(window, "fitted"), detail) if x)
         return ModelParameters(status, detail, iso_time(window.start_ns), iso_time(window.end_ns),
                                0 if exp is None else len(exp), round(window.gap_fraction, 6),
                                window.burner_steps)
@@ -664,7 +695,7 @@ class WindowCutter:
                     due = (pub_ns // self.period_ns + 1) * self.period_ns
                     break
                 out.append(cut_window(self.resampler, due - self.window_ns, due, self.step_ns,
-                                      self.t_air_default))
+                                      self.t_air_default, outage_ns=self.config.outage_ns))
                 due += self.period_ns
             self.next_due_ns = due
             self.resampler.forget(due - self.window_ns)

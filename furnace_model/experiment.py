@@ -28,6 +28,10 @@ TIME_COLUMNS = ("timestamp", "t_min")
 DEFAULT_T_AIR_C = 30.0
 TEMPERATURE_RANGE_C = (-273.15, 3000.0)
 MAX_SPAN_MIN = 10 * 366 * 24 * 60.0
+OUTAGE_PERIODS = 5.0
+"""Rows further apart than this many sample periods leave an outage between them: a
+simulation holds the row before's inputs across it, right only if nothing changed there.
+A sample or two missing is an acquisition's ordinary loss; five in a row is a stop."""
 
 
 @dataclass
@@ -84,6 +88,16 @@ class Experiment:
     def sample_period_min(self) -> float:
         return float(np.median(np.diff(self.t_min))) if len(self) > 1 else float("nan")
 
+    def outages(self, longest_min: float | None = None) -> list[tuple[float, float]]:
+        """(last row before, first row after), in minutes, of every spacing between rows
+        longer than `longest_min` (default: OUTAGE_PERIODS sample periods)."""
+        if len(self) < 3:
+            return []
+        if longest_min is None:
+            longest_min = OUTAGE_PERIODS * self.sample_period_min()
+        k = np.flatnonzero(np.diff(self.t_min) > longest_min)
+        return [(float(self.t_min[i]), float(self.t_min[i + 1])) for i in k]
+
     def between(self, lo: float, hi: float) -> Experiment:
         """The samples with lo <= t_min < hi, times kept as they are."""
         return self.rows((self.t_min >= lo) & (self.t_min < hi))
@@ -105,6 +119,24 @@ class Experiment:
             cols[c] = self.disturbances[:, i]
         cols.update(self.signals)
         return pd.DataFrame(cols)
+
+
+def outage_words(exp: Experiment) -> list[str]:
+    """A warning per outage of the record (`Experiment.outages`), with its span."""
+    from .progress import duration
+
+    out = []
+    for lo, hi in exp.outages():
+        if exp.start_time is not None:
+            at = (exp.start_time + pd.Timedelta(minutes=lo)).strftime("%Y-%m-%d %H:%M")
+            span = f"from {at}Z"
+        else:
+            span = f"from minute {lo:g}"
+        out.append(f"{exp.name}: no rows for {duration(60 * (hi - lo))} {span} (more than "
+                   f"{OUTAGE_PERIODS:g} sample periods): the model holds the inputs of the row "
+                   "before across it; if they changed there, fit the parts on either side as "
+                   "records of their own")
+    return out
 
 
 def write_table(frame: pd.DataFrame, path: str | Path) -> None:

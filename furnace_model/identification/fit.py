@@ -30,7 +30,7 @@ import numpy as np
 
 from ..blas import on_one_thread
 from ..errors import FurnaceError
-from ..experiment import Experiment
+from ..experiment import Experiment, outage_words
 from ..simulation.structure import ModelStructure
 from .criteria import criteria
 from .ga import genetic_search
@@ -470,6 +470,7 @@ def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: li
         if e.burner_steps == 0:
             out.append(f"{e.name}: no burner change in the data: too little excitation to "
                        "identify the model; do not trust these values")
+        out += outage_words(e)
     for name, side in at_bound.items():
         out.append(f"{name} ended on the {side} bound of its search range ({params[name]:g}): "
                    "the best fit within the range lies on its edge, so the value is the "

@@ -1,0 +1,112 @@
+"""An outage in the readings (a gateway that read nothing for most of an hour, a record with
+missing days): the inputs in it are unknown, so the online refit fits a window from the
+first reading after it, and a fit of a record says where it holds inputs across one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from refit_helpers import scenario, simulate
+
+from furnace_daq.daqconfig import RefitConfig, parse_config
+from furnace_daq.logmeta import plain, refit_config
+from furnace_daq.plantlog import run_messages
+from furnace_daq.refit import RefitChain, WindowCutter
+from furnace_model.config import Node
+from furnace_model.errors import ConfigError
+from furnace_model.experiment import Experiment, outage_words
+from furnace_model.identification.fit import fit
+from furnace_model.simulation.furnace import PAPER
+
+ROOT = Path(__file__).resolve().parents[1]
+HOUR = 3600.0
+NOISE_C = 1.0  # the scenario's thermocouple noise, about which each zone mean's RMSE lies
+
+
+def windows_of(run, config: RefitConfig, hole_min: tuple[float, float], start_ns: int):
+    """The refit messages of a run whose readings and burner states in `hole_min` were
+    never logged, fitted in order in this process."""
+    lo, hi = (start_ns + int(m * 60e9) for m in hole_min)
+    cutter, chain = WindowCutter(config, furnace=PAPER), RefitChain(config, furnace=PAPER)
+    out = []
+    for topic, msg, t in run_messages(run):
+        if lo <= t < hi:
+            continue
+        out += [chain.process(w)[0].to_json() for w in cutter.feed(topic, msg, t)]
+    return out
+
+
+def test_a_window_across_an_outage_is_fitted_from_the_first_reading_after_it():
+    """The burners went from 5 to 9 at minute 285, inside a 50-minute outage: held at 5
+    across it, the windows that hold it miss by several times the noise and move a and f;
+    fitted from the outage's end they are at the noise."""
+    s = scenario("week_steps", duration_min=9 * 60)
+    run = simulate(s)
+    config = RefitConfig(period_s=HOUR, window_s=8 * HOUR, method="polish")
+    hole = (260.0, 310.0)
+    across = [m for m in windows_of(run, RefitConfig(**{**plain(config), "max_outage_s": 0.0,
+                                                        "state_dir": config.state_dir}),
+                                    hole, s.start_time.value) if m["status"] == "ok"]
+    cut = windows_of(run, config, hole, s.start_time.value)
+    after = [m for m in cut if m["status"] == "ok"]
+    assert [m["window_end"] for m in after] == [m["window_end"] for m in across] != []
+    assert all(max(m["rmse_c"].values()) > 3 * NOISE_C for m in across), \
+        [m["rmse_c"] for m in across]
+    for m in after:
+        assert max(m["rmse_c"].values()) < 1.3 * NOISE_C, m["rmse_c"]
+        assert m["detail"].startswith("only the rows after the outage from "
+                                      "2026-03-02T04:19:00.000Z to 2026-03-02T05:10:00.000Z "
+                                      "fitted (no reading for 51 min"), m["detail"]
+        # the rows from the outage's end to the window's
+        end_min = (np.datetime64(m["window_end"][:-1]) - np.datetime64("2026-03-02T05:10")) \
+            / np.timedelta64(1, "m")
+        assert m["n_samples"] == end_min
+    # the windows that end before enough rows follow it say so
+    short = [m["detail"] for m in cut if m["status"] == "insufficient_excitation"
+             and m["window_end"] > "2026-03-02T05:10"]
+    assert short and all(d.endswith("; only the rows after the outage from 2026-03-02T04:19:"
+                                    "00.000Z to 2026-03-02T05:10:00.000Z count (no reading for "
+                                    "51 min: the burners' states in it are unknown)")
+                         for d in short), short
+
+
+def test_a_record_with_an_outage_is_fitted_with_a_warning_that_names_it():
+    s = scenario("paper_exp1")
+    run = simulate(s)
+    keep = (run.t_min < 1200) | (run.t_min >= 1300)
+    exp = Experiment("exp1", run.t_min[keep], run.tc[keep], run.burners[keep],
+                     np.full(keep.sum(), s.t_air_c), s.start_time, furnace=PAPER)
+    assert exp.outages() == [(1199.0, 1300.0)]
+    assert exp.outages(longest_min=200.0) == []
+    (words,) = outage_words(exp)
+    assert words.startswith("exp1: no rows for 1.7 h from 2026-03-03 01:59Z") and "fit the parts" in words
+    res = fit([exp], seed=0, profile=False)
+    assert words in res.warnings
+    whole = Experiment("exp1", run.t_min, run.tc, run.burners, np.full(run.t_min.size,
+                       s.t_air_c), s.start_time, furnace=PAPER)
+    assert whole.outages() == [] and outage_words(whole) == []
+
+
+def parse(refit: dict) -> RefitConfig:
+    doc = yaml.safe_load((ROOT / "config" / "gateway.yaml").read_text())
+    doc["refit"].update(refit)
+    return parse_config(Node(doc, "daq.yaml")).refit
+
+
+def test_the_outage_setting_is_checked_recorded_and_off_for_older_logs():
+    assert parse({}).outage_ns == int(5 * 60e9)  # five steps of the default 60 s
+    assert parse({"step_s": 120, "period_s": 1200}).outage_ns == int(10 * 60e9)
+    assert parse({"max_outage_s": 0}).outage_ns is None
+    assert parse({"max_outage_s": 1800}).outage_ns == int(1800e9)
+    with pytest.raises(ConfigError, match=r"refit\.max_outage_s: must be 0 \(never cut\) or at "
+                                          r"least step_s \(60 s\)"):
+        parse({"max_outage_s": 30})
+    given = parse({"max_outage_s": 1800})
+    assert refit_config(plain(given)).outage_ns == given.outage_ns
+    assert refit_config(plain(parse({}))).outage_ns == int(5 * 60e9)
+    old = plain(parse({}))
+    del old["max_outage_s"]  # a log written before the setting was refitted across outages
+    assert refit_config(old).outage_ns is None

@@ -37,7 +37,7 @@ def test_validate_scores_the_other_experiment(fitted, tmp_path):
     r = cli("validate", "--params", str(fitted / "fit.json"), str(fitted / "paper_exp2.csv"),
             "--json", str(out), "--plot", str(tmp_path / "png"))
     assert r.returncode == 0, r.stderr
-    assert "| paper_exp2 | soak |" in r.stdout
+    assert "| paper_exp2 | soak |" in r.stdout and "warning" not in r.stderr
     doc = json.loads(out.read_text())
     for zone in ("soak", "heat", "preheat"):
         m = doc["per_zone"][zone]
@@ -148,3 +148,15 @@ def test_a_horizon_of_no_samples_is_refused(fitted):
             "--horizon", "0")
     assert r.returncode != 0
     assert "--horizon: must be at least 1, got 0" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_validate_warns_of_an_outage_in_the_record(fitted, tmp_path):
+    """The model holds the inputs across 100 minutes without a row: said, with the span,
+    and the record is still scored."""
+    lines = (fitted / "paper_exp2.csv").read_text().splitlines(keepends=True)
+    holed = tmp_path / "holed.csv"
+    holed.write_text("".join(lines[:1201] + lines[1301:]))  # header, then minutes 0-1199
+    r = cli("validate", "--params", str(fitted / "fit.json"), str(holed))
+    assert r.returncode == 0, r.stderr
+    assert "furnace-model validate: warning: holed: no rows for 1.7 h from " in r.stderr
+    assert "| holed | soak |" in r.stdout

@@ -103,6 +103,7 @@ def stage_lines(stream=None):
 
 def run(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose
+    from ..experiment import outage_words
     from ..records import load_experiments
 
     if args.report:
@@ -111,6 +112,9 @@ def run(args: argparse.Namespace) -> int:
     furnace = furnace_of(args)
     data = load_experiments(args.data, **window, furnace=furnace)
     hold = load_experiments(args.holdout, **window, furnace=furnace) if args.holdout else None
+    for e in data + (hold or []):
+        for w in outage_words(e):
+            print(f"furnace-model diagnose: warning: {w}", file=sys.stderr)
     result = diagnose(data, hold, effects=args.effects, seed=args.seed,
                       progress=None if args.quiet else stage_lines(),
                       time_limit_s=args.time_limit)

@@ -137,6 +137,7 @@ def load_model(path: Path, furnace=None) -> Model:
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
+    from ..experiment import outage_words
     from ..identification.scores import zone_metrics
     from ..records import load_experiments
 
@@ -146,6 +147,9 @@ def run(args: argparse.Namespace) -> int:
         model = dataclasses.replace(model, zone_offsets=args.zone_offsets)
     params, structure = model.params, model.structure
     experiments = load_experiments(args.data, **data_window(args), furnace=furnace)
+    for e in experiments:
+        for w in outage_words(e):
+            print(f"furnace-model validate: warning: {w}", file=sys.stderr)
     k = args.horizon
     refined = model.refine(experiments)  # each record alone: its start, its offsets
     per_exp = {e.name: zone_metrics(e.zone_temp, refined.predict(j), furnace.zones)

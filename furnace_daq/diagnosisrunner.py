@@ -225,12 +225,15 @@ class DiagnosisRunner:
         """When the diagnosis in flight started (monotonic seconds; now when none is)."""
         return self.in_flight[2].started if self.in_flight is not None else time.monotonic()
 
+    def unanswered(self) -> DiagnosisRequest | None:
+        """The oldest request not yet answered."""
+        requests = [*self.queue, *([self.in_flight[0]] if self.in_flight is not None else [])]
+        return min(requests, key=lambda r: r.key, default=None)
+
     def waiting_since(self) -> int | None:
         """The key of the oldest request not yet answered (ns on the data clock)."""
-        keys = [r.key for r in self.queue]
-        if self.in_flight is not None:
-            keys.append(self.in_flight[0].key)
-        return min(keys, default=None)
+        oldest = self.unanswered()
+        return None if oldest is None else oldest.key
 
     def job(self, request: DiagnosisRequest) -> DiagnosisJob:
         logged = None if self.recorded is None else self.recorded.get(request.key)

@@ -21,15 +21,24 @@ third after it.
 
 The rule reads nothing but the windows and their messages, in order, so replay takes the
 same decisions from the log as the live daemon did.
+
+A restarted daemon goes on with the episode (`state`, saved with the refit chain's): the
+reference window, data and all, the count of misfits and what is pending. A request that
+had no verdict when the daemon stopped is asked again of the first misfit window after.
 """
 
 from __future__ import annotations
 
+import base64
 from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
 
 from furnace_model.diagnosis.holdout import TAIL_SHARE
 from furnace_model.experiment import Experiment
 from furnace_model.log.messages import ModelEvent, ModelEventKind, ModelParameters
+from furnace_model.simulation.furnace import Furnace
 
 from .daqconfig import DiagnosisConfig
 from .refit import Window, window_seed
@@ -112,6 +121,39 @@ class DiagnosisTrigger:
                 self.fired, self.pending = False, None
         return request
 
+    def state(self, unanswered: DiagnosisRequest | None = None) -> dict:
+        """The episode as plain JSON; `unanswered`: the oldest request without a verdict,
+        which the restarted daemon asks again (its windows are gone with the process)."""
+        fired, pending = self.fired, self.pending
+        if unanswered is not None:
+            fired, pending = False, (unanswered.trigger, unanswered.trigger_detail, 0)
+        return {"reference": None if self.reference is None else _window_state(self.reference),
+                "misfits": self.misfits, "fired": fired,
+                "pending": None if pending is None else list(pending),
+                "set_aside": list(self.set_aside), "fit_until": self.fit_until}
+
+    @classmethod
+    def from_state(cls, config: DiagnosisConfig, state: object, furnace: Furnace
+                   ) -> DiagnosisTrigger:
+        """A trigger that goes on from a saved `state()`; ValueError, naming what is wrong,
+        for anything that is not one."""
+        out = cls(config)
+        try:
+            if not isinstance(state, dict):
+                raise TypeError("not a mapping")
+            ref = state["reference"]
+            out.reference = None if ref is None else _window_from(ref, furnace)
+            out.misfits, out.fired = int(state["misfits"]), bool(state["fired"])
+            p = state["pending"]
+            out.pending = None if p is None else (str(p[0]), str(p[1]), int(p[2]))
+            out.set_aside = tuple(str(x) for x in state["set_aside"])
+            until = state["fit_until"]
+            out.fit_until = None if until is None else int(until)
+        except (KeyError, TypeError, IndexError, ValueError, AttributeError) as exc:
+            raise ValueError(f"malformed diagnosis trigger state ({type(exc).__name__}: "
+                             f"{exc})") from None
+        return out
+
     def _request(self, window: Window, trigger: str, detail: str) -> DiagnosisRequest:
         self.fired, self.pending = True, None
         ref = self.reference
@@ -122,6 +164,51 @@ class DiagnosisTrigger:
 
 
 def _holds(window: Window, change_after_ns: int) -> bool:
-    """Whether the window's fitted part reaches CHANGE_SHARE of a window past the change."""
+    """Whether the window's fitted part reaches CHANGE_SHARE of a window past the change.
+    A window cut at an outage holds only the rows after it, and the diagnosis fits the
+    first part of those."""
     span = window.end_ns - window.start_ns
-    return window.start_ns + (1 - TAIL_SHARE) * span >= change_after_ns + CHANGE_SHARE * span
+    start = window.outage[1] if window.outage else window.start_ns
+    return start + (1 - TAIL_SHARE) * (window.end_ns - start) \
+        >= change_after_ns + CHANGE_SHARE * span
+
+
+def _packed(a: np.ndarray) -> dict:
+    """An array as JSON, exact and NaN-safe: its shape and its float64 bytes in base64."""
+    a = np.ascontiguousarray(a, dtype="<f8")
+    return {"shape": list(a.shape), "f8": base64.b64encode(a.tobytes()).decode("ascii")}
+
+
+def _unpacked(d: dict) -> np.ndarray:
+    return np.frombuffer(base64.b64decode(d["f8"], validate=True),
+                         dtype="<f8").reshape(d["shape"]).copy()
+
+
+def _window_state(w: Window) -> dict:
+    e = w.experiment
+    return {"start_ns": w.start_ns, "end_ns": w.end_ns, "expected_bins": w.expected_bins,
+            "complete_bins": w.complete_bins, "burner_steps": w.burner_steps,
+            "set_aside": list(w.set_aside), "explained_until": w.explained_until,
+            "outage": None if w.outage is None else list(w.outage),
+            "experiment": None if e is None else {
+                "name": e.name, "source": e.source,
+                "start_ns": None if e.start_time is None else int(e.start_time.value),
+                **{k: _packed(getattr(e, k)) for k in ("t_min", "tc", "burners", "t_air",
+                                                      "disturbances")}}}
+
+
+def _window_from(d: dict, furnace: Furnace) -> Window:
+    e = d["experiment"]
+    exp = None if e is None else Experiment(
+        str(e["name"]), *(_unpacked(e[k]) for k in ("t_min", "tc", "burners", "t_air")),
+        None if e["start_ns"] is None else pd.Timestamp(int(e["start_ns"]), unit="ns", tz="UTC"),
+        str(e["source"]), furnace=furnace, disturbances=_unpacked(e["disturbances"]))
+    if exp is not None and exp.tc.shape[1] != len(furnace.sensors):
+        raise ValueError(f"its reference window holds {exp.tc.shape[1]} thermocouples, the "
+                         f"furnace {len(furnace.sensors)}")
+    outage = d["outage"]
+    return Window(int(d["start_ns"]), int(d["end_ns"]), exp, int(d["expected_bins"]),
+                  int(d["complete_bins"]), int(d["burner_steps"]),
+                  tuple(str(x) for x in d["set_aside"]),
+                  None if d["explained_until"] is None else int(d["explained_until"]),
+                  None if outage is None else (int(outage[0]), int(outage[1])))

@@ -126,16 +126,17 @@ class RefitPump:
                                     f"{type(exc).__name__}: {exc}"), now)
         # the chain has taken this window in already: its state goes with the model
         saved = data if self._diagnosis is None else {**data, "diagnosis": self._diagnosis}
-        self.state.save(saved, self.runner.chain.state())
+        self.state.save(saved, self.runner.state())
 
     def resume(self) -> None:
-        """Go on with the model in force and the drift references a previous run left, so
-        that a restart neither forgets the model nor starts drift detection afresh. A state
+        """Go on with the model in force, the drift references and the diagnosis episode a
+        previous run left, so that a restart neither forgets the model nor starts drift
+        detection or the episode afresh. A state
         file that cannot be used is reported and set aside; the chain then starts empty."""
         path = self.state.chain_path
         now = self.wall_ns()
         try:
-            self.runner.chain.restore(json.loads(path.read_text(encoding="utf-8")))
+            self.runner.restore(json.loads(path.read_text(encoding="utf-8")))
         except FileNotFoundError:
             return
         except (OSError, UnicodeDecodeError, ValueError) as exc:

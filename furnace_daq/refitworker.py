@@ -173,6 +173,24 @@ class RefitRunner:
     def start(self) -> None:
         self.worker.start()
 
+    def state(self) -> dict:
+        """The chain's state (RefitChain.state) and the diagnosis trigger's episode: what a
+        restarted daemon goes on from."""
+        out = self.chain.state()
+        if self.trigger is not None and self.diagnoses is not None:
+            out["trigger"] = self.trigger.state(self.diagnoses.unanswered())
+        return out
+
+    def restore(self, state: object) -> None:
+        """Take over a saved `state()` (a chain state without a trigger's starts the
+        episode afresh); ValueError, naming what is wrong, leaving everything as it was."""
+        trigger = self.trigger
+        if trigger is not None and isinstance(state, dict) and state.get("trigger") is not None:
+            trigger = DiagnosisTrigger.from_state(trigger.config, state["trigger"],
+                                                  self.chain.furnace)
+        self.chain.restore(state)
+        self.trigger = trigger
+
     def feed(self, topic: str, msg: FurnaceMessage | dict, pub_ns: int) -> None:
         """One logged message; cuts and queues the windows that became due (and hands the
         first to the worker at once when it is idle)."""

@@ -256,3 +256,65 @@ def test_a_thermocouple_set_aside_opens_a_new_episode():
     assert [trigger.observe(aside(k), model(k, 5.0), []) for k in (6, 7)] == [None] * 2
     again = trigger.observe(aside(8), model(8, 5.0), [])
     assert again is not None and again.recent_span == (8 * HOUR_NS, 18 * HOUR_NS)
+
+
+def test_a_restarted_daemon_goes_on_with_the_episode_and_asks_again_what_had_no_verdict():
+    """The trigger's state goes to refit_chain.json with the chain's: after a restart the
+    episode neither starts afresh (no second diagnosis of it) nor loses its reference, and
+    a request the stopped daemon never answered is asked of the next misfit window."""
+    import json
+
+    from furnace_daq.refitworker import RefitRunner
+
+    config = RefitConfig(diagnosis=DiagnosisConfig(after_windows=2))
+
+    def runner() -> RefitRunner:
+        return RefitRunner(config, lambda *a: None, furnace=PAPER)
+
+    def saved(r: RefitRunner) -> dict:
+        return json.loads(json.dumps(r.state(), allow_nan=False))  # as the state file holds it
+
+    first = runner()
+    assert first.trigger.observe(window(1), model(1, 1.0), []) is None  # the reference
+    reference = first.trigger.reference
+    reference.experiment.tc[3, 2] = np.nan  # a missing reading travels too
+    assert first.trigger.observe(window(2), model(2, 5.0), []) is None  # one misfit
+    after_one = saved(first)
+    asked = first.trigger.observe(window(3), model(3, 5.0), [])
+    assert asked is not None
+    answered = saved(first)  # the request was answered before the stop
+
+    again = runner()
+    again.restore(answered)
+    ref = again.trigger.reference
+    assert (ref.start_ns, ref.end_ns) == (reference.start_ns, reference.end_ns)
+    np.testing.assert_array_equal(ref.experiment.tc, reference.experiment.tc)
+    np.testing.assert_array_equal(ref.experiment.t_min, reference.experiment.t_min)
+    assert again.trigger.observe(window(4), model(4, 5.0), []) is None  # the same episode
+    assert again.chain.model is None and again.state()["trigger"]["fired"] is True
+
+    counting = runner()
+    counting.restore(after_one)  # one misfit counted: the next one asks
+    asked = counting.trigger.observe(window(3), model(3, 5.0), [])
+    assert asked is not None and asked.reference_span == (HOUR_NS, 2 * HOUR_NS)
+
+    unanswered = runner()
+    unanswered.diagnoses.queue.append(asked)  # requested, no verdict yet
+    unanswered.trigger = counting.trigger
+    state = saved(unanswered)
+    assert state["trigger"]["fired"] is False and state["trigger"]["pending"][0] == "misfit"
+    later = runner()
+    later.restore(state)
+    redo = later.trigger.observe(window(6), model(6, 5.0), [])
+    assert redo is not None and redo.trigger == "misfit"
+    assert redo.reference_span == (HOUR_NS, 2 * HOUR_NS)
+
+    # a state that is not one is refused whole, and the runner stays as it was
+    broken = {**answered, "trigger": {**answered["trigger"], "misfits": "many"}}
+    with pytest.raises(ValueError, match="malformed diagnosis trigger state"):
+        later.restore(broken)
+    assert later.trigger.fired is True and later.trigger.reference is not None
+    without = {k: v for k, v in answered.items() if k != "trigger"}  # an older daemon's
+    fresh = runner()
+    fresh.restore(without)
+    assert fresh.trigger.reference is None

@@ -110,3 +110,19 @@ def test_the_outage_setting_is_checked_recorded_and_off_for_older_logs():
     old = plain(parse({}))
     del old["max_outage_s"]  # a log written before the setting was refitted across outages
     assert refit_config(old).outage_ns is None
+
+
+def test_the_diagnosis_waits_for_a_fitted_part_past_the_change_after_the_outage_too():
+    """A window cut at an outage holds only the rows after it, and the diagnosis fits the
+    first 70% of those: the trigger's wait counts from there."""
+    from dataclasses import replace
+
+    from furnace_daq.diagnosistrigger import _holds
+    from furnace_daq.refit import Window
+
+    h = int(3600e9)
+    whole = Window(0, 10 * h, None, 600, 600, 5)  # fitted part to 7 h
+    cut = replace(whole, outage=(2 * h, 4 * h))  # 70% of the 6 h after the outage: to 8.2 h
+    # the fitted part must reach a tenth of a window (1 h) past the change
+    assert _holds(whole, 6 * h) and not _holds(whole, 7 * h)
+    assert _holds(cut, 7 * h) and not _holds(cut, int(7.3 * h))

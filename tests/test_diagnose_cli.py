@@ -36,12 +36,27 @@ def case_files(tmp_path_factory) -> tuple[Path, Path, dict]:
 
 
 def test_diagnose_names_the_effect_and_writes_the_contract_json(case_files, tmp_path):
+    """Also: a progress line per stage on stderr, none with --quiet, which changes nothing
+    else."""
     fit, hold, _truth = case_files
     out = tmp_path / "d.json"
     # a limit far beyond the diagnosis's time changes nothing and leaves nothing untried
-    r = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,sensor_lag,dead_time",
-            "--json", str(out), "--time-limit", "3600")
+    args = (str(fit), "--holdout", str(hold), "--effects", "zone_burners,sensor_lag,dead_time",
+            "--time-limit", "3600")
+    r = cli(*args, "--json", str(out))
     assert r.returncode == 0, r.stderr
+    lines = [x for x in r.stderr.splitlines() if x.startswith("furnace-model diagnose: ")]
+    assert lines[0].startswith("furnace-model diagnose: fitting the baseline (")
+    assert all(any(f"{e} fitted in" in x for x in lines)
+               for e in ("zone_burners", "sensor_lag", "dead_time"))
+    # the first of the three says how long the others will take; the last, none
+    counts = [x for x in lines if " fitted in " in x and " of 3" in x]
+    assert "(1 of 3; about " in counts[0] and " left for the others)" in counts[0]
+    assert "(3 of 3) (" in counts[-1] and "left" not in counts[-1]
+    assert lines[-1].startswith("furnace-model diagnose: judging (")
+    quiet = cli(*args, "--quiet")
+    assert quiet.returncode == 0 and "furnace-model diagnose: " not in quiet.stderr
+    assert quiet.stdout == r.stdout
     assert "Judged without" not in r.stdout
     # the verdict first, then the evidence: baseline, where, candidates
     assert r.stdout.startswith("Verdict: explained (zone_burners)\n")
@@ -117,25 +132,6 @@ def test_unknown_effect_is_a_usage_error(case_files):
     fit, hold, _ = case_files
     r = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,warp_drive")
     assert r.returncode == 2 and "warp_drive" in r.stderr
-
-
-def test_progress_lines_on_stderr_unless_quiet(case_files):
-    fit, hold, _truth = case_files
-    r = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,sensor_lag")
-    assert r.returncode == 0, r.stderr
-    lines = [x for x in r.stderr.splitlines() if x.startswith("furnace-model diagnose: ")]
-    assert lines[0].startswith("furnace-model diagnose: fitting the baseline (")
-    assert any("zone_burners fitted in" in x for x in lines)
-    assert any("sensor_lag fitted in" in x for x in lines)
-    # the first of the two says how long the other will take; the last, none
-    counts = [x for x in lines if " fitted in " in x and " of 2" in x]
-    assert "(1 of 2; about " in counts[0] and " left for the others)" in counts[0]
-    assert "(2 of 2) (" in counts[1] and "left" not in counts[1]
-    assert lines[-1].startswith("furnace-model diagnose: judging (")
-    quiet = cli(str(fit), "--holdout", str(hold), "--effects", "zone_burners,sensor_lag",
-                "--quiet")
-    assert quiet.returncode == 0 and "furnace-model diagnose: " not in quiet.stderr
-    assert quiet.stdout == r.stdout
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")

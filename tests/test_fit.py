@@ -400,6 +400,9 @@ def test_a_parameter_forced_onto_its_bound_is_flagged_not_reported_as_a_value(pa
 
     res = fit([paper_1min], bounds={"b": (0.5, 2.0)})  # the truth is b = 0.299
     assert res.at_bound == {"b": "lower"}
+    # held on its bound, not clipped to it after each step: the others converge, where
+    # clipped steps crawled along the bound to the iteration limit
+    assert res.stop_reason == "converged" and res.iterations < 60, res.runs
     assert res.params["b"] == pytest.approx(0.5)
     assert np.isnan(res.std["b"]) and np.isnan(res.cov[1]).all()
     assert any(w.startswith("b ended on the lower bound") for w in res.warnings)
@@ -418,9 +421,8 @@ def test_a_parameter_forced_onto_its_bound_is_flagged_not_reported_as_a_value(pa
 def test_a_sliding_window_warm_start_reaches_the_same_optimum_in_fewer_steps(scenarios):
     """Two 24-h windows of a week of production 15 min apart, as the daemon cuts them: the
     second fitted from the first's parameters alone, and with `WarmStart` (the first's zone
-    offsets, small damping). The same optimum, to a few millionths (the polish's own
-    tolerance along the d/e valley), in well under the Levenberg-Marquardt steps (seen: 6
-    against 12)."""
+    offsets, small damping). The same optimum, to the polish's tolerance, in well under
+    the Levenberg-Marquardt steps (seen: 6 against 12)."""
     sc = load_scenario(scenarios / "week_steps.yaml")
     sc.duration_min = 1500.0
     exp = Plant.from_scenario(sc, seed=2).run_scenario(sc).to_experiment()
@@ -430,7 +432,7 @@ def test_a_sliding_window_warm_start_reaches_the_same_optimum_in_fewer_steps(sce
     plain = fit([window], init=first.params, zone_offsets=True, profile=False)
     warm = fit([window], init=first.params, zone_offsets=True, profile=False,
                warm=WarmStart(first.zone_offsets_c, None))
-    for k, v in plain.params.items():
-        assert warm.params[k] == pytest.approx(v, rel=5e-5), k
-    assert warm.sse == pytest.approx(plain.sse, rel=1e-7)
+    for k, v in plain.params.items():  # the same to a fiftieth of the estimate's sd
+        assert abs(warm.params[k] - v) < 0.02 * plain.std[k], (k, warm.params[k], v)
+    assert warm.sse == pytest.approx(plain.sse, rel=1e-6)
     assert warm.iterations <= 0.6 * plain.iterations, (warm.iterations, plain.iterations)

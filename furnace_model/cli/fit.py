@@ -243,7 +243,8 @@ def render(result: FitResult, experiments) -> str:
     for k in names:
         lo, hi = result.ci95[k]
         if k in result.at_bound:
-            out.append(f"| {k} | at {result.at_bound[k]} bound {_g(result.params[k])} | - | - "
+            edge = result.bounds[k][0 if result.at_bound[k] == "lower" else 1]
+            out.append(f"| {k} | at {result.at_bound[k]} bound {_g(edge)} | - | - "
                        "| no: on the edge of its range |")
         elif k in result.fixed:
             out.append(f"| {k} | {_g(result.params[k])} | 0 | - | fixed |")

@@ -56,6 +56,12 @@ coverage)."""
 PROFILE_GAIN_TOL = 1e-7
 """A profile's refit is converged to this share of the criterion: its rise is wanted to a
 few percent, and it is thousands of times smaller than the criterion."""
+AT_BOUND_SHARE = 1e-3
+"""A parameter this close to an edge of its box (a share of the box's width on the search
+scale: 1.2% of a rate's value) is reported on it: the polish stops once a step gains less
+than its tolerance, which can leave a parameter whose optimum lies beyond its bound a hair
+inside it (seen: c at 1.009e-4 against its bound 1e-4), a value no different from the
+bound to the data."""
 SCOUT_STEPS = 10
 """Polish steps each of several starts takes before the best goes on alone: enough to leave
 a start's own misfit (its offsets and initial states, a zone's scale) behind, and for one in
@@ -208,9 +214,11 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     for name, coef in named:
         value, (lo, hi) = unc.combination_value(coef)
         combo_values[name] = {"value": value, "ci95": [lo, hi]}
-    at_bound = prob.at_bound(z)
+    at_bound = prob.at_bound(z, AT_BOUND_SHARE)
+    edges = {n: float((prob.lo_val if side == "lower" else prob.hi_val)[prob.names.index(n)])
+             for n, side in at_bound.items()}
     warnings = _warnings(experiments, unc, undetermined, combos, best_run, time_budget_s,
-                         at_bound, params) + [f.words() for f in flags]
+                         at_bound, edges) + [f.words() for f in flags]
     static = all(e.burner_steps == 0 for e in experiments)
     corr = np.eye(len(structure.names))
     cov = np.zeros((len(structure.names),) * 2)
@@ -464,7 +472,7 @@ def _lowest(polished: list[Polished]) -> Polished:
 
 def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: list[str],
               run: _Run, budget, at_bound: dict[str, str],
-              params: dict[str, float]) -> list[str]:
+              edges: dict[str, float]) -> list[str]:
     out = []
     for e in experiments:
         if e.burner_steps == 0:
@@ -472,7 +480,7 @@ def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: li
                        "identify the model; do not trust these values")
         out += outage_words(e)
     for name, side in at_bound.items():
-        out.append(f"{name} ended on the {side} bound of its search range ({params[name]:g}): "
+        out.append(f"{name} ended on the {side} bound of its search range ({edges[name]:g}): "
                    "the best fit within the range lies on its edge, so the value is the "
                    "bound, not an estimate, and no sd or interval applies to it")
     if undetermined:

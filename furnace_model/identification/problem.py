@@ -25,9 +25,15 @@ _T = TypeVar("_T")
 _CELLS = 4_000_000
 """Model values (sets x samples x zones) per simulator call in the GA: about 32 MB each."""
 POLISH_MAX_ITER = 60
+POLISH_GAIN_TOL = 1e-7
+"""The polish has converged when a step lowers the cost by less than this share of it: with
+1e4 residuals at the noise, a thousandth of the noise variance, where an estimate moves by
+a few hundredths of its sd. Tighter, most polishes ran to their iteration limit for gains
+that change nothing (docs/performance.md)."""
 STOP_REASONS = {
-    "converged": "the polish converged: its last step changed the cost by less than 1e-10 "
-                 "relative or the unknowns by less than 1e-9, or no step lowered the cost",
+    "converged": f"the polish converged: its last step changed the cost by less than "
+                 f"{POLISH_GAIN_TOL:g} relative or the unknowns by less than 1e-9, or no step "
+                 "lowered the cost",
     "iteration_limit": f"the polish reached its limit of {POLISH_MAX_ITER} iterations before "
                        "converging",
     "time_budget": "the time budget ran out before the search finished",
@@ -254,10 +260,10 @@ class Problem:
         i = self.k + self.block * j + self.nz
         return z[i:i + self.nz] if self.offsets_fitted else np.zeros(self.nz)
 
-    def at_bound(self, z: np.ndarray) -> dict[str, str]:
-        """Free parameters that ended on an edge of their search box: {name: side}. The
-        polish clips onto the edge exactly; the tolerance is for the GA alone."""
-        tol = 1e-6 * (self.hi - self.lo)
+    def at_bound(self, z: np.ndarray, share: float = 1e-6) -> dict[str, str]:
+        """Free parameters within `share` of their search box's width (search scale) of an
+        edge: {name: side}."""
+        tol = share * (self.hi - self.lo)
         out = {}
         for i, name in enumerate(self.names):
             if z[i] <= self.lo[i] + tol[i]:
@@ -354,7 +360,8 @@ class Problem:
         return self.remembered("jac", z, lambda: jacobian(self, z))
 
     def polish(self, z0: np.ndarray, deadline: float | None, max_iter: int = POLISH_MAX_ITER,
-               gain_tol: float = 1e-10, damping: float = 1e-3, free_first: bool = True
+               gain_tol: float = POLISH_GAIN_TOL, damping: float = 1e-3,
+               free_first: bool = True
                ) -> Polished:
         """Levenberg-Marquardt from z0, parameters kept in their box and the records' own
         unknowns in theirs; converged when a step lowers the cost by less than `gain_tol`
@@ -411,12 +418,10 @@ class Problem:
             else:
                 H, g = J.T @ J, J.T @ r
             d = np.maximum(np.diag(H), 1e-12 * max(np.diag(H).max(), 1e-300))
-            # The step is clipped to the box: where the diagnosis's bent baselines end, and so
-            # where its candidates start, depends on it (docs/identification.md). A record's
-            # own unknown held on its bound by the gradient is left out of the step (an
-            # active set), so that the others take Gauss-Newton steps, not clipped ones.
-            move = np.ones(self.n, dtype=bool)
-            move[self.k:] = ~(((z <= lo) & (g > 0)) | ((z >= hi) & (g < 0)))[self.k:]
+            # An unknown held on its bound by the gradient is left out of the step (an
+            # active set), so that the others take Gauss-Newton steps; clipped after the
+            # step instead, they crawled along the bound to the iteration limit.
+            move = ~(((z <= lo) & (g > 0)) | ((z >= hi) & (g < 0)))
             accepted = False
             while mu < 1e12 and not accepted:
                 mus = mu * 4.0 ** np.arange(trials)

@@ -577,8 +577,8 @@ def parse_refit(node: Node, furnace: Furnace | None = None) -> RefitConfig | Non
     """`refit`; `furnace`: the one its thermocouple names must be of (None: a fleet's)."""
     node.mapping({"enabled", "period_s", "window_s", "step_s", "budget_s", "method",
                   "population", "generations", "max_gap_fraction", "max_outage_s",
-                  "min_burner_steps",
-                  "drift_windows", "drift_min_change", "queue_max", "state_dir", "diagnosis"})
+                  "min_burner_steps", "drift_windows", "drift_min_change", "queue_max",
+                  "state_dir", "diagnosis"})
     if not node.get_bool("enabled", True):
         return None
     step = node.get_number("step_s", 60.0, lo=0.001, hi=86400.0)

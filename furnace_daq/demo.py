@@ -623,7 +623,8 @@ def plot_refits(refits: list[ModelParameters], scenario: Scenario, path: Path) -
             lo, hi = c["ci95"]
             x.append(end + 0.25 * (k - (len(shown) - 1) / 2))
             y.append(100 * (c["value"] / want - 1))
-            err.append([100 * (c["value"] - lo) / abs(want), 100 * (hi - c["value"]) / abs(want)])
+            err.append([100 * (c["value"] - lo) / abs(want),
+                        100 * (hi - c["value"]) / abs(want)])
         if x:
             ax.errorbar(x, y, yerr=np.array(err).T, fmt="o", ms=4, capsize=2, label=name)
     for t in scenario.steps_t[1:]:

@@ -131,8 +131,8 @@ class RefitPump:
     def resume(self) -> None:
         """Go on with the model in force, the drift references and the diagnosis episode a
         previous run left, so that a restart neither forgets the model nor starts drift
-        detection or the episode afresh. A state
-        file that cannot be used is reported and set aside; the chain then starts empty."""
+        detection or the episode afresh. A state file that cannot be used is reported and
+        set aside; the chain then starts empty."""
         path = self.state.chain_path
         now = self.wall_ns()
         try:

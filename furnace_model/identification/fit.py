@@ -60,8 +60,7 @@ AT_BOUND_SHARE = 1e-3
 """A parameter this close to an edge of its box (a share of the box's width on the search
 scale: 1.2% of a rate's value) is reported on it: the polish stops once a step gains less
 than its tolerance, which can leave a parameter whose optimum lies beyond its bound a hair
-inside it (seen: c at 1.009e-4 against its bound 1e-4), a value no different from the
-bound to the data."""
+inside it, a value no different from the bound to the data."""
 SCOUT_STEPS = 10
 """Polish steps each of several starts takes before the best goes on alone: enough to leave
 a start's own misfit (its offsets and initial states, a zone's scale) behind, and for one in

@@ -28,8 +28,8 @@ POLISH_MAX_ITER = 60
 POLISH_GAIN_TOL = 1e-7
 """The polish has converged when a step lowers the cost by less than this share of it: with
 1e4 residuals at the noise, a thousandth of the noise variance, where an estimate moves by
-a few hundredths of its sd. Tighter, most polishes ran to their iteration limit for gains
-that change nothing (docs/performance.md)."""
+a few hundredths of its sd. A tighter one keeps most polishes stepping to their iteration
+limit for gains that change nothing (docs/performance.md)."""
 STOP_REASONS = {
     "converged": f"the polish converged: its last step changed the cost by less than "
                  f"{POLISH_GAIN_TOL:g} relative or the unknowns by less than 1e-9, or no step "
@@ -420,7 +420,7 @@ class Problem:
             d = np.maximum(np.diag(H), 1e-12 * max(np.diag(H).max(), 1e-300))
             # An unknown held on its bound by the gradient is left out of the step (an
             # active set), so that the others take Gauss-Newton steps; clipped after the
-            # step instead, they crawled along the bound to the iteration limit.
+            # step instead, they would crawl along the bound to the iteration limit.
             move = ~(((z <= lo) & (g > 0)) | ((z >= hi) & (g < 0)))
             accepted = False
             while mu < 1e12 and not accepted:

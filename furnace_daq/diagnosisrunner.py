@@ -1,9 +1,12 @@
 """Online diagnoses in a process of their own, below the refit and the poll loop.
 
 A diagnosis fits many candidate models for minutes. It must never delay a poll or a refit:
-it runs in a child process ('spawn': no inherited event loop, sockets or locks) that lowers
-its own priority (`NICE`) before it imports anything, and its candidate pool
-(furnace_model.diagnosis.pool) inherits that priority. The daemon's side only looks at a
+it runs in a child process ('spawn': no inherited event loop, sockets or locks) whose
+priority the daemon lowers (`NICE`) as soon as it exists, and its candidate pool
+(furnace_model.diagnosis.pool) inherits that priority. Lowered by the child itself it would
+come too late: a spawned child imports the daemon's main module and unpickles its job, a
+second or two of CPU, before its target runs, and on two cores beside a refit that starves
+the poll loop. The daemon's side only looks at a
 pipe once per tick.
 
 At most one diagnosis is in flight; requests that arrive meanwhile wait in order (the
@@ -24,6 +27,7 @@ import contextlib
 import multiprocessing as mp
 import os
 import signal
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -141,14 +145,20 @@ def _plain(opts: dict) -> dict:
     return {k: list(v) if isinstance(v, tuple) else v for k, v in opts.items()}
 
 
-def _serve(conn: Connection, job: DiagnosisJob, parent: int) -> None:
-    """The child: below the refit, dying with the daemon; one diagnosis, one reply."""
+def _serve(conn: Connection, jobs: Connection, parent: int, niceness: int) -> None:
+    """The child: below the refit, dying with the daemon; one diagnosis, one reply.
+    `niceness`: its priority, which the daemon set already unless the child was quicker."""
     from furnace_model.diagnosis.pool import die_with_parent
 
     die_with_parent(parent)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the daemon's to handle
-    os.nice(NICE)
+    _lower(0, niceness)
+    try:
+        job = jobs.recv()
+    except (EOFError, OSError):  # the daemon stopped it before handing it over
+        return
+    jobs.close()
     try:
         reply = ("ok", run_diagnosis(job))
     except Exception as exc:  # noqa: BLE001 - published as a failed diagnosis
@@ -157,18 +167,42 @@ def _serve(conn: Connection, job: DiagnosisJob, parent: int) -> None:
         conn.send(reply)
 
 
+def _hand_over(conn: Connection, job: DiagnosisJob) -> None:
+    with contextlib.suppress(OSError):  # the child is gone: `receive` reports it
+        conn.send(job)
+    conn.close()
+
+
+def _lower(pid: int, niceness: int) -> None:
+    """Process pid (0: this one) at `niceness` or lower priority, never higher."""
+    with contextlib.suppress(OSError):  # already gone
+        if os.getpriority(os.PRIO_PROCESS, pid) < niceness:
+            os.setpriority(os.PRIO_PROCESS, pid, min(niceness, 19))
+
+
 class DiagnosisProcess:
     """One diagnosis in a child process."""
 
     def __init__(self, job: DiagnosisJob):
         ctx = mp.get_context("spawn")
         parent, child = ctx.Pipe(duplex=False)
+        job_out, job_in = ctx.Pipe(duplex=False)
         # Not daemonic: a daemonic process may not start the candidates' pool. It still
         # ends with the daemon, by the parent-death signal or by `stop`.
-        self.proc = ctx.Process(target=_serve, args=(child, job, os.getpid()),
+        niceness = os.getpriority(os.PRIO_PROCESS, 0) + NICE
+        self.proc = ctx.Process(target=_serve, args=(child, job_out, os.getpid(), niceness),
                                 name="furnace-diagnosis", daemon=False)
         self.proc.start()
+        assert self.proc.pid is not None
+        _lower(self.proc.pid, niceness)
         child.close()
+        job_out.close()
+        # The job (two windows of data, often more than a pipe holds) is written by a
+        # thread: the child reads it only once it has imported its modules, and a write
+        # that waited for that here would hold the poll loop for a second or more.
+        self.handing = threading.Thread(target=_hand_over, args=(job_in, job),
+                                        name="diagnosis-job", daemon=True)
+        self.handing.start()
         self.conn: Connection | None = parent
         self.started = time.monotonic()
 

@@ -441,7 +441,7 @@ async def _diagnoses_done(daemon: Daemon, config: DiagnosisConfig,
         fits = [*runner.queue, *([runner.in_flight[0]] if runner.in_flight else [])]
         return runner.diagnosing() or any(end_ns is None or w.end_ns <= end_ns for w in fits)
 
-    if runner is None or running.done() or not runner.diagnosing():
+    if runner is None or running.done() or not owed():
         return
     print(f"   the scenario has ended; waiting for the online diagnoses (each at most "
           f"{config.time_limit_s:g} s, its time limit) and the refits they hold", flush=True)

@@ -160,39 +160,64 @@ def test_an_online_diagnosis_is_shown_with_its_window_trigger_and_verdict():
     assert "thermocouple soak_1 drifts" in line
 
 
-@pytest.mark.slow
-@pytest.mark.timeout(2400)
-def test_production_faults_demo_names_the_sensor_then_the_fuel_change(tmp_path):
-    """The shipped production scenario with two faults, the daemon's online diagnosis on:
-    the drifting thermocouple is named with its onset and set aside, and the fuel change a
-    day later is diagnosed on its own, in that order, in the log and on the terminal."""
+def check_faults_story(done: subprocess.CompletedProcess, out: Path, *, onset_h: float,
+                       rate_c_per_h: float, fuel_ratio: float | None = None) -> None:
+    """The production story with a drifting soak_1 and a later fuel change, told by the
+    daemon's online diagnosis: first soak_1 named with its onset and rate, then set aside;
+    after that only the fuel change is named (a window too short after it may leave the
+    gap unexplained, never blamed on another effect), and named it is; in that order in
+    the log and on the terminal."""
     from furnace_model.log.messages import ModelDiagnosis, ModelEvent, ModelEventKind
     from furnace_model.log.schema import MODEL_DIAGNOSIS, MODEL_EVENTS
 
-    scenario = ROOT / "config" / "scenarios" / "paper_production_faults.yaml"
-    done, _ = run_demo(tmp_path, "--scenario", str(scenario), "--speed", "1000",
-                       timeout=2300)
     assert done.returncode == 0, done.stderr[-3000:]
     story = []
-    for topic, msg, _, pub in read_messages(sorted((tmp_path / "logs").glob("*.mcap")),
-                                            (MODEL_DIAGNOSIS, MODEL_EVENTS)):
+    for topic, msg, _, _ in read_messages(sorted((out / "logs").glob("*.mcap")),
+                                          (MODEL_DIAGNOSIS, MODEL_EVENTS)):
         if topic == MODEL_DIAGNOSIS:
-            story.append(("diagnosis", ModelDiagnosis.from_json(msg), pub))
+            story.append(("diagnosis", ModelDiagnosis.from_json(msg)))
         elif msg["kind"] == ModelEventKind.SENSOR_SET_ASIDE:
-            story.append(("aside", ModelEvent.from_json(msg), pub))
-    kinds = [k for k, _, _ in story]
-    assert kinds[:3] == ["diagnosis", "aside", "diagnosis"], [
-        (k, getattr(m, "detail", "")[:120]) for k, m, _ in story]
-    sensor, aside, fuel = (m for _, m, _ in story[:3])
-    assert sensor.status == "explained" and sensor.sensor["thermocouple"] == "soak_1"
-    onset_h = (np.datetime64(sensor.sensor["onset"].rstrip("Z"))
+            story.append(("aside", ModelEvent.from_json(msg)))
+    told = [(k, getattr(m, "detail", "")[:160]) for k, m in story]
+    assert [k for k, _ in story[:2]] == ["diagnosis", "aside"], told
+    sensor, aside = story[0][1], story[1][1]
+    assert sensor.status == "explained" and sensor.sensor["thermocouple"] == "soak_1", told
+    found_h = (np.datetime64(sensor.sensor["onset"].rstrip("Z"))
                - np.datetime64("2026-04-06T06:00:00")) / np.timedelta64(1, "h")
-    assert abs(onset_h - 25.0) < 2.0 and abs(sensor.sensor["rate_c_per_h"] + 1.2) < 0.2
+    assert abs(found_h - onset_h) < 2.0, sensor.sensor
+    assert abs(sensor.sensor["rate_c_per_h"] - rate_c_per_h) < 0.15 * abs(rate_c_per_h), \
+        sensor.sensor
     assert "soak_1" in aside.detail
-    assert fuel.status in ("explained", "explained_in_part"), fuel.detail
-    assert [e["effect"] for e in fuel.effects] == ["fuel_change"], fuel.detail
-    assert fuel.sensor is None
+    later = [m for k, m in story[2:] if k == "diagnosis"]
+    assert all([e["effect"] for e in d.effects] in ([], ["fuel_change"]) and d.sensor is None
+               for d in later), told
+    named = [d for d in later if d.status in ("explained", "explained_in_part") and d.effects]
+    assert named, told
+    if fuel_ratio is not None:  # where the fitted part holds enough of the change
+        assert abs(named[-1].effects[0]["params"]["fuel_ratio"] - fuel_ratio) < 0.05, told
     shown = done.stdout
     assert shown.index("thermocouple soak_1 drifts") < shown.index("soak_1 set aside") \
         < shown.index("fuel_change")
 
+
+@pytest.mark.slow
+@pytest.mark.timeout(1200)
+def test_a_production_day_with_two_faults_names_the_sensor_then_the_fuel_change(tmp_path):
+    """The same story compressed into 17 hours of the plant at 500x (tests/data/
+    production_faults_day.yaml, refit windows of 6 h every hour): four to eight minutes
+    of wall time against the shipped scenario's half hour."""
+    done, _ = run_demo(tmp_path, "--scenario", str(ROOT / "tests" / "data" /
+                                                  "production_faults_day.yaml"),
+                       "--speed", "500", "--refit-window-h", "6", "--refit-period-h", "1",
+                       timeout=1100)
+    check_faults_story(done, tmp_path, onset_h=7.0, rate_c_per_h=-3.0, fuel_ratio=0.75)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(2400)
+def test_production_faults_demo_names_the_sensor_then_the_fuel_change(tmp_path):
+    """The shipped production scenario with two faults, the daemon's online diagnosis on."""
+    scenario = ROOT / "config" / "scenarios" / "paper_production_faults.yaml"
+    done, _ = run_demo(tmp_path, "--scenario", str(scenario), "--speed", "1000",
+                       timeout=2300)
+    check_faults_story(done, tmp_path, onset_h=25.0, rate_c_per_h=-1.2)

@@ -128,20 +128,25 @@ def test_a_diagnosis_message_validates_against_its_schema_and_reads_back():
         jsonschema.validate({**data, "status": "maybe"}, topics(PAPER)[MODEL_DIAGNOSIS].schema)
 
 
-def test_a_diagnosis_that_raises_is_published_as_failed_with_its_event():
-    """A request whose records no diagnosis can take (a zone without readings): the child
-    process reports the error, the runner publishes `failed` and goes on."""
+def blind_request(rows: int = 20) -> tuple[DiagnosisRunner, list[tuple[str, object, int]]]:
+    """A runner diagnosing a window of `rows` rows whose soaking zone reads nothing, which
+    no diagnosis can take: it fails quickly. Returns the runner and what it publishes."""
     got: list[tuple[str, object, int]] = []
     runner = DiagnosisRunner(DiagnosisConfig(time_limit_s=30.0),
                              lambda topic, msg, ns: got.append((topic, msg, ns)))
     trigger = DiagnosisTrigger(DiagnosisConfig(after_windows=1))
-    blind = window(2)
+    blind = window(2, n=rows)
     assert blind.experiment is not None
-    blind.experiment.tc[:, :2] = np.nan  # the soaking zone reads nothing
+    blind.experiment.tc[:, :2] = np.nan
     trigger.observe(window(1), model(1, 1.0), [])
     request = trigger.observe(blind, model(2, 5.0), [])
     assert request is not None
     runner.request(request)
+    return runner, got
+
+
+def answered(runner: DiagnosisRunner) -> None:
+    """Pumped until the runner has answered all (within two minutes), then closed."""
     try:
         deadline = time.monotonic() + 120
         while runner.busy() and time.monotonic() < deadline:
@@ -149,6 +154,13 @@ def test_a_diagnosis_that_raises_is_published_as_failed_with_its_event():
         assert not runner.busy(), "the diagnosis process did not answer"
     finally:
         runner.close()
+
+
+def test_a_diagnosis_that_raises_is_published_as_failed_with_its_event():
+    """A request whose records no diagnosis can take (a zone without readings): the child
+    process reports the error, the runner publishes `failed` and goes on."""
+    runner, got = blind_request()
+    answered(runner)
     (t1, diag, ns1), (t2, event, ns2) = got
     assert (t1, t2) == (MODEL_DIAGNOSIS, MODEL_EVENTS) and ns1 == ns2 == 3 * HOUR_NS
     assert diag.status == "failed" and "soak" in diag.detail
@@ -163,17 +175,7 @@ def test_starting_a_diagnosis_does_not_wait_for_the_child_to_take_its_job():
     windows of data) is more than a pipe holds and the child has not read it yet. The child
     is stopped as soon as the call returns, before its imports are done, so the job can
     only be on its way; once it goes on, the job arrives whole and is answered."""
-    got: list[tuple[str, object, int]] = []
-    runner = DiagnosisRunner(DiagnosisConfig(time_limit_s=30.0),
-                             lambda topic, msg, ns: got.append((topic, msg, ns)))
-    trigger = DiagnosisTrigger(DiagnosisConfig(after_windows=1))
-    big = window(2, n=40_000)  # 40 000 rows: a few MB pickled, a pipe holds 64 kB
-    assert big.experiment is not None
-    big.experiment.tc[:, :2] = np.nan  # answered quickly: failed, no zone reading
-    trigger.observe(window(1), model(1, 1.0), [])
-    request = trigger.observe(big, model(2, 5.0), [])
-    assert request is not None
-    runner.request(request)
+    runner, got = blind_request(rows=40_000)  # a few MB pickled, a pipe holds 64 kB
     assert runner.in_flight is not None
     proc = runner.in_flight[2]
     os.kill(proc.proc.pid, signal.SIGSTOP)
@@ -182,13 +184,7 @@ def test_starting_a_diagnosis_does_not_wait_for_the_child_to_take_its_job():
         assert proc.handing.is_alive(), "the job was taken before the child could read it"
     finally:
         os.kill(proc.proc.pid, signal.SIGCONT)
-    try:
-        deadline = time.monotonic() + 120
-        while runner.busy() and time.monotonic() < deadline:
-            runner.pump(0.1)
-        assert not runner.busy(), "the diagnosis process did not answer"
-    finally:
-        runner.close()
+    answered(runner)
     assert not proc.handing.is_alive()
     (_, diag, _), _ = got
     assert diag.status == "failed" and "soak" in diag.detail  # the child read the whole job

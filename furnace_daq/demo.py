@@ -443,8 +443,9 @@ async def _diagnoses_done(daemon: Daemon, config: DiagnosisConfig,
 
     if runner is None or running.done() or not owed():
         return
-    print(f"   the scenario has ended; waiting for the online diagnoses (each at most "
-          f"{config.time_limit_s:g} s, its time limit) and the refits they hold", flush=True)
+    print(f"   the scenario has ended; waiting for its refits still queued and the online "
+          f"diagnoses they wait for (each at most {config.time_limit_s:g} s, its time limit)",
+          flush=True)
     each = KILL_FACTOR * config.time_limit_s + KILL_MARGIN_S
     deadline = time.monotonic() + each
     while owed() and not running.done() and time.monotonic() < deadline:

@@ -6,8 +6,7 @@ priority the daemon lowers (`NICE`) as soon as it exists, and its candidate pool
 (furnace_model.diagnosis.pool) inherits that priority. Lowered by the child itself it would
 come too late: a spawned child imports the daemon's main module and unpickles its job, a
 second or two of CPU, before its target runs, and on two cores beside a refit that starves
-the poll loop. The daemon's side only looks at a
-pipe once per tick.
+the poll loop. The daemon's side only looks at a pipe once per tick.
 
 At most one diagnosis is in flight; requests that arrive meanwhile wait in order (the
 trigger asks for one per episode, so they are few). Each answers within its

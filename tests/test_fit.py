@@ -400,8 +400,8 @@ def test_a_parameter_forced_onto_its_bound_is_flagged_not_reported_as_a_value(pa
 
     res = fit([paper_1min], bounds={"b": (0.5, 2.0)})  # the truth is b = 0.299
     assert res.at_bound == {"b": "lower"}
-    # held on its bound, not clipped to it after each step: the others converge, where
-    # clipped steps crawled along the bound to the iteration limit
+    # held on its bound, not clipped to it after each step: the others converge in a few
+    # Gauss-Newton steps instead of crawling along the bound to the iteration limit
     assert res.stop_reason == "converged" and res.iterations < 60, res.runs
     assert res.params["b"] == pytest.approx(0.5)
     assert np.isnan(res.std["b"]) and np.isnan(res.cov[1]).all()
@@ -422,7 +422,7 @@ def test_a_sliding_window_warm_start_reaches_the_same_optimum_in_fewer_steps(sce
     """Two 24-h windows of a week of production 15 min apart, as the daemon cuts them: the
     second fitted from the first's parameters alone, and with `WarmStart` (the first's zone
     offsets, small damping). The same optimum, to the polish's tolerance, in well under
-    the Levenberg-Marquardt steps (seen: 6 against 12)."""
+    the Levenberg-Marquardt steps."""
     sc = load_scenario(scenarios / "week_steps.yaml")
     sc.duration_min = 1500.0
     exp = Plant.from_scenario(sc, seed=2).run_scenario(sc).to_experiment()

@@ -101,9 +101,17 @@ def test_a_combination_with_credit_that_is_not_kept_says_why():
     """Zone burners and a sensor lag, with a dead time among the candidates: the lag is
     added to the zone burners; the dead time added instead also earns credit against the
     baseline (it extends the zone burners, which close 99% of the gap alone), so the credit
-    the summary shows does not by itself say what the verdict kept: its note does."""
+    the summary shows does not by itself say what the verdict kept: its note does.
+
+    Also: the combinations' stage is announced as it starts, and each combination is heard
+    as it is fitted (a combination of nonlinear effects takes minutes on a long record)."""
     case = _case(("zone_burners", "sensor_lag"), 300)
-    d = diagnose(case.fit, case.holdout, effects=("zone_burners", "sensor_lag", "dead_time"))
+    heard: list[str] = []
+    d = diagnose(case.fit, case.holdout, effects=("zone_burners", "sensor_lag", "dead_time"),
+                 progress=lambda stage, _f: heard.append(stage))
+    combos = [s for s in heard if " fitted in " in s and "+" in s.split(" fitted in ")[0]]
+    assert any(s.startswith("zone_burners+sensor_lag fitted in ") for s in combos), heard
+    assert heard.index("combinations") < heard.index(combos[0]), heard
     assert d.verdict.status == "explained"
     assert set(d.verdict.effects) == {"zone_burners", "sensor_lag"}, d.verdict.sentence
     chosen = d.best()

@@ -145,10 +145,12 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                if not structure_of(c.effects, c.options, furnace).linear
                and (stuck or helps(c))
                and any(c.rmse_fit_c[z] > fit_limit[z] for z in zones)]
+        if off:
+            say("from scratch", 0.6)
         cold = run_all([Task(fitted[i].effects, fitted[i].options, fit_data, hold, tail_of,
                               None, seed + 1, bounds=bounds, generations=COLD_GENERATIONS)
-                         for i in off], lambda f: say("candidates", 0.6 + 0.05 * f),
-                       limit=limit)
+                         for i in off], lambda f: say("from scratch", 0.6 + 0.05 * f),
+                       counted(len(off), lambda w: say(f"{w}, from scratch", 0.6)), limit)
         for i, c in zip(off, cold, strict=True):
             if c.cut:
                 untried.append(f"{c.label} searched from scratch")
@@ -165,8 +167,10 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
                  seed, cold_laws, bounds, fit_limit)
             for c, opts in further_laws(fitted, furnace)]
-    more = tried(run_all(laws, lambda f: say("candidates", 0.65 + 0.05 * f),
-                         limit=limit))
+    if laws:
+        say("laws", 0.65)
+    more = tried(run_all(laws, lambda f: say("laws", 0.65 + 0.05 * f),
+                         counted(len(laws), lambda w: say(w, 0.65)), limit))
     for c in more:
         score_against(c, base, floor)
     fitted += more
@@ -190,7 +194,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     combos, kept, steps = stepwise(singles, base, floor, gap_limit, fit_data, hold, tail_of,
                                    seed, options, bounds, starts, gap,
                                    lambda f: say("combinations", 0.7 + 0.3 * f),
-                                   limit, untried)
+                                   limit, untried, lambda w: say(w, 0.7))
     signals = unused_signals(fit_data + hold)
     if signals:
         say("signals", 0.95)
@@ -257,13 +261,13 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
              gap_limit: dict[str, float], fit_data, hold, tail_of, seed: int, options: dict, bounds: dict, starts: dict,
              gap: tuple[str, ...],
              progress: Callable[[float], None], limit: TimeLimit | None = None,
-             untried: list[str] | None = None
+             untried: list[str] | None = None, say: Callable[[str], None] | None = None
              ) -> tuple[list[CandidateResult], CandidateResult | None, list[CandidateResult]]:
     """Combinations tried, the set kept, and the kept set after each effect was added (the
     last is the set kept): the best single with credit, then one effect added at a time
     while the kept set leaves a clear gap and a further effect removes most of what is left
     (and is itself determined by the data). Combinations the time limit (`limit`) cut
-    are added to `untried` and the search stops there."""
+    are added to `untried` and the search stops there. `say` hears a line per fit."""
     untried = [] if untried is None else untried
     if not gap or not singles or not credited(singles[0]):
         return [], None, []
@@ -298,7 +302,10 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
             tasks.append(Task(effs, opts, fit_data, hold, tail_of,
                               {**kept.params, **starts.get(n, {})}, seed,
                               bounds=bounds))
-        step = run_all(tasks, progress, limit=limit)
+        if not tried:
+            progress(0.0)  # the stage has begun: its first fit may take minutes
+        step = run_all(tasks, progress,
+                       counted(len(tasks), say) if say is not None else None, limit)
         untried.extend(c.label for c in step if c.cut)
         if any(c.cut for c in step):
             break  # a step judged on some of its combinations would not be the search's

@@ -13,9 +13,12 @@ worker; the fit runs on one thread, so the process's CPU time is the fit's):
   3 h over two days (every 15 min as shipped would give the same kind of fits, 8 times as
   many of them);
 - the demo's: `paper_exp1` (55 h) with `make demo`'s refit of the last 36 h every 6 h;
-- a production record: `paper_production` when config/scenarios holds it (skipped if not),
-  its first two days as the shipped window. Its plant has effects the baseline model lacks,
-  so its errors against the truth measure the model as much as the search.
+- production in closed loop: `paper_production` (a PI loop per zone staging whole burners,
+  slabs charged all day), its first two days as the shipped window. The burners follow the
+  readings' noise there, and a window held at its setpoints carries less than a heat-up; the
+  furnace is a network of its own, so the errors are shown per parameter of that network.
+  (The modulated furnace's closed loop has pulse-fired zones, which `run_messages` cannot
+  write without the simulated PLC.)
 
     .venv/bin/python bench/bench_refit.py [--quick]
 """
@@ -47,9 +50,24 @@ CASES = {
 }
 
 
-COLUMNS = {**{p: (lambda m, p=p: m[p]) for p in "abcdef"},
-           "b/c": lambda m: m["b"] / m["c"], "d/e": lambda m: m["d"] / m["e"]}
-"""The errors shown: the paper's parameters, and the ratios 1-minute data determine."""
+PAPER_COLUMNS = {**{p: (lambda m, p=p: m[p]) for p in "abcdef"},
+                 "b/c": lambda m: m["b"] / m["c"], "d/e": lambda m: m["d"] / m["e"]}
+"""The errors shown on the paper's furnace: its parameters, and the ratios 1-minute data
+determine."""
+
+
+def columns(truth: dict) -> dict:
+    """The errors shown for a plant of this truth: the paper's columns, or on a furnace of
+    its own network every parameter by its name."""
+    if all(p in truth for p in "abcdef"):
+        return PAPER_COLUMNS
+    return {p: (lambda m, p=p: m[p]) for p in truth}
+
+
+def header(names) -> str:
+    head = ("| case | method | ok / fitted | median CPU | max CPU | " + " | ".join(names)
+            + " | max RMSE | drift events |")
+    return head + "\n" + "|---" * (head.count("|") - 1) + "|"
 
 
 def refits(name: str, duration_min: float | None, config: RefitConfig,
@@ -78,7 +96,7 @@ def row(case: str, method: str, params: list[tuple[dict, float]], events: list[d
     ok = [m for m, _ in fitted if m["status"] == "ok"]
     times = [cpu for _, cpu in fitted]
     errors = []
-    for value in COLUMNS.values():
+    for value in columns(truth).values():
         try:
             errors.append(f"{100 * max(abs(value(m) / value(truth) - 1) for m in ok):.1f}%")
         except (KeyError, ValueError, ZeroDivisionError):  # not this model's, or no ok window
@@ -98,9 +116,7 @@ def main() -> None:
     print("Online refit, per fitted window: CPU time of the fit, largest error against the "
           "plant's truth over the ok windows, largest per-zone RMSE, drift events (the plant "
           "does not drift)\n")
-    print("| case | method | ok / fitted | median CPU | max CPU | a | b | c | d | e | f | b/c "
-          "| d/e | max RMSE | drift events |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    shown = None
     cases = list(CASES.items())[:1] if args.quick else CASES.items()
     for case, (name, duration, period, window) in cases:
         if not (SCENARIOS / f"{name}.yaml").exists():
@@ -110,6 +126,9 @@ def main() -> None:
         for method in REFIT_METHODS:
             params, events, truth = refits(name, duration, replace(base, method=method),
                                            args.seed)
+            if list(columns(truth)) != shown:
+                shown = list(columns(truth))
+                print("\n" + header(shown))
             print(row(case, method, params, events, truth), flush=True)
 
 

@@ -214,8 +214,9 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         value, (lo, hi) = unc.combination_value(coef)
         combo_values[name] = {"value": value, "ci95": [lo, hi]}
     at_bound = prob.at_bound(z, AT_BOUND_SHARE)
-    edges = {n: float((prob.lo_val if side == "lower" else prob.hi_val)[prob.names.index(n)])
-             for n, side in at_bound.items()}
+    ranges = {n: (float(lo), float(hi))
+              for n, lo, hi in zip(prob.names, prob.lo_val, prob.hi_val, strict=True)}
+    edges = {n: ranges[n][0 if side == "lower" else 1] for n, side in at_bound.items()}
     warnings = _warnings(experiments, unc, undetermined, combos, best_run, time_budget_s,
                          at_bound, edges) + [f.words() for f in flags]
     static = all(e.burner_steps == 0 for e in experiments)
@@ -248,8 +249,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         std={n: float(np.sqrt(max(cov[i, i], 0.0))) if np.isfinite(cov[i, i]) else float("nan")
              for i, n in enumerate(structure.names)},
         cov=cov, fixed=sorted(prob.fixed, key=structure.names.index),
-        bounds={n: (float(lo), float(hi))
-                for n, lo, hi in zip(prob.names, prob.lo_val, prob.hi_val, strict=True)},
+        bounds=ranges,
         at_bound=at_bound, stop_reason=best_run.stop_reason, iterations=best_run.iterations,
         generations=best_run.generations,
         criteria=criteria(prob.residual_matrix(z), n_estimated), data=list(experiments))

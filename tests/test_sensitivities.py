@@ -158,19 +158,24 @@ INSTANTS = TIMED + ("t_drift",)
 """Instants at which something starts: on a sample time the residual has a kink there."""
 
 
-@pytest.mark.parametrize("shipped", ["paper", "six-zone", "modulated"])
+@pytest.mark.parametrize("shipped", ["paper", "six-zone", "modulated", "production"])
 def test_exact_jacobian_on_random_parameter_sets(shipped):
     """Every column the closed form gives matches central differences of the residuals to
     1e-6 of the column, on random parameter sets around the truth, for the baseline and each
     linear effect on each shipped furnace (the modulated one has rates, a pulse-fired zone
-    and a disturbance)."""
-    from furnace_model.diagnosis.cases import draw_case, network_truth
+    and a disturbance), and on a record of production in closed loop, whose burners change
+    nearly every minute (the closed form's branch for many short segments)."""
+    from furnace_model.diagnosis.cases import draw_case, draw_closed_loop_case, network_truth
     from furnace_model.effects import EFFECTS
     from furnace_model.simulation.furnacefile import load_furnace
 
-    furnace = load_furnace(SCENARIOS.parent / "furnaces" / f"{shipped}.yaml")
     rng = np.random.default_rng(11)
-    data = draw_case(None, rng, furnace=furnace).fit
+    if shipped == "production":
+        data = draw_closed_loop_case(None, rng).fit
+        furnace = data[0].furnace
+    else:
+        furnace = load_furnace(SCENARIOS.parent / "furnaces" / f"{shipped}.yaml")
+        data = draw_case(None, rng, furnace=furnace).fit
     rec = data[0].rows(data[0].t_min <= data[0].t_min[0] + 1500.0)
     for name in ("baseline",) + LINEAR:
         try:

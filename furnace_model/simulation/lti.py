@@ -251,7 +251,9 @@ CARRY_BLOCK_MAX = 256
 def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
     """sig (P, K, n) with sig[0] = 0 and sig[k] = e^(lam (T[k] - T[k-1])) sig[k-1] + c[k-1]:
     what steps starting at T[:K] (T[K] the last one's end) carry from one to the next, per
-    mode lam (P, n), for contributions c (P, K, n); T ascending.
+    mode lam (P, n), for contributions c (P, K, n); T ascending. lam (1, n): the same modes
+    for every row of c (one system's sensitivities to P parameters), whose exponentials are
+    then taken once, not once per row.
 
     Why blocks: a step-by-step loop over thousands of steps (a furnace in closed loop
     changes its burners every minute) costs more than all the arithmetic. Within a block
@@ -281,7 +283,7 @@ def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
     # what block b hands block b+1: its sum carried to the next block's start (exponents
     # never positive: one step may span more than CARRY_SPAN e-folds)
     span = Tp[L::L] - first  # (nb,)
-    to_end = np.exp(lam[:, None, :] * span[None, :, None])  # (P, nb, n)
+    to_end = np.exp(lam[:, None, :] * span[None, :, None])  # (P|1, nb, n)
     handed = np.sum(cp * np.exp(lam4 * (span[:, None] - after)[None, :, :, None]), axis=2)
     S = np.empty((P, nb, n), dtype=inner.dtype)
     S[:, 0] = 0.0

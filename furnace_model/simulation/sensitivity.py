@@ -81,8 +81,8 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
         U, dU = np.broadcast_to(u0, (Kb, m)), np.broadcast_to(d_u0[:, None], (p, Kb, m))
     steady = -(U @ (W @ B).T) / lam  # (Kb, n)
     F = W @ dA @ V  # (p, n, n)
-    h = np.einsum("pij,kj->pki", F, steady) + np.einsum(
-        "ij,pkj->pki", W, np.einsum("pnm,km->pkn", dB, U) + np.einsum("nm,pkm->pkn", B, dU))
+    # (p, Kb, n) each, as matrix products: a record in closed loop has thousands of segments
+    h = _rows_times(steady, F) + (_rows_times(U, dB) + dU @ B.T) @ W.T
     gaps = np.diff(bounds)
     decay = _exp(lam[None, :] * gaps[:, None])  # (Kb-1, n)
     zeta = W @ np.asarray(x0, dtype=float)
@@ -90,13 +90,13 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
     longest = max(float(gaps.max()) if gaps.size else 0.0,
                   float(t[-1] - bounds[-1]) if t.size else 0.0, 1e-300)
     coef = _coefficients(F, lam, c, h, longest)
-    sig = np.zeros((p, Kb, n), np.result_type(coef.G, h))
+    sig = np.zeros((p, Kb, n), np.result_type(coef.Fg, c, h))
     if Kb > 1:
         basis = _basis(lam, gaps, coef.M.shape[2]).reshape(Kb - 1, -1, n)
         step = (np.einsum("kbj,pkbj->pkj", basis, coef.M[:, :-1])
-                + np.einsum("kj,pkij->pki", decay, coef.G[:, :-1]) + coef.const[:, :-1])
+                + coef.apart(decay * c[:-1]) + coef.const[:, :-1])
         # sig[k + 1] = decay[k] sig[k] + step[k], in blocks
-        sig = carried(np.broadcast_to(lam, (p, n)), np.append(bounds, bounds[-1]),
+        sig = carried(lam[None], np.append(bounds, bounds[-1]),
                       np.concatenate([step, np.zeros_like(step[:, :1])], axis=1))
     CVt = (C @ V).T  # (n, q)
     nb = coef.M.shape[2]
@@ -109,7 +109,8 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
         # dy = sum over the basis of its coefficients times C V, per segment; laid out
         # (basis, output, parameter) so that each segment is one matrix product
         out_M = np.einsum("pkbj,jq->kbjqp", M, CVt)
-        out_M[:, 0] += np.einsum("pkij,iq->kjqp", coef.G, CVt)
+        G = coef.Fg[:, None] * c[None, :, None, :]  # (p, Kb, i, j): few segments here
+        out_M[:, 0] += np.einsum("pkij,iq->kjqp", G, CVt)
         out_M = out_M.reshape(Kb, nb * n, q * p)
         out_c = np.einsum("pkj,jq->kqp", coef.const, CVt).reshape(Kb, q * p)
         flat = dy.reshape(t.size, q * p)
@@ -124,8 +125,8 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
             blk = slice(b0, b0 + _BLOCK)
             k = seg[blk]
             X = _basis(lam, t[blk] - bounds[k], nb).reshape(-1, nb, n)  # (T, nb, n)
-            sigma = ((M[:, k] * X).sum(axis=2)  # (p, T, n)
-                     + (coef.G[:, k] * X[None, :, None, 0, :]).sum(axis=3) + coef.const[:, k])
+            sigma = (np.einsum("ptbj,tbj->ptj", M[:, k], X)  # (p, T, n)
+                     + coef.apart(c[k] * X[:, 0]) + coef.const[:, k])
             dy[blk] = np.real(sigma @ CVt).transpose(1, 2, 0)
     free = _exp(lam[None, :] * (t - t0)[:, None])  # (N, n): the response to the start
     start = np.asarray(dx0, dtype=float) @ W.T  # (r, n)
@@ -141,13 +142,20 @@ mode with a polynomial factor: their difference quotient would cancel to roundin
 
 @dataclass(frozen=True)
 class _Coefficients:
-    """sigma(tau) on each segment = sum_b M[b] basis_b(tau) + G e(tau) + const, the basis
-    being e, tau e and, where modes are close, tau^2 e, tau^3 e (elementwise in the modes);
-    M[0] without sigma(0)."""
+    """sigma(tau) on segment k = sum_b M[k, b] basis_b(tau) + sum_j Fg_ij c_kj e_j(tau)
+    + const[k], the basis being e, tau e and, where modes are close, tau^2 e, tau^3 e
+    (elementwise in the modes); M[0] without sigma(0). The modes apart are kept as Fg and
+    the segments' c apart: their product per segment, (p, segments, n, n), would be the
+    largest table of a record whose input changes every minute, and is never needed whole."""
 
     M: np.ndarray  # (p, Kb, 2 or 4, n)
-    G: np.ndarray  # (p, Kb, i, j): e_j's share in sigma_i, modes apart
+    Fg: np.ndarray  # (p, i, j): F_ij / (lam_j - lam_i) for modes apart, 0 for close ones
     const: np.ndarray  # (p, Kb, n)
+
+    def apart(self, ce: np.ndarray) -> np.ndarray:
+        """sum_j Fg_ij ce_j per row of ce (T, n): the modes apart, each e_j's share already
+        in ce (c_j, or c_j times e_j at some tau). (p, T, n)."""
+        return _rows_times(ce, self.Fg)
 
 
 def _coefficients(F: np.ndarray, lam: np.ndarray, c: np.ndarray, h: np.ndarray,
@@ -159,18 +167,23 @@ def _coefficients(F: np.ndarray, lam: np.ndarray, c: np.ndarray, h: np.ndarray,
     n = lam.size
     gap = lam[None, :] - lam[:, None]  # (i, j): lam_j - lam_i
     close = np.abs(gap) * longest <= CLOSE
-    Fc = F[:, None] * c[None, :, None, :]  # (p, Kb, i, j)
-    G = np.where(close, 0.0, Fc / np.where(close, 1.0, gap))
-    near = np.where(close, Fc, 0.0)
+    Fg = np.where(close, 0.0, F / np.where(close, 1.0, gap))  # (p, i, j)
+    near = np.where(close, F, 0.0)
+
     series = close.sum() > n  # modes close to others than themselves
-    M = np.empty(Fc.shape[:2] + (4 if series else 2, n), np.result_type(Fc, h))
+    M = np.empty((F.shape[0], c.shape[0], 4 if series else 2, n), np.result_type(F, c, h))
     const = -h / lam
-    M[:, :, 0] = -G.sum(axis=-1) - const
-    M[:, :, 1] = near.sum(axis=-1)
+    M[:, :, 0] = -_rows_times(c, Fg) - const
+    M[:, :, 1] = _rows_times(c, near)
     if series:
-        M[:, :, 2] = (near * gap).sum(axis=-1) / 2.0
-        M[:, :, 3] = (near * gap * gap).sum(axis=-1) / 6.0
-    return _Coefficients(M, G, const)
+        M[:, :, 2] = _rows_times(c, near * gap) / 2.0
+        M[:, :, 3] = _rows_times(c, near * gap * gap) / 6.0
+    return _Coefficients(M, Fg, const)
+
+
+def _rows_times(rows: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """sum_j Q_pij rows_kj: each row (K, j) through each of the p matrices, (p, K, i)."""
+    return rows[None] @ Q.swapaxes(1, 2)
 
 
 def _basis(lam: np.ndarray, tau: np.ndarray, nb: int) -> np.ndarray:

@@ -174,6 +174,53 @@ def test_a_killed_diagnosis_leaves_no_worker_behind(case_files):
                     os.kill(w, signal.SIGKILL)
 
 
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
+def test_an_interrupted_diagnosis_exits_at_once_and_ends_its_workers(case_files):
+    """Ctrl-C while the candidates are fitted: the command exits with 130 without waiting for
+    the candidates still to fit, and its workers end with it. The workers are stopped
+    (SIGSTOP) before the interrupt, so a command that waited for them would never exit."""
+    import os
+    import signal
+    import time
+
+    fit, hold, _truth = case_files
+    workers: set[int] = set()
+    proc = subprocess.Popen([sys.executable, "-m", "furnace_model.cli", "diagnose", str(fit),
+                             "--holdout", str(hold)], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True,
+                            # Ctrl-C as at a terminal (see test_selfcheck's stopped check)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 120
+        for line in proc.stderr:
+            if "fitting the candidate effects" in line:
+                while len(workers) < 2 and time.monotonic() < deadline:
+                    workers = children(proc.pid)
+                    time.sleep(0.05)
+                break
+        assert workers, "no worker process was started"
+        for w in workers:
+            os.kill(w, signal.SIGSTOP)
+        os.kill(proc.pid, signal.SIGINT)
+        _out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130 and "interrupted" in err, err
+        assert "Traceback" not in err
+        deadline = time.monotonic() + 20
+        left = alive(workers)
+        while left and time.monotonic() < deadline:
+            time.sleep(0.1)
+            left = alive(left)
+        assert not left, f"workers {sorted(left)} outlived the interrupted diagnosis"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+        for w in workers:  # what the test started ends with it, whatever it found
+            with contextlib.suppress(OSError):
+                if b"furnace_model.cli" in Path(f"/proc/{w}/cmdline").read_bytes():
+                    os.kill(w, signal.SIGKILL)
+
+
 def test_a_time_limit_answers_and_names_what_it_left(case_files, tmp_path):
     """A limit shorter than the candidates' fits: the baseline still completes, the verdict
     is judged on what was fitted, and every effect asked for is either a candidate or named

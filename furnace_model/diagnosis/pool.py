@@ -44,9 +44,9 @@ def _run(tasks: list[Task], progress: Callable[[float], None],
         # nonlinear (slow) fits first, so that one does not finish last alone
         order = sorted(range(len(tasks)), key=lambda i: structure_of(
             tasks[i].effects, tasks[i].options, tasks[i].furnace).linear)
-        with ProcessPoolExecutor(max_workers=WORKERS, mp_context=ctx,
-                                 initializer=die_with_parent,
-                                 initargs=(os.getpid(),)) as pool:
+        pool = ProcessPoolExecutor(max_workers=WORKERS, mp_context=ctx,
+                                   initializer=die_with_parent, initargs=(os.getpid(),))
+        try:
             futures = {pool.submit(run_task, tasks[i]): i for i in order}
             results = {}
             # heard as each finishes: the slow fit submitted first must not hold back the
@@ -55,12 +55,28 @@ def _run(tasks: list[Task], progress: Callable[[float], None],
                 results[futures[future]] = future.result()
                 done(results[futures[future]])
                 progress((k + 1) / len(tasks))
+        except BaseException:
+            _stop(pool)
+            raise
+        pool.shutdown()
         return [results[i] for i in range(len(tasks))]
     for k, t in enumerate(tasks):
         out.append(run_task(t))
         done(out[-1])
         progress((k + 1) / len(tasks))
     return out
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """End the pool's work now: on Ctrl-C, or a fit that raised. Leaving the pool as its
+    context would (shutdown, waiting) runs every candidate still queued to its end, minutes
+    on a long record, before the interrupted command can exit; and a worker that did not get
+    the signal itself (only the command's process was signalled) goes on computing."""
+    workers = list(getattr(pool, "_processes", None) or {})
+    pool.shutdown(wait=False, cancel_futures=True)
+    for pid in workers:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
 
 
 PR_SET_PDEATHSIG = 1

@@ -244,6 +244,11 @@ CARRY_SPAN = 500.0
 """The most a mode may decay (in e-folds) within one block of `carried`: e^500 and e^-500
 are far inside a float's range, so a block's scaled sums neither overflow nor go
 subnormal."""
+CARRY_GONE = 60.0
+"""A step over which a mode decays by more than this many e-folds (e^-60, 1e-26) leaves of
+what came before nothing a double can hold beside what the step adds: `carried` counts such
+a step as this long, so that one long step (or a mode of a second on minute samples) does
+not shorten every block."""
 CARRY_BLOCK_MAX = 256
 """The longest block of `carried` (slow modes): its arrays stay a few times the input's."""
 
@@ -256,40 +261,51 @@ def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
     then taken once, not once per row.
 
     Why blocks: a step-by-step loop over thousands of steps (a furnace in closed loop
-    changes its burners every minute) costs more than all the arithmetic. Within a block
-    starting at T0, e^(lam (T[k] - T[j+1])) = E_k / E_(j+1) with E_k = e^(lam (T[k] - T0)),
-    so the block's sums are E_k times a cumulative sum of c[j] / E_(j+1): each term keeps
-    its relative precision, and a block is short enough (CARRY_SPAN e-folds of its fastest
-    mode) that 1 / E never overflows. Only what each block hands the next is a loop."""
+    changes its burners every minute) costs more than all the arithmetic. Within a block,
+    e^(lam (T[k] - T[j+1])) = E_k / E_(j+1) with E_k the mode's decay from the block's start
+    to T[k], so the block's sums are E_k times a cumulative sum of c[j] / E_(j+1): each term
+    keeps its relative precision, and a block is short enough (CARRY_SPAN e-folds of its
+    fastest mode) that 1 / E never overflows. Only what each block hands the next is a loop.
+    A step is counted at most CARRY_GONE e-folds long, and a mode that forgets everything at
+    every step (a sensor lag of seconds on minute samples) carries each step's contribution
+    alone: neither sets the blocks' length."""
     P, K, n = c.shape
     T = np.asarray(T, dtype=float)
-    gaps = np.diff(T[:K + 1])
-    fastest = float(np.max(np.abs(np.real(lam)), initial=0.0)) * float(np.max(gaps, initial=0.0))
+    steps = lam[:, None, :] * np.diff(T[:K + 1])[None, :, None]  # (P|1, K, n) exponents
+    decay = np.maximum(np.real(steps), -CARRY_GONE)
+    gone = np.all(decay <= -CARRY_GONE, axis=1) if K else np.zeros(lam.shape, dtype=bool)
+    decay = np.where(gone[:, None, :], 0.0, decay)
+    steps = decay + 1j * np.imag(steps) if np.iscomplexobj(steps) else decay
+    fastest = float(np.max(-decay, initial=0.0))
     L = int(np.clip(CARRY_SPAN // fastest if fastest > 0 else CARRY_BLOCK_MAX, 1,
                     CARRY_BLOCK_MAX))
     nb = -(-K // L)
     pad = nb * L - K
-    Tp = np.concatenate([T[:K + 1], np.full(pad, T[K])])  # nb * L + 1 times
     cp = np.concatenate([c, np.zeros((P, pad, n), dtype=c.dtype)], axis=1).reshape(P, nb, L, n)
-    first = Tp[0:nb * L:L]  # each block's start
-    at = Tp[:-1].reshape(nb, L) - first[:, None]  # T[k] - T0, k in the block
-    after = Tp[1:].reshape(nb, L) - first[:, None]  # T[j+1] - T0
-    lam4 = lam[:, None, None, :]
-    E = np.exp(lam4 * at[None, :, :, None])
+    # each block's exponents from its start: to the end of step j (after), to its start (at)
+    blocks = np.concatenate([steps, np.zeros(steps.shape[:1] + (pad, n), steps.dtype)],
+                            axis=1).reshape(-1, nb, L, n)
+    after = np.cumsum(blocks, axis=2)
+    at = np.concatenate([np.zeros_like(after[:, :, :1]), after[:, :, :-1]], axis=2)
+    E = np.exp(at)
     inner = np.zeros(cp.shape, np.result_type(cp, E))
     if L > 1:  # sums over j < k: the cumulative sum shifted by one within the block
-        summed = np.cumsum(cp * np.exp(-lam4 * after[None, :, :, None]), axis=2)
+        summed = np.cumsum(cp * np.exp(-after), axis=2)
         inner[:, :, 1:] = E[:, :, 1:] * summed[:, :, :-1]
     # what block b hands block b+1: its sum carried to the next block's start (exponents
-    # never positive: one step may span more than CARRY_SPAN e-folds)
-    span = Tp[L::L] - first  # (nb,)
-    to_end = np.exp(lam[:, None, :] * span[None, :, None])  # (P|1, nb, n)
-    handed = np.sum(cp * np.exp(lam4 * (span[:, None] - after)[None, :, :, None]), axis=2)
+    # never positive)
+    span = after[:, :, -1]  # (P|1, nb, n)
+    to_end = np.exp(span)
+    handed = np.sum(cp * np.exp(span[:, :, None] - after), axis=2)
     S = np.empty((P, nb, n), dtype=inner.dtype)
     S[:, 0] = 0.0
     for b in range(1, nb):
         S[:, b] = to_end[:, b - 1] * S[:, b - 1] + handed[:, b - 1]
-    return (E * S[:, :, None, :] + inner).reshape(P, nb * L, n)[:, :K]
+    out = (E * S[:, :, None, :] + inner).reshape(P, nb * L, n)[:, :K]
+    if gone.any():  # what each step adds, and nothing of before
+        alone = np.concatenate([np.zeros_like(c[:, :1]), c[:, :-1]], axis=1)
+        out = np.where(gone[:, None, :], alone, out)
+    return out
 
 
 _DIRECT_CELLS = 100_000

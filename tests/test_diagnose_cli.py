@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -134,55 +137,10 @@ def test_unknown_effect_is_a_usage_error(case_files):
     assert r.returncode == 2 and "warp_drive" in r.stderr
 
 
-@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
-def test_a_killed_diagnosis_leaves_no_worker_behind(case_files):
-    """SIGKILL, as a batch runner's timeout sends it, while the candidates are fitted in
-    their worker processes: the workers end with it."""
-    import os
-    import signal
-    import time
-
-    fit, hold, _truth = case_files
-    workers: set[int] = set()
-    proc = subprocess.Popen([sys.executable, "-m", "furnace_model.cli", "diagnose", str(fit),
-                             "--holdout", str(hold)], cwd=ROOT, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 120
-        for line in proc.stderr:
-            if "fitting the candidate effects" in line:
-                while not workers and time.monotonic() < deadline:
-                    workers = children(proc.pid)
-                    time.sleep(0.05)
-                break
-        assert workers, "no worker process was started"
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
-        deadline = time.monotonic() + 20
-        left = alive(workers)
-        while left and time.monotonic() < deadline:
-            time.sleep(0.1)
-            left = alive(left)
-        assert not left, f"workers {sorted(left)} outlived the killed diagnosis"
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=30)
-        for w in workers:  # what the test started ends with it, whatever it found
-            with contextlib.suppress(OSError):
-                if b"furnace_model.cli" in Path(f"/proc/{w}/cmdline").read_bytes():
-                    os.kill(w, signal.SIGKILL)
-
-
-@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
-def test_an_interrupted_diagnosis_exits_at_once_and_ends_its_workers(case_files):
-    """Ctrl-C while the candidates are fitted: the command exits with 130 without waiting for
-    the candidates still to fit, and its workers end with it. The workers are stopped
-    (SIGSTOP) before the interrupt, so a command that waited for them would never exit."""
-    import os
-    import signal
-    import time
-
+@contextlib.contextmanager
+def fitting_candidates(case_files, workers_wanted: int = 1):
+    """A `diagnose` command of the case, once it is fitting its candidates in worker
+    processes: (the process, its workers). Whatever the test leaves of them ends after it."""
     fit, hold, _truth = case_files
     workers: set[int] = set()
     proc = subprocess.Popen([sys.executable, "-m", "furnace_model.cli", "diagnose", str(fit),
@@ -194,31 +152,57 @@ def test_an_interrupted_diagnosis_exits_at_once_and_ends_its_workers(case_files)
         deadline = time.monotonic() + 120
         for line in proc.stderr:
             if "fitting the candidate effects" in line:
-                while len(workers) < 2 and time.monotonic() < deadline:
+                while len(workers) < workers_wanted and time.monotonic() < deadline:
                     workers = children(proc.pid)
                     time.sleep(0.05)
                 break
         assert workers, "no worker process was started"
+        yield proc, workers
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+        for w in workers:
+            with contextlib.suppress(OSError):
+                if b"furnace_model.cli" in Path(f"/proc/{w}/cmdline").read_bytes():
+                    os.kill(w, signal.SIGKILL)
+
+
+def outlived(workers: set[int]) -> set[int]:
+    """Those of the workers still running 20 s on."""
+    deadline = time.monotonic() + 20
+    left = alive(workers)
+    while left and time.monotonic() < deadline:
+        time.sleep(0.1)
+        left = alive(left)
+    return left
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
+def test_a_killed_diagnosis_leaves_no_worker_behind(case_files):
+    """SIGKILL, as a batch runner's timeout sends it, while the candidates are fitted in
+    their worker processes: the workers end with it."""
+    with fitting_candidates(case_files) as (proc, workers):
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        left = outlived(workers)
+        assert not left, f"workers {sorted(left)} outlived the killed diagnosis"
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
+def test_an_interrupted_diagnosis_exits_at_once_and_ends_its_workers(case_files):
+    """Ctrl-C while the candidates are fitted: the command exits with 130 without waiting for
+    the candidates still to fit, and its workers end with it. The workers are stopped
+    (SIGSTOP) before the interrupt, so a command that waited for them would never exit."""
+    with fitting_candidates(case_files, workers_wanted=2) as (proc, workers):
         for w in workers:
             os.kill(w, signal.SIGSTOP)
         os.kill(proc.pid, signal.SIGINT)
         _out, err = proc.communicate(timeout=60)
         assert proc.returncode == 130 and "interrupted" in err, err
         assert "Traceback" not in err
-        deadline = time.monotonic() + 20
-        left = alive(workers)
-        while left and time.monotonic() < deadline:
-            time.sleep(0.1)
-            left = alive(left)
+        left = outlived(workers)
         assert not left, f"workers {sorted(left)} outlived the interrupted diagnosis"
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=30)
-        for w in workers:  # what the test started ends with it, whatever it found
-            with contextlib.suppress(OSError):
-                if b"furnace_model.cli" in Path(f"/proc/{w}/cmdline").read_bytes():
-                    os.kill(w, signal.SIGKILL)
 
 
 def test_a_time_limit_answers_and_names_what_it_left(case_files, tmp_path):

@@ -11,6 +11,7 @@ eigenvalues are real; complex ones (possible in some extended structures) are ha
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -251,6 +252,8 @@ a step as this long, so that one long step (or a mode of a second on minute samp
 not shorten every block."""
 CARRY_BLOCK_MAX = 256
 """The longest block of `carried` (slow modes): its arrays stay a few times the input's."""
+CARRY_LOOP = 64
+"""Blocks of `carried` beyond which their loop costs more than clamping the steps does."""
 
 
 def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -266,9 +269,56 @@ def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
     to T[k], so the block's sums are E_k times a cumulative sum of c[j] / E_(j+1): each term
     keeps its relative precision, and a block is short enough (CARRY_SPAN e-folds of its
     fastest mode) that 1 / E never overflows. Only what each block hands the next is a loop.
-    A step is counted at most CARRY_GONE e-folds long, and a mode that forgets everything at
-    every step (a sensor lag of seconds on minute samples) carries each step's contribution
-    alone: neither sets the blocks' length."""
+    Where that would make more than CARRY_LOOP blocks (a step much longer than the others, or
+    a sensor lag of seconds on minute samples), `_carried_clamped` takes them instead."""
+    P, K, n = c.shape
+    T = np.asarray(T, dtype=float)
+    gaps = np.diff(T[:K + 1])
+    fastest = float(np.max(np.abs(np.real(lam)), initial=0.0)) * float(np.max(gaps, initial=0.0))
+    L = int(np.clip(CARRY_SPAN // fastest if fastest > 0 else CARRY_BLOCK_MAX, 1,
+                    CARRY_BLOCK_MAX))
+    if -(-K // L) > CARRY_LOOP:
+        return _carried_clamped(lam, T, c)
+    nb = -(-K // L)
+    pad = nb * L - K
+    Tp = np.concatenate([T[:K + 1], np.full(pad, T[K])])  # nb * L + 1 times
+    cp = np.concatenate([c, np.zeros((P, pad, n), dtype=c.dtype)], axis=1).reshape(P, nb, L, n)
+    first = Tp[0:nb * L:L]  # each block's start
+    at = Tp[:-1].reshape(nb, L) - first[:, None]  # T[k] - T0, k in the block
+    after = Tp[1:].reshape(nb, L) - first[:, None]  # T[j+1] - T0
+    lam4 = lam[:, None, None, :]
+    span = Tp[L::L] - first  # (nb,)
+    return _in_blocks(cp, np.exp(lam4 * at[None, :, :, None]),
+                      lambda: np.exp(-lam4 * after[None, :, :, None]),
+                      np.exp(lam[:, None, :] * span[None, :, None]),
+                      np.exp(lam4 * (span[:, None] - after)[None, :, :, None]))[:, :K]
+
+
+def _in_blocks(cp: np.ndarray, E: np.ndarray, rise: Callable[[], np.ndarray],
+               to_end: np.ndarray, fall: np.ndarray) -> np.ndarray:
+    """`carried` on blocks (P, nb, L, n) of contributions, given each mode's decay from its
+    block's start to each step's start (E), the inverse of that to each step's end (rise,
+    needed only for blocks longer than a step), to the block's end (to_end, (P|1, nb, n)),
+    and from each step's end to the block's end (fall): E_k times the cumulative sum of
+    c[j] / E_(j+1), and what each block hands the next (its exponents never positive)."""
+    P, nb, L, n = cp.shape
+    inner = np.zeros(cp.shape, np.result_type(cp, E))
+    if L > 1:  # sums over j < k: the cumulative sum shifted by one within the block
+        summed = np.cumsum(cp * rise(), axis=2)
+        inner[:, :, 1:] = E[:, :, 1:] * summed[:, :, :-1]
+    handed = np.sum(cp * fall, axis=2)
+    S = np.empty((P, nb, n), dtype=inner.dtype)
+    S[:, 0] = 0.0
+    for b in range(1, nb):
+        S[:, b] = to_end[:, b - 1] * S[:, b - 1] + handed[:, b - 1]
+    return (E * S[:, :, None, :] + inner).reshape(P, nb * L, n)
+
+
+def _carried_clamped(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """`carried` with each step counted at most CARRY_GONE e-folds long, and a mode that
+    forgets everything at every step carrying each step's contribution alone: neither then
+    sets the blocks' length. Slower per element than `carried`'s own blocks (each mode's
+    exponents are summed step by step), so taken only where those blocks would be many."""
     P, K, n = c.shape
     T = np.asarray(T, dtype=float)
     steps = lam[:, None, :] * np.diff(T[:K + 1])[None, :, None]  # (P|1, K, n) exponents
@@ -287,21 +337,9 @@ def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
                             axis=1).reshape(-1, nb, L, n)
     after = np.cumsum(blocks, axis=2)
     at = np.concatenate([np.zeros_like(after[:, :, :1]), after[:, :, :-1]], axis=2)
-    E = np.exp(at)
-    inner = np.zeros(cp.shape, np.result_type(cp, E))
-    if L > 1:  # sums over j < k: the cumulative sum shifted by one within the block
-        summed = np.cumsum(cp * np.exp(-after), axis=2)
-        inner[:, :, 1:] = E[:, :, 1:] * summed[:, :, :-1]
-    # what block b hands block b+1: its sum carried to the next block's start (exponents
-    # never positive)
-    span = after[:, :, -1]  # (P|1, nb, n)
-    to_end = np.exp(span)
-    handed = np.sum(cp * np.exp(span[:, :, None] - after), axis=2)
-    S = np.empty((P, nb, n), dtype=inner.dtype)
-    S[:, 0] = 0.0
-    for b in range(1, nb):
-        S[:, b] = to_end[:, b - 1] * S[:, b - 1] + handed[:, b - 1]
-    out = (E * S[:, :, None, :] + inner).reshape(P, nb * L, n)[:, :K]
+    span = after[:, :, -1]
+    out = _in_blocks(cp, np.exp(at), lambda: np.exp(-after), np.exp(span),
+                     np.exp(span[:, :, None] - after))[:, :K]
     if gone.any():  # what each step adds, and nothing of before
         alone = np.concatenate([np.zeros_like(c[:, :1]), c[:, :-1]], axis=1)
         out = np.where(gone[:, None, :], alone, out)

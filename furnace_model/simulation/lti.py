@@ -271,18 +271,16 @@ def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
     fastest mode) that 1 / E never overflows. Only what each block hands the next is a loop.
     Where that would make more than CARRY_LOOP blocks (a step much longer than the others, or
     a sensor lag of seconds on minute samples), `_carried_clamped` takes them instead."""
-    P, K, n = c.shape
+    K = c.shape[1]
     T = np.asarray(T, dtype=float)
     gaps = np.diff(T[:K + 1])
-    fastest = float(np.max(np.abs(np.real(lam)), initial=0.0)) * float(np.max(gaps, initial=0.0))
-    L = int(np.clip(CARRY_SPAN // fastest if fastest > 0 else CARRY_BLOCK_MAX, 1,
-                    CARRY_BLOCK_MAX))
+    L = _block_length(float(np.max(np.abs(np.real(lam)), initial=0.0))
+                      * float(np.max(gaps, initial=0.0)))
     if -(-K // L) > CARRY_LOOP:
         return _carried_clamped(lam, T, c)
-    nb = -(-K // L)
-    pad = nb * L - K
-    Tp = np.concatenate([T[:K + 1], np.full(pad, T[K])])  # nb * L + 1 times
-    cp = np.concatenate([c, np.zeros((P, pad, n), dtype=c.dtype)], axis=1).reshape(P, nb, L, n)
+    cp = _in_rows_of(c, L)
+    nb = cp.shape[1]
+    Tp = np.concatenate([T[:K + 1], np.full(nb * L - K, T[K])])  # nb * L + 1 times
     first = Tp[0:nb * L:L]  # each block's start
     at = Tp[:-1].reshape(nb, L) - first[:, None]  # T[k] - T0, k in the block
     after = Tp[1:].reshape(nb, L) - first[:, None]  # T[j+1] - T0
@@ -292,6 +290,20 @@ def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
                       lambda: np.exp(-lam4 * after[None, :, :, None]),
                       np.exp(lam[:, None, :] * span[None, :, None]),
                       np.exp(lam4 * (span[:, None] - after)[None, :, :, None]))[:, :K]
+
+
+def _block_length(fastest: float) -> int:
+    """Steps per block of `carried` whose fastest mode decays by `fastest` e-folds a step."""
+    return int(np.clip(CARRY_SPAN // fastest if fastest > 0 else CARRY_BLOCK_MAX, 1,
+                       CARRY_BLOCK_MAX))
+
+
+def _in_rows_of(x: np.ndarray, L: int) -> np.ndarray:
+    """x (P, K, n) as blocks (P, nb, L, n), the last padded with zeros."""
+    P, K, n = x.shape
+    nb = -(-K // L)
+    return np.concatenate([x, np.zeros((P, nb * L - K, n), dtype=x.dtype)],
+                          axis=1).reshape(P, nb, L, n)
 
 
 def _in_blocks(cp: np.ndarray, E: np.ndarray, rise: Callable[[], np.ndarray],
@@ -319,23 +331,17 @@ def _carried_clamped(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarra
     forgets everything at every step carrying each step's contribution alone: neither then
     sets the blocks' length. Slower per element than `carried`'s own blocks (each mode's
     exponents are summed step by step), so taken only where those blocks would be many."""
-    P, K, n = c.shape
+    K = c.shape[1]
     T = np.asarray(T, dtype=float)
     steps = lam[:, None, :] * np.diff(T[:K + 1])[None, :, None]  # (P|1, K, n) exponents
     decay = np.maximum(np.real(steps), -CARRY_GONE)
     gone = np.all(decay <= -CARRY_GONE, axis=1) if K else np.zeros(lam.shape, dtype=bool)
     decay = np.where(gone[:, None, :], 0.0, decay)
     steps = decay + 1j * np.imag(steps) if np.iscomplexobj(steps) else decay
-    fastest = float(np.max(-decay, initial=0.0))
-    L = int(np.clip(CARRY_SPAN // fastest if fastest > 0 else CARRY_BLOCK_MAX, 1,
-                    CARRY_BLOCK_MAX))
-    nb = -(-K // L)
-    pad = nb * L - K
-    cp = np.concatenate([c, np.zeros((P, pad, n), dtype=c.dtype)], axis=1).reshape(P, nb, L, n)
+    L = _block_length(float(np.max(-decay, initial=0.0)))
+    cp = _in_rows_of(c, L)
     # each block's exponents from its start: to the end of step j (after), to its start (at)
-    blocks = np.concatenate([steps, np.zeros(steps.shape[:1] + (pad, n), steps.dtype)],
-                            axis=1).reshape(-1, nb, L, n)
-    after = np.cumsum(blocks, axis=2)
+    after = np.cumsum(_in_rows_of(steps, L), axis=2)
     at = np.concatenate([np.zeros_like(after[:, :, :1]), after[:, :, :-1]], axis=2)
     span = after[:, :, -1]
     out = _in_blocks(cp, np.exp(at), lambda: np.exp(-after), np.exp(span),

@@ -169,7 +169,6 @@ def _coefficients(F: np.ndarray, lam: np.ndarray, c: np.ndarray, h: np.ndarray,
     close = np.abs(gap) * longest <= CLOSE
     Fg = np.where(close, 0.0, F / np.where(close, 1.0, gap))  # (p, i, j)
     near = np.where(close, F, 0.0)
-
     series = close.sum() > n  # modes close to others than themselves
     M = np.empty((F.shape[0], c.shape[0], 4 if series else 2, n), np.result_type(F, c, h))
     const = -h / lam

@@ -7,10 +7,15 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from furnace_model.cli import main
 from furnace_model.diagnosis.hourlyroom import ROOM, TRUTH, hourly_room
+from furnace_model.effects.radiation import Radiation
+from furnace_model.effects.tried import Clues
+from furnace_model.identification.fit import fit
+from furnace_model.simulation.structure import ModelStructure
 
 
 def hourly_record(seed: int, path, wall: bool = False, days: int = 28) -> None:
@@ -74,3 +79,21 @@ def test_a_wall_in_a_heated_room_is_named(room, tmp_path):
     verdict = json.loads(out.read_text())["verdict"]
     assert verdict["status"] in ("explained", "explained_in_part")
     assert verdict["effects"] == ["wall_storage"]
+
+
+def test_radiation_is_tried_at_the_records_own_temperature():
+    """A room's radiation candidate, referred to its own mean temperature, starts beside the
+    baseline it nests and ends no worse than it; referred to a furnace's 900 °C its share
+    trades against the loss along a curved valley and the polish ends above the baseline."""
+    record = hourly_room(1, ("wall_storage",), days=7)
+    furnace = record.furnace
+    trial = Radiation.tried.trial(Clues([record], [record], furnace=furnace))
+    assert trial.options["t_ref_c"] == round(float(np.nanmean(record.zone_temp)))
+    assert Radiation.tried.law_options({"exponent": None}, trial.options) == \
+        {"exponent": None, "t_ref_c": trial.options["t_ref_c"]}
+    base = fit([record], ModelStructure([], furnace=furnace), zone_offsets=True, profile=False)
+    structure = ModelStructure([Radiation(**trial.options, furnace=furnace)], furnace=furnace)
+    fr = fit([record], structure, init={**structure.defaults(), **base.params},
+             zone_offsets=True, profile=False)
+    assert fr.stop_reason == "converged"
+    assert fr.sse <= base.sse * (1 + 1e-9)

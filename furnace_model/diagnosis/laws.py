@@ -27,8 +27,9 @@ def further_laws(fitted: list[CandidateResult], furnace: Furnace
     for c in fitted:
         tried = EFFECTS[c.effects[0]].tried
         if helps(c) or (tried.laws_always(furnace) and not c.note.startswith("fit failed")):
-            out += [(c, dict(opts)) for opts in tried.laws_for(furnace)
-                    if dict(opts) != c.options.get(c.effects[0])]
+            first = c.options.get(c.effects[0], {})
+            laws = (tried.law_options(opts, first) for opts in tried.laws_for(furnace))
+            out += [(c, law) for law in laws if law != first]
     return out
 
 

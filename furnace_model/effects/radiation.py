@@ -7,7 +7,7 @@ import numpy as np
 from ..simulation.parameters import Param
 from .base import KELVIN, Effect, Option
 from .drawn import Drawn
-from .tried import Tried
+from .tried import Clues, Trial, Tried
 
 
 class DrawnRadiation(Drawn):
@@ -24,6 +24,26 @@ class DrawnRadiation(Drawn):
         return effect, {"rad_share": self.uniform(rng, "rad_share")}
 
 
+class TriedRadiation(Tried):
+    def trial(self, clues: Clues) -> Trial:
+        """The law referred to the fitted records' own mean temperature: there the share
+        changes only the law's curvature, not its slope, so that it does not trade against
+        the exchange rates. Referred to a furnace's 900 °C, a record about 20 °C (a heated
+        room) puts a slope of (293/1173)^3 at its operating point: every exchange shrinks
+        64-fold as the share goes to 1 and its rate must grow as much, a curved valley the
+        polish crawls along to its iteration limit. The same laws are reachable from any
+        reference (the rates absorb it), so this changes the path, not the optimum."""
+        temps = np.concatenate([e.zone_temp.ravel() for e in clues.fit_data])
+        temps = temps[np.isfinite(temps)]
+        options = dict(self.candidate_for(clues.furnace))
+        if temps.size:
+            options["t_ref_c"] = float(np.round(np.mean(temps)))
+        return Trial(options)
+
+    def law_options(self, law: dict, first: dict) -> dict:
+        return {**law, **{k: first[k] for k in ("t_ref_c",) if k in first}}
+
+
 class Radiation(Effect):
     name = "radiation"
     physics = "heat exchange grows with the fourth power of absolute temperature, not linearly"
@@ -31,14 +51,15 @@ class Radiation(Effect):
     option_specs = {
         "exponent": Option(4.0, "number", lo=1.5, hi=6.0,
                            doc="power of absolute temperature (None: fitted)"),
-        "t_ref_c": Option(900.0, "number", lo=100.0, hi=2000.0,
-                          doc="where the law's slope equals the paper's linear exchange"),
+        "t_ref_c": Option(900.0, "number", lo=-50.0, hi=2000.0,
+                          doc="where the law's slope equals the paper's linear exchange "
+                              "(the diagnosis: the fitted records' mean temperature)"),
         "emissivity_slope": Option(0.0, "number", lo=-1.0, hi=1.0,
                                    doc="emissivity change with temperature: no power law"),
     }
     # A furnace's effective exponent depends on its gas and walls, not only on
     # Stefan-Boltzmann: fitted too, as a further law.
-    tried = Tried(null={"rad_share": 0.0}, candidate_options={"exponent": 4.0},
+    tried = TriedRadiation(null={"rad_share": 0.0}, candidate_options={"exponent": 4.0},
                   further_laws=({"exponent": None},), blends=True)
     drawn = DrawnRadiation(ranges={"rad_share": (0.2, 0.8)})
 

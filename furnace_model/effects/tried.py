@@ -99,6 +99,11 @@ class Tried(Part):
             return self.further_laws
         return tuple({"zones": (z,)} for z in self.effect.specs(furnace)["zones"].default)
 
+    def law_options(self, law: dict[str, Any], first: dict[str, Any]) -> dict[str, Any]:
+        """A further law's options, given those the first law was fitted with: the law's
+        own, unless the trial read a setting off the data that every law keeps."""
+        return dict(law)
+
     def laws_always(self, furnace: Furnace) -> bool:
         """Whether the further laws are fitted even when the first law does not help: where
         each puts the effect somewhere else (one zone's wall, one thermocouple), not in

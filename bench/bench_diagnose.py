@@ -77,11 +77,14 @@ def write_case(name: str, d: Path) -> list[str]:
     return [csv(case.fit[0], "fit"), "--holdout", csv(case.holdout[0], "holdout")]
 
 
-def run(args: list[str], env: dict, out: Path) -> tuple[float, dict]:
+def run(args: list[str], tree: str, out: Path) -> tuple[float, dict]:
+    """Run from the tree itself: `python -m` puts the working directory ahead of PYTHONPATH,
+    so from any other checkout that checkout's code would run."""
     cmd = [sys.executable, "-m", "furnace_model.cli", "diagnose", *args, "--quiet",
            "--json", str(out)]
+    env = {**os.environ, "PYTHONPATH": tree}
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    proc = subprocess.run(cmd, env=env, cwd=tree, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr}")
@@ -99,7 +102,6 @@ def main() -> None:
     repeat = 1 if args.quick else args.repeat
     here = str(Path(__file__).resolve().parent.parent)
     trees = [here] + ([str(args.against.resolve())] if args.against else [])
-    envs = [{**os.environ, "PYTHONPATH": tree} for tree in trees]
     print(f"cores available: {os.cpu_count()}; load average at start "
           f"{os.getloadavg()[0]:.1f}\n")
     head = "| case | verdict | candidates | median wall time (s) | runs |"
@@ -115,8 +117,8 @@ def main() -> None:
             times: list[list[float]] = [[] for _ in trees]
             answers: list[dict] = [{} for _ in trees]
             for _ in range(repeat):
-                for k, env in enumerate(envs):  # alternately, so both see the same load
-                    wall, answers[k] = run(files, env, d / f"out{k}.json")
+                for k, tree in enumerate(trees):  # alternately, so both see the same load
+                    wall, answers[k] = run(files, tree, d / f"out{k}.json")
                     times[k].append(wall)
             cells = []
             for k in range(len(trees)):

@@ -282,6 +282,63 @@ def test_a_large_drift_of_one_of_a_pair_is_found_whichever_its_partner_blamed():
     assert max(drift.rmse_holdout_c.values()) < 2.0
 
 
+def test_a_fuel_switch_on_a_network_is_fitted_from_the_rates_its_inputs_give():
+    """Known truth (the six-zone selfcheck's fuel row, draw 0): each burner gives 28% less
+    heat from minute 2322 of 3068. From a start of the spread across the record (minute
+    2109) with the network the equations' least squares put on the inputs that start makes,
+    the polish reaches the switch and the noise."""
+    from furnace_model.diagnosis.fitting import _network_for
+    from furnace_model.diagnosis.selfcheck import selfcheck_case
+    from furnace_model.identification.fit import fit
+    from furnace_model.identification.noisefloor import record_floor
+
+    case = selfcheck_case("fuel_change", 0, furnace=SIX)
+    truth = case.truth["fuel_change"]
+    effect = EFFECTS["fuel_change"](furnace=SIX)
+    box = effect.tried.search_bounds(case.fit)
+    starts = effect.tried.starts(effect, {}, box)
+    assert len(starts) == 8 and box["t_fuel"][0] < starts[0]["t_fuel"] < starts[-1]["t_fuel"] \
+        < box["t_fuel"][1]
+    assert EFFECTS["fuel_change"].tried.starts(EFFECTS["fuel_change"](furnace=PAPER), {}, box) \
+        == []  # eq. 11's search finds it from the one start
+    structure = ModelStructure([effect], furnace=SIX)
+    start = {**structure.defaults(), **starts[5]}
+    assert start["t_fuel"] == pytest.approx(2109.25)
+    fr = fit(case.fit, structure, init={**start, **_network_for(structure, start, case.fit)},
+             zone_offsets=True, profile=False, bounds=box)
+    assert fr.params["t_fuel"] == pytest.approx(truth["t_fuel"], abs=15)
+    assert fr.params["fuel_ratio"] == pytest.approx(truth["fuel_ratio"], rel=0.03)
+    floor = record_floor(case.fit[0]).floor_c
+    for z in SIX.zones:
+        assert fr.per_zone[z]["rmse_c"] < 1.1 * floor[z], (z, fr.per_zone[z], floor[z])
+
+
+@pytest.mark.slow  # the candidate's every start: a minute of one core
+def test_a_fuel_switch_on_a_network_is_found_from_the_rates_its_inputs_give():
+    """Known truth (the six-zone selfcheck's fuel row, draw 0): each burner gives 28% less
+    heat from minute 2322 of 3068. The baseline bends by 11-16 °C to absorb it; from its
+    rates the switch's fit stopped at minute 1088 and closed three quarters of the held-out
+    gap. Started across the record, each start's network re-solved from the inputs the
+    switch makes, the fit finds the switch and reaches the noise held out."""
+    from furnace_model.diagnosis.fitting import Task, run_task
+    from furnace_model.diagnosis.holdout import split
+    from furnace_model.diagnosis.selfcheck import selfcheck_case
+    from furnace_model.identification.noisefloor import record_floor
+
+    case = selfcheck_case("fuel_change", 0, furnace=SIX)
+    truth = case.truth["fuel_change"]
+    fit_data, hold, tail_of, _ = split(case.fit, case.holdout)
+    base = run_task(Task((), {}, fit_data, hold, tail_of, None, 0))
+    assert max(base.rmse_fit_c.values()) > 10.0  # bent
+    fuel = run_task(Task(("fuel_change",), {}, fit_data, hold, tail_of, dict(base.params), 0,
+                         bounds=EFFECTS["fuel_change"].tried.search_bounds(fit_data)))
+    assert fuel.params["t_fuel"] == pytest.approx(truth["t_fuel"], abs=15)
+    assert fuel.params["fuel_ratio"] == pytest.approx(truth["fuel_ratio"], rel=0.03)
+    floor = record_floor(hold[0]).floor_c
+    for z in SIX.zones:
+        assert fuel.rmse_holdout_c[z] < 1.3 * floor[z], (z, fuel.rmse_holdout_c[z], floor[z])
+
+
 @pytest.mark.slow  # a whole six-zone diagnosis: a minute of one core
 def test_a_lag_whose_fit_has_side_valleys_is_named():
     """Known truth (the six-zone selfcheck's lag row, draw 2): soak_top's thermocouples lag

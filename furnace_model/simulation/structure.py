@@ -191,6 +191,14 @@ class ModelStructure:
         """Whether some effect adds its own error to single thermocouples (a drift)."""
         return any(type(e).sensor_offsets is not Effect.sensor_offsets for e in self.effects)
 
+    @property
+    def moves_inputs(self) -> bool:
+        """Whether some effect changes the inputs the network sees (a fuel switch, a transport
+        delay, a burner curve)."""
+        return any(type(e).transform_drive is not Effect.transform_drive
+                   or type(e).transform_levels is not Effect.transform_levels
+                   for e in self.effects)
+
     def simulate(self, values: Mapping[str, float | np.ndarray], inputs: Inputs, t: np.ndarray,
                  x0: np.ndarray, t0: float | None = None, states: bool = False) -> Response:
         """The run at times t from zone temperatures x0 at t0, for P parameter sets.

@@ -313,3 +313,18 @@ def test_production_control_row_end_to_end(tmp_path):
     assert case["label"] == "none" and "closed loop (paper_production)" in case["description"]
     assert case["status"] in ("no_gap", "explained", "explained_in_part", "unexplained")
     assert "| none | 1 |" in proc.stdout
+
+
+def test_the_json_names_the_furnace_drawn_on_by_its_shipped_name(tmp_path, capsys):
+    """`--furnace six-zone --json`: the document names the description's file; the name of
+    a shipped description is text, not a path, and once ended the run in a traceback after
+    its table, without the document."""
+    from furnace_model.cli import main
+
+    out = tmp_path / "table.json"
+    assert main(["selfcheck", "--furnace", "six-zone", "--effects", "none", "--draws", "1",
+                 "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["furnace"].endswith("config/furnaces/six-zone.yaml")
+    assert [r["label"] for r in doc["rows"]] == ["none"] and len(doc["cases"]) == 1
+    assert "Traceback" not in capsys.readouterr().err

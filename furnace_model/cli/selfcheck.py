@@ -28,7 +28,7 @@ from functools import partial
 from typing import TYPE_CHECKING
 
 from ..errors import FurnaceError
-from .arguments import add_effects_from, add_furnace, furnace_of, output_file
+from .arguments import add_effects_from, add_furnace, furnace_of, furnace_path, output_file
 from .diagnose import effect_list
 from .names import NOISE, OUT_OF_LIBRARY, effect_names, is_effect
 
@@ -183,8 +183,8 @@ def report(args: argparse.Namespace, outcomes: list[Outcome], *, complete: bool)
         doc = {"seed": args.seed, "draws": args.draws, "first_draw": args.first_draw,
                "mode": mode_of(args), "form": args.form, "noise": args.noise,
                "candidates": list(args.candidates or effect_names()), "complete": complete,
-               **({"furnace": args.furnace.as_posix()} if getattr(args, "furnace", None)
-                  else {}),
+               **({"furnace": furnace_path(args.furnace).as_posix()}
+                  if getattr(args, "furnace", None) else {}),
                "rows": [r.__dict__ for r in rows], "cases": [o.to_json() for o in outcomes]}
         try:
             args.json.write_text(json.dumps(doc, indent=1, default=_plain) + "\n")

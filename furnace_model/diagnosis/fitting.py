@@ -241,9 +241,8 @@ def _network_for(structure: ModelStructure, values: dict[str, float],
                  records: list[Experiment]) -> dict[str, float]:
     """The network's rates the equations' least squares put on `records` with the sensor
     error of `values` taken off their readings and their inputs as its effects make them
-    (a fuel switch, a delay): a baseline bent to absorb the effect leaves the candidate's
-    polish in a side valley (seen on six zones: a fuel switch placed to the minute from a
-    spread start, but 5 °C off in the soaking zones; from these rates, at the floor)."""
+    (a fuel switch, a delay): the rates of a baseline bent to absorb the effect hold the
+    candidate's polish in a side valley even from the effect's true values."""
     nz = structure.furnace.n_zones
     theta = structure.theta(values)
     clean = []

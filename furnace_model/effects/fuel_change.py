@@ -20,8 +20,7 @@ class TriedFuelChange(Tried):
         """On a network other than eq. 11's, instants across the fitted records: a switch that
         nothing places has a side valley wherever it meets a step of the record, and on a
         many-zone network the search around the baseline does not leave the one it starts
-        in (seen on six zones: a switch at minute 2322 fitted at 1088, a third of the gap
-        left). On eq. 11's the search finds it from the one start."""
+        in. On eq. 11's the search finds it from the one start."""
         if effect.furnace.paper_structure or "t_fuel" not in bounds:
             return []
         lo, hi = bounds["t_fuel"]

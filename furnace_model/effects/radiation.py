@@ -41,7 +41,7 @@ class TriedRadiation(Tried):
         return Trial(options)
 
     def law_options(self, law: dict, first: dict) -> dict:
-        return {**law, **{k: first[k] for k in ("t_ref_c",) if k in first}}
+        return {**law, "t_ref_c": first["t_ref_c"]} if "t_ref_c" in first else dict(law)
 
 
 class Radiation(Effect):
@@ -60,7 +60,7 @@ class Radiation(Effect):
     # A furnace's effective exponent depends on its gas and walls, not only on
     # Stefan-Boltzmann: fitted too, as a further law.
     tried = TriedRadiation(null={"rad_share": 0.0}, candidate_options={"exponent": 4.0},
-                  further_laws=({"exponent": None},), blends=True)
+                           further_laws=({"exponent": None},), blends=True)
     drawn = DrawnRadiation(ranges={"rad_share": (0.2, 0.8)})
 
     def _params(self):

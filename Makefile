@@ -50,7 +50,7 @@ demo: $(STAMP)
 # and losses over long runs, which a second worker fitting at full speed beside them would
 # stretch.
 test: $(STAMP) system-deps
-	$(BIN)/python -m pytest -q -m "not slow" -n 2 --dist loadfile
+	$(BIN)/python -m pytest -q -m "not slow" -n 3 --dist loadfile
 
 test-slow: $(STAMP) system-deps
 	$(BIN)/python -m pytest -q -m slow

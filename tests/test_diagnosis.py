@@ -418,3 +418,28 @@ def test_a_parameter_the_fitted_data_do_not_see_is_estimated_on_the_held_out_dat
 def _bounds(fit_data):
     return {**FuelChange.tried.search_bounds(fit_data),
             **SensorDrift.tried.search_bounds(fit_data)}
+
+
+def test_a_candidate_that_ends_above_the_baseline_it_nests_is_polished_from_its_null():
+    """Radiation at share 0 is the baseline: a radiation fit that stops worse than the
+    baseline (its strength started far from the data's, held there below) is polished again
+    from the null, and ends no worse than the baseline. Known truth: a dead time, no
+    radiation."""
+    from furnace_model.diagnosis.fitting import Task, _from_null, run_task
+    from furnace_model.diagnosis.holdout import split
+    from furnace_model.identification.fit import fit
+    from furnace_model.simulation.structure import ModelStructure
+
+    case = draw_case("dead_time", case_rng(0, "dead_time", 0), furnace=PAPER)
+    fit_data, hold, tail_of, _ = split(case.fit, case.holdout)
+    base = run_task(Task((), {}, fit_data, hold, tail_of, None, 0))
+    structure = ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER)
+    start = {**structure.defaults(), **base.params}
+    stuck = fit(fit_data, structure, init=start, fixed={"rad_share": 0.9}, zone_offsets=True,
+                profile=False)
+    assert stuck.sse > 1.05 * base.sse_fit
+    task = Task(("radiation",), {}, fit_data, hold, tail_of, dict(base.params), 0,
+                baseline_sse=base.sse_fit)
+    again = _from_null(stuck, task, structure, start, {})
+    assert again.sse <= base.sse_fit * (1 + 1e-6)
+    assert "rad_share" in again.params

@@ -260,3 +260,32 @@ def test_look_ahead_matches_a_whole_run(name, scenarios):
     for k, tt in enumerate(t):
         np.testing.assert_allclose(ahead.readings(int(round(tt * 60))), whole.tc[k],
                                    rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("options", [{}, {"exponent": None}, {"emissivity_slope": -0.5}])
+def test_radiation_over_many_states_is_its_law_row_by_row(options):
+    """The simulators ask for the nonlinear terms at many states of each parameter set at
+    once (`nonlinear_rhs_over`); radiation broadcasts over them itself. It must give what
+    its law gives one state at a time, which the base class's default computes."""
+    from furnace_model.effects.base import Effect
+
+    rng = np.random.default_rng(3)
+    effect = Radiation(t_ref_c=700.0, **options, furnace=PAPER)
+    structure = ModelStructure([effect], furnace=PAPER)
+    P, S = 4, 7
+    values = {n: np.full(P, v) for n, v in structure.defaults().items()}
+    values["rad_share"] = rng.uniform(0.1, 0.9, P)
+    if "rad_exponent" in values:
+        values["rad_exponent"] = rng.uniform(2.0, 5.0, P)
+    theta = structure.theta(values)
+    sys = structure.system(theta)
+    X = rng.uniform(50.0, 1300.0, (P, S, sys.A.shape[1]))
+    U = rng.uniform(0.0, 10.0, (P, S, sys.B.shape[2]))
+    batched = effect.nonlinear_rhs_over(theta, X, sys.A, sys.B, U)
+    rows = np.stack([np.stack([effect.nonlinear_rhs(
+        {k: v[p:p + 1] for k, v in theta.items()}, X[p, s][None], sys.A[p:p + 1],
+        sys.B[p:p + 1], U[p, s][None])[0] for s in range(S)]) for p in range(P)])
+    assert np.abs(batched).max() > 1.0  # the terms are there
+    np.testing.assert_allclose(batched, rows, rtol=1e-12, atol=1e-9)
+    default = Effect.nonlinear_rhs_over(effect, theta, X, sys.A, sys.B, U)
+    np.testing.assert_allclose(default, rows, rtol=1e-12, atol=1e-9)

@@ -339,6 +339,25 @@ def test_a_fuel_switch_on_a_network_is_found_from_the_rates_its_inputs_give():
         assert fuel.rmse_holdout_c[z] < 1.3 * floor[z], (z, fuel.rmse_holdout_c[z], floor[z])
 
 
+@pytest.mark.slow  # the candidate's fits: a minute of one core
+def test_radiation_on_a_network_never_ends_worse_than_the_baseline_it_nests():
+    """Known truth (the six-zone selfcheck's dead-time row, draw 0): no radiation. Started
+    at half a share from the bent baseline's rates, the radiation fit can stop worse than
+    the baseline it nests; polished again from its null, it is at least the baseline."""
+    from furnace_model.diagnosis.fitting import Task, run_task
+    from furnace_model.diagnosis.holdout import split
+    from furnace_model.diagnosis.selfcheck import selfcheck_case
+
+    case = selfcheck_case("dead_time", 0, furnace=SIX)
+    fit_data, hold, tail_of, _ = split(case.fit, case.holdout)
+    base = run_task(Task((), {}, fit_data, hold, tail_of, None, 0))
+    rad = run_task(Task(("radiation",), {}, fit_data, hold, tail_of, dict(base.params), 0,
+                        baseline_sse=base.sse_fit))
+    assert rad.sse_fit <= base.sse_fit * (1 + 1e-6)
+    for z in SIX.zones:
+        assert rad.rmse_holdout_c[z] < base.rmse_holdout_c[z] + 0.5, z
+
+
 @pytest.mark.slow  # a whole six-zone diagnosis: a minute of one core
 def test_a_lag_whose_fit_has_side_valleys_is_named():
     """Known truth (the six-zone selfcheck's lag row, draw 2): soak_top's thermocouples lag

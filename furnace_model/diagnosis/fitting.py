@@ -47,6 +47,10 @@ class Task:
     """Per zone: the cold search is skipped when the warm fit is already below these."""
     generations: int | None = None
     """Generations of a search from scratch (init None); None: the fit's default."""
+    baseline_sse: float | None = None
+    """The baseline's fit criterion, with `init` the baseline's parameters: the candidate is
+    the baseline at its effects' nulls, so a fit of it that ends above this is polished
+    again from there (`_from_null`)."""
     deadline: float | None = None
     """time.monotonic() by which the diagnosis must answer (its --time-limit): a fit still
     running then stops, and the candidate is named as not tried."""
@@ -119,6 +123,9 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     # a candidate that is named fitted ends as it would without a limit (limit.TimeLimit).
     if init is not None and fr.stop_reason != "time_budget":
         fr = _restarted(fr, task, structure, init, bounds)
+    if init is not None and task.baseline_sse is not None and fr.sse > task.baseline_sse \
+            and fr.stop_reason != "time_budget":
+        fr = _from_null(fr, task, structure, init, bounds)
     off_floor = task.cold_above is None or any(
         fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in zones)
     if init is not None and structure.linear and task.cold_too and off_floor \
@@ -235,6 +242,29 @@ def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
         if other.sse < fr.sse:
             fr = other
     return fr
+
+
+def _from_null(fr: FitResult, task: Task, structure: ModelStructure, init: dict[str, float],
+               bounds: dict[str, tuple[float, float]]) -> FitResult:
+    """The candidate polished from its effects' nulls (the baseline itself), where its fit
+    ended above the baseline: started at a strength far from the data's (radiation's half
+    share on a furnace with none), the polish can stop at its iteration limit in a valley
+    worse than no effect at all, and such a candidate would be scored for where its search
+    stopped, not for what the effect can do. Not for an effect whose null is only that its
+    parameter be determined (NaN): the baseline is not nested in it."""
+    null: dict[str, float] = {}
+    for e in structure.effects:
+        values = e.tried.nulls(e)
+        if not values or not all(np.isfinite(v) for v in values.values()):
+            return fr
+        null.update(values)
+    if _late(task):
+        return dataclasses.replace(fr, stop_reason="time_budget")
+    other = fit(task.fit_data, structure, init={**init, **null}, seed=task.seed,
+                zone_offsets=True, bounds=bounds, profile=False, time_budget_s=_budget(task))
+    if other.stop_reason == "time_budget":
+        return dataclasses.replace(fr, stop_reason="time_budget")
+    return other if other.sse < fr.sse else fr
 
 
 def _network_for(structure: ModelStructure, values: dict[str, float],

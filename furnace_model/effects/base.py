@@ -202,6 +202,19 @@ class Effect:
         """Extra dx/dt (P, n) for state x (P, n) and input u (P, m)."""
         return np.zeros_like(x)
 
+    def nonlinear_rhs_over(self, theta: Theta, X: np.ndarray, A: np.ndarray, B: np.ndarray,
+                           U: np.ndarray) -> np.ndarray:
+        """Extra dx/dt (P, S, n) at S states X (P, S, n) of each parameter set under the
+        inputs U (P, S, m): `nonlinear_rhs` row by row, each set's parameters and matrices
+        repeated S times. The simulators call this; an effect that broadcasts over the S
+        states itself (radiation) saves those copies, which dominate a nonlinear fit."""
+        P, S, n = X.shape
+        flat = self.nonlinear_rhs({k: np.repeat(v, S) for k, v in theta.items()},
+                                  X.reshape(P * S, n), np.repeat(A, S, axis=0),
+                                  np.repeat(B, S, axis=0),
+                                  np.broadcast_to(U, (P, S, U.shape[-1])).reshape(P * S, -1))
+        return flat.reshape(P, S, n)
+
     def sensor_offsets(self, theta: Theta, t: np.ndarray) -> np.ndarray | None:
         """Additive error of each thermocouple (P, N, thermocouples), or None."""
         return None

@@ -76,6 +76,9 @@ class Radiation(Effect):
         return theta["rad_share"] == 0.0
 
     def nonlinear_rhs(self, theta, x, A, B, u):
+        return self.nonlinear_rhs_over(theta, x[:, None], A, B, u[:, None])[:, 0]
+
+    def nonlinear_rhs_over(self, theta, X, A, B, U):
         # Each linear exchange k (Tj - Ti) becomes k [(1-w)(Tj - Ti) + w (rho(Tj) - rho(Ti))]
         # with rho(T) = T_K^p / (p T_ref^(p-1)), whose slope is 1 at T_ref: the paper's model is
         # the linearisation of this one at the reference temperature. An emissivity that
@@ -84,7 +87,7 @@ class Radiation(Effect):
         p, tref = self.options["exponent"], self.options["t_ref_c"] + KELVIN
         s = self.options["emissivity_slope"]
         if p is None:
-            p = theta["rad_exponent"][:, None]
+            p = theta["rad_exponent"][:, None, None]
 
         def excess(T):
             ratio = np.maximum(T + KELVIN, 1.0) / tref
@@ -93,12 +96,13 @@ class Radiation(Effect):
                 law *= np.maximum(1.0 + s * (ratio - 1.0), 0.0)
             return tref / (p + s) * law - T
 
-        w = theta["rad_share"][:, None]
+        w = theta["rad_share"][:, None, None]
         nz = self.n_zones
-        r = excess(x[:, :nz])
-        r_air = excess(u[:, self.u_air][:, None])
+        r = excess(X[..., :nz])  # (P, S, zones)
+        r_air = excess(U[..., self.u_air:self.u_air + 1])
         K = A[:, :nz, :nz] * (1.0 - np.eye(nz))
-        k_air = B[:, :nz, self.u_air]
-        dx = np.zeros_like(x)
-        dx[:, :nz] = w * (np.einsum("pij,pj->pi", K, r) - K.sum(axis=2) * r + k_air * (r_air - r))
+        k_air = B[:, None, :nz, self.u_air]
+        dx = np.zeros(X.shape)
+        dx[..., :nz] = w * (r @ np.swapaxes(K, 1, 2) - K.sum(axis=2)[:, None] * r
+                            + k_air * (r_air - r))
         return dx

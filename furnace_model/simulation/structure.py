@@ -12,7 +12,7 @@ leading P axis.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING
@@ -276,14 +276,12 @@ class ModelStructure:
         """The effects' nonlinear terms at states X (P, K, 3, n) under the inputs u (P, K, m)
         of each step."""
         P, K, _, n = X.shape
-        S = 3 * K
-        rep = {k: np.repeat(v, S) for k, v in theta.items()}
-        g = np.zeros((P * S, n))
-        uu = np.repeat(u, 3, axis=1).reshape(P * S, -1)
-        As, Bs = np.repeat(sys.A, S, axis=0), np.repeat(sys.B, S, axis=0)
+        states = X.reshape(P, 3 * K, n)
+        U = np.repeat(u, 3, axis=1)
+        g = np.zeros_like(states)
         for eff in self.effects:
             if not eff.linear:
-                g += eff.nonlinear_rhs(rep, X.reshape(P * S, n), As, Bs, uu)
+                g += eff.nonlinear_rhs_over(theta, states, sys.A, sys.B, U)
         return g.reshape(P, K, 3, n)
 
     def _relaxed(self, theta, sys, drive, x0, t0, t) -> tuple[np.ndarray, np.ndarray,
@@ -344,7 +342,8 @@ class ModelStructure:
             if sweep <= RELAX_CENTRINGS:
                 J, A, modes, usable, base = centred(X)
                 active &= usable
-            new = base + grid.at_nodes(grid.convolved(modes, rest(X, J), grid.nodes, t0))
+                convolved = grid.convolver(modes, grid.nodes, t0)
+            new = base + grid.at_nodes(convolved(rest(X, J)))
             step = np.abs(new - X).max(axis=(1, 2, 3))
             bad = ~np.isfinite(step)
             step = np.where(bad, np.inf, step)
@@ -586,51 +585,52 @@ class _Grid:
         """d (P, N, n) at times t, where d' = A d + g(t) and d(t0) = 0, for the forcing g
         quadratic in time on each step through its values g (P, K, 3, n) at the step's start,
         middle and end: integrated exactly against the modes of A."""
+        return self.convolver(modes, t, t0)(g)
+
+    def convolver(self, modes: Modes, t: np.ndarray, t0: float
+                  ) -> Callable[[np.ndarray], np.ndarray]:
+        """`convolved` for many forcings against the same modes and times: the relaxation's
+        sweeps change the forcing only, and the mode's weights over each step and up to each
+        time (exponentials and phi functions) are most of a convolution's cost."""
         lam, V, Vinv = modes.lam, modes.V, modes.Vinv
         a, K = self.a, self.a.size
-        P, n = lam.shape
-        gm = np.einsum("pij,pksj->pksi", Vinv, g)  # modal forcing
-        g0, gh, g1 = gm[:, :, 0], gm[:, :, 1], gm[:, :, 2]
         hh = self.h[None, :, None]
-        c1 = (4.0 * gh - 3.0 * g0 - g1) / hh  # g(a + s) = g0 + c1 s + c2 s^2
-        c2 = 2.0 * (g1 - 2.0 * gh + g0) / (hh * hh)
 
-        def convolve(sig, tau, c0, c1, c2):
-            z = lam[:, None, :] * tau
-            e, p1, p2, p3 = _phi123(z)
-            return e * sig + tau * (p1 * c0 + tau * (p2 * c1 + 2.0 * tau * p3 * c2))
+        def weights(tau):
+            """Of the value, slope and curvature of a quadratic forcing over tau."""
+            e, p1, p2, p3 = _phi123(lam[:, None, :] * tau)
+            return e, tau * p1, tau * tau * p2, 2.0 * tau ** 3 * p3
 
-        zero = np.zeros((P, 1, n), dtype=gm.dtype)
-        step = convolve(zero, hh, g0, c1, c2)  # each step's own contribution
-        sig = carried(lam, np.append(a, a[-1] + self.h[-1]), step)  # d at steps' starts
+        _, s0, s1, s2 = weights(hh)
+        ends = np.append(a, a[-1] + self.h[-1])
         k_of = np.clip(np.searchsorted(a, t, side="left") - 1, 0, K - 1)
-        tau = np.maximum(t - a[k_of], 0.0)[None, :, None]
-        d = convolve(sig[:, k_of], tau, g0[:, k_of], c1[:, k_of], c2[:, k_of])
-        d[:, t <= t0] = 0.0
-        return np.einsum("pij,pNj->pNi", V, d).real
+        e, w0, w1, w2 = weights(np.maximum(t - a[k_of], 0.0)[None, :, None])
+        before = t <= t0
+
+        def convolve(g: np.ndarray) -> np.ndarray:
+            gm = np.einsum("pij,pksj->pksi", Vinv, g)  # modal forcing
+            g0, gh, g1 = gm[:, :, 0], gm[:, :, 1], gm[:, :, 2]
+            c1 = (4.0 * gh - 3.0 * g0 - g1) / hh  # g(a + s) = g0 + c1 s + c2 s^2
+            c2 = 2.0 * (g1 - 2.0 * gh + g0) / (hh * hh)
+            sig = carried(lam, ends, s0 * g0 + s1 * c1 + s2 * c2)  # d at the steps' starts
+            d = e * sig[:, k_of] + w0 * g0[:, k_of] + w1 * c1[:, k_of] + w2 * c2[:, k_of]
+            d[:, before] = 0.0
+            return np.einsum("pij,pNj->pNi", V, d).real
+        return convolve
 
 
 class _Nonlinear:
-    """The effects' nonlinear terms on one constant-input piece, for states (P, S, n): the
-    parameters and matrices repeated S times are built once per S and kept."""
+    """The effects' nonlinear terms on one constant-input piece, for states (P, S, n)."""
 
     def __init__(self, effects, theta, sys, u):
         self.effects = [e for e in effects if not e.linear]
-        self.args = (theta, sys.A, sys.B, u)
-        self._cache: dict[int, tuple] = {1: self.args}
+        self.theta, self.A, self.B, self.U = theta, sys.A, sys.B, u[:, None, :]
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
-        P, S, n = X.shape
-        if S not in self._cache:
-            theta, A, B, u = self.args
-            self._cache[S] = ({k: np.repeat(v, S) for k, v in theta.items()},
-                              *(np.repeat(v, S, axis=0) for v in (A, B, u)))
-        th, A, B, u = self._cache[S]
-        flat = X.reshape(P * S, n)
-        dx = self.effects[0].nonlinear_rhs(th, flat, A, B, u)
+        dx = self.effects[0].nonlinear_rhs_over(self.theta, X, self.A, self.B, self.U)
         for eff in self.effects[1:]:
-            dx = dx + eff.nonlinear_rhs(th, flat, A, B, u)
-        return dx.reshape(P, S, n)
+            dx = dx + eff.nonlinear_rhs_over(self.theta, X, self.A, self.B, self.U)
+        return dx
 
 
 class _Linearised:

@@ -122,6 +122,14 @@ def test_a_rerun_computes_nothing_already_stored(local):
     assert [s.furnace for s, _ in touched.results if s.furnace == "wall"] == ["wall"]
 
 
+def test_the_workers_allocate_as_any_process_does(local):
+    """Dask's nanny would start each worker with MALLOC_TRIM_THRESHOLD_ set, which turns off
+    glibc's sliding mmap threshold: every large numpy temporary then faults in page by
+    page, and a diagnosis in a worker spent more time in the kernel than in numpy."""
+    seen = local["client"].run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+    assert len(seen) == 2 and set(seen.values()) == {None}, seen
+
+
 def test_plug_in_effects_load_in_the_workers(local):
     plugin = ROOT / "examples" / "slab_charging" / "slab_charging.py"
 

@@ -276,13 +276,8 @@ class ModelStructure:
         """The effects' nonlinear terms at states X (P, K, 3, n) under the inputs u (P, K, m)
         of each step."""
         P, K, _, n = X.shape
-        states = X.reshape(P, 3 * K, n)
-        U = np.repeat(u, 3, axis=1)
-        g = np.zeros_like(states)
-        for eff in self.effects:
-            if not eff.linear:
-                g += eff.nonlinear_rhs_over(theta, states, sys.A, sys.B, U)
-        return g.reshape(P, K, 3, n)
+        terms = _Nonlinear(self.effects, theta, sys, np.repeat(u, 3, axis=1))
+        return terms(X.reshape(P, 3 * K, n)).reshape(P, K, 3, n)
 
     def _relaxed(self, theta, sys, drive, x0, t0, t) -> tuple[np.ndarray, np.ndarray,
                                                               np.ndarray]:
@@ -315,7 +310,7 @@ class ModelStructure:
         nodes = grid.at_nodes(response(sys.A, sys.B, x0, t0, drive, grid.nodes,
                                        modes=Modes.of(sys.A)))
         u0 = np.broadcast_to(drive.level_at(t0), (P, sys.B.shape[2]))
-        nonlinear = _Nonlinear(self.effects, theta, sys, u0)
+        nonlinear = _Nonlinear(self.effects, theta, sys, u0[:, None])
 
         def centred(X):
             """The linear part at X's mean state and the response it alone gives."""
@@ -443,7 +438,7 @@ class ModelStructure:
                 continue
             u = np.broadcast_to(drive.level_at(lo), (P, sys.B.shape[2]))
             Bu = np.einsum("pnm,pm->pn", sys.B, u)
-            nonlinear = _Nonlinear(self.effects, theta, sys, u)
+            nonlinear = _Nonlinear(self.effects, theta, sys, u[:, None])
             bounds = _step_bounds(lo, hi)
             for a, b in zip(bounds[:-1], bounds[1:], strict=True):
                 step = _Linearised(nonlinear, sys.A, Bu, x)
@@ -620,11 +615,12 @@ class _Grid:
 
 
 class _Nonlinear:
-    """The effects' nonlinear terms on one constant-input piece, for states (P, S, n)."""
+    """The effects' nonlinear terms for states (P, S, n) under the inputs U (P, S, m), or
+    (P, 1, m) on a constant-input piece."""
 
-    def __init__(self, effects, theta, sys, u):
+    def __init__(self, effects, theta, sys, U):
         self.effects = [e for e in effects if not e.linear]
-        self.theta, self.A, self.B, self.U = theta, sys.A, sys.B, u[:, None, :]
+        self.theta, self.A, self.B, self.U = theta, sys.A, sys.B, U
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         dx = self.effects[0].nonlinear_rhs_over(self.theta, X, self.A, self.B, self.U)

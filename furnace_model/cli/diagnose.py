@@ -79,7 +79,7 @@ def effect_list(text: str, what: str = "effect") -> tuple[str, ...]:
 
 
 STAGES = {"baseline": "fitting the baseline", "candidates": "fitting the candidate effects",
-          "from scratch": "searching the nonlinear candidates that stay off the noise floor "
+          "from scratch": "searching the candidates that stay off the noise floor "
                           "from scratch",
           "laws": "fitting the further laws of the effects that help",
           "combinations": "trying combinations of the effects that earn credit",

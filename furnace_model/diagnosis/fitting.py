@@ -23,6 +23,10 @@ from ..simulation.structure import Inputs, ModelStructure
 from .candidate import CandidateResult
 from .credit import CARRIED_Z, identifiable
 
+BASELINE_RUNS = 3
+"""The baseline is cheap and everything is measured against it: independent searches, so
+that a side valley of eq. 11 is not mistaken for a gap."""
+
 
 @dataclass
 class Task:
@@ -51,6 +55,9 @@ class Task:
     """The baseline's fit criterion, with `init` the baseline's parameters: the candidate is
     the baseline at its effects' nulls, so a fit of it that ends above this is polished
     again from there (`_from_null`)."""
+    runs: int | None = None
+    """Independent searches of a search from scratch; None: BASELINE_RUNS for the baseline,
+    one for a candidate."""
     deadline: float | None = None
     """time.monotonic() by which the diagnosis must answer (its --time-limit): a fit still
     running then stops, and the candidate is named as not tried."""
@@ -64,6 +71,15 @@ def structure_of(effects: tuple[str, ...], options: dict[str, dict],
                  furnace: Furnace) -> ModelStructure:
     items: list[Effect] = [EFFECTS[n](**options.get(n, {}), furnace=furnace) for n in effects]
     return ModelStructure(items, furnace=furnace)
+
+
+def baseline_tasks(fit_data: list[Experiment], holdout: list[Experiment],
+                   tail_of: list[int | None], seed: int) -> list[Task]:
+    """The baseline's searches as one task each, for a pool to run side by side: the
+    lowest criterion among their results is the baseline `run_task` fits in one task with
+    BASELINE_RUNS runs (run r of a fit uses seed + r)."""
+    return [Task((), {}, fit_data, holdout, tail_of, None, seed + r, runs=1)
+            for r in range(BASELINE_RUNS)]
 
 
 def run_task(task: Task) -> CandidateResult:
@@ -111,11 +127,9 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     bounds = {k: v for k, v in task.bounds.items() if k in structure.names}
     if init is not None:
         init = {k: (float(np.clip(v, *bounds[k])) if k in bounds else v) for k, v in init.items()}
-    # The baseline is cheap and everything is measured against it: three independent
-    # searches, so that a side valley of eq. 11 is not mistaken for a gap.
     # Linearised intervals (with the residual's colour): the profiles' refits would cost
     # more than the candidate's fit, and the verdict reads the white ones.
-    runs = 3 if not task.effects else 1
+    runs = task.runs or (BASELINE_RUNS if not task.effects else 1)
     fr = fit(task.fit_data, structure, init=init, seed=task.seed, zone_offsets=True,
              runs=runs, bounds=bounds, generations=task.generations, profile=False,
              time_budget_s=_budget(task))

@@ -139,7 +139,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         # bound): it is searched from scratch too, a nonlinear one with a short evolutionary
         # search (each generation is a batch). One that does not help only while no
         # candidate alone explains the gap: on a bent baseline that is most candidates, and
-        # searching them all would cost the paper pair 40% more, radiation several times the
+        # searching them all would cost the paper pair a fifth more, radiation several times the
         # whole diagnosis, for a verdict it does not change.
         stuck = not any(credited(c) and near_floor(c, near) for c in fitted)
         off = [i for i, c in enumerate(fitted)

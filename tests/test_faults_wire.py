@@ -159,6 +159,6 @@ def test_latency_below_the_timeout_loses_nothing(tmp_path):
     assert c.comm_errors == 0 and c.disconnects == 0 and c.ok_polls == c.polls, c
     check_schedule(run)
     ok = check_every_answer_logged(run)
-    assert len(ok) >= 0.9 * grid_ticks(run)
+    assert len(ok) == c.polls  # every poll made was answered and logged
     assert {m["state"] for t, m, _ in run.msgs if t == DAQ_STATUS} == {"connected",
                                                                          "disconnected"}

@@ -445,3 +445,19 @@ def test_a_candidate_that_ends_above_the_baseline_it_nests_is_polished_from_its_
     again = _from_null(stuck, task, structure, start, {})
     assert again.sse <= base.sse_fit * (1 + 1e-6)
     assert "rad_share" in again.params
+
+
+def test_the_baselines_searches_side_by_side_are_the_baseline_of_one_task():
+    """The diagnosis runs the baseline's searches as one task each on its pool and keeps
+    the lowest: the same fit, to the last digit, as one task of BASELINE_RUNS runs."""
+    from furnace_model.diagnosis.fitting import BASELINE_RUNS, baseline_tasks
+
+    case = draw_case("zone_burners", case_rng(0, "zone_burners", 3), furnace=PAPER)
+    fit_data, hold, tail_of, _ = split([e.between(0, 1200) for e in case.fit],
+                                       [e.between(0, 1200) for e in case.holdout])
+    whole = run_task(Task((), {}, fit_data, hold, tail_of, None, 5))
+    parts = [run_task(t) for t in baseline_tasks(fit_data, hold, tail_of, 5)]
+    assert len(parts) == BASELINE_RUNS and len({p.sse_fit for p in parts}) > 1
+    best = min(parts, key=lambda c: c.sse_fit)
+    assert best.params == whole.params and best.sse_fit == whole.sse_fit
+    assert best.rmse_holdout_c == whole.rmse_holdout_c and best.ci95 == whole.ci95

@@ -190,7 +190,9 @@ def test_restarted_plc_is_polled_within_the_retry_interval(tmp_path):
 
     async def scenario():
         plc = await sim(cfg.plc.port)
-        daemon, task = start_daemon(cfg, tmp_path, 6.0)
+        # a run long enough that a busy host still reconnects within it: about 4 s after
+        # the restart, against a bound of 1.5 s
+        daemon, task = start_daemon(cfg, tmp_path, 8.0)
         await asyncio.sleep(1.5)
         await plc.stop()
         attempts_before = daemon.counters.connect_attempts

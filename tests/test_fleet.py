@@ -125,7 +125,7 @@ def test_a_rerun_computes_nothing_already_stored(local):
 def test_the_workers_allocate_as_any_process_does(local):
     """Dask's nanny would start each worker with MALLOC_TRIM_THRESHOLD_ set, which turns off
     glibc's sliding mmap threshold: every large numpy temporary then faults in page by
-    page, and a diagnosis in a worker spent more time in the kernel than in numpy."""
+    page, and a diagnosis in a worker spends more time in the kernel than in numpy."""
     seen = local["client"].run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
     assert len(seen) == 2 and set(seen.values()) == {None}, seen
 

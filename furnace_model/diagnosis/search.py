@@ -139,10 +139,10 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         # bound): it is searched from scratch too, a nonlinear one with a short evolutionary
         # search (each generation is a batch). One that does not help only while no
         # candidate alone explains the gap: on a bent baseline that is most candidates, and
-        # searching them all would cost the paper pair a fifth more, radiation several times
-        # the whole diagnosis, for a verdict it does not change. The linear ones first: they
-        # are cheap, and one of them reaching the floor from scratch (seen: zone losses on
-        # six zones) spares the nonlinear searches (there 195 s of radiation).
+        # searching them all costs more than the rest of the diagnosis (radiation several
+        # times it) for a verdict it does not change. The linear ones first, the rule read
+        # again after them: they are cheap, and one that reaches the floor only from scratch
+        # spares the nonlinear searches.
         for linear in (True, False):
             stuck = not any(credited(c) and near_floor(c, near) for c in fitted)
             off = [i for i, c in enumerate(fitted)

@@ -118,6 +118,10 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         return Diagnosis(fit_data, hold, how, base, floor, where, tests, [], verdict,
                          time.perf_counter() - t_start, gap, **noise, time_limit_s=time_limit_s,
                          cut=limit.cut)
+
+    def explains(results: list[CandidateResult]) -> bool:
+        """Whether one of `results` alone explains the gap (credit, and at the floor)."""
+        return any(credited(c) and near_floor(c, near) for c in results)
     clues.bent = bent = any(base.rmse_fit_c[z] > fit_limit[z] for z in zones)
     say("candidates", 0.1)
     trials = {n: EFFECTS[n].tried.trial(clues) for n in names}
@@ -137,17 +141,18 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         # A candidate that stays off the floor may sit in the bent baseline's side valley
         # (seen: strong zone burners, a = 1 and d = 11; strong radiation, a held at its
         # bound): it is searched from scratch too, a nonlinear one with a short evolutionary
-        # search (each generation is a batch). One that does not help only while no
-        # candidate alone explains the gap: on a bent baseline that is most candidates, and
-        # searching them all costs more than the rest of the diagnosis (radiation several
-        # times it) for a verdict it does not change. The linear ones first, the rule read
-        # again after them: they are cheap, and one that reaches the floor only from scratch
-        # spares the nonlinear searches.
+        # search (each generation is a batch). A linear one that helps always: it is cheap.
+        # Any other only while no candidate alone explains the gap: on a bent baseline that
+        # is most candidates, and a nonlinear search from scratch costs more than the rest
+        # of the diagnosis (radiation several times it) for a verdict it does not change.
+        # The linear ones first, the rule read again after them: one that reaches the floor
+        # only from scratch spares the nonlinear searches.
         for linear in (True, False):
-            stuck = not any(credited(c) and near_floor(c, near) for c in fitted)
+            stuck = not explains(fitted)
             off = [i for i, c in enumerate(fitted)
                    if structure_of(c.effects, c.options, furnace).linear == linear
-                   and (stuck or helps(c)) and any(c.rmse_fit_c[z] > fit_limit[z] for z in zones)]
+                   and (stuck or (linear and helps(c)))
+                   and any(c.rmse_fit_c[z] > fit_limit[z] for z in zones)]
             if off:
                 say("from scratch", 0.6)
             cold = run_all([Task(fitted[i].effects, fitted[i].options, fit_data, hold, tail_of,
@@ -166,11 +171,15 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     # On a bent baseline the linear laws are searched from scratch too, as the singles are,
     # but only while no candidate alone explains the gap (seen: a preheating-zone wall whose
     # warm law stayed off the floor, and a drift was added; searched every time, the laws
-    # cost the paper pair 10%).
-    cold_laws = bent and not any(credited(c) and near_floor(c, near) for c in fitted)
+    # cost the paper pair 10%). Once a candidate alone explains the gap, a nonlinear one
+    # that does not gets no further laws at all: each is a search of the integrated model.
+    solved = explains(fitted)
+    cold_laws = bent and not solved
     laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
                  seed, cold_laws, bounds, fit_limit)
-            for c, opts in further_laws(fitted, furnace)]
+            for c, opts in further_laws(fitted, furnace)
+            if not solved or explains([c])
+            or structure_of(c.effects, c.options, furnace).linear]
     if laws:
         say("laws", 0.65)
     more = tried(run_all(laws, lambda f: say("laws", 0.65 + 0.05 * f),

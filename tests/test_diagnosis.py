@@ -461,3 +461,25 @@ def test_the_baselines_searches_side_by_side_are_the_baseline_of_one_task():
     best = min(parts, key=lambda c: c.sse_fit)
     assert best.params == whole.params and best.sse_fit == whole.sse_fit
     assert best.rmse_holdout_c == whole.rmse_holdout_c and best.ci95 == whole.ci95
+
+
+def test_a_baseline_that_no_seed_moves_is_searched_once():
+    """On a network of many zones the baseline is polished from the equations' least
+    squares: no seed moves it, so the diagnosis runs one search, not BASELINE_RUNS alike,
+    and a fit asked for several runs makes one, the same fit."""
+    from furnace_model.diagnosis.fitting import baseline_tasks
+    from furnace_model.identification.fit import fit
+    from furnace_model.shipped import FURNACES, shipped
+    from furnace_model.simulation.furnacefile import load_furnace
+
+    six = load_furnace(shipped(f"{FURNACES}/six-zone.yaml"))
+    case = draw_case(None, case_rng(0, "none", 0), furnace=six)
+    fit_data, hold, tail_of, _ = split([e.between(0, 600) for e in case.fit],
+                                       [e.between(0, 600) for e in case.holdout])
+    assert len(baseline_tasks(fit_data, hold, tail_of, 5)) == 1
+    one, three = (fit(fit_data, runs=r, seed=5, zone_offsets=True, profile=False)
+                  for r in (1, 3))
+    assert len(three.runs) == 1 and three.params == one.params and three.sse == one.sse
+    paper = draw_case(None, case_rng(0, "none", 0), furnace=PAPER)
+    fd, ho, to, _ = split(paper.fit, paper.holdout)
+    assert len(baseline_tasks(fd, ho, to, 5)) > 1

@@ -97,7 +97,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     """Fit the structure's parameters to the experiments (jointly; own initial state each);
     without a structure, the baseline of the furnace the records are of.
 
-    Run r uses seed + r. With `init` the global search is skipped: a warm-started polish,
+    Run r uses seed + r; where no seed moves the search (`seeded`), one run is made whatever
+    `runs` asks. With `init` the global search is skipped: a warm-started polish,
     which is what a sliding-window refit wants. The best run (lowest SSE) is the result; the
     arithmetic mean of the runs is kept as the paper's 'genetic mean parameter'.
     `zone_offsets` adds a constant offset per zone and experiment: thermocouple biases the
@@ -159,6 +160,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         offsets = [np.nan_to_num([float((o or {}).get(zone, 0.0))
                                   for zone in structure.furnace.zones])
                    for o in warm.offsets]
+    if box is None and not seeded(method, starts, spread):
+        runs = 1  # every run would repeat the first
     results = []
     for r in range(runs):
         t_run = time.perf_counter()
@@ -412,6 +415,14 @@ def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: i
     best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
     cut = ga_cut or any(p.reason == "time_budget" for p in polished)
     return _Run(best.z, best.reason, best.iterations, found.generations, cut, best.free_cost)
+
+
+def seeded(method: str, starts: list[np.ndarray], spread: np.ndarray | None) -> bool:
+    """Whether a run's seed moves its search: a genetic search draws from it, while a polish
+    from values given for every parameter (a warm start; on a network of many zones, the
+    equations' least squares a baseline from scratch starts from) does not, so runs beyond
+    the first would repeat it."""
+    return method != "fast" or not starts or spread is None or not np.all(spread < 0.1)
 
 
 def _one_run(prob: Problem, method: str, population: int, generations: int,

@@ -96,6 +96,10 @@ def test_sigterm_closes_the_file_with_nothing_lost(tmp_path: Path) -> None:
                               f"127.0.0.1:{proxy.port}", "--log-dir", str(logs))
             wait_polling(daq)
             time.sleep(1.0 + FLUSH_S)
+            deadline = time.monotonic() + 30  # and more than 10 reads, however busy the host
+            while ServedReads(proxy).take() <= 10:
+                assert daq.poll() is None and time.monotonic() < deadline, "too few polls"
+                time.sleep(0.1)
             daq.send_signal(signal.SIGTERM)
             _, err = daq.communicate(timeout=30)
             time.sleep(0.05)

@@ -99,18 +99,20 @@ def test_log_outage_while_running(tmp_path, monkeypatch, capsys, err):
         daemon.log = log
         await asyncio.sleep(WARM)
         t_broken = time.time_ns()
+        polls_broken = daemon.counters.polls
         broken = True
         await asyncio.sleep(BROKEN)
         error_while_broken = log.error
         broken = False
         t_fixed = time.time_ns()
+        polls_during = daemon.counters.polls - polls_broken
         counters = await task
         await plc.stop()
         listener.cancel()
-        return counters, error_while_broken, t_broken, t_fixed
+        return counters, error_while_broken, t_broken, t_fixed, polls_during
 
     try:
-        counters, error_while_broken, t_broken, t_fixed = asyncio.run(scenario())
+        counters, error_while_broken, t_broken, t_fixed, polls_during = asyncio.run(scenario())
     finally:
         sock.close()
     text = os.strerror(err)
@@ -120,7 +122,11 @@ def test_log_outage_while_running(tmp_path, monkeypatch, capsys, err):
     msgs = all_messages(log_dir)
     ok = [lt for t, m, lt in msgs if t == THERMOCOUPLES and m["quality"]["soak_1"] == "ok"]
     assert len(ok) == counters.ok_polls, "every sample polled during the outage was kept"
-    assert sum(t_broken < lt < t_fixed for lt in ok) >= 0.8 * BROKEN / 0.05
+    # every poll made while the log was broken is in it (a poll counts and takes its log time
+    # at the start of its tick, so the counters' split is the log times'), and they went on
+    # through it, short of the ticks a busy host skips
+    during = [lt for t, _, lt in msgs if t == THERMOCOUPLES and t_broken < lt < t_fixed]
+    assert len(during) == polls_during >= 0.25 * BROKEN / 0.05, (len(during), polls_during)
     # said so on /daq/status while it lasted, and in the STATUS line systemd shows
     told = [m for t, m, lt in msgs if t == DAQ_STATUS and text in m.get("log_error", "")]
     assert told
@@ -185,10 +191,12 @@ def test_unwritable_log_dir_at_start_never_stops_the_service(tmp_path):
             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             env={**os.environ, "PYTHONUNBUFFERED": "1"})
         early = wait_for_line(daq, "<6>polling ")
+        early += wait_for_line(daq, "<5>PLC ")  # connected: it polls while it cannot write
         time.sleep(1.0)
         assert daq.poll() is None, daq.communicate()
         assert not list(log_dir.iterdir())
         log_dir.chmod(0o750)
+        t_writable = time.time_ns()
         time.sleep(RETRY_S + 1.0)             # the writer retries every 5 s
         daq.send_signal(signal.SIGTERM)
         _, err = daq.communicate(timeout=20)
@@ -202,12 +210,13 @@ def test_unwritable_log_dir_at_start_never_stops_the_service(tmp_path):
     assert "Permission denied" in err and "log: writing again" in err, err
     files = sorted(log_dir.glob("*.mcap"))
     assert files and not list(log_dir.glob("*.part")), sorted(log_dir.iterdir())
-    msgs = [(t, m) for t, m, _, _ in read_messages(files)]
-    (gap,) = [m for t, m in msgs if t == DAQ_EVENTS and m["kind"] == "log_gap"]
+    msgs = [(t, m, lt) for t, m, lt, _ in read_messages(files)]
+    (gap,) = [m for t, m, _ in msgs if t == DAQ_EVENTS and m["kind"] == "log_gap"]
     assert "Permission denied" in gap["error"] and gap["dropped"] == 0
     ok_polls = int(re.search(r"stopped: (\d+)/\d+ polls ok", err).group(1))
-    logged = [m for t, m in msgs if t == THERMOCOUPLES and m["quality"]["soak_1"] == "ok"]
-    assert ok_polls > 100 and len(logged) == ok_polls, "the samples of the outage were kept"
+    logged = [lt for t, m, lt in msgs if t == THERMOCOUPLES and m["quality"]["soak_1"] == "ok"]
+    assert len(logged) == ok_polls and min(logged) < t_writable, \
+        "the samples of the outage were kept"
 
 
 @pytest.mark.slow
@@ -327,8 +336,10 @@ def test_real_disk_full_on_a_tiny_tmpfs(tmp_path):
                     f.write(b"\0" * 65536)
             except OSError as exc:
                 assert exc.errno == errno.ENOSPC
+        t_full = time.time_ns()
         time.sleep(2.0)
         assert daq.poll() is None
+        t_freed = time.time_ns()
         filler.unlink()
         time.sleep(RETRY_S + 1.0)
         daq.send_signal(signal.SIGTERM)
@@ -350,5 +361,6 @@ def test_real_disk_full_on_a_tiny_tmpfs(tmp_path):
     (gap,) = [m for t, m, _ in msgs if t == DAQ_EVENTS and m["kind"] == "log_gap"]
     assert "No space left" in gap["error"] and gap["dropped"] == 0
     ok_polls = int(re.search(r"stopped: (\d+)/\d+ polls ok", err).group(1))
-    logged = [m for t, m, _ in msgs if t == THERMOCOUPLES and m["quality"]["soak_1"] == "ok"]
-    assert ok_polls > 100 and len(logged) == ok_polls, (ok_polls, len(logged))
+    logged = [lt for t, m, lt in msgs if t == THERMOCOUPLES and m["quality"]["soak_1"] == "ok"]
+    assert len(logged) == ok_polls, (ok_polls, len(logged))
+    assert any(t_full < lt < t_freed for lt in logged), "the samples of the full disk were kept"

@@ -354,7 +354,9 @@ def test_the_log_carries_the_new_topics_valid_against_their_schemas(logged):
     counts, problems = check_files(files)
     assert problems == [], problems
     polls = counts[THERMOCOUPLES]
-    assert polls == logged["counters"].ok_polls > 100, counts
+    # every poll made was answered and logged (a tick a busy host skipped is not a poll)
+    counters = logged["counters"]
+    assert polls == counters.ok_polls == counters.polls > 20, (counts, counters)
     assert counts[HEAT] == counts[DISTURBANCES] == counts[SIGNALS] == counts[BURNERS] == polls
     assert log_furnace(files) == MOD
     heat = [m for _, m, _, _ in read_messages(files, (HEAT,))]

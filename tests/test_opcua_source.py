@@ -64,7 +64,7 @@ def plant_tc(plc_seconds) -> np.ndarray:
     return run.tc[back]
 
 
-async def run_daemon(config, log_dir, duration: float, during=None):
+async def run_daemon(config, log_dir, duration: float | None, during=None):
     log = LogWriter(log_dir, flush_interval_s=0.5, metadata=build_metadata(config),
                     event_priority=EVENT_PRIORITY)
     daemon = Daemon(config, log)
@@ -72,6 +72,14 @@ async def run_daemon(config, log_dir, duration: float, during=None):
     if during is not None:
         await during(daemon)
     return daemon, await task
+
+
+async def until(condition, within_s: float = 30.0) -> None:
+    """Until `condition()` holds: a busy host may take longer than a fixed sleep to open a
+    session or to poll, so a test waits for what it needs."""
+    async with asyncio.timeout(within_s):
+        while not condition():
+            await asyncio.sleep(0.05)
 
 
 def logged(log_dir, topics=None):
@@ -133,11 +141,15 @@ def test_a_node_on_a_modbus_device_is_refused():
 
 @pytest.mark.parametrize("mode", ["subscribe", "poll"])
 def test_the_daemon_logs_the_plcs_values(tmp_path, mode):
+    async def polled(daemon):
+        await until(lambda: daemon.counters.ok_polls >= 10)
+        daemon.stop()
+
     async def scenario():
         plc = await serve()
         try:
             return await run_daemon(cfg(plc.port, mode=mode, sampling_interval_ms=50),
-                                    tmp_path, 2.0)
+                                    tmp_path, None, polled)
         finally:
             await plc.stop()
 
@@ -163,15 +175,14 @@ def test_a_restarted_server_is_redialled_and_the_outage_is_comm_error(tmp_path):
 
         async def restart(daemon):
             nonlocal plc
-            await asyncio.sleep(1.0)
+            c = daemon.counters
+            await until(lambda: c.ok_polls >= 5)
             await plc.stop()
             await asyncio.sleep(1.0)
             plc = await serve(port)
             # the daemon finds the new server within its redial interval (0.1 s) and goes on
-            async with asyncio.timeout(10):
-                while daemon.counters.connects < 2:
-                    await asyncio.sleep(0.05)
-            await asyncio.sleep(1.0)
+            polled = c.ok_polls
+            await until(lambda: c.connects >= 2 and c.ok_polls >= polled + 5)
             daemon.stop()
 
         try:
@@ -204,11 +215,14 @@ def test_a_vanished_node_is_named_and_only_its_item_is_comm_error(tmp_path, caps
         plc = await serve()
 
         async def drop(daemon):
-            await asyncio.sleep(1.0)
+            c = daemon.counters
+            await until(lambda: c.ok_polls >= 5)
             await plc.vanish("heat_2")
+            await until(lambda: sum(c.incomplete.values()) >= 5)
+            daemon.stop()
 
         try:
-            return await run_daemon(cfg(plc.port, mode="poll"), tmp_path, 2.0, drop)
+            return await run_daemon(cfg(plc.port, mode="poll"), tmp_path, None, drop)
         finally:
             await plc.stop()
 

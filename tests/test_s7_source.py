@@ -86,6 +86,14 @@ async def run_daemon(config, log_dir, duration: float | None, during=None):
     return daemon, await task
 
 
+async def until(condition, within_s: float = 30.0) -> None:
+    """Until `condition()` holds: a busy host may take longer than a fixed sleep to connect
+    or to poll, so a test waits for what it needs."""
+    async with asyncio.timeout(within_s):
+        while not condition():
+            await asyncio.sleep(0.05)
+
+
 def logged(log_dir, topics=None):
     return [(t, m) for t, m, _, _ in read_messages(sorted(log_dir.glob("*.mcap")), topics)]
 
@@ -174,10 +182,14 @@ def test_without_snap7_the_protocol_says_which_extra_to_install(monkeypatch):
 # -- the daemon against python-snap7's server ------------------------------------------------
 
 def test_the_daemon_logs_the_plcs_values(tmp_path):
+    async def polled(daemon):
+        await until(lambda: daemon.counters.ok_polls >= 10)
+        daemon.stop()
+
     async def scenario():
         plc = await serve()
         try:
-            return await run_daemon(cfg(plc.port), tmp_path, 2.0)
+            return await run_daemon(cfg(plc.port), tmp_path, None, polled)
         finally:
             await plc.stop()
 
@@ -204,14 +216,13 @@ def test_a_restarted_server_is_redialled_and_the_outage_is_not_ok(tmp_path):
 
         async def restart(daemon):
             nonlocal plc
-            await asyncio.sleep(1.0)
+            c = daemon.counters
+            await until(lambda: c.ok_polls >= 5)
             await plc.stop()
             await asyncio.sleep(1.0)
             plc = await serve(port)
-            async with asyncio.timeout(10):
-                while daemon.counters.connects < 2:
-                    await asyncio.sleep(0.05)
-            await asyncio.sleep(1.0)
+            polled = c.ok_polls
+            await until(lambda: c.connects >= 2 and c.ok_polls >= polled + 5)
             daemon.stop()
 
         try:
@@ -245,11 +256,14 @@ def test_a_vanished_data_block_is_named_and_only_its_items_are_comm_error(tmp_pa
         plc = await serve(config=config)
 
         async def drop(daemon):
-            await asyncio.sleep(1.0)
+            c = daemon.counters
+            await until(lambda: c.ok_polls >= 5)
             plc.vanish("DB", 11)
+            await until(lambda: sum(c.incomplete.values()) >= 5)
+            daemon.stop()
 
         try:
-            return await run_daemon(cfg(plc.port, heat_2_apart), tmp_path, 2.0, drop)
+            return await run_daemon(cfg(plc.port, heat_2_apart), tmp_path, None, drop)
         finally:
             await plc.stop()
 

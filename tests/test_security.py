@@ -46,6 +46,14 @@ from furnace_model.log.read import read_messages
 from furnace_model.log.schema import MODEL_PARAMETERS, THERMOCOUPLES
 from furnace_model.simulation.scenario import load_scenario
 
+
+async def until(condition) -> None:
+    """Until `condition()` holds, however long a busy host takes to get there."""
+    async with asyncio.timeout(20):
+        while not condition():
+            await asyncio.sleep(0.01)
+
+
 # -- (a) the daemon only reads ----------------------------------------------------------------
 
 
@@ -63,11 +71,15 @@ def test_daemon_sends_only_read_function_codes(tmp_path):
                          "heat": {"table": "discrete", "address": 10},
                          "preheat": {"table": "coil", "address": 18}}})
         assert cfg.write_back is None  # the shipped map has none
-        daemon, task = start_daemon(cfg, tmp_path, 2.0)
-        await asyncio.sleep(0.7)
+        daemon, task = start_daemon(cfg, tmp_path, None)
+        c = daemon.counters
+        await until(lambda: c.ok_polls >= 12)
         await proxy.set_mode("drop")
         await asyncio.sleep(0.3)
         await proxy.set_mode("pass")
+        polled = c.ok_polls
+        await until(lambda: c.connects >= 2 and c.ok_polls >= polled + 10)
+        daemon.stop()
         counters = await task
         await proxy.stop()
         await plc.stop()
@@ -162,14 +174,14 @@ def test_write_back_writes_only_allowed_registers_with_fc16(tmp_path):
         await reader.connect()
         try:
             wb.on_model({**MODEL, "status": "failed"})       # not written
-            wb.on_model(MODEL)
-            await asyncio.sleep(0.3)
+            wb.on_model(MODEL)                                # written in the background
+            await until(lambda: wb.writes == 1)
             first = (await reader.read_holding_registers(100, count=21)).registers
             wb.on_model({**MODEL, "a": 0.0202})
-            await asyncio.sleep(0.3)
+            await until(lambda: wb.writes == 2)
             second = (await reader.read_holding_registers(100, count=21)).registers
             wb.on_model({**MODEL, "a": 0.05, "c": None})     # incomplete: nothing written
-            await asyncio.sleep(0.3)
+            await until(lambda: events)
             third = (await reader.read_holding_registers(100, count=21)).registers
             before = len(proxy.requests)
             rogue = WriteBackConfig(frozenset(range(100, 102)),

@@ -189,7 +189,12 @@ def test_sim_plc_serves_the_six_zone_furnace_and_the_daemon_logs_it(tmp_path):
             doc["plc"].update(port=plc.port, timeout_s=0.5)
             cfg = replace(parse_config(Node(doc, str(SIX_CONFIG))), poll_period_s=0.05,
                           stale_after_s=1.0)
-            _, task = start_daemon(cfg, tmp_path / "logs", 3.0)
+            daemon, task = start_daemon(cfg, tmp_path / "logs", None)
+            await asyncio.sleep(3.0)
+            async with asyncio.timeout(60):  # and 21 polls, however busy the host
+                while daemon.counters.ok_polls <= 20:
+                    await asyncio.sleep(0.02)
+            daemon.stop()
             return await task
         finally:
             await plc.stop()

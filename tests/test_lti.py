@@ -232,6 +232,31 @@ def test_many_per_parameter_step_times_in_blocks_equal_single_calls():
         np.testing.assert_allclose(batch[p], single[0], rtol=1e-9, atol=1e-8)
 
 
+@pytest.mark.parametrize("modes", ["real", "complex"])
+def test_per_set_step_times_at_every_sample_equal_the_direct_sum(modes):
+    """A furnace in closed loop moves its inputs nearly every sample: the impulses summed
+    per sample and carried (lti._impulse_response) equal one exponential per sample and
+    step (`_superposed_direct`), for steps between samples, on them and after the last."""
+    from furnace_model.simulation import lti
+
+    rng = np.random.default_rng(3)
+    P, n, N = 6, 4, 1200
+    lam = -np.exp(rng.uniform(-6.0, 1.0, (P, n)))
+    if modes == "complex":
+        lam = lam + 1j * np.array([0.05, -0.05, 0.2, -0.2])
+    t = np.cumsum(rng.choice([1.0, 1.0, 1.0, 0.5, 30.0], N))
+    s = np.sort(np.concatenate([rng.uniform(-5.0, t[-1] + 5.0, (P, N - 100)),
+                                np.broadcast_to(t[::12], (P, t[::12].size))], axis=1), axis=1)
+    z = rng.normal(0.0, 100.0, (P, n)) + 0j * lam
+    w = rng.normal(0.0, 10.0, (P, n)) + 0j * lam
+    dw = rng.normal(0.0, 1.0, (P, s.shape[1], n)) + 0j * lam[:, None, :]
+    if modes == "real":
+        z, w, dw = z.real, w.real, dw.real
+    fast = lti._superposed(lam, z, w, s, dw, -2.0, t)
+    direct = lti._superposed_direct(lam, z, w, s, dw, -2.0, t)
+    np.testing.assert_allclose(fast, direct, rtol=1e-9, atol=1e-9 * np.abs(direct).max())
+
+
 def reference_nonlinear(structure: ModelStructure, values: dict, inputs: Inputs, t: np.ndarray,
                         x0: np.ndarray) -> np.ndarray:
     """Radau at tight tolerance on x' = A x + B u + the effects' nonlinear terms."""

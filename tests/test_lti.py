@@ -233,10 +233,12 @@ def test_many_per_parameter_step_times_in_blocks_equal_single_calls():
 
 
 @pytest.mark.parametrize("modes", ["real", "complex"])
-def test_per_set_step_times_at_every_sample_equal_the_direct_sum(modes):
-    """A furnace in closed loop moves its inputs nearly every sample: the impulses summed
-    per sample and carried (lti._impulse_response) equal one exponential per sample and
-    step (`_superposed_direct`), for steps between samples, on them and after the last."""
+@pytest.mark.parametrize("steps", [1200, 12])
+def test_per_set_step_times_equal_the_direct_sum(modes, steps):
+    """A furnace in closed loop moves its inputs nearly every sample, a heat-up a dozen
+    times: either way the impulses (summed per sample and carried, or spread over their
+    blocks: lti._impulse_response) equal one exponential per sample and step
+    (`_superposed_direct`), for steps between samples, on them and after the last."""
     from furnace_model.simulation import lti
 
     rng = np.random.default_rng(3)
@@ -245,8 +247,9 @@ def test_per_set_step_times_at_every_sample_equal_the_direct_sum(modes):
     if modes == "complex":
         lam = lam + 1j * np.array([0.05, -0.05, 0.2, -0.2])
     t = np.cumsum(rng.choice([1.0, 1.0, 1.0, 0.5, 30.0], N))
-    s = np.sort(np.concatenate([rng.uniform(-5.0, t[-1] + 5.0, (P, N - 100)),
-                                np.broadcast_to(t[::12], (P, t[::12].size))], axis=1), axis=1)
+    on = t[::N // (steps // 10)][:steps // 10]
+    s = np.sort(np.concatenate([rng.uniform(-5.0, t[-1] + 5.0, (P, steps - on.size)),
+                                np.broadcast_to(on, (P, on.size))], axis=1), axis=1)
     z = rng.normal(0.0, 100.0, (P, n)) + 0j * lam
     w = rng.normal(0.0, 10.0, (P, n)) + 0j * lam
     dw = rng.normal(0.0, 1.0, (P, s.shape[1], n)) + 0j * lam[:, None, :]

@@ -393,9 +393,10 @@ def _superposed(lam, z, w, s, dw, t_start, t):
     dw at s adds (dw/lam)(exp(lam (t - s)) - 1) from s on. Both are a constant part plus an
     exponential that starts at the first sample on or after its step time: an impulse into
     the first-order recursion y_i = exp(lam (t_i - t_{i-1})) y_{i-1} + impulse_i, whose size
-    carries the fraction of a sample period between the step and that sample. The impulses
-    are summed per sample and the recursion runs in blocks (`carried`), so a call costs a
-    few passes over the (P, n, N) result instead of one exponential per sample and step. Parameter sets with a (numerically) zero
+    carries the fraction of a sample period between the step and that sample. The recursion
+    runs in blocks (`_in_sample_blocks`, or for many steps `_summed_per_sample`), so a call
+    costs a few passes over the (P, n, N) result instead of one exponential per sample and
+    step. Parameter sets with a (numerically) zero
     eigenvalue, where dw/lam does not exist, take `_superposed_direct`.
     """
     P, n = lam.shape
@@ -421,21 +422,21 @@ def _superposed(lam, z, w, s, dw, t_start, t):
     return Z
 
 
+_LOCAL_ELEMENTS = 1 << 21
+"""Elements of one chunk of `_in_sample_blocks`' in-block impulses (16 MB of complex)."""
+PER_SAMPLE_RATIO = 2
+"""Impulses per sqrt(samples) above which they are summed per sample and carried: below,
+spreading each over its own block is cheaper (a heat-up's handful of steps), above it the
+carry's few passes are (a furnace in closed loop moves its inputs every minute)."""
+
+
 def _impulse_response(lam, z, w, s, dw, t_start, t, dtype):
     """Modal states (P, n, N) as a sum of impulses: impulse k at sample i_k adds
-    alpha_k exp(lam (t_i - t_ik)) + beta_k to every sample i >= i_k.
-
-    The impulses of each sample are added up first (one weighted count per mode), so a
-    record whose inputs change at nearly every sample (a furnace in closed loop) costs what
-    one with a few changes does: the exponential parts are then the first-order recursion
-    y_i = exp(lam (t_i - t_(i-1))) y_(i-1) + impulse_i, which `carried` runs in blocks, and
-    the constant parts a cumulative sum.
-    """
+    alpha_k exp(lam (t_i - t_ik)) + beta_k to every sample i >= i_k: the start state's,
+    then one per step at the first sample on or after it."""
     P, n = lam.shape
     N = t.size
     steady = -w / lam
-    # impulses (P, K + 1): the start state's, then one per step at the first sample on or
-    # after it
     first = np.searchsorted(t, s, side="left")
     a = dw / lam[:, None, :]
     late = np.maximum(t[np.minimum(first, N - 1)] - s, 0.0)
@@ -443,21 +444,82 @@ def _impulse_response(lam, z, w, s, dw, t_start, t, dtype):
                             a * np.exp(lam[:, None, :] * late[:, :, None])], axis=1)
     beta = np.concatenate([steady[:, None], -a], axis=1)
     at = np.concatenate([np.zeros((P, 1), dtype=int), first], axis=1)
-    p, k = np.nonzero(at < N)
-    cell = p * N + at[p, k]
+    p, k = np.nonzero(at < N)  # p-major, k ascending: each sum in the order of the steps
+    if at.shape[1] > PER_SAMPLE_RATIO * np.sqrt(N):
+        return _summed_per_sample(lam, t, p, at[p, k], alpha[p, k], beta[p, k], dtype)
+    return _in_sample_blocks(lam, t, p, at[p, k], alpha[p, k], beta[p, k], dtype)
+
+
+def _summed_per_sample(lam, t, p, i, alpha, beta, dtype):
+    """`_impulse_response` with the impulses of each sample added up first (a weighted count
+    per mode): the exponential parts are then the first-order recursion
+    y_i = exp(lam (t_i - t_(i-1))) y_(i-1) + impulse_i, which `carried` runs in blocks, and
+    the constant parts a cumulative sum."""
+    P, n = lam.shape
+    N = t.size
+    cell = p * N + i
 
     def per_sample(x: np.ndarray) -> np.ndarray:
         out = np.empty((P * N, n), dtype)
         for j in range(n):
-            out[:, j] = np.bincount(cell, np.real(x[p, k, j]), P * N)
+            out[:, j] = np.bincount(cell, np.real(x[:, j]), P * N)
             if np.iscomplexobj(out):
-                out[:, j] += 1j * np.bincount(cell, np.imag(x[p, k, j]), P * N)
+                out[:, j] += 1j * np.bincount(cell, np.imag(x[:, j]), P * N)
         return out.reshape(P, N, n)
 
     # carried adds c[j] at T[j + 1]: the record's times behind a repeat of the first
     y = carried(lam, np.concatenate([t[:1], t, t[-1:]]),
                 np.concatenate([per_sample(alpha), np.zeros((P, 1, n), dtype)], axis=1))
     return (y[:, 1:] + np.cumsum(per_sample(beta), axis=1)).transpose(0, 2, 1)
+
+
+def _in_sample_blocks(lam, t, p, i, alpha, beta, dtype):
+    """`_impulse_response` in blocks of samples. Samples are cut into M blocks of L (both
+    about sqrt(N)). With S_m the exponential part and B_m the constant part of the impulses
+    before block m, sample l of block m is S_m G[m, l] + B_m
+    (G = exp(lam (t_l - t_block_start))), plus the impulses that fall inside the block
+    itself. S_m follows block to block in M small steps; the dense part is one broadcast
+    product, and each impulse touches only its own block."""
+    P, n = lam.shape
+    N = t.size
+    L = max(1, int(np.ceil(np.sqrt(N))))
+    M = -(-N // L)
+    tt = np.concatenate([t, np.full(M * L - N, t[-1])]).reshape(M, L)
+    m, l0 = i // L, i % L
+    lam_p = lam[p]
+    start = tt[:, 0]
+    nxt = np.append(start[1:], start[-1])
+    into = np.zeros((P, M + 1, n), dtype)  # exponential part carried to each block's start
+    level = np.zeros((P, M + 1, n), dtype)  # constant part added inside each block
+    np.add.at(into, (p, m + 1), alpha * np.exp(lam_p * (nxt[m] - t[i])[:, None]))
+    np.add.at(level, (p, m + 1), beta)
+    into, level = into.transpose(0, 2, 1), level.transpose(0, 2, 1)
+    SB = np.empty((P, n, M, 2), dtype)  # exponential and constant part at each block's start
+    SB[:, :, 0, 0] = 0.0
+    hop = np.exp(lam[:, :, None] * (nxt - start)[None, None, :])  # block start to the next
+    for b in range(1, M):
+        SB[:, :, b, 0] = hop[:, :, b - 1] * SB[:, :, b - 1, 0] + into[:, :, b]
+    SB[:, :, :, 1] = np.cumsum(level[:, :, :M], axis=2)
+    d = np.diff(t)
+    G1 = np.ones((P, n, 2, L), dtype)  # [exp(lam (t_l - t_block_start)); 1]
+    if N > 2 and d[0] > 0 and np.ptp(d) <= 1e-12 * d[0] * N:
+        G1[:, :, 0, :] = np.exp(lam[:, :, None] * (tt[0] - tt[0, 0]))  # the same in every block
+        y = SB @ G1
+    else:
+        G1 = np.broadcast_to(G1[:, :, None], (P, n, M, 2, L)).copy()
+        G1[:, :, :, 0, :] = np.exp(lam[:, :, None, None] * (tt - start[:, None]))
+        y = (SB[:, :, :, None, :] @ G1)[:, :, :, 0, :]
+    # each impulse inside its own block, from its sample on; in chunks that bound the memory
+    blocks = y.transpose(0, 2, 1, 3)  # (P, M, n, L), a view
+    chunk = max(1, _LOCAL_ELEMENTS // (n * L))
+    for c in range(0, i.size, chunk):
+        q = slice(c, c + chunk)
+        after = np.arange(L)[None, :] >= l0[q, None]  # (Q, L)
+        grow = np.exp(lam_p[q][:, :, None]
+                      * np.where(after, tt[m[q]] - t[i[q]][:, None], 0.0)[:, None])
+        np.add.at(blocks, (p[q], m[q]), np.where(after[:, None, :], alpha[q][:, :, None] * grow
+                                                 + beta[q][:, :, None], 0.0))
+    return y.reshape(P, n, M * L)[:, :, :N]
 
 
 def _superposed_direct(lam, z, w, s, dw, t_start, t):

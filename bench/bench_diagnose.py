@@ -15,7 +15,9 @@ measured building record (furnace_model.diagnosis.hourlyroom: one zone, four wee
 hourly rows, a wall and a sensor lag); and a day of production in closed loop
 (draw_closed_loop_case with a drifting thermocouple, its fitted record from minute 720 to
 2160: the loops change the burners nearly every minute), with the candidates
-`sensor_drift` and `zone_losses`. Every
+`sensor_drift` and `zone_losses`; and the six hours around a fuel switch in production (the
+window an online diagnosis is given, draw_closed_loop_case with a fuel change, from 210
+minutes before the switch to 150 after), with every candidate. Every
 case is written to files first, so that both trees diagnose the same bytes through the
 command line.
 """
@@ -41,7 +43,7 @@ from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
 CASES = ("paper pair", "control", "zone_burners", "sensor_lag", "radiation", "hourly room",
-         "production day")
+         "production day", "fuel window")
 SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"
 
 
@@ -72,6 +74,11 @@ def write_case(name: str, d: Path) -> list[str]:
         case = draw_closed_loop_case("sensor_drift", np.random.default_rng(3))
         return [csv(case.fit[0].between(720.0, 2160.0), "day"), "--furnace",
                 "paper-production", "--effects", "sensor_drift,zone_losses"]
+    if name == "fuel window":
+        case = draw_closed_loop_case("fuel_change", np.random.default_rng(3))
+        t = case.truth["fuel_change"]["t_fuel"]
+        return [csv(case.fit[0].between(t - 210.0, t + 150.0), "window"), "--furnace",
+                "paper-production"]
     case = draw_case(None if name == "control" else name, np.random.default_rng(7000),
                      furnace=PAPER)
     return [csv(case.fit[0], "fit"), "--holdout", csv(case.holdout[0], "holdout")]

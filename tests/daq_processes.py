@@ -89,11 +89,22 @@ def config(port: int, **changes) -> DaqConfig:
     return parse_config(Node(doc, "test.yaml"))
 
 
-def start_daemon(cfg: DaqConfig, log_dir: Path, duration: float, **kw) -> tuple[Daemon, asyncio.Task]:
+def start_daemon(cfg: DaqConfig, log_dir: Path, duration: float | None, **kw
+                 ) -> tuple[Daemon, asyncio.Task]:
+    """The daemon polling for `duration` seconds, or until stopped (None)."""
     log = LogWriter(log_dir, flush_interval_s=0.5, metadata=build_metadata(cfg),
                     event_priority=EVENT_PRIORITY)
     daemon = Daemon(cfg, log, plc=ModbusSource(cfg), **kw)
     return daemon, asyncio.create_task(daemon.run(duration))
+
+
+async def until(condition, what: str = "", within_s: float = 30.0) -> None:
+    """Until `condition()` holds: a busy host takes longer than a fixed sleep to start, to
+    connect or to poll, so a test waits for what it needs; only a hang reaches the bound."""
+    t_end = time.monotonic() + within_s
+    while not condition():
+        assert time.monotonic() < t_end, f"not within {within_s} s: {what}"
+        await asyncio.sleep(0.02)
 
 
 def messages(log_dir: Path) -> list[tuple[str, dict, int]]:

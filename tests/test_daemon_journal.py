@@ -11,7 +11,7 @@ import subprocess
 import sys
 
 import yaml
-from daq_processes import ROOT, config, free_port, sim, start_daemon
+from daq_processes import ROOT, config, free_port, sim, start_daemon, until
 
 from furnace_daq.daemon import Counters, summary
 from furnace_daq.journal import ERR, INFO, WARNING, Journal
@@ -103,11 +103,6 @@ def test_connection_changes_and_a_refused_block_reach_the_journal(tmp_path, caps
               for i, s in enumerate(["soak_1", "soak_2", "heat_1", "heat_2", "preheat_1",
                                      "preheat_2"])}
     tc_map["heat_2"]["address"] = 100
-
-    async def until(condition) -> None:  # however long a busy host takes to get there
-        async with asyncio.timeout(20):
-            while not condition():
-                await asyncio.sleep(0.02)
 
     async def scenario():
         port = free_port()

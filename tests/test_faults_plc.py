@@ -10,22 +10,22 @@ from dataclasses import replace
 
 import numpy as np
 import yaml
-from daq_processes import ROOT, config, free_port, messages, plant_readings, sim, start_daemon
+from daq_processes import (
+    ROOT,
+    config,
+    free_port,
+    messages,
+    plant_readings,
+    sim,
+    start_daemon,
+    until,
+)
 
 from furnace_daq.daqconfig import parse_config
 from furnace_model.config import Node
 from furnace_model.log.read import read_messages
 from furnace_model.log.schema import AMBIENT, BURNERS, DAQ_EVENTS, DAQ_STATUS, THERMOCOUPLES
 from furnace_model.simulation.furnace import PAPER
-
-
-async def until(condition, what: str, within_s: float = 20.0) -> None:
-    """Until `condition()` holds: on a busy machine the daemon takes longer than a fixed
-    sleep to start or to reconnect, so each step of a test waits for what it needs."""
-    t_end = time.monotonic() + within_s
-    while not condition():
-        assert time.monotonic() < t_end, f"not within {within_s} s: {what}"
-        await asyncio.sleep(0.02)
 
 
 def test_down_at_start_then_dropped_then_back(tmp_path):

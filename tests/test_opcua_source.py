@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 from cryptography.x509.oid import ExtendedKeyUsageOID
-from daq_processes import ROOT, SCENARIO, free_port, furnace_daq, start_simplc, stop
+from daq_processes import ROOT, SCENARIO, free_port, furnace_daq, start_simplc, stop, until
 from stallproxy import StallingProxy
 
 from furnace_daq.check import check, format_report
@@ -72,14 +72,6 @@ async def run_daemon(config, log_dir, duration: float | None, during=None):
     if during is not None:
         await during(daemon)
     return daemon, await task
-
-
-async def until(condition, within_s: float = 30.0) -> None:
-    """Until `condition()` holds: a busy host may take longer than a fixed sleep to open a
-    session or to poll, so a test waits for what it needs."""
-    async with asyncio.timeout(within_s):
-        while not condition():
-            await asyncio.sleep(0.05)
 
 
 def logged(log_dir, topics=None):

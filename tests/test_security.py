@@ -26,6 +26,7 @@ from daq_processes import (
     start_daemon,
     start_simplc,
     stop,
+    until,
 )
 from faultproxy import READ_FUNCTION_CODES, FaultProxy
 from pymodbus.client import AsyncModbusTcpClient
@@ -45,14 +46,6 @@ from furnace_model.errors import ConfigError
 from furnace_model.log.read import read_messages
 from furnace_model.log.schema import MODEL_PARAMETERS, THERMOCOUPLES
 from furnace_model.simulation.scenario import load_scenario
-
-
-async def until(condition) -> None:
-    """Until `condition()` holds, however long a busy host takes to get there."""
-    async with asyncio.timeout(20):
-        while not condition():
-            await asyncio.sleep(0.01)
-
 
 # -- (a) the daemon only reads ----------------------------------------------------------------
 

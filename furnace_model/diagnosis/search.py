@@ -122,6 +122,9 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     def explains(results: list[CandidateResult]) -> bool:
         """Whether one of `results` alone explains the gap (credit, and at the floor)."""
         return any(credited(c) and near_floor(c, near) for c in results)
+
+    def is_linear(c: CandidateResult) -> bool:
+        return structure_of(c.effects, c.options, furnace).linear
     clues.bent = bent = any(base.rmse_fit_c[z] > fit_limit[z] for z in zones)
     say("candidates", 0.1)
     trials = {n: EFFECTS[n].tried.trial(clues) for n in names}
@@ -150,7 +153,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         for linear in (True, False):
             stuck = not explains(fitted)
             off = [i for i, c in enumerate(fitted)
-                   if structure_of(c.effects, c.options, furnace).linear == linear
+                   if is_linear(c) == linear
                    and (stuck or (linear and helps(c)))
                    and any(c.rmse_fit_c[z] > fit_limit[z] for z in zones)]
             if off:
@@ -178,8 +181,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
                  seed, cold_laws, bounds, fit_limit)
             for c, opts in further_laws(fitted, furnace)
-            if not solved or explains([c])
-            or structure_of(c.effects, c.options, furnace).linear]
+            if not solved or explains([c]) or is_linear(c)]
     if laws:
         say("laws", 0.65)
     more = tried(run_all(laws, lambda f: say("laws", 0.65 + 0.05 * f),

@@ -1,7 +1,9 @@
 """Batched exact simulation: 1000 parameter sets over the paper's 3800-minute second
 experiment at 1-minute samples, in one call. Prints a markdown table for docs/performance.md.
+With --segments: the two ways of walking many constant-input segments side by side, and the
+one the simulator picks.
 
-    .venv/bin/python bench/bench_simulate.py [--sets 1000] [--repeat 15]
+    .venv/bin/python bench/bench_simulate.py [--sets 1000] [--repeat 15] [--segments]
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from furnace_model.effects import DeadTime, SensorLag, ZoneBurners
+from furnace_model.simulation import lti
 from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.scenario import load_scenario
@@ -31,11 +34,44 @@ def median_time(fn, repeat: int) -> float:
     return float(np.median(times))
 
 
+def segments_table(repeat: int) -> None:
+    """`lti._segments` forced each way (the walk over segments with its tables, or every
+    sample's exponential directly) on random stable modes, step times and samples a minute
+    apart."""
+    rng = np.random.default_rng(0)
+    rule = (lti._DIRECT_CELLS, lti._WALK_SEGMENT_CELLS, lti._WALK_MODE_CELLS)
+    print(f"`lti._segments`, median of {repeat}\n")
+    print("| sets | modes | samples | segments | walk | direct | picked |")
+    print("|---|---|---|---|---|---|---|")
+    for P, n, N, K in [(1, 3, 4000, 50), (10, 1, 15000, 700), (10, 3, 15000, 200),
+                       (10, 9, 4000, 700), (100, 3, 4000, 200), (100, 1, 4000, 50),
+                       (1000, 3, 4000, 10), (1000, 1, 4000, 700)]:
+        lam = -10 ** rng.uniform(-3, -0.5, (P, n))
+        args = (lam, rng.standard_normal((P, 3, n)), rng.standard_normal((P, n)),
+                rng.standard_normal((P, n)),
+                np.sort(rng.choice(np.arange(1, N), K, replace=False)).astype(float),
+                rng.standard_normal((P, K, n)), 0.0, np.arange(float(N)))
+        times = {}
+        for way, forced in (("walk", (0, 0, 0)), ("direct", (0, 10 ** 18, 0))):
+            lti._DIRECT_CELLS, lti._WALK_SEGMENT_CELLS, lti._WALK_MODE_CELLS = forced
+            times[way] = median_time(lambda a=args: lti._segments(*a), repeat)
+        lti._DIRECT_CELLS, lti._WALK_SEGMENT_CELLS, lti._WALK_MODE_CELLS = rule
+        picked = "direct" if (P * n * N <= rule[0]
+                              or P * n * N < (K + 1) * (rule[1] + rule[2] * P * n)) else "walk"
+        print(f"| {P} | {n} | {N} | {K + 1} | {times['walk'] * 1e3:.2f} ms "
+              f"| {times['direct'] * 1e3:.2f} ms | {picked} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--sets", type=int, default=1000)
     ap.add_argument("--repeat", type=int, default=15)
+    ap.add_argument("--segments", action="store_true",
+                    help="the walk over segments against the direct way, and the pick")
     args = ap.parse_args()
+    if args.segments:
+        segments_table(args.repeat)
+        return
     scn = load_scenario(ROOT / "config/scenarios/paper_exp2.yaml")
     t = scn.sample_times()
     rng = np.random.default_rng(0)

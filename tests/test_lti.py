@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -15,8 +17,10 @@ from furnace_model.effects import (
     ZoneBurners,
 )
 from furnace_model.simulation.furnace import PAPER
+from furnace_model.simulation.furnacefile import load_furnace
+from furnace_model.simulation.lti import Modes
 from furnace_model.simulation.parameters import PAPER_TABLE_V
-from furnace_model.simulation.structure import Inputs, ModelStructure
+from furnace_model.simulation.structure import FIRST_STEP_MIN, Inputs, ModelStructure, _first_step
 
 
 def random_values(structure: ModelStructure, rng: np.random.Generator, P: int) -> dict:
@@ -339,6 +343,34 @@ def test_a_diverged_set_is_nan_and_leaves_the_batch_alone():
     alone = ms.simulate({**PAPER_TABLE_V, "rad_share": 0.5}, inputs, t, x0[:1]).zones
     assert np.isnan(y[1]).all()
     np.testing.assert_allclose(y[0], alone[0], rtol=0, atol=1e-9)
+
+
+def test_a_slower_network_relaxes_on_longer_steps_and_stays_exact():
+    """The six-zone furnace's fastest mode takes minutes: the relaxation's steps start at
+    that scale (a few per hourly input instead of a dozen), and an hourly record about
+    its operating point stays within 1e-4 degC of Radau at 1e-12."""
+    six = load_furnace(Path(__file__).resolve().parent.parent / "config/furnaces/six-zone.yaml")
+    rng = np.random.default_rng(5)
+    hours = np.arange(0.0, 2 * 1440.0, 60.0)
+    burners = 3.0 * (1.0 + 0.05 * rng.standard_normal((hours.size, six.n_zones)))
+    inputs = Inputs(hours, burners, np.full(hours.size, 25.0))
+    hold = Inputs(np.array([0.0]), burners[:1], np.array([25.0]))
+    linear = ModelStructure([], furnace=six)
+    held = linear.simulate(linear.defaults(), hold, np.array([3e4]),
+                           np.full(six.n_zones, 25.0)).zones[0, 0]
+    ms = ModelStructure([Radiation(t_ref_c=float(held.mean()), furnace=six)], furnace=six)
+    values = {**ms.defaults(), "rad_share": 0.8}
+    x0 = ms.simulate(values, hold, np.array([3e4]), held).zones[0, 0]
+    t = np.arange(0.0, 2 * 1440.0 + 1, 60.0)
+    theta = ms.theta(values)
+    sysm = ms.system(theta)
+    assert _first_step(Modes.of(sysm.A).lam) > FIRST_STEP_MIN
+    _, relaxed, _ = ms._relaxed(theta, sysm, ms.drive(theta, inputs), x0[None], 0.0, t)
+    assert relaxed.all()
+    y = ms.simulate(values, inputs, t, x0).zones[0]
+    ref = reference_nonlinear(ms, values, inputs, t, x0)
+    assert np.ptp(ref) > 10
+    assert np.max(np.abs(y - ref)) < 1e-4
 
 
 def test_a_record_about_its_operating_point_is_relaxed_and_exact():

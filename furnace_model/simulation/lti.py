@@ -186,7 +186,7 @@ def _segments(lam, out, z, w, s, dw, t_start, t):
     cells = lam.shape[1] * t.size
     if P * cells <= _DIRECT_CELLS:
         return _direct(lam, out, z, w, w_after, bounds, last_idx, seg_of, t)
-    if bounds.size > max(t.size // 16, 1):  # a segment every few samples: sets in chunks
+    if P * cells < bounds.size * (_WALK_SEGMENT_CELLS + _WALK_MODE_CELLS * lam.size):
         c = max(1, _CHUNK_CELLS // cells)
         return np.concatenate([_direct(lam[p:p + c], out[p:p + c], z[p:p + c], w[p:p + c],
                                        w_after[p:p + c], bounds, last_idx, seg_of, t)
@@ -357,6 +357,13 @@ _DIRECT_CELLS = 100_000
 _CHUNK_CELLS = 1_000_000
 """Sets x states x samples of one chunk of `_direct` where segments are many (a furnace in
 closed loop): one chunk's work arrays stay within tens of MB."""
+_WALK_SEGMENT_CELLS = 1400
+_WALK_MODE_CELLS = 10
+"""What the walk over segments costs beyond its tables, in the direct way's cells (sets x
+modes x samples, one exponential each, about 20 ns): about 28 us per segment, and 0.2 us
+per segment for each set and mode (bench/bench_simulate.py, "Many segments"). Many short
+segments (hourly inputs on a grid of minutes, a closed-loop record) go the direct way;
+long ones keep the tables, whose exponentials are a few per segment."""
 
 
 def _modal_sum(lam: np.ndarray, tau: np.ndarray, G: np.ndarray, H: np.ndarray) -> np.ndarray:

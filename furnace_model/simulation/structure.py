@@ -264,7 +264,8 @@ class ModelStructure:
         t = np.asarray(t, dtype=float)
         modes = Modes.of(sys.A)
         x_lin = response(sys.A, sys.B, x0, t0, drive, t, modes=modes)
-        grid = _Grid.of(drive, t0, max(float(t[-1]), t0) if t.size else t0, P)
+        grid = _Grid.of(drive, t0, max(float(t[-1]), t0) if t.size else t0, P,
+                        _first_step(modes.lam))
         if grid is None:
             return np.einsum("pqn,pNn->pNq", sys.C, x_lin)
         X = grid.at_nodes(response(sys.A, sys.B, x0, t0, drive, grid.nodes, modes=modes))
@@ -297,18 +298,19 @@ class ModelStructure:
         over time. A set whose sweeps do not contract (strongly nonlinear over its range, as
         a heat-up from cold with radiation) is reported unconverged after a few sweeps.
 
-        The sweeps run on the same steps as `_exprb`, which depend on the inputs only, and to
-        a tolerance far below a finite difference's effect, so the result is a smooth
-        function of the parameters as the fit's Jacobian needs."""
+        The sweeps run on steps that scale with the network's fastest mode (`_first_step`),
+        the same for every set of a call, and to a tolerance far below a finite difference's
+        effect, so the result is a smooth function of the parameters as the fit's Jacobian
+        needs."""
         P, n = sys.A.shape[0], self.n_states
         x0 = np.broadcast_to(x0, (P, n))
         end = max(float(t[-1]), t0) if t.size else t0
-        grid = _Grid.of(drive, t0, end, P)
+        modes = Modes.of(sys.A)
+        grid = _Grid.of(drive, t0, end, P, _first_step(modes.lam))
         ok = np.zeros(P, dtype=bool)
         if grid is None:
             return np.empty((P, t.size, n)), ok, ok
-        nodes = grid.at_nodes(response(sys.A, sys.B, x0, t0, drive, grid.nodes,
-                                       modes=Modes.of(sys.A)))
+        nodes = grid.at_nodes(response(sys.A, sys.B, x0, t0, drive, grid.nodes, modes=modes))
         u0 = np.broadcast_to(drive.level_at(t0), (P, sys.B.shape[2]))
         nonlinear = _Nonlinear(self.effects, theta, sys, u0[:, None])
 
@@ -513,15 +515,39 @@ adaptive integration (tests/test_lti.py); at 20 it drifts to a hundredth, and a 
 into pieces (the simulated PLC's stepper) would no longer match a whole run to 1e-6."""
 
 
-def _step_bounds(lo: float, hi: float) -> np.ndarray:
-    """Step ends from lo to hi: short right after an input change, where the fast modes
-    move, then doubling up to RADIATION_STEP_MIN."""
-    ends, h, x = [lo], 0.5, lo
+FIRST_STEP_MIN = 0.5
+"""First step after an input change, where the fast modes move: the paper's preheating zone
+settles in about 0.6 minutes."""
+
+
+def _step_bounds(lo: float, hi: float, first: float = FIRST_STEP_MIN) -> np.ndarray:
+    """Step ends from lo to hi: `first` right after an input change, where the fast modes
+    move, then doubling up to RADIATION_STEP_MIN times first / FIRST_STEP_MIN."""
+    longest = RADIATION_STEP_MIN * first / FIRST_STEP_MIN
+    ends, h, x = [lo], first, lo
     while x < hi:
         x = hi if hi - (x + h) < 0.1 * h else x + h
         ends.append(x)
-        h = min(2 * h, RADIATION_STEP_MIN)
+        h = min(2 * h, longest)
     return np.array(ends)
+
+
+def _first_step(lam: np.ndarray) -> float:
+    """The relaxation's first step after an input change for modes lam (P, n): FIRST_STEP_MIN
+    doubled while it stays within the fastest mode's time constant over all the sets.
+
+    Why: the steps resolve the state's moves after each change, and a network whose fastest
+    mode takes hours (a room, a wall) moves on that scale. Steps of minutes made an hourly
+    record cost like a record of minutes: a dozen steps per sample. Powers of two keep the
+    grid the same over a fit's neighbouring sets, so a Jacobian's columns share it, as do
+    the sets of one call. The paper's furnace keeps its half minute."""
+    rates = np.abs(np.real(lam))
+    rates = rates[np.isfinite(rates)]
+    fastest = float(rates.max()) if rates.size else 0.0
+    if fastest * FIRST_STEP_MIN >= 1.0:
+        return FIRST_STEP_MIN
+    doublings = np.floor(np.log2(1.0 / (fastest * FIRST_STEP_MIN))) if fastest > 0 else 30.0
+    return FIRST_STEP_MIN * 2.0 ** min(doublings, 30.0)
 
 
 RELAX_SWEEPS = 40
@@ -550,11 +576,12 @@ class _Grid:
     u: np.ndarray
 
     @classmethod
-    def of(cls, drive: Drive, t0: float, end: float, P: int) -> _Grid | None:
+    def of(cls, drive: Drive, t0: float, end: float, P: int,
+           first: float = FIRST_STEP_MIN) -> _Grid | None:
         cuts = np.unique(np.ravel(drive.s))
         edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
-        pieces = [(lo, _step_bounds(lo, hi)) for lo, hi in zip(edges[:-1], edges[1:],
-                                                                strict=True) if hi > lo]
+        pieces = [(lo, _step_bounds(lo, hi, first)) for lo, hi in zip(edges[:-1], edges[1:],
+                                                                       strict=True) if hi > lo]
         if not pieces:
             return None
         los = np.array([lo for lo, _ in pieces])
@@ -592,14 +619,19 @@ class _Grid:
         hh = self.h[None, :, None]
 
         def weights(tau):
-            """Of the value, slope and curvature of a quadratic forcing over tau."""
-            e, p1, p2, p3 = _phi123(lam[:, None, :] * tau)
-            return e, tau * p1, tau * tau * p2, 2.0 * tau ** 3 * p3
+            """Of the value, slope and curvature of a quadratic forcing over each tau (S,),
+            (P, S, n) each. The steps' lengths repeat (each input change starts the same
+            doubling), as do the samples' places in their steps on a regular grid: the
+            phi functions, two dozen passes each, are taken once per distinct length."""
+            u, back = np.unique(tau, return_inverse=True)
+            uu = u[None, :, None]
+            e, p1, p2, p3 = _phi123(lam[:, None, :] * uu)
+            return tuple(w[:, back] for w in (e, uu * p1, uu * uu * p2, 2.0 * uu ** 3 * p3))
 
-        _, s0, s1, s2 = weights(hh)
+        _, s0, s1, s2 = weights(self.h)
         ends = np.append(a, a[-1] + self.h[-1])
         k_of = np.clip(np.searchsorted(a, t, side="left") - 1, 0, K - 1)
-        e, w0, w1, w2 = weights(np.maximum(t - a[k_of], 0.0)[None, :, None])
+        e, w0, w1, w2 = weights(np.maximum(t - a[k_of], 0.0))
         before = t <= t0
 
         def convolve(g: np.ndarray) -> np.ndarray:

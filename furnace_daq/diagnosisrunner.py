@@ -83,6 +83,7 @@ def run_diagnosis(job: DiagnosisJob) -> dict:
 def summary(d) -> dict:
     """A Diagnosis as the fields of /model/diagnosis."""
     from furnace_model.diagnosis.fitting import structure_of
+    from furnace_model.effects.base import pinned
     from furnace_model.simulation.structure import ModelStructure
 
     v, kept = d.verdict, d.kept
@@ -99,10 +100,21 @@ def summary(d) -> dict:
     drift = next((e for e in effects if e["effect"] == "sensor_drift"), None)
     if drift is not None and {"t_drift", "drift_rate"} <= set(drift["params"]):
         first = d.fit_data[0]
-        onset = (None if first.start_time is None else
-                 iso_time(first.start_time.value + int(drift["params"]["t_drift"] * 60e9)))
-        sensor = {"thermocouple": drift["options"].get("sensor"), "onset": onset,
-                  "rate_c_per_h": 60.0 * drift["params"]["drift_rate"]}
+
+        def at(minute: float) -> str | None:
+            return (None if first.start_time is None else
+                    iso_time(first.start_time.value + int(minute * 60e9)))
+
+        rate = 60.0 * drift["params"]["drift_rate"]
+        ci = {} if kept is None else kept.ci95
+        sensor = {"thermocouple": drift["options"].get("sensor"),
+                  "onset": at(drift["params"]["t_drift"]), "rate_c_per_h": rate}
+        if "drift_rate" in ci:
+            rate_ci = [60.0 * float(ci["drift_rate"][0]), 60.0 * float(ci["drift_rate"][1])]
+            sensor["rate_c_per_h_ci95"] = rate_ci
+            sensor["rate_pinned"] = pinned(rate, tuple(rate_ci))
+        if "t_drift" in ci and first.start_time is not None:
+            sensor["onset_ci95"] = [at(float(ci["t_drift"][0])), at(float(ci["t_drift"][1]))]
     return {
         "status": v.status, "detail": _sentence(v.sentence, sensor),
         "effects": effects, "sensor": sensor,
@@ -120,8 +132,14 @@ def summary(d) -> dict:
 def _sentence(sentence: str, sensor: dict | None) -> str:
     if sensor is None:
         return sentence
-    return (f"thermocouple {sensor['thermocouple']} drifts ({sensor['rate_c_per_h']:+.2f} °C/h "
-            f"since {sensor['onset']}): the sensor changed, not the furnace. {sentence}")
+    if sensor.get("rate_pinned", True):
+        how = f"{sensor['rate_c_per_h']:+.2f} °C/h since {sensor['onset']}"
+    else:
+        lo, hi = sensor["rate_c_per_h_ci95"]
+        how = (f"since {sensor['onset']}, at a rate the record does not pin down: "
+               f"{sensor['rate_c_per_h']:+.2f} °C/h, 95% interval {lo:+.2f} to {hi:+.2f}")
+    return (f"thermocouple {sensor['thermocouple']} drifts ({how}): the sensor changed, not "
+            f"the furnace. {sentence}")
 
 
 def _span(e) -> dict:

@@ -36,3 +36,33 @@ def test_the_model_is_the_papers_only_on_the_papers_furnace():
     assert baseline_label(one) == "baseline"
     three = dataclasses.replace(PAPER, name="plant8", thermocouples=(2, 3, 1))
     assert model_words(three) == "the model of furnace 'plant8'"
+
+
+def test_a_drift_says_its_interval_and_when_the_record_does_not_pin_its_rate():
+    """A thermocouple named with its rate and onset and their 95% intervals; from a record
+    that holds little of the drift the rate trades with the onset, and the words say the
+    rate is loose instead of giving it as found."""
+    from furnace_model.effects import SensorDrift
+
+    params, options = {"drift_rate": -0.0233, "t_drift": 120.0}, {"sensor": "soak_1"}
+    tight = SensorDrift.found_within(params, options, {"drift_rate": (-0.026, -0.021),
+                                                       "t_drift": (110.0, 131.0)})
+    assert tight == ("thermocouple soak_1 drifts -1.40 °C/h (95% interval -1.56 to -1.26) "
+                     "from minute 120 (95% interval 110 to 131)")
+    loose = SensorDrift.found_within(params, options, {"drift_rate": (-0.06, -0.005),
+                                                       "t_drift": (60.0, 190.0)})
+    assert loose == ("thermocouple soak_1 drifts from minute 120 (95% interval 60 to 190), "
+                     "at a rate the record does not pin down: -1.40 °C/h (95% interval -3.60 "
+                     "to -0.30)")
+    assert SensorDrift.found_within(params, options, {}) == \
+        "thermocouple soak_1 drifts -1.40 °C/h from minute 120"
+
+
+def test_a_fuel_change_is_judged_pinned_on_its_change_not_its_ratio():
+    from furnace_model.effects import FuelChange
+
+    params = {"fuel_ratio": 0.8, "t_fuel": 1028.0}
+    assert FuelChange.found_within(params, {}, {"fuel_ratio": (0.77, 0.83)}) == \
+        "each burner gives -20% heat (x0.80, 95% interval x0.77 to x0.83) from minute 1028"
+    assert "does not pin down: x0.80 (95% interval x0.55 to x1.05)" in \
+        FuelChange.found_within(params, {}, {"fuel_ratio": (0.55, 1.05)})

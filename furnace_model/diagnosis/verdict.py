@@ -223,8 +223,8 @@ def _place(where: list[Located], zones: tuple[str, ...]) -> str:
 
 def _found_words(c: CandidateResult) -> str:
     """": " and what the fitted effects say the plant has (`Effect.found`), where they say."""
-    said = [w for w in (EFFECTS[n].found(c.params, c.options.get(n, {})) for n in c.effects)
-            if w]
+    said = [w for w in (EFFECTS[n].found_within(c.params, c.options.get(n, {}), c.ci95)
+                        for n in c.effects) if w]
     return f": {'; '.join(said)}" if said else ""
 
 

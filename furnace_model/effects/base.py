@@ -143,6 +143,14 @@ class Effect:
         thermocouple to replace, from when); empty where the effect's name says it all."""
         return ""
 
+    @classmethod
+    def found_within(cls, params: dict[str, float], options: dict[str, Any],
+                     ci95: dict[str, tuple[float, float]]) -> str:
+        """`found` with the fitted values' 95% intervals, where the verdict has them: a
+        user who replaces a thermocouple or calls the fuel supplier acts on how sure the
+        numbers are. An effect without its own says what `found` says."""
+        return cls.found(params, options)
+
     @property
     def n_zones(self) -> int:
         return self.furnace.n_zones
@@ -237,3 +245,31 @@ class Effect:
     def uniform(cls, rng: np.random.Generator, key: str) -> float:
         """A value from `drawn.ranges[key]`: for a `draw` written on the class itself."""
         return cls.drawn.uniform(rng, key)
+
+
+PINNED_HALF_WIDTH = 0.5
+"""A fitted value is pinned down by the record when its 95% interval's half-width is at most
+this share of the value: wider, the verdict gives the interval instead of the number as
+found (a drift's rate from an hour of it trades with its onset)."""
+
+
+def within(value: float, ci: tuple[float, float] | None, fmt: str, unit: str = "") -> str:
+    """value in fmt, with its 95% interval where it has one: '-1.40 °C/h (95% interval -1.62
+    to -1.18)'."""
+    said = f"{fmt.format(value)}{unit}"
+    return f"{said} ({span(ci, fmt)})" if span(ci, fmt) else said
+
+
+def span(ci: tuple[float, float] | None, fmt: str) -> str:
+    """'95% interval a to b' in fmt; empty without a finite interval."""
+    if ci is None or not all(np.isfinite(ci)):
+        return ""
+    return f"95% interval {fmt.format(ci[0])} to {fmt.format(ci[1])}"
+
+
+def pinned(value: float, ci: tuple[float, float] | None) -> bool:
+    """Whether the record pins the value down (`PINNED_HALF_WIDTH`); without an interval the
+    verdict cannot say otherwise."""
+    if ci is None or not all(np.isfinite(ci)):
+        return True
+    return (ci[1] - ci[0]) / 2.0 <= PINNED_HALF_WIDTH * abs(value)

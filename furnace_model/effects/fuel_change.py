@@ -6,7 +6,7 @@ import numpy as np
 
 from ..simulation.lti import Drive
 from ..simulation.parameters import Param
-from .base import Effect
+from .base import Effect, pinned, span, within
 from .drawn import Drawn
 from .tried import Tried
 
@@ -55,6 +55,19 @@ class FuelChange(Effect):
         ratio = params["fuel_ratio"]
         return (f"each burner gives {100.0 * (ratio - 1.0):+.0f}% heat (x{ratio:.2f}) from "
                 f"minute {params['t_fuel']:.0f}")
+
+    @classmethod
+    def found_within(cls, params, options, ci95):
+        if "fuel_ratio" not in params or "t_fuel" not in params:
+            return ""
+        ratio = params["fuel_ratio"]
+        ci = ci95.get("fuel_ratio")
+        since = f"from minute {within(params['t_fuel'], ci95.get('t_fuel'), '{:.0f}')}"
+        if pinned(ratio - 1.0, None if ci is None else (ci[0] - 1.0, ci[1] - 1.0)):
+            factor = ", ".join(w for w in (f"x{ratio:.2f}", span(ci, "x{:.2f}")) if w)
+            return f"each burner gives {100.0 * (ratio - 1.0):+.0f}% heat ({factor}) {since}"
+        return (f"each burner's heat changes {since}, by a share the record does not pin "
+                f"down: {within(ratio, ci, 'x{:.2f}')}")
 
     def _params(self):
         return (

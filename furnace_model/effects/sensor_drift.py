@@ -11,7 +11,7 @@ from ..identification.noisefloor import record_floor
 from ..identification.residuals import SensorFault, sensor_faults
 from ..simulation.furnace import Furnace
 from ..simulation.parameters import Param
-from .base import Effect, Option
+from .base import Effect, Option, pinned, within
 from .drawn import Drawn
 from .tried import Clues, Trial, Tried
 
@@ -132,6 +132,18 @@ class SensorDrift(Effect):
         rate = params["drift_rate"]
         return (f"thermocouple {options['sensor']} drifts {60.0 * rate:+.2f} °C/h from minute "
                 f"{params['t_drift']:.0f}")
+
+    @classmethod
+    def found_within(cls, params, options, ci95):
+        rate, onset = 60.0 * params["drift_rate"], params["t_drift"]
+        rate_ci = ci95.get("drift_rate")
+        rate_ci = None if rate_ci is None else (60.0 * rate_ci[0], 60.0 * rate_ci[1])
+        since = f"from minute {within(onset, ci95.get('t_drift'), '{:.0f}')}"
+        if pinned(rate, rate_ci):
+            return (f"thermocouple {options['sensor']} drifts "
+                    f"{within(rate, rate_ci, '{:+.2f}', ' °C/h')} {since}")
+        return (f"thermocouple {options['sensor']} drifts {since}, at a rate the record does "
+                f"not pin down: {within(rate, rate_ci, '{:+.2f}', ' °C/h')}")
 
     def _params(self):
         return (

@@ -492,7 +492,15 @@ def _model_diagnosis(furnace: Furnace) -> dict:
                          "one effect kept")},
          "sensor": _object({"thermocouple": _string("the thermocouple that drifts"),
                             "onset": _string("when its drift began, ISO 8601 UTC"),
-                            "rate_c_per_h": _number("how fast its error grows, °C per hour")},
+                            "rate_c_per_h": _number("how fast its error grows, °C per hour"),
+                            "rate_c_per_h_ci95": _numbers("the rate's 95% interval", 2),
+                            "onset_ci95": {"type": "array", "items": {"type": "string"},
+                                           "minItems": 2, "maxItems": 2,
+                                           "description": "the onset's 95% interval, ISO 8601 "
+                                                          "UTC"},
+                            "rate_pinned": {"type": "boolean", "description":
+                                            "whether the record pins the rate down (its "
+                                            "interval's half-width at most half the rate)"}},
                            "sensor_drift kept: the thermocouple, not the furnace, changed"),
          "where": {"type": "array", "description": "where the model's error lies, largest "
                    "share first", "items": _object({

@@ -522,8 +522,9 @@ settles in about 0.6 minutes."""
 
 def _step_bounds(lo: float, hi: float, first: float = FIRST_STEP_MIN) -> np.ndarray:
     """Step ends from lo to hi: `first` right after an input change, where the fast modes
-    move, then doubling up to RADIATION_STEP_MIN times first / FIRST_STEP_MIN."""
-    longest = RADIATION_STEP_MIN * first / FIRST_STEP_MIN
+    move, then doubling up to RADIATION_STEP_MIN (or first, if longer: the slow drift's
+    curvature, not the fast modes, bounds the longest step on a heat-up)."""
+    longest = max(RADIATION_STEP_MIN, first)
     ends, h, x = [lo], first, lo
     while x < hi:
         x = hi if hi - (x + h) < 0.1 * h else x + h

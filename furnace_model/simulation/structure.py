@@ -581,16 +581,23 @@ class _Grid:
            first: float = FIRST_STEP_MIN) -> _Grid | None:
         cuts = np.unique(np.ravel(drive.s))
         edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
-        pieces = [(lo, _step_bounds(lo, hi, first)) for lo, hi in zip(edges[:-1], edges[1:],
-                                                                       strict=True) if hi > lo]
-        if not pieces:
+        spans = np.diff(edges)
+        los, end = edges[:-1][spans > 0], edges[1:][spans > 0][-1:]
+        spans = spans[spans > 0]
+        if not los.size:
             return None
-        los = np.array([lo for lo, _ in pieces])
-        counts = np.array([b.size - 1 for _, b in pieces])
+        # Pieces of one length step alike: a record with an input change every minute has
+        # thousands of pieces and a handful of lengths, so the steps are laid out per length
+        # and repeated, not built piece by piece.
+        lengths, kind = np.unique(spans, return_inverse=True)
+        steps = [np.diff(_step_bounds(0.0, length, first)) for length in lengths]
+        counts = np.array([h.size for h in steps])[kind]
+        offsets = np.cumsum([0] + [h.size for h in steps])[kind]  # each piece's steps in flat
+        into = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        since = np.concatenate([np.cumsum(np.concatenate(([0.0], x[:-1]))) for x in steps])
+        a = np.repeat(los, counts) + since[np.repeat(offsets, counts) + into]
         u = np.broadcast_to(drive.levels_at(los), (P, los.size, drive.u0.shape[-1]))
-        return cls(np.concatenate([b[:-1] for _, b in pieces]),
-                   np.concatenate([np.diff(b) for _, b in pieces]),
-                   np.repeat(u, counts, axis=1))
+        return cls(a, np.diff(np.concatenate((a, end))), np.repeat(u, counts, axis=1))
 
     @cached_property
     def nodes(self) -> np.ndarray:

@@ -433,6 +433,7 @@ class ModelStructure:
         out[:, t <= t0] = x[:, None]
         cuts = np.unique(np.ravel(drive.s))
         edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
+        first = _first_step(np.linalg.eigvals(sys.A))
         hard = np.zeros(P, dtype=bool)
         diverged = np.zeros(P, dtype=bool)
         for lo, hi in zip(edges[:-1], edges[1:], strict=True):
@@ -441,7 +442,7 @@ class ModelStructure:
             u = np.broadcast_to(drive.level_at(lo), (P, sys.B.shape[2]))
             Bu = np.einsum("pnm,pm->pn", sys.B, u)
             nonlinear = _Nonlinear(self.effects, theta, sys, u[:, None])
-            bounds = _step_bounds(lo, hi)
+            bounds = _step_bounds(lo, hi, first)
             for a, b in zip(bounds[:-1], bounds[1:], strict=True):
                 step = _Linearised(nonlinear, sys.A, Bu, x)
                 x = step.end(b - a)
@@ -507,10 +508,10 @@ class ModelStructure:
 
 
 RADIATION_STEP_MIN = 8.0
-"""Longest step of the nonlinear integrator, reached after each input change by doubling
-from half a minute. The steps depend on the inputs only, never on the parameter values, so
-the result is a smooth function of the parameters (as finite-difference Jacobians need).
-At 8 minutes a heat-up to 1400 degC stays within 0.01 degC (mostly 0.001) of a tight
+"""Longest step of the nonlinear integrators, reached after each input change by doubling
+from the first (`_first_step`). The steps depend on the inputs and on the call's fastest mode
+in powers of two, never on the values otherwise, so the result is a smooth function of the
+parameters within a call (as finite-difference Jacobians need). At 8 minutes a heat-up to 1400 degC stays within 0.01 degC (mostly 0.001) of a tight
 adaptive integration (tests/test_lti.py); at 20 it drifts to a hundredth, and a run cut
 into pieces (the simulated PLC's stepper) would no longer match a whole run to 1e-6."""
 
@@ -534,12 +535,14 @@ def _step_bounds(lo: float, hi: float, first: float = FIRST_STEP_MIN) -> np.ndar
 
 
 def _first_step(lam: np.ndarray) -> float:
-    """The relaxation's first step after an input change for modes lam (P, n): FIRST_STEP_MIN
-    doubled while it stays within the fastest mode's time constant over all the sets.
+    """The nonlinear integrators' first step after an input change for modes lam (P, n):
+    FIRST_STEP_MIN doubled while it stays within the fastest mode's time constant over all
+    the sets.
 
-    Why: the steps resolve the state's moves after each change, and a network whose fastest
-    mode takes hours (a room, a wall) moves on that scale. Steps of minutes made an hourly
-    record cost like a record of minutes: a dozen steps per sample. Powers of two keep the
+    Why: the first steps resolve the fast modes' moves after each change, and a network
+    whose fastest mode takes hours (a room, a wall) moves on that scale. Steps of minutes
+    made an hourly record cost like a record of minutes (a dozen steps per sample), and a
+    record with an input change every minute two steps per sample. Powers of two keep the
     grid the same over a fit's neighbouring sets, so a Jacobian's columns share it, as do
     the sets of one call. The paper's furnace keeps its half minute."""
     rates = np.abs(np.real(lam))
@@ -791,3 +794,4 @@ def _take_drive(drive: Drive, p: np.ndarray) -> Drive:
         return a[np.minimum(p, a.shape[0] - 1)] if a.shape[0] > 1 else a
     s = drive.s if drive.s.ndim == 1 else drive.s[p]
     return Drive(drive.t0, take(drive.u0), s, take(drive.du))
+

@@ -511,9 +511,10 @@ RADIATION_STEP_MIN = 8.0
 """Longest step of the nonlinear integrators, reached after each input change by doubling
 from the first (`_first_step`). The steps depend on the inputs and on the call's fastest mode
 in powers of two, never on the values otherwise, so the result is a smooth function of the
-parameters within a call (as finite-difference Jacobians need). At 8 minutes a heat-up to 1400 degC stays within 0.01 degC (mostly 0.001) of a tight
-adaptive integration (tests/test_lti.py); at 20 it drifts to a hundredth, and a run cut
-into pieces (the simulated PLC's stepper) would no longer match a whole run to 1e-6."""
+parameters within a call (as finite-difference Jacobians need). At 8 minutes a heat-up to
+1400 degC stays within 0.01 degC (mostly 0.001) of a tight adaptive integration
+(tests/test_lti.py); at 20 it drifts to a hundredth, and a run cut into pieces (the
+simulated PLC's stepper) would no longer match a whole run to 1e-6."""
 
 
 FIRST_STEP_MIN = 0.5
@@ -585,7 +586,7 @@ class _Grid:
         cuts = np.unique(np.ravel(drive.s))
         edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
         spans = np.diff(edges)
-        los, end = edges[:-1][spans > 0], edges[1:][spans > 0][-1:]
+        los, last = edges[:-1][spans > 0], edges[1:][spans > 0][-1:]
         spans = spans[spans > 0]
         if not los.size:
             return None
@@ -595,12 +596,12 @@ class _Grid:
         lengths, kind = np.unique(spans, return_inverse=True)
         steps = [np.diff(_step_bounds(0.0, length, first)) for length in lengths]
         counts = np.array([h.size for h in steps])[kind]
-        offsets = np.cumsum([0] + [h.size for h in steps])[kind]  # each piece's steps in flat
-        into = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
         since = np.concatenate([np.cumsum(np.concatenate(([0.0], x[:-1]))) for x in steps])
-        a = np.repeat(los, counts) + since[np.repeat(offsets, counts) + into]
+        first_of = np.cumsum([0] + [h.size for h in steps])[kind]  # a piece's length's steps
+        into = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        a = np.repeat(los, counts) + since[np.repeat(first_of, counts) + into]
         u = np.broadcast_to(drive.levels_at(los), (P, los.size, drive.u0.shape[-1]))
-        return cls(a, np.diff(np.concatenate((a, end))), np.repeat(u, counts, axis=1))
+        return cls(a, np.diff(np.concatenate((a, last))), np.repeat(u, counts, axis=1))
 
     @cached_property
     def nodes(self) -> np.ndarray:

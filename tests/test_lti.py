@@ -402,3 +402,26 @@ def test_a_record_about_its_operating_point_is_relaxed_and_exact():
     _, relaxed, _ = cold._relaxed(theta, cold.system(theta), cold.drive(theta, heatup),
                                np.full((1, 3), 25.0), 0.0, np.arange(0.0, 1401.0))
     assert not relaxed.any()
+
+
+@pytest.mark.parametrize("first", [0.5, 2.0, 64.0])
+def test_the_grid_laid_out_per_piece_length_is_the_steps_piece_by_piece(first):
+    """A record with thousands of input changes and a handful of piece lengths: its steps
+    come from one layout per length, and are those `_step_bounds` takes piece by piece (to
+    rounding of the pieces' start times)."""
+    from furnace_model.simulation.lti import Drive
+    from furnace_model.simulation.structure import _Grid, _step_bounds
+
+    rng = np.random.default_rng(11)
+    s = np.cumsum(rng.choice([1.0, 1.0, 2.5, 60.0, 0.3], 3000))
+    drive = Drive(0.0, np.zeros((1, 1)), s, np.zeros((1, s.size, 1)))
+    end = float(s[-1]) + 17.0
+    grid = _Grid.of(drive, 0.25, end, 1, first)
+    edges = np.concatenate(([0.25], s[s > 0.25], [end]))
+    bounds = [_step_bounds(lo, hi, first)
+              for lo, hi in zip(edges[:-1], edges[1:], strict=True) if hi > lo]
+    np.testing.assert_allclose(grid.a, np.concatenate([b[:-1] for b in bounds]), rtol=0,
+                               atol=1e-9)
+    np.testing.assert_allclose(grid.h, np.concatenate([np.diff(b) for b in bounds]), rtol=0,
+                               atol=1e-9)
+    assert grid.a[0] == 0.25 and grid.a[-1] + grid.h[-1] == end

@@ -49,17 +49,13 @@ class FuelChange(Effect):
 
     @classmethod
     def found(cls, params, options):
-        """How much heat a burner gives now, and since when: a fuel to check with the plant."""
-        if "fuel_ratio" not in params or "t_fuel" not in params:
-            return ""  # a derived effect with parameters of its own
-        ratio = params["fuel_ratio"]
-        return (f"each burner gives {100.0 * (ratio - 1.0):+.0f}% heat (x{ratio:.2f}) from "
-                f"minute {params['t_fuel']:.0f}")
+        return cls.found_within(params, options, {})
 
     @classmethod
     def found_within(cls, params, options, ci95):
+        """How much heat a burner gives now, and since when: a fuel to check with the plant."""
         if "fuel_ratio" not in params or "t_fuel" not in params:
-            return ""
+            return ""  # a derived effect with parameters of its own
         ratio = params["fuel_ratio"]
         ci = ci95.get("fuel_ratio")
         since = f"from minute {within(params['t_fuel'], ci95.get('t_fuel'), '{:.0f}')}"

@@ -128,13 +128,11 @@ class SensorDrift(Effect):
 
     @classmethod
     def found(cls, params, options):
-        """The thermocouple to check and since when: the sensor changed, not the furnace."""
-        rate = params["drift_rate"]
-        return (f"thermocouple {options['sensor']} drifts {60.0 * rate:+.2f} °C/h from minute "
-                f"{params['t_drift']:.0f}")
+        return cls.found_within(params, options, {})
 
     @classmethod
     def found_within(cls, params, options, ci95):
+        """The thermocouple to check and since when: the sensor changed, not the furnace."""
         rate, onset = 60.0 * params["drift_rate"], params["t_drift"]
         rate_ci = ci95.get("drift_rate")
         rate_ci = None if rate_ci is None else (60.0 * rate_ci[0], 60.0 * rate_ci[1])

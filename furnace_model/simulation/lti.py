@@ -361,7 +361,7 @@ _WALK_SEGMENT_CELLS = 1400
 _WALK_MODE_CELLS = 10
 """What the walk over segments costs beyond its tables, in the direct way's cells (sets x
 modes x samples, one exponential each, about 20 ns): about 28 us per segment, and 0.2 us
-per segment for each set and mode (bench/bench_simulate.py, "Many segments"). Many short
+per segment for each set and mode (`bench/bench_simulate.py --segments`). Many short
 segments (hourly inputs on a grid of minutes, a closed-loop record) go the direct way;
 long ones keep the tables, whose exponentials are a few per segment."""
 

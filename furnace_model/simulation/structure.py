@@ -541,9 +541,9 @@ def _first_step(lam: np.ndarray) -> float:
     the sets.
 
     Why: the first steps resolve the fast modes' moves after each change, and a network
-    whose fastest mode takes hours (a room, a wall) moves on that scale. Steps of minutes
-    made an hourly record cost like a record of minutes (a dozen steps per sample), and a
-    record with an input change every minute two steps per sample. Powers of two keep the
+    whose fastest mode takes hours (a room, a wall) moves on that scale: steps of minutes
+    would make an hourly record cost like a record of minutes (a dozen steps per sample),
+    and a record with an input change every minute two steps per sample. Powers of two keep the
     grid the same over a fit's neighbouring sets, so a Jacobian's columns share it, as do
     the sets of one call. The paper's furnace keeps its half minute."""
     rates = np.abs(np.real(lam))
@@ -795,4 +795,3 @@ def _take_drive(drive: Drive, p: np.ndarray) -> Drive:
         return a[np.minimum(p, a.shape[0] - 1)] if a.shape[0] > 1 else a
     s = drive.s if drive.s.ndim == 1 else drive.s[p]
     return Drive(drive.t0, take(drive.u0), s, take(drive.du))
-

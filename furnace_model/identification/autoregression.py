@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 MAX_ORDER = 8
 MAX_TAU = 1e4
@@ -46,6 +45,8 @@ class AR:
         |A^-T x|^2 for the series' covariance Sigma."""
         if not self.phi.size:
             return x
+        from scipy.signal import lfilter  # its package costs 0.4 s to import, once
+
         return lfilter([1.0], np.r_[1.0, -self.phi], x[::-1], axis=0)[::-1]
 
 

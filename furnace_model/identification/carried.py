@@ -28,7 +28,7 @@ what the fitted data do not see at all is estimated on the held-out records inst
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2, norm
+from scipy.special import chdtri, ndtr
 
 from ..experiment import Experiment
 from .problem import Problem
@@ -70,7 +70,7 @@ def carried_error(fr: FitResult, records: list[Experiment], x0: list[np.ndarray]
         return out
     root = V[:, keep] * np.sqrt(w[keep] * scale)  # cov = root root'
     zone_of = np.concatenate([r.zone_of for r in prob.records])
-    p = float(norm.cdf(z))
+    p = float(ndtr(z))
     for k, zone in enumerate(zones):
         rows = Jp[zone_of == k] @ root
         if rows.shape[0] == 0:
@@ -80,5 +80,5 @@ def carried_error(fr: FitResult, records: list[Experiment], x0: list[np.ndarray]
         if mean <= 0.0:
             continue
         dof = mean ** 2 / spread
-        out[zone] = float(np.sqrt(spread / mean * chi2.ppf(p, dof)))
+        out[zone] = float(np.sqrt(spread / mean * chdtri(dof, 1.0 - p)))
     return out

@@ -29,7 +29,6 @@ best)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import cumulative_trapezoid
 
 from ..experiment import Experiment
 from ..simulation.network import parameter_names
@@ -50,12 +49,11 @@ def equation_error(structure: ModelStructure, records: list[Experiment], offsets
         t = np.asarray(r.t_min, dtype=float)
         y = _filled(r.zone_temp, t)
         dt = np.diff(t)
-        state = cumulative_trapezoid(y, t, axis=0, initial=0.0)  # (N, zones)
+        state = _integral(y, dt)  # (N, zones)
         held = np.concatenate([r.burners, r.disturbances], axis=1).astype(float)
         heat = np.concatenate([np.zeros((1, held.shape[1])),
                                np.cumsum(held[:-1] * dt[:, None], axis=0)])
-        air = cumulative_trapezoid(np.asarray(r.t_air, dtype=float)[:, None], t, axis=0,
-                                   initial=0.0)
+        air = _integral(np.asarray(r.t_air, dtype=float)[:, None], dt)
         # Heat inputs and disturbances hold between samples; ambient moves.
         u = np.concatenate([heat[:, :nz], air, heat[:, nz:]], axis=1)
         X = np.einsum("pij,nj->inp", rows[0], state) + np.einsum("pij,nj->inp", rows[1], u)
@@ -187,3 +185,9 @@ def _filled(y: np.ndarray, t: np.ndarray) -> np.ndarray:
         if ok.any() and not ok.all():
             y[:, i] = np.interp(t, t[ok], y[ok, i])
     return y
+
+
+def _integral(y: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """The trapezoidal integral of y (N, k) from its first sample to each, steps dt (N - 1,)."""
+    steps = 0.5 * (y[1:] + y[:-1]) * dt[:, None]
+    return np.concatenate([np.zeros((1, y.shape[1])), np.cumsum(steps, axis=0)])

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from ..errors import FurnaceError
 from ..experiment import Experiment
@@ -301,7 +301,7 @@ class Problem:
         sigma2 = polished.free_cost / max(r.size - self.n, 1)
         tau = max([correlation_time(r[idx]) for idx in self.series()], default=1.0)
         rise = (float(r @ r) - polished.free_cost) / (sigma2 * tau)
-        return on if rise > chi2.ppf(FLAG_LEVEL, int(on.sum())) else np.zeros(on.size, dtype=bool)
+        return on if rise > chdtri(int(on.sum()), 1.0 - FLAG_LEVEL) else np.zeros(on.size, dtype=bool)
 
     def flags(self, z: np.ndarray, held: np.ndarray) -> list[Flag]:
         """The records' own unknowns marked in `held` (`held_by_bounds`), as flags."""

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from scipy.ndimage import median_filter
+from scipy.special import ndtri
 
 from ..experiment import Experiment
 from .noisefloor import RecordFloor
@@ -376,9 +377,7 @@ def _simultaneous_z(m: int) -> float:
     """Normal quantile that m lags all stay within with 99% probability when the residual
     is white (Bonferroni): the pointwise 99% band, drawn as `resid` draws it, is crossed
     somewhere among 25 or 51 lags far more often than one time in a hundred."""
-    from scipy.stats import norm
-
-    return float(norm.ppf(1.0 - 0.01 / (2.0 * max(m, 1))))
+    return float(ndtri(1.0 - 0.01 / (2.0 * max(m, 1))))
 
 
 def lag1(residuals: list[np.ndarray]) -> float:

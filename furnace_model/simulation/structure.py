@@ -18,7 +18,6 @@ from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from ..effects import Effect, Theta
 from .furnace import Furnace
@@ -468,6 +467,8 @@ class ModelStructure:
         """Adaptive stiff integration, one parameter set and one constant-input piece at a
         time so that no step straddles a burner change: slow, for the sets the exponential
         scheme cannot take."""
+        from scipy.integrate import solve_ivp  # rarely needed, and 0.3 s to import
+
         P, n = sys.A.shape[0], self.n_states
         x0 = np.broadcast_to(x0, (P, n))
         out = np.empty((P, t.size, n))

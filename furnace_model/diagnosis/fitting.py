@@ -120,16 +120,7 @@ def _budget(task: Task) -> float | None:
 def _run_task(task: Task, t0: float) -> CandidateResult:
     structure = structure_of(task.effects, task.options, task.furnace)
     zones = task.furnace.zones
-    init = None
-    if task.init is not None:
-        init = {k: v for k, v in task.init.items() if k in structure.names}
-        if not structure.linear:
-            # Integrated, not closed form: no evolutionary search, only the polish from the
-            # baseline with the effect at its default strength.
-            init = {**structure.defaults(), **init}
-    bounds = {k: v for k, v in task.bounds.items() if k in structure.names}
-    if init is not None:
-        init = {k: (float(np.clip(v, *bounds[k])) if k in bounds else v) for k, v in init.items()}
+    init, bounds = _start_of(task, structure)
     # Linearised intervals (with the residual's colour): the profiles' refits would cost
     # more than the candidate's fit, and the verdict reads the white ones.
     runs = task.runs or (BASELINE_RUNS if not task.effects else 1)
@@ -234,21 +225,8 @@ def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
     and the network started where the equations' least squares fit what is left: a large
     drift (tens of degrees on one of a pair) bends the baseline so far that from its rates
     the drift's fit finds only side valleys."""
-    given = {**structure.defaults(), **init}
-    restarts, placed = [], [given]
-    for e in structure.effects:
-        for s in e.tried.starts(e, init, bounds):
-            restarts.append({**given, **s})
-            if set(s) <= set(e.tried.nulls(e)):  # a strength alone (a drift's sign): still placed
-                placed.append(restarts[-1])
-    if not structure.furnace.paper_structure:
-        if structure.has_sensor_offsets:
-            # not for a spread of onsets: an error not placed would be taken off at random
-            again = placed
-        else:
-            # a change of the inputs at any instant is a start: the polish moves it
-            again = [given, *restarts] if structure.moves_inputs else []
-        restarts += [{**v, **_network_for(structure, v, task.fit_data)} for v in again]
+    restarts, again = _starts(structure, init, bounds)
+    restarts += [{**v, **_network_for(structure, v, task.fit_data)} for v in again]
     for values in restarts:
         if _late(task):
             return dataclasses.replace(fr, stop_reason="time_budget")
@@ -259,6 +237,53 @@ def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
         if other.sse < fr.sse:
             fr = other
     return fr
+
+
+def _start_of(task: Task, structure: ModelStructure
+              ) -> tuple[dict[str, float] | None, dict[str, tuple[float, float]]]:
+    """Where the task's polish starts (None: a search from scratch), and its search box."""
+    bounds = {k: v for k, v in task.bounds.items() if k in structure.names}
+    if task.init is None:
+        return None, bounds
+    init = {k: v for k, v in task.init.items() if k in structure.names}
+    if not structure.linear:
+        # Integrated, not closed form: no evolutionary search, only the polish from the
+        # baseline with the effect at its default strength.
+        init = {**structure.defaults(), **init}
+    return {k: (float(np.clip(v, *bounds[k])) if k in bounds else v)
+            for k, v in init.items()}, bounds
+
+
+def _starts(structure: ModelStructure, init: dict[str, float],
+            bounds: dict[str, tuple[float, float]]
+            ) -> tuple[list[dict[str, float]], list[dict[str, float]]]:
+    """`_restarted`'s starts: the effects' own, and those also started with the network the
+    equations' least squares give (none on eq. 11's furnace)."""
+    given = {**structure.defaults(), **init}
+    restarts, placed = [], [given]
+    for e in structure.effects:
+        for s in e.tried.starts(e, init, bounds):
+            restarts.append({**given, **s})
+            if set(s) <= set(e.tried.nulls(e)):  # a strength alone (a drift's sign): still placed
+                placed.append(restarts[-1])
+    if structure.furnace.paper_structure:
+        return restarts, []
+    if structure.has_sensor_offsets:
+        # not for a spread of onsets: an error not placed would be taken off at random
+        return restarts, placed
+    # a change of the inputs at any instant is a start: the polish moves it
+    return restarts, [given, *restarts] if structure.moves_inputs else []
+
+
+def relative_cost(task: Task) -> float:
+    """About what a task costs, in fits of a linear model, for a pool to start the longest
+    first (one started last and alone sets when the stage ends): a fit of an integrated
+    model costs about three, and each restart a tenth of a first fit, which has the
+    evolutionary search."""
+    structure = structure_of(task.effects, task.options, task.furnace)
+    init, bounds = _start_of(task, structure)
+    restarts = 0 if init is None else sum(map(len, _starts(structure, init, bounds)))
+    return (1.0 if structure.linear else 3.0) * (1.0 + 0.1 * restarts)
 
 
 def _from_null(fr: FitResult, task: Task, structure: ModelStructure, init: dict[str, float],

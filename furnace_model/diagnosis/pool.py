@@ -13,7 +13,7 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
 from .candidate import CandidateResult
-from .fitting import Task, run_task, structure_of
+from .fitting import Task, relative_cost, run_task
 from .limit import TimeLimit
 
 WORKERS = 2
@@ -41,9 +41,7 @@ def _run(tasks: list[Task], progress: Callable[[float], None],
     out: list[CandidateResult] = []
     if WORKERS > 1 and len(tasks) > 1:
         ctx = multiprocessing.get_context("fork")
-        # nonlinear (slow) fits first, so that one does not finish last alone
-        order = sorted(range(len(tasks)), key=lambda i: structure_of(
-            tasks[i].effects, tasks[i].options, tasks[i].furnace).linear)
+        order = sorted(range(len(tasks)), key=lambda i: -relative_cost(tasks[i]))
         pool = ProcessPoolExecutor(max_workers=WORKERS, mp_context=ctx,
                                    initializer=die_with_parent, initargs=(os.getpid(),))
         try:

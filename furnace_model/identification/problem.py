@@ -425,7 +425,8 @@ class Problem:
             accepted = False
             while mu < 1e12 and not accepted:
                 mus = mu * 4.0 ** np.arange(trials)
-                Z = np.array([np.clip(z - _step(H, g, m * d, move), lo, hi) for m in mus])
+                Z = np.array([np.clip(z - _bounded_step(H, g, m * d, move, z, lo, hi), lo, hi)
+                              for m in mus])
                 R = self.fun_many(Z)
                 costs = np.einsum("pm,pm->p", R, R)
                 for i in range(trials):  # the first damping that lowers the cost, as in turn
@@ -501,6 +502,23 @@ def correlation_time(e: np.ndarray) -> float:
     den = float(e @ e)
     rho = float(np.clip(e[1:] @ e[:-1] / den, 0.0, 0.999)) if den > 0 else 0.0
     return (1.0 + rho) / (1.0 - rho)
+
+
+def _bounded_step(H: np.ndarray, g: np.ndarray, damping: np.ndarray, move: np.ndarray,
+                  z: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The damped step of the unknowns in `move`, those it would carry past a bound they sit
+    on held there as well and the step solved again. Freed by the gradient alone, such an
+    unknown is clipped back after the step, which is then no longer the one solved for: the
+    rejections that follow raised the damping a hundredfold every few steps, and a network
+    with a dozen rates on their bounds crawled to the iteration limit (docs/performance.md)."""
+    step = _step(H, g, damping, move)
+    for _ in range(g.size):
+        out = move & (((z <= lo) & (z - step < lo)) | ((z >= hi) & (z - step > hi)))
+        if not out.any():
+            break
+        move = move & ~out
+        step = _step(H, g, damping, move)
+    return step
 
 
 def _step(H: np.ndarray, g: np.ndarray, damping: np.ndarray, move: np.ndarray) -> np.ndarray:

@@ -395,6 +395,36 @@ def test_why_the_search_stopped_and_after_how_many_iterations(paper_1min):
     assert (short.reason, short.iterations) == ("iteration_limit", 2)
 
 
+def test_an_unknown_on_its_bound_that_the_step_would_carry_past_it_stays_there():
+    """The gradient alone frees unknown 0 from its lower bound (it would lower the cost
+    moving inward), but the step coupled with unknown 1 carries it outward: the step is
+    solved again with it held, so that what is taken is the step solved for."""
+    from furnace_model.identification.problem import _bounded_step, _step
+
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        J = rng.normal(size=(40, 3))
+        J[:, 1] += 2.0 * J[:, 0]  # 0 and 1 trade: their steps are coupled
+        H = J.T @ J
+        lo, hi = np.array([0.0, -5.0, -5.0]), np.array([5.0, 5.0, 5.0])
+        z = np.array([0.0, 1.0, 1.0])  # unknown 0 on its lower bound
+        # a gradient pulling 0 inward (g_0 < 0) whose coupled step pushes it out
+        g = H @ np.array([0.3, -0.2 - 3.0 * rng.random(), rng.normal()])
+        g[0] = -abs(g[0]) - 1e-3
+        free = _step(H, g, np.zeros(3), np.ones(3, bool))
+        if z[0] - free[0] >= lo[0]:
+            continue  # this draw's step stays inside: nothing to hold
+        step = _bounded_step(H, g, np.zeros(3), np.ones(3, bool), z, lo, hi)
+        assert step[0] == 0.0
+        held = np.array([False, True, True])
+        assert np.allclose(step[1:], np.linalg.solve(H[np.ix_(held, held)], g[1:]))
+        # clipped after the free step instead, the others would move as if 0 had gone on
+        assert not np.allclose(free[1:], step[1:])
+        break
+    else:
+        pytest.fail("no draw carried the bounded unknown past its bound")
+
+
 def test_a_parameter_forced_onto_its_bound_is_flagged_not_reported_as_a_value(paper_1min):
     from furnace_model.cli.fit import render
 

@@ -45,7 +45,7 @@ class AR:
         |A^-T x|^2 for the series' covariance Sigma."""
         if not self.phi.size:
             return x
-        from scipy.signal import lfilter  # its package costs 0.4 s to import, once
+        from scipy.signal import lfilter  # a slow package to import, for this filter alone
 
         return lfilter([1.0], np.r_[1.0, -self.phi], x[::-1], axis=0)[::-1]
 

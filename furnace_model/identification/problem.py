@@ -508,9 +508,10 @@ def _bounded_step(H: np.ndarray, g: np.ndarray, damping: np.ndarray, move: np.nd
                   z: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """The damped step of the unknowns in `move`, those it would carry past a bound they sit
     on held there as well and the step solved again. Freed by the gradient alone, such an
-    unknown is clipped back after the step, which is then no longer the one solved for: the
-    rejections that follow raised the damping a hundredfold every few steps, and a network
-    with a dozen rates on their bounds crawled to the iteration limit (docs/performance.md)."""
+    unknown would be clipped back after the step, which is then no longer the one solved
+    for: the rejections that follow raise the damping a hundredfold every few steps, and a
+    network with many rates on their bounds crawls to the iteration limit
+    (docs/performance.md, "The active set held by the step")."""
     step = _step(H, g, damping, move)
     for _ in range(g.size):
         out = move & (((z <= lo) & (z - step < lo)) | ((z >= hi) & (z - step > hi)))

@@ -467,7 +467,7 @@ class ModelStructure:
         """Adaptive stiff integration, one parameter set and one constant-input piece at a
         time so that no step straddles a burner change: slow, for the sets the exponential
         scheme cannot take."""
-        from scipy.integrate import solve_ivp  # rarely needed, and 0.3 s to import
+        from scipy.integrate import solve_ivp  # a slow package to import, for a rare fallback
 
         P, n = sys.A.shape[0], self.n_states
         x0 = np.broadcast_to(x0, (P, n))
@@ -546,7 +546,7 @@ def _first_step(lam: np.ndarray) -> float:
     would make an hourly record cost like a record of minutes (a dozen steps per sample),
     and a record with an input change every minute two steps per sample. Powers of two keep the
     grid the same over a fit's neighbouring sets, so a Jacobian's columns share it, as do
-    the sets of one call. The paper's furnace keeps its half minute."""
+    the sets of one call. On the paper's furnace the first step is the half minute."""
     rates = np.abs(np.real(lam))
     rates = rates[np.isfinite(rates)]
     fastest = float(rates.max()) if rates.size else 0.0

@@ -75,10 +75,9 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 import pandas as pd
 
-from furnace_model.diagnosis.credit import GAP_RATIO, GAP_Z
 from furnace_model.experiment import Experiment
 from furnace_model.identification.fit import WarmStart, fit
-from furnace_model.identification.noisefloor import limits, record_floor
+from furnace_model.identification.noisefloor import GAP_RATIO, GAP_Z, limits, record_floor
 from furnace_model.identification.result import FitResult
 from furnace_model.log.messages import (
     Ambient,

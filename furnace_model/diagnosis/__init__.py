@@ -26,10 +26,9 @@ One concept per module, each importing only those above it in this list:
 - `search`: `diagnose`, the order in which candidates are tried and kept.
 """
 
+from ..identification.noisefloor import GAP_RATIO, GAP_Z
 from .candidate import CandidateResult
 from .credit import (
-    GAP_RATIO,
-    GAP_Z,
     MIN_GAP_CLOSED,
     NEAR_RATIO,
     NEAR_Z,

@@ -21,17 +21,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..identification.noisefloor import GAP_Z
 from ..identification.result import FitResult
 from .candidate import CandidateResult
 
 MAX_RATIO = 4.0
 """A positive strength parameter counts as determined when its 95% interval spans less than
 this factor: one that could be anything from a trace to a flood is not an estimate."""
-GAP_RATIO = 1.25
-"""A zone's held-out RMSE above this multiple of its noise floor is a gap (or further, where
-the held-out records hold few independent samples: `GAP_Z`)."""
-GAP_Z = 3.0
-"""Standard errors of the RMSE-to-floor ratio a gap must also exceed (noisefloor.limits)."""
 CARRIED_Z = GAP_Z
 """The level at which a fit's parameter uncertainty is carried onto the held-out records
 (`carried.carried_error`): the quantile norm.cdf of this many standard deviations."""

@@ -14,12 +14,17 @@ from ..effects import EFFECTS, Clues
 from ..errors import FurnaceError
 from ..experiment import Experiment
 from ..identification.fit import fit
-from ..identification.noisefloor import RecordFloor, limits, pooled_floor, record_floor
+from ..identification.noisefloor import (
+    GAP_RATIO,
+    GAP_Z,
+    RecordFloor,
+    limits,
+    pooled_floor,
+    record_floor,
+)
 from ..identification.residuals import residual_tests, sensor_faults
 from .candidate import CandidateResult
 from .credit import (
-    GAP_RATIO,
-    GAP_Z,
     MIN_GAP_CLOSED,
     NEAR_RATIO,
     NEAR_Z,

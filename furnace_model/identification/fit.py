@@ -35,6 +35,7 @@ from ..simulation.structure import ModelStructure
 from .criteria import criteria
 from .ga import genetic_search
 from .model import Model, Refinement, score
+from .noisefloor import GAP_RATIO, GAP_Z, limits, record_floor
 from .plausible import Flag
 from .problem import POLISH_MAX_ITER, Polished, Problem
 from .profile import profile_interval
@@ -204,7 +205,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         ci[name] = ci_white[name] = (float(v), float(v))
     undetermined = unc.undetermined(prob.from_z(z[:prob.k]), prob.lo_val, prob.hi_val)
     profiled = {}
-    if profile:
+    missed = _missed_floor(prob, z, experiments) if profile else {}
+    if profile and not missed:
         wide = [n for i, n in enumerate(prob.names)
                 if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE]
         profiled = _profiled(prob, z, float(res @ res), unc, wide, deadline,
@@ -221,7 +223,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
               for n, lo, hi in zip(prob.names, prob.lo_val, prob.hi_val, strict=True)}
     edges = {n: ranges[n][0 if side == "lower" else 1] for n, side in at_bound.items()}
     warnings = _warnings(experiments, unc, undetermined, combos, best_run, time_budget_s,
-                         at_bound, edges) + [f.words() for f in flags]
+                         at_bound, edges, missed) + [f.words() for f in flags]
     static = all(e.burner_steps == 0 for e in experiments)
     corr = np.eye(len(structure.names))
     cov = np.zeros((len(structure.names),) * 2)
@@ -320,6 +322,20 @@ class _Run:
     generations: int  # GA generations run
     truncated: bool  # some stage (GA or polish) stopped on the time budget
     free_cost: float | None = None  # the polish's: see Polished
+
+
+def _missed_floor(prob: Problem, z: np.ndarray, experiments: list[Experiment]
+                  ) -> dict[str, tuple[float, float]]:
+    """{zone: (RMSE, limit)} where the fit misses the records' noise floor, as a refit's
+    misfit and a diagnosis's gap are judged (noisefloor.limits). There no parameter set
+    reproduces the records, so a profile's coverage of the truth does not apply, and each of
+    its refits crawls along a criterion shaped by what the model leaves out: the
+    linearised interval, with the residual's colour, says as much for a small part of
+    the cost."""
+    limit = limits([record_floor(e) for e in experiments], GAP_RATIO, GAP_Z)
+    rmse = {zone: m["rmse_c"] for zone, m in prob.per_zone(z).items()}
+    return {zone: (float(rmse[zone]), float(limit[zone])) for zone in limit
+            if zone in rmse and rmse[zone] > limit[zone]}
 
 
 def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
@@ -482,7 +498,7 @@ def _lowest(polished: list[Polished]) -> Polished:
 
 def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: list[str],
               run: _Run, budget, at_bound: dict[str, str],
-              edges: dict[str, float]) -> list[str]:
+              edges: dict[str, float], missed: dict[str, tuple[float, float]]) -> list[str]:
     out = []
     for e in experiments:
         if e.burner_steps == 0:
@@ -498,6 +514,10 @@ def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: li
         out.append(f"the data do not determine {', '.join(undetermined)} (95% interval wider "
                    f"than +-{100 * WIDE:.0f}%)"
                    + (f"; they do determine {', '.join(pairs)}" if pairs else ""))
+    if missed:
+        out.append("intervals linearised, not profiled: the model misses the noise floor in "
+                   + ", ".join(f"{zone} (RMSE {r:.2g} against {lim:.2g} °C)"
+                               for zone, (r, lim) in missed.items()))
     for a, b, r in unc.strong_correlations():
         out.append(f"{a} and {b} are strongly correlated (r = {r:+.3f}): the data fix a "
                    "combination of them better than either")

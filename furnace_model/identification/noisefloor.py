@@ -31,6 +31,13 @@ import numpy as np
 from ..experiment import Experiment
 from .autoregression import acf, fit_ar
 
+GAP_RATIO = 1.25
+"""A zone's RMSE above this multiple of its noise floor misses it (or further, where the
+records hold few independent samples: `GAP_Z`): a diagnosis's gap on held-out records, a
+refit's misfit, a fit whose intervals are not profiled."""
+GAP_Z = 3.0
+"""Standard errors of the RMSE-to-floor ratio a miss must also exceed (`limits`)."""
+
 TREND_MIN = 360.0
 """Minutes per block of the slow trend taken out of a pair's difference. Long against the
 correlation time of thermocouple noise (minutes), so that the noise is kept (a trend over

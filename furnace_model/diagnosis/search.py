@@ -311,8 +311,11 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
                                            "optimum") if x)
         return again
 
+    def no_gap(kept: CandidateResult) -> bool:
+        return all(kept.rmse_holdout_c[z] <= kept.allowed(gap_limit)[z] for z in gap_limit)
+
     for _step in range(MAX_EFFECTS - 1):
-        if all(kept.rmse_holdout_c[z] <= kept.allowed(gap_limit)[z] for z in gap_limit):
+        if no_gap(kept):
             break
         others = [c.effects[0] for c in singles if c.effects[0] not in kept.effects][:STEP_TRIES]
         tasks = []
@@ -352,14 +355,15 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         best = min(good, key=lambda c: c.evidence)
         # The gain may come from the kept effects reaching their own optimum from the
         # combination's start (a fit that stopped in a side valley), not from the added
-        # effect: refit the kept set from there, and add the effect only if it still closes
-        # most of what the refitted set leaves.
+        # effect: refit the kept set from there, and add the effect only if the refitted set
+        # still leaves a clear gap and the effect closes most of it (what lies within the
+        # noise is no gap for an effect to close).
         again = refit(kept, best)
         if np.isfinite(again.rmse_holdout_pooled()) and \
                 again.rmse_holdout_pooled() < kept.rmse_holdout_pooled() and credited(again):
             tried.append(again)
             kept = steps[-1] = again
-            if not closes(best, kept, floor):
+            if no_gap(kept) or not closes(best, kept, floor):
                 break
         kept = best
         steps.append(best)
@@ -372,9 +376,10 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
 
 
 def _not_kept(kept: CandidateResult) -> str:
-    return (f"not kept: the stepwise search keeps {kept.label} (a further effect must remove "
-            f"at least {MIN_GAP_CLOSED:.0f}% of the held-out error above the floor that the "
-            "kept ones leave, with its strength determined and a lower BIC)")
+    return (f"not kept: the stepwise search keeps {kept.label} (a further effect is added "
+            "only where the kept ones leave a held-out error clear of the noise, and must "
+            f"remove at least {MIN_GAP_CLOSED:.0f}% of it above the floor, with its strength "
+            "determined and a lower BIC)")
 
 
 def _applies(name: str, furnace, asked: bool) -> bool:

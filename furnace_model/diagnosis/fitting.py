@@ -12,7 +12,7 @@ import numpy as np
 from ..effects import EFFECTS, Effect
 from ..experiment import Experiment
 from ..identification.carried import carried_error
-from ..identification.equationerror import equation_error
+from ..identification.equationerror import equation_error_starts
 from ..identification.fit import fit
 from ..identification.model import Refinement
 from ..identification.noisefloor import pooled_floor, record_floor
@@ -226,7 +226,7 @@ def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
     drift (tens of degrees on one of a pair) bends the baseline so far that from its rates
     the drift's fit finds only side valleys."""
     restarts, again = _starts(structure, init, bounds)
-    restarts += [{**v, **_network_for(structure, v, task.fit_data)} for v in again]
+    restarts += [{**v, **net} for v in again for net in _networks_for(structure, v, task.fit_data)]
     for values in restarts:
         if _late(task):
             return dataclasses.replace(fr, stop_reason="time_budget")
@@ -309,12 +309,15 @@ def _from_null(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
     return other if other.sse < fr.sse else fr
 
 
-def _network_for(structure: ModelStructure, values: dict[str, float],
-                 records: list[Experiment]) -> dict[str, float]:
+def _networks_for(structure: ModelStructure, values: dict[str, float],
+                  records: list[Experiment]) -> list[dict[str, float]]:
     """The network's rates the equations' least squares put on `records` with the sensor
     error of `values` taken off their readings and their inputs as its effects make them
     (a fuel switch, a delay): the rates of a baseline bent to absorb the effect hold the
-    candidate's polish in a side valley even from the effect's true values."""
+    candidate's polish in a side valley even from the effect's true values. Each distinct
+    start a fit from scratch has (`equation_error_starts`): the integrated equations put a
+    zone that settles within a sample on its rates' lower bounds, which only the sampled
+    start leaves."""
     nz = structure.furnace.n_zones
     theta = structure.theta(values)
     clean = []
@@ -324,7 +327,7 @@ def _network_for(structure: ModelStructure, values: dict[str, float],
         clean.append(dataclasses.replace(
             e, tc=e.tc - structure.sensor_offsets(values, t)[0], burners=u[:, :nz],
             disturbances=u[:, nz + 1:]))
-    return equation_error(ModelStructure(furnace=structure.furnace), clean)
+    return equation_error_starts(ModelStructure(furnace=structure.furnace), clean)
 
 
 def _carried(fr: FitResult, task: Task, refined: Refinement | None) -> dict[str, float]:

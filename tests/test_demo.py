@@ -210,8 +210,8 @@ def check_faults_story(done: subprocess.CompletedProcess, out: Path, *, onset_h:
 @pytest.mark.timeout(1200)
 def test_a_production_day_with_two_faults_names_the_sensor_then_the_fuel_change(tmp_path):
     """The same story compressed into 17 hours of the plant at 500x (tests/data/
-    production_faults_day.yaml, refit windows of 6 h every hour): four to eight minutes
-    of wall time against the shipped scenario's half hour."""
+    production_faults_day.yaml, refit windows of 6 h every hour): a few minutes of wall
+    time against the shipped scenario's half hour (docs/diagnosis.md)."""
     done, _ = run_demo(tmp_path, "--scenario", str(ROOT / "tests" / "data" /
                                                   "production_faults_day.yaml"),
                        "--speed", "500", "--refit-window-h", "6", "--refit-period-h", "1",

@@ -315,9 +315,9 @@ def _networks_for(structure: ModelStructure, values: dict[str, float],
     error of `values` taken off their readings and their inputs as its effects make them
     (a fuel switch, a delay): the rates of a baseline bent to absorb the effect hold the
     candidate's polish in a side valley even from the effect's true values. Each distinct
-    start a fit from scratch has (`equation_error_starts`): the integrated equations put a
-    zone that settles within a sample on its rates' lower bounds, which only the sampled
-    start leaves."""
+    start a fit from scratch has (`equation_error_starts`): the integrated equations can
+    put a zone that settles within a sample on its rates' lower bounds, a valley the polish
+    may not leave, and the other starts put it elsewhere."""
     nz = structure.furnace.n_zones
     theta = structure.theta(values)
     clean = []

@@ -106,8 +106,9 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     model cannot otherwise absorb, except by bending its parameters (per experiment, since
     thermocouples are replaced and recalibrated between campaigns). `profile`: the
     intervals of parameters the data leave wide follow the criterion (furnace_model.identification.profile)
-    instead of its quadratic approximation; a refit per trial value, so callers that only
-    rank fits may leave it off.
+    instead of its quadratic approximation, where the fit reaches its records' noise floor
+    (`_missed_floor`); a refit per trial value, so callers that only rank fits may leave it
+    off.
 
     `warm` (with `init`): a sliding window's refit, which starts from the window before
     (see `WarmStart`); the same optimum and intervals, to the optimiser's and the profile's

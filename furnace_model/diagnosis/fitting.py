@@ -314,10 +314,10 @@ def _networks_for(structure: ModelStructure, values: dict[str, float],
     """The network's rates the equations' least squares put on `records` with the sensor
     error of `values` taken off their readings and their inputs as its effects make them
     (a fuel switch, a delay): the rates of a baseline bent to absorb the effect hold the
-    candidate's polish in a side valley even from the effect's true values. Each distinct
-    start a fit from scratch has (`equation_error_starts`): the integrated equations can
-    put a zone that settles within a sample on its rates' lower bounds, a valley the polish
-    may not leave, and the other starts put it elsewhere."""
+    candidate's polish in a side valley even from the effect's true values. Where the
+    integrated equations put a rate on a bound of its box (a zone that settles within a
+    sample loses its rates' scale there, a valley the polish may not leave), each further
+    distinct start a fit from scratch has (`equation_error_starts`) as well."""
     nz = structure.furnace.n_zones
     theta = structure.theta(values)
     clean = []
@@ -327,7 +327,11 @@ def _networks_for(structure: ModelStructure, values: dict[str, float],
         clean.append(dataclasses.replace(
             e, tc=e.tc - structure.sensor_offsets(values, t)[0], burners=u[:, :nz],
             disturbances=u[:, nz + 1:]))
-    return equation_error_starts(ModelStructure(furnace=structure.furnace), clean)
+    network = ModelStructure(furnace=structure.furnace)
+    first, *others = equation_error_starts(network, clean)
+    box = {p.name: p for p in network.params}
+    on_bound = any(not box[n].lo < v < box[n].hi for n, v in first.items())
+    return [first, *others] if on_bound else [first]
 
 
 def _carried(fr: FitResult, task: Task, refined: Refinement | None) -> dict[str, float]:

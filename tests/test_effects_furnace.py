@@ -315,17 +315,11 @@ def test_a_fuel_switch_on_a_network_is_fitted_from_the_rates_its_inputs_give():
 
 def _fuel_window():
     """6 hours of the paper's furnace in production as the daemon logged them in the online
-    story test (soak_1 set aside), each burner 25% weaker from minute 210, split as the
-    diagnosis splits them; and the baseline fitted to the first part."""
-    from furnace_model.diagnosis.fitting import Task, run_task
-    from furnace_model.diagnosis.holdout import split
+    story test (soak_1 set aside), each burner 25% weaker from minute 210."""
     from furnace_model.records import load_experiment
 
     furnace = load_furnace(ROOT / "config/furnaces/paper-production.yaml")
-    record = load_experiment(ROOT / "tests/data/production_fuel_window.csv", furnace=furnace)
-    fit_data, hold, tail_of, _ = split([record], None)
-    base = run_task(Task((), {}, fit_data, hold, tail_of, None, 0))
-    return furnace, fit_data, hold, tail_of, base
+    return load_experiment(ROOT / "tests/data/production_fuel_window.csv", furnace=furnace)
 
 
 def test_a_fuel_switch_under_control_reaches_the_floor_from_a_further_network_start():
@@ -334,11 +328,15 @@ def test_a_fuel_switch_under_control_reaches_the_floor_from_a_further_network_st
     the switch (minute 210, x0.75) with the zone collapsed, 2 °C off its floor, or misses
     the switch. Among the rates of every distinct start a fit from scratch has, the same
     starts of the switch reach the floor in every zone."""
-    from furnace_model.diagnosis.fitting import _networks_for
+    from furnace_model.diagnosis.fitting import Task, _networks_for, run_task
+    from furnace_model.diagnosis.holdout import split
     from furnace_model.identification.fit import fit
     from furnace_model.identification.noisefloor import GAP_RATIO, GAP_Z, limits, record_floor
 
-    furnace, fit_data, _, _, base = _fuel_window()
+    record = _fuel_window()
+    furnace = record.furnace
+    fit_data, hold, tail_of, _ = split([record], None)  # as the diagnosis splits it
+    base = run_task(Task((), {}, fit_data, hold, tail_of, None, 0))
     effect = EFFECTS["fuel_change"](furnace=furnace)
     box = effect.tried.search_bounds(fit_data)
     structure = ModelStructure([effect], furnace=furnace)
@@ -365,11 +363,8 @@ def test_a_fuel_switch_under_control_is_named_alone():
     """The same window diagnosed with the switch and a lag as the candidates: the switch
     fitted alone reaches the floor held out, and nothing is added to it."""
     from furnace_model.diagnosis import diagnose
-    from furnace_model.records import load_experiment
 
-    furnace = load_furnace(ROOT / "config/furnaces/paper-production.yaml")
-    record = load_experiment(ROOT / "tests/data/production_fuel_window.csv", furnace=furnace)
-    d = diagnose([record], None, effects=("fuel_change", "sensor_lag"))
+    d = diagnose([_fuel_window()], None, effects=("fuel_change", "sensor_lag"))
     assert d.verdict.status == "explained" and d.verdict.effects == ["fuel_change"], \
         d.verdict.sentence
     single = next(c for c in d.candidates if c.effects == ("fuel_change",))

@@ -206,7 +206,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         ci[name] = ci_white[name] = (float(v), float(v))
     undetermined = unc.undetermined(prob.from_z(z[:prob.k]), prob.lo_val, prob.hi_val)
     profiled = {}
-    missed = _missed_floor(prob, z, experiments) if profile else {}
+    per_zone = prob.per_zone(z)
+    missed = _missed_floor(per_zone, experiments) if profile else {}
     if profile and not missed:
         wide = [n for i, n in enumerate(prob.names)
                 if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE]
@@ -240,7 +241,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         structure=structure, params=params,
         x0=[prob.x0_of(z, j).copy() for j in range(len(prob.records))],
         ci95={n: ci[n] for n in structure.names}, corr=corr, undetermined=undetermined,
-        determined_combinations=combos, warnings=warnings, per_zone=prob.per_zone(z),
+        determined_combinations=combos, warnings=warnings, per_zone=per_zone,
         sse=float(res @ res), n_obs=prob.n_obs, elapsed_s=time.perf_counter() - t_start,
         runs=run_dicts, method=method,
         status="insufficient_excitation" if static else "ok", genetic_mean=mean,
@@ -325,18 +326,16 @@ class _Run:
     free_cost: float | None = None  # the polish's: see Polished
 
 
-def _missed_floor(prob: Problem, z: np.ndarray, experiments: list[Experiment]
-                  ) -> dict[str, tuple[float, float]]:
-    """{zone: (RMSE, limit)} where the fit misses the records' noise floor, as a refit's
-    misfit and a diagnosis's gap are judged (noisefloor.limits). There no parameter set
-    reproduces the records, so a profile's coverage of the truth does not apply, and each of
-    its refits crawls along a criterion shaped by what the model leaves out: the
-    linearised interval, with the residual's colour, says as much for a small part of
-    the cost."""
+def _missed_floor(per_zone: Mapping[str, Mapping[str, float]],
+                  experiments: list[Experiment]) -> dict[str, tuple[float, float]]:
+    """{zone: (RMSE, limit)} where the fit (its `per_zone` metrics) misses the records'
+    noise floor, as a refit's misfit and a diagnosis's gap are judged (noisefloor.limits).
+    There no parameter set reproduces the records, so a profile's coverage of the truth does
+    not apply, and each of its refits crawls along a criterion shaped by what the model
+    leaves out; the linearised interval, with the residual's colour, is given instead."""
     limit = limits([record_floor(e) for e in experiments], GAP_RATIO, GAP_Z)
-    rmse = {zone: m["rmse_c"] for zone, m in prob.per_zone(z).items()}
-    return {zone: (float(rmse[zone]), float(limit[zone])) for zone in limit
-            if zone in rmse and rmse[zone] > limit[zone]}
+    return {zone: (float(per_zone[zone]["rmse_c"]), float(limit[zone])) for zone in limit
+            if zone in per_zone and per_zone[zone]["rmse_c"] > limit[zone]}
 
 
 def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,

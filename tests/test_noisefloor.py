@@ -3,6 +3,8 @@ and low-pass thermocouples, a noisier campaign, a loose junction, a drift, a lon
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,8 @@ from furnace_model.simulation.parameters import PAPER_TABLE_V
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import SensorSpec
 from furnace_model.simulation.structure import Inputs, ModelStructure
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _record(seed: int, n: int = 1500, **sensors) -> tuple:
@@ -99,6 +103,44 @@ def test_with_no_pair_at_all_the_floor_says_it_assumes_white_noise():
     exp.tc[:, 1::2] = np.nan  # one thermocouple per zone
     f = record_floor(exp)
     for z in PAPER.zones:
-        assert f.zones[z].how == "second_difference"
+        assert f.zones[z].how in ("equation_error", "second_difference")
         assert "white" in f.zones[z].words() and not np.isfinite(f.zones[z].rel_sd)
         assert f.zones[z].floor_c == pytest.approx(1.5, rel=0.15)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_lone_reading_whose_inputs_move_every_sample_has_its_noise_for_a_floor(seed):
+    """Hourly rows of a room heated by an input modulated every hour: the reading bends at
+    every row, and its second differences read that curvature as noise (2.7 times the
+    thermocouple's 0.05 °C). The one-step error of a first-order fit follows it."""
+    from furnace_model.diagnosis.hourlyroom import hourly_room
+
+    zone = record_floor(hourly_room(seed)).zones["room"]
+    assert zone.how == "equation_error" and "first-order fit" in zone.words()
+    assert zone.floor_c == pytest.approx(0.05, rel=0.2)
+
+
+def test_a_lone_reading_of_a_zone_held_by_its_loop_has_its_noise_for_a_floor():
+    """A day of production: the loops step the burners nearly every minute, each step a
+    bend of the reading that second differences read as noise (up to 2.6 times the
+    thermocouples' 1.5 °C here)."""
+    from furnace_model.simulation.scenario import load_scenario
+
+    scenario = load_scenario(ROOT / "config" / "scenarios" / "paper_production.yaml")
+    exp = Plant.from_scenario(scenario, seed=1).run_scenario(scenario).to_experiment("p")
+    exp.tc[:, 1::2] = np.nan  # one thermocouple per zone
+    for zone in record_floor(exp).zones.values():
+        assert zone.floor_c == pytest.approx(1.5, rel=0.15)
+
+
+@pytest.mark.parametrize("pairs", [True, False])
+def test_readings_logged_to_a_coarse_step_keep_the_rounding_in_their_floor(pairs):
+    """Rounded to 5 °C, the thermocouples (1.5 °C of noise) hold still for most minutes: a
+    pair's difference and a lone reading's differences read no noise at all. A perfect
+    model still misses each reading by the rounding, 5 / sqrt(12) = 1.44 °C, and more."""
+    exp, _ = _record(4)
+    if not pairs:
+        exp.tc[:, 1::2] = np.nan
+    exp.tc[:] = np.round(exp.tc / 5.0) * 5.0
+    for zone in record_floor(exp).zones.values():
+        assert zone.tc_sd_c >= 5.0 / np.sqrt(12.0) - 1e-9

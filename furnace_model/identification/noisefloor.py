@@ -18,8 +18,13 @@ it) says how many independent samples it holds.
 A zone of three thermocouples has two pairs of neighbours, whose estimates are pooled.
 A zone read by one thermocouple has no partner to compare with. Its floor is then borrowed
 from the record's pairs (a thermocouple of the same kind in another zone), or, with no pair
-anywhere in the record, read off the second differences of its own reading: that assumes
-white noise and is a lower bound where the noise is low-pass, and it says so.
+anywhere in the record, read off its own reading: the one-step error of a first-order fit
+of it (`equation_error_sd`) or its second differences, whichever is lower. Each reads the
+noise plus whatever of the signal it cannot follow, never less in expectation: second
+differences are the signal's curvature where the inputs move every sample (a zone held by
+its loop, heat modulated every hour on hourly rows), which the fit follows; a fit of one
+state misses a slower second one (a wall, a sensor's lag), whose curvature is small. Both
+assume white noise and read low where it is low-pass, and the report says so.
 """
 
 from __future__ import annotations
@@ -50,6 +55,10 @@ CLIP_SD = 5.0
 drop, a spike): the floor is the noise of working sensors, not of their faults."""
 MIN_PAIR = 20
 """Samples with both thermocouples below which a pair does not give a floor."""
+LONE = (", the lower of a lone reading's two estimates (each reads the noise plus what of "
+        "the signal it cannot follow); it assumes white noise and reads low if the noise is "
+        "low-pass")
+"""How a lone thermocouple's floor was read, for the report."""
 
 
 @dataclass
@@ -58,7 +67,7 @@ class ZoneFloor:
 
     floor_c: float  # sd of the zone temperature's noise: the perfect model's RMSE
     tc_sd_c: float  # sd of one thermocouple's noise
-    how: str  # pair | borrowed | second_difference | none
+    how: str  # pair | borrowed | equation_error | second_difference | none
     rel_sd: float  # relative standard error of floor_c (nan when unknown)
     lag1: float  # autocorrelation of the noise one sample apart
     n_eff: float  # independent samples the estimate rests on
@@ -75,9 +84,10 @@ class ZoneFloor:
         return {"pair": f"from the thermocouple pair's difference ({sure})",
                 "borrowed": f"one thermocouple: borrowed from the record's pairs, assuming "
                             f"thermocouples of one kind ({sure})",
+                "equation_error": "one thermocouple and no pair in the record: from the "
+                                  f"one-step error of a first-order fit of its reading{LONE}",
                 "second_difference": "one thermocouple and no pair in the record: from the "
-                                     "second differences of its reading, which assumes white "
-                                     "noise (a lower bound if the noise is low-pass)",
+                                     f"second differences of its reading{LONE}",
                 "none": "no readings"}[self.how]
 
 
@@ -125,9 +135,13 @@ def record_floor(exp: Experiment) -> RecordFloor:
             lag1 = float(np.average([p[1] for p in pairs.values()], weights=w_eff))
             n_eff, how = float(w_eff.sum()), "borrowed"
         else:
-            tc_sd, lag1 = second_difference_sd(exp.zone_temp[:, w])
-            var_d, n_eff, how = 2.0 * tc_sd * tc_sd, np.nan, "second_difference"
-        tc_sd = float(np.sqrt(var_d / 2.0))
+            tc_sd, how = lone_sd(exp, w)
+            var_d, lag1, n_eff = 2.0 * tc_sd * tc_sd, np.nan, np.nan
+        # A reading logged to a coarse step (a historian's whole degrees) holds still
+        # between steps, and a robust spread of its differences can read no noise at all:
+        # the rounding alone leaves a perfect model step / sqrt(12) off each reading.
+        tc_sd = max(float(np.sqrt(var_d / 2.0)),
+                    _resolution(exp.tc[:, a:a + furnace.thermocouples[w]]) / np.sqrt(12.0))
         rel = 1.0 / np.sqrt(2.0 * n_eff) if np.isfinite(n_eff) and n_eff > 0 else np.nan
         zones[zone] = ZoneFloor(tc_sd * np.sqrt(mean_inv), tc_sd, how, float(rel), lag1,
                                 float(n_eff), samples)
@@ -208,6 +222,56 @@ def _robust_sd(x: np.ndarray) -> float:
     if x.size < 3:
         return float("nan")
     return float(MAD_TO_SD * np.median(np.abs(x - np.median(x))))
+
+
+def lone_sd(exp: Experiment, w: int) -> tuple[float, str]:
+    """A lone thermocouple's noise sd (zone w of `exp`), and how it was read: the lower of
+    the two estimates (module docstring), nan where neither has the samples."""
+    y = exp.zone_temp[:, w]
+    found = [(sd, how) for sd, how in ((equation_error_sd(exp, w), "equation_error"),
+                                       (second_difference_sd(y)[0], "second_difference"))
+             if np.isfinite(sd)]
+    return min(found) if found else (float("nan"), "second_difference")
+
+
+def equation_error_sd(exp: Experiment, w: int) -> float:
+    """Zone w's noise sd from the one-step error of its reading fitted as a first-order
+    system of its own last reading, the other zones', the inputs held over the step and a
+    constant, T(k+1) = a T(k) + sum b_j T_j(k) + c u(k) + d. With readings y = T + e the
+    error is e(k+1) - a e(k) - sum b_j e_j(k) plus what the fit cannot follow, so its
+    variance over 1 + a^2 + sum b_j^2 (the other zones' noise taken as this one's) is the
+    noise variance or more. Only steps of the record's usual interval are used."""
+    t = np.asarray(exp.t_min, dtype=float)
+    if t.size < 3:
+        return float("nan")
+    y = np.asarray(exp.zone_temp, dtype=float)
+    h = float(np.median(np.diff(t)))
+    air = np.asarray(exp.t_air, dtype=float)
+    X = np.concatenate([y[:-1, [w]], np.delete(y[:-1], w, axis=1),
+                        np.asarray(exp.burners, dtype=float)[:-1],
+                        0.5 * (air[:-1] + air[1:])[:, None],
+                        np.asarray(exp.disturbances, dtype=float)[:-1],
+                        np.ones((t.size - 1, 1))], axis=1)
+    b = y[1:, w]
+    keep = (np.abs(np.diff(t) - h) <= 1e-6 * h) & np.isfinite(X).all(axis=1) & np.isfinite(b)
+    X, b = X[keep], b[keep]
+    if b.size < X.shape[1] + MIN_PAIR:
+        return float("nan")
+    scale = np.abs(X).max(axis=0)
+    scale[scale == 0] = 1.0
+    coef = np.linalg.lstsq(X / scale, b, rcond=None)[0] / scale
+    nz = y.shape[1]
+    spread = 1.0 + float(np.sum(coef[:nz] ** 2))
+    dof = b.size / (b.size - X.shape[1])
+    return _robust_sd(b - X @ coef) * float(np.sqrt(dof / spread))
+
+
+def _resolution(y: np.ndarray) -> float:
+    """The step a reading is logged to: the least gap between its distinct values (about
+    nothing for a reading kept to full precision)."""
+    gaps = np.diff(np.unique(y[np.isfinite(y)]))  # every column's values on one grid
+    gaps = gaps[gaps > 0]
+    return float(gaps.min()) if gaps.size else 0.0
 
 
 def second_difference_sd(y: np.ndarray) -> tuple[float, float]:

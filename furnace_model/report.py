@@ -73,7 +73,8 @@ def render(d: Diagnosis) -> str:
     base = baseline_label(furnace)
     pairs = ("the two thermocouples of a zone" if paper_like(furnace) else
              "the thermocouples of a zone against each other; a zone of one thermocouple "
-             "borrows the record's pairs, or reads its own second differences")
+             "borrows the record's pairs, or reads its own (a first-order fit's one-step "
+             "error or its second differences, the lower)")
     if drawn is None:
         extension = ("no extension (none closes any of the gap)" if d.candidates
                      else "no extension (none was tried)")
@@ -189,7 +190,7 @@ def _rmse_table(d: Diagnosis, best: CandidateResult | None) -> str:
             "baseline held out"]
     if best is not None:
         head += [f"{best.label} fit", f"{best.label} held out"]
-    head += ["gap above (°C)", "gap"]
+    head += ["gap limit (°C)", "gap"]
     rows = []
     fit_floor, limit = d.noise_floor_fit_c or {}, d.gap_limit_c or {}
     for z in zone_names:

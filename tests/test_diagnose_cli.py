@@ -66,7 +66,7 @@ def test_diagnose_names_the_effect_and_writes_the_contract_json(case_files, tmp_
     order = [r.stdout.index(h) for h in ("Baseline (the paper's model", "Where the error lies",
                                          "Candidates, best first")]
     assert order == sorted(order)
-    assert ("| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap above (°C) "
+    assert ("| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap limit (°C) "
             "| gap |") in r.stdout
     assert "Noise floor per record" in r.stdout and "from the thermocouple pair's" in r.stdout
     assert "degC" not in r.stdout and " C;" not in r.stdout

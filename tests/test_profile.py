@@ -142,5 +142,6 @@ def test_a_fit_that_misses_its_noise_floor_keeps_its_intervals_linearised(scenar
     assert weaker_fit.profiled == []
     said = [w for w in weaker_fit.warnings if w.startswith("intervals linearised, not profiled")]
     assert said and "misses the noise floor" in said[0], weaker_fit.warnings
+    assert "offset may carry part of the model's error" in said[0]  # fitted with offsets
     worst = max(weaker_fit.per_zone, key=lambda z: weaker_fit.per_zone[z]["rmse_c"])
     assert worst in said[0]

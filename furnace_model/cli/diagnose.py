@@ -169,7 +169,7 @@ def summary(d: Diagnosis) -> str:
                   "to try them.", ""]
     lines += [f"Fitted: {', '.join(e.name for e in d.fit_data)}; held out: {d.holdout_how}",
               "", f"Baseline ({model}):",
-              "| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap above (°C) "
+              "| zone | RMSE fit (°C) | RMSE held out (°C) | noise floor (°C) | gap limit (°C) "
               "| gap |",
               "|---|---|---|---|---|---|"]
     limit = d.gap_limit_c or {}

@@ -225,7 +225,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
               for n, lo, hi in zip(prob.names, prob.lo_val, prob.hi_val, strict=True)}
     edges = {n: ranges[n][0 if side == "lower" else 1] for n, side in at_bound.items()}
     warnings = _warnings(experiments, unc, undetermined, combos, best_run, time_budget_s,
-                         at_bound, edges, missed) + [f.words() for f in flags]
+                         at_bound, edges, missed, zone_offsets) + [f.words() for f in flags]
     static = all(e.burner_steps == 0 for e in experiments)
     corr = np.eye(len(structure.names))
     cov = np.zeros((len(structure.names),) * 2)
@@ -498,7 +498,8 @@ def _lowest(polished: list[Polished]) -> Polished:
 
 def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: list[str],
               run: _Run, budget, at_bound: dict[str, str],
-              edges: dict[str, float], missed: dict[str, tuple[float, float]]) -> list[str]:
+              edges: dict[str, float], missed: dict[str, tuple[float, float]],
+              offsets: bool = False) -> list[str]:
     out = []
     for e in experiments:
         if e.burner_steps == 0:
@@ -517,7 +518,10 @@ def _warnings(experiments, unc: Uncertainty, undetermined: list[str], combos: li
     if missed:
         out.append("intervals linearised, not profiled: the model misses the noise floor in "
                    + ", ".join(f"{zone} (RMSE {r:.2g} against {lim:.2g} °C)"
-                               for zone, (r, lim) in missed.items()))
+                               for zone, (r, lim) in missed.items())
+                   # an offset that takes up what the model leaves out is no sensor's bias
+                   + ("; there a zone offset may carry part of the model's error, not only a "
+                      "thermocouple's bias: run diagnose" if offsets else ""))
     for a, b, r in unc.strong_correlations():
         out.append(f"{a} and {b} are strongly correlated (r = {r:+.3f}): the data fix a "
                    "combination of them better than either")

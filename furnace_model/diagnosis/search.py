@@ -145,17 +145,23 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                            counted(len(tasks), lambda w: say(w, 0.1)), limit))
     for c in fitted:
         score_against(c, base, floor)
-    if bent:
-        # A candidate that stays off the floor may sit in the bent baseline's side valley
-        # (seen: strong zone burners, a = 1 and d = 11; strong radiation, a held at its
-        # bound): it is searched from scratch too, a nonlinear one with a short evolutionary
-        # search (each generation is a batch). A linear one that helps always: it is cheap.
-        # Any other only while no candidate alone explains the gap: on a bent baseline that
-        # is most candidates, and a nonlinear search from scratch costs more than the rest
-        # of the diagnosis (radiation several times it) for a verdict it does not change.
-        # The linear ones first, the rule read again after them: one that reaches the floor
-        # only from scratch spares the nonlinear searches.
-        for linear in (True, False):
+    # A candidate that stays off the floor of a bent baseline may sit in its side valley
+    # (seen: strong zone burners, a = 1 and d = 11; strong radiation, a held at its bound):
+    # it is searched from scratch too, a nonlinear one with a short evolutionary search
+    # (each generation is a batch). A linear one that helps always: it is cheap. Any other
+    # only while no candidate alone explains the gap: on a bent baseline that is most
+    # candidates, and a nonlinear search from scratch costs more than the rest of the
+    # diagnosis (radiation several times it) for a verdict it does not change.
+    # Then the effects' further laws, on a bent baseline also from scratch, but only while
+    # no candidate alone explains the gap (seen: a preheating-zone wall whose warm law
+    # stayed off the floor, and a drift was added; searched every time, the laws cost the
+    # paper pair 10%). Once a candidate alone explains the gap, a nonlinear one that does
+    # not gets no further laws at all: each is a search of the integrated model.
+    # The linear candidates first, searches and laws, and the rule read again after them:
+    # one that reaches the floor from scratch or in another law (a lag in the zone it is
+    # in, of a furnace of many) spares the nonlinear searches.
+    for linear in (True, False):
+        if bent:
             stuck = not explains(fitted)
             off = [i for i, c in enumerate(fitted)
                    if is_linear(c) == linear
@@ -176,24 +182,19 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                 if np.isfinite(c.sse_fit) and c.sse_fit < fitted[i].sse_fit:
                     c.note = "; ".join(x for x in (c.note, "searched from scratch") if x)
                     fitted[i] = c
-    # On a bent baseline the linear laws are searched from scratch too, as the singles are,
-    # but only while no candidate alone explains the gap (seen: a preheating-zone wall whose
-    # warm law stayed off the floor, and a drift was added; searched every time, the laws
-    # cost the paper pair 10%). Once a candidate alone explains the gap, a nonlinear one
-    # that does not gets no further laws at all: each is a search of the integrated model.
-    solved = explains(fitted)
-    cold_laws = bent and not solved
-    laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
-                 seed, cold_laws, bounds, fit_limit)
-            for c, opts in further_laws(fitted, furnace)
-            if not solved or explains([c]) or is_linear(c)]
-    if laws:
-        say("laws", 0.65)
-    more = tried(run_all(laws, lambda f: say("laws", 0.65 + 0.05 * f),
-                         counted(len(laws), lambda w: say(w, 0.65)), limit))
-    for c in more:
-        score_against(c, base, floor)
-    fitted += more
+        solved = explains(fitted)
+        laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
+                     seed, bent and not solved, bounds, fit_limit)
+                for c, opts in further_laws([c for c in fitted if is_linear(c) == linear],
+                                            furnace)
+                if not solved or explains([c]) or linear]
+        if laws:
+            say("laws", 0.65)
+        more = tried(run_all(laws, lambda f: say("laws", 0.65 + 0.05 * f),
+                             counted(len(laws), lambda w: say(w, 0.65)), limit))
+        for c in more:
+            score_against(c, base, floor)
+        fitted += more
     singles = []
     for n in names:
         same = sorted((c for c in fitted if c.effects == (n,)), key=rank)

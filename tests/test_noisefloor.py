@@ -131,6 +131,12 @@ def test_a_lone_reading_of_a_zone_held_by_its_loop_has_its_noise_for_a_floor():
     exp.tc[:, 1::2] = np.nan  # one thermocouple per zone
     for zone in record_floor(exp).zones.values():
         assert zone.floor_c == pytest.approx(1.5, rel=0.15)
+    exp.tc[:, 4] = np.nan  # the preheating zone's thermocouple dead: no neighbour to read
+    floors = record_floor(exp).zones
+    assert floors["preheat"].how == "none"
+    for z in ("soak", "heat"):
+        assert floors[z].how == "equation_error"
+        assert floors[z].floor_c == pytest.approx(1.5, rel=0.15)
 
 
 @pytest.mark.parametrize("pairs", [True, False])

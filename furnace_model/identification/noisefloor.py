@@ -25,6 +25,10 @@ differences are the signal's curvature where the inputs move every sample (a zon
 its loop, heat modulated every hour on hourly rows), which the fit follows; a fit of one
 state misses a slower second one (a wall, a sensor's lag), whose curvature is small. Both
 assume white noise and read low where it is low-pass, and the report says so.
+
+Readings logged to a coarse step (a historian's whole degrees) hold still between steps, and
+a robust spread of their differences, a pair's or a lone reading's, can read no noise at
+all: a thermocouple's noise is taken as at least the rounding's, step / sqrt(12).
 """
 
 from __future__ import annotations
@@ -137,9 +141,6 @@ def record_floor(exp: Experiment) -> RecordFloor:
         else:
             tc_sd, how = lone_sd(exp, w)
             var_d, lag1, n_eff = 2.0 * tc_sd * tc_sd, np.nan, np.nan
-        # A reading logged to a coarse step (a historian's whole degrees) holds still
-        # between steps, and a robust spread of its differences can read no noise at all:
-        # the rounding alone leaves a perfect model step / sqrt(12) off each reading.
         tc_sd = max(float(np.sqrt(var_d / 2.0)),
                     _resolution(exp.tc[:, a:a + furnace.thermocouples[w]]) / np.sqrt(12.0))
         rel = 1.0 / np.sqrt(2.0 * n_eff) if np.isfinite(n_eff) and n_eff > 0 else np.nan
@@ -253,6 +254,9 @@ def equation_error_sd(exp: Experiment, w: int) -> float:
                         np.asarray(exp.disturbances, dtype=float)[:-1],
                         np.ones((t.size - 1, 1))], axis=1)
     b = y[1:, w]
+    used = np.isfinite(X).any(axis=0)  # a zone with no reading at all is no regressor
+    used[0] = True
+    X = X[:, used]
     keep = (np.abs(np.diff(t) - h) <= 1e-6 * h) & np.isfinite(X).all(axis=1) & np.isfinite(b)
     X, b = X[keep], b[keep]
     if b.size < X.shape[1] + MIN_PAIR:
@@ -260,8 +264,8 @@ def equation_error_sd(exp: Experiment, w: int) -> float:
     scale = np.abs(X).max(axis=0)
     scale[scale == 0] = 1.0
     coef = np.linalg.lstsq(X / scale, b, rcond=None)[0] / scale
-    nz = y.shape[1]
-    spread = 1.0 + float(np.sum(coef[:nz] ** 2))
+    readings = int(used[:y.shape[1]].sum())  # this zone's and its neighbours' columns
+    spread = 1.0 + float(np.sum(coef[:readings] ** 2))
     dof = b.size / (b.size - X.shape[1])
     return _robust_sd(b - X @ coef) * float(np.sqrt(dof / spread))
 

@@ -65,6 +65,14 @@ class Diagnosis:
                        "wider than a thermocouple's bias allows (a furnace held at its "
                        "setpoints cannot tell a shift of its readings from one of its level), "
                        "so the value is where the fit left it, not a bias")
+        gap = [z for z in zones if z in self.gap_zones]
+        if gap:
+            # an offset that takes up what the model leaves out is no sensor's bias
+            kept = self.best() if self.verdict.effects else None
+            out.append(f"- the baseline misses the held-out data in the {', '.join(gap)} "
+                       "zone(s): an offset there may take up part of the model's error too"
+                       + (f"; with {kept.label} the fit carries {values(kept.offsets_c)} °C"
+                          if kept is not None and kept.offsets_c is not None else ""))
         for e, o in zip(self.holdout, b.holdout_offsets_c or [], strict=False):  # whole records
             out.append(f"- {e.name} (held out): {values(o)} °C")
         if b.rmse_holdout_carried_c is not None:

@@ -85,6 +85,14 @@ class Experiment:
                           furnace=self.furnace, disturbances=self.disturbances[mask],
                           signals={k: v[mask] for k, v in self.signals.items()})
 
+    def inputs_over_steps(self) -> np.ndarray:
+        """The inputs over each step between samples, (N - 1, inputs) in the system's
+        order: the heat and the disturbances held from the step's start, as the PLC holds
+        them; ambient, which moves, at the step's middle."""
+        air = np.asarray(self.t_air, dtype=float)[:, None]
+        return np.concatenate([self.burners[:-1], 0.5 * (air[:-1] + air[1:]),
+                               self.disturbances[:-1]], axis=1).astype(float)
+
     def sample_period_min(self) -> float:
         return float(np.median(np.diff(self.t_min))) if len(self) > 1 else float("nan")
 

@@ -100,9 +100,7 @@ def sampled_start(structure: ModelStructure, records: list[Experiment],
     for r in records:
         t = np.asarray(r.t_min, dtype=float)
         y = _filled(r.zone_temp, t)
-        air = np.asarray(r.t_air, dtype=float)[:, None]
-        mid_air = 0.5 * (air[:-1] + air[1:])
-        u = np.concatenate([r.burners[:-1], mid_air, r.disturbances[:-1]], axis=1).astype(float)
+        u = r.inputs_over_steps()
         step = np.abs(np.diff(t) - h) <= 1e-6 * h
         mid = 0.5 * (y[:-1] + y[1:])
         for i in range(nz):

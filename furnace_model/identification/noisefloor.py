@@ -246,12 +246,8 @@ def equation_error_sd(exp: Experiment, w: int) -> float:
     if t.size < 3:
         return float("nan")
     y = np.asarray(exp.zone_temp, dtype=float)
-    h = float(np.median(np.diff(t)))
-    air = np.asarray(exp.t_air, dtype=float)
-    X = np.concatenate([y[:-1, [w]], np.delete(y[:-1], w, axis=1),
-                        np.asarray(exp.burners, dtype=float)[:-1],
-                        0.5 * (air[:-1] + air[1:])[:, None],
-                        np.asarray(exp.disturbances, dtype=float)[:-1],
+    h = exp.sample_period_min()
+    X = np.concatenate([y[:-1, [w]], np.delete(y[:-1], w, axis=1), exp.inputs_over_steps(),
                         np.ones((t.size - 1, 1))], axis=1)
     b = y[1:, w]
     used = np.isfinite(X).any(axis=0)  # a zone with no reading at all is no regressor

@@ -358,6 +358,39 @@ def test_a_fuel_switch_under_control_reaches_the_floor_from_a_further_network_st
         assert best.per_zone[z]["rmse_c"] < limit[z], (z, best.per_zone[z], limit[z])
 
 
+def test_no_further_start_is_polished_once_a_fit_follows_its_records_to_the_noise(
+        monkeypatch):
+    """The switch's starts on the same window are polished in turn until one fits every
+    zone to its noise (within AT_FLOOR_Z standard errors of the floor): what the others could
+    still take off is the noise's own scatter. The polish that stops them is the first at
+    the floor, and the switch it found is the one of the record."""
+    from furnace_model.diagnosis import fitting
+    from furnace_model.diagnosis.holdout import split
+    from furnace_model.identification.noisefloor import limits, record_floor
+
+    record = _fuel_window()
+    fit_data, hold, tail_of, _ = split([record], None)
+    base = fitting.run_task(fitting.Task((), {}, fit_data, hold, tail_of, None, 0))
+    at_floor = limits([record_floor(e) for e in fit_data], 1.0, fitting.AT_FLOOR_Z)
+    ends, real = [], fitting.fit
+
+    def counted(*args, **kwargs):
+        fr = real(*args, **kwargs)
+        ends.append(all(fr.per_zone[z]["rmse_c"] <= at_floor[z] for z in at_floor))
+        return fr
+    monkeypatch.setattr(fitting, "fit", counted)
+    box = EFFECTS["fuel_change"].tried.search_bounds(fit_data)
+    fuel = fitting.run_task(fitting.Task(("fuel_change",), {}, fit_data, hold, tail_of,
+                                         dict(base.params), 0, bounds=box))
+    structure = ModelStructure([EFFECTS["fuel_change"](furnace=record.furnace)],
+                               furnace=record.furnace)
+    starts = sum(map(len, fitting._starts(structure, dict(base.params), box)))
+    assert ends[-1] and not any(ends[:-1]), ends
+    assert len(ends) < starts, (len(ends), starts)  # stopped with starts left
+    assert fuel.params["t_fuel"] == pytest.approx(210.0, abs=2.0)
+    assert fuel.params["fuel_ratio"] == pytest.approx(0.75, abs=0.01)
+
+
 @pytest.mark.slow  # the candidate's every start: half a minute of one core
 def test_a_fuel_switch_under_control_is_named_alone():
     """The same window diagnosed with the switch and a lag as the candidates: the switch

@@ -15,7 +15,7 @@ from ..identification.carried import carried_error
 from ..identification.equationerror import equation_error_starts
 from ..identification.fit import fit
 from ..identification.model import Refinement
-from ..identification.noisefloor import pooled_floor, record_floor
+from ..identification.noisefloor import limits, pooled_floor, record_floor
 from ..identification.residuals import lag1
 from ..identification.result import FitResult
 from ..simulation.furnace import Furnace
@@ -26,6 +26,11 @@ from .credit import CARRIED_Z, identifiable
 BASELINE_RUNS = 3
 """The baseline is cheap and everything is measured against it: independent searches, so
 that a side valley of eq. 11 is not mistaken for a gap."""
+
+AT_FLOOR_Z = 1.0
+"""Standard errors of the RMSE-to-floor ratio (`noisefloor.limits`) within which a fit
+follows its records to their noise in every zone, and further starts are not polished: what
+they could still take off is the noise's own scatter, not the model's error."""
 
 
 @dataclass
@@ -221,13 +226,17 @@ def _with_carried_offsets(fr: FitResult, task: Task, hold_pred: list[np.ndarray]
 def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[str, float],
                bounds: dict[str, tuple[float, float]]) -> FitResult:
     """The fit polished again from the effects' further starts (`Tried.starts`), the best
-    kept. On a network, a thermocouple's error from a start is also taken off the readings
-    and the network started where the equations' least squares fit what is left: a large
-    drift (tens of degrees on one of a pair) bends the baseline so far that from its rates
-    the drift's fit finds only side valleys."""
+    kept, until one follows the records to their noise (`AT_FLOOR_Z`). On a network, a
+    thermocouple's error from a start is also taken off the readings and the network started
+    where the equations' least squares fit what is left: a large drift (tens of degrees on
+    one of a pair) bends the baseline so far that from its rates the drift's fit finds only
+    side valleys."""
     restarts, again = _starts(structure, init, bounds)
     restarts += [{**v, **net} for v in again for net in _networks_for(structure, v, task.fit_data)]
+    floor = limits([record_floor(e) for e in task.fit_data], 1.0, AT_FLOOR_Z)
     for values in restarts:
+        if all(fr.per_zone[z]["rmse_c"] <= floor[z] for z in floor if z in fr.per_zone):
+            break
         if _late(task):
             return dataclasses.replace(fr, stop_reason="time_budget")
         other = fit(task.fit_data, structure, init=values, seed=task.seed, zone_offsets=True,

@@ -153,10 +153,10 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     # candidates, and a nonlinear search from scratch costs more than the rest of the
     # diagnosis (radiation several times it) for a verdict it does not change.
     # Then the effects' further laws, on a bent baseline also from scratch, but only while
-    # no candidate alone explains the gap (seen: a preheating-zone wall whose warm law
-    # stayed off the floor, and a drift was added; searched every time, the laws cost the
-    # paper pair 10%). Once a candidate alone explains the gap, a nonlinear one that does
-    # not gets no further laws at all: each is a search of the integrated model.
+    # no candidate alone explains the gap (a preheating-zone wall whose warm law stays off
+    # the floor lets a drift be added in its place). Once a candidate alone explains the
+    # gap, a nonlinear one that does not gets no further laws at all: each is a search of
+    # the integrated model.
     # The linear candidates first, searches and laws, and the rule read again after them:
     # one that reaches the floor from scratch or in another law (a lag in the zone it is
     # in, of a furnace of many) spares the nonlinear searches.

@@ -358,6 +358,35 @@ def test_a_fuel_switch_under_control_reaches_the_floor_from_a_further_network_st
         assert best.per_zone[z]["rmse_c"] < limit[z], (z, best.per_zone[z], limit[z])
 
 
+def test_a_candidate_at_its_null_starts_where_the_baseline_ended():
+    """A candidate is the baseline at its effect's null, so its fit cannot end above the
+    baseline's if it starts where the baseline's ended. On the online story's drift window
+    (6 hours of the paper's furnace in production, soak_1 drifting from about minute 80,
+    no dead time), a dead time polished again from its null with the baseline's rates alone,
+    its offsets and initial states started anew from the readings, ends in a valley several
+    times the baseline's criterion; started where the baseline ended, it ends at or below."""
+    from furnace_model.diagnosis.fitting import Task, _from_null, _start_of, run_task
+    from furnace_model.diagnosis.holdout import split
+    from furnace_model.identification.fit import fit
+    from furnace_model.records import load_experiment
+
+    furnace = load_furnace(ROOT / "config/furnaces/paper-production.yaml")
+    record = load_experiment(ROOT / "tests/data/production_drift_window.csv", furnace=furnace)
+    fit_data, hold, tail_of, _ = split([record], None)
+    base = run_task(Task((), {}, fit_data, hold, tail_of, None, 0))
+    task = Task(("dead_time",), {}, fit_data, hold, tail_of, dict(base.params), 0,
+                baseline_sse=base.sse_fit, baseline_end=base.ended)
+    structure = ModelStructure([EFFECTS["dead_time"](furnace=furnace)], furnace=furnace)
+    init, bounds = _start_of(task, structure)
+    anew = fit(fit_data, structure, init={**init, "theta_dead": 0.0}, zone_offsets=True,
+               profile=False, bounds=bounds)
+    assert anew.sse > 2.0 * base.sse_fit, (anew.sse, base.sse_fit)
+    stuck = dataclasses.replace(anew, sse=np.inf)  # a fit that ended anywhere above
+    again = _from_null(stuck, task, structure, init, bounds)
+    assert again.sse <= base.sse_fit * (1 + 1e-9), (again.sse, base.sse_fit)
+    assert run_task(task).sse_fit <= base.sse_fit * (1 + 1e-9)
+
+
 def test_no_further_start_is_polished_once_a_fit_follows_its_records_to_the_noise(
         monkeypatch):
     """The switch's starts on the same window are polished in turn until one fits every

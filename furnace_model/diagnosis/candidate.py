@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..identification.fit import WarmStart
+
 
 @dataclass
 class CandidateResult:
@@ -38,6 +40,9 @@ class CandidateResult:
     warnings: list[str] = field(default_factory=list)
     offsets_c: dict[str, float] | None = None
     """The zone offsets the fit carries to other records (its thermocouples' biases)."""
+    ended: WarmStart | None = None
+    """Where the fit ended on each fitted record (offsets, initial states): a fit of a
+    model this one is nested in starts from there (`fitting._from_null`)."""
     offsets_undetermined: tuple[str, ...] = ()
     """Zones whose offset the fitted records do not determine (a 95% interval wider than
     the offset's physical box, or none): its value is where the fit left it within a

@@ -13,7 +13,7 @@ from ..effects import EFFECTS, Effect
 from ..experiment import Experiment
 from ..identification.carried import carried_error
 from ..identification.equationerror import equation_error_starts
-from ..identification.fit import fit
+from ..identification.fit import WarmStart, fit
 from ..identification.model import Refinement
 from ..identification.noisefloor import limits, pooled_floor, record_floor
 from ..identification.residuals import lag1
@@ -60,6 +60,9 @@ class Task:
     """The baseline's fit criterion, with `init` the baseline's parameters: the candidate is
     the baseline at its effects' nulls, so a fit of it that ends above this is polished
     again from there (`_from_null`)."""
+    baseline_end: WarmStart | None = None
+    """Where the baseline's fit ended on each fitted record (its offsets and initial
+    states): `_from_null` starts there, at the baseline's own criterion."""
     runs: int | None = None
     """Independent searches of a search from scratch; None: BASELINE_RUNS for the baseline,
     one for a candidate."""
@@ -179,6 +182,7 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         held_out_fitted=unseen, carried_c=_carried(fr, task, refined),
         elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings),
         offsets_c=None if carried is None else dict(zip(zones, map(float, carried), strict=True)),
+        ended=WarmStart(offsets=fr.zone_offsets_c, x0=[x.tolist() for x in fr.x0]),
         offsets_undetermined=undetermined_offsets(fr),
         holdout_offsets_c=None if refined is None else refined.zone_offsets_c,
         rmse_holdout_carried_c=(None if task.effects else
@@ -297,11 +301,14 @@ def relative_cost(task: Task) -> float:
 
 def _from_null(fr: FitResult, task: Task, structure: ModelStructure, init: dict[str, float],
                bounds: dict[str, tuple[float, float]]) -> FitResult:
-    """The candidate polished from its effects' nulls (the baseline itself), where its fit
-    ended above the baseline: started at a strength far from the data's (radiation's half
-    share on a furnace with none), the polish can stop at its iteration limit in a valley
-    worse than no effect at all, and such a candidate would be scored for where its search
-    stopped, not for what the effect can do. Not for an effect whose null is only that its
+    """The candidate polished from its effects' nulls (the baseline itself, its offsets and
+    initial states where the baseline's fit ended: `Task.baseline_end`), where its fit ended
+    above the baseline: started at a strength far from the data's (radiation's half share on
+    a furnace with none), the polish can stop at its iteration limit in a valley worse than
+    no effect at all, and such a candidate would be scored for where its search stopped,
+    not for what the effect can do. From the baseline's parameters alone, its offsets and
+    initial states started again from the readings, the polish can end in such a valley
+    too. Not for an effect whose null is only that its
     parameter be determined (NaN): the baseline is not nested in it."""
     null: dict[str, float] = {}
     for e in structure.effects:
@@ -312,7 +319,8 @@ def _from_null(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
     if _late(task):
         return dataclasses.replace(fr, stop_reason="time_budget")
     other = fit(task.fit_data, structure, init={**init, **null}, seed=task.seed,
-                zone_offsets=True, bounds=bounds, profile=False, time_budget_s=_budget(task))
+                zone_offsets=True, bounds=bounds, profile=False, time_budget_s=_budget(task),
+                warm=task.baseline_end)
     if other.stop_reason == "time_budget":
         return dataclasses.replace(fr, stop_reason="time_budget")
     return other if other.sse < fr.sse else fr

@@ -139,7 +139,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
              for n, t in trials.items()}
     bounds = {k: v for n in names for k, v in EFFECTS[n].tried.search_bounds(fit_data).items()}
     tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of, inits[n], seed,
-                  bounds=bounds, baseline_sse=base.sse_fit if trials[n].from_baseline else None)
+                  bounds=bounds, baseline_sse=base.sse_fit if trials[n].from_baseline else None,
+                  baseline_end=base.ended if trials[n].from_baseline else None)
              for n in names]
     fitted = tried(run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f),
                            counted(len(tasks), lambda w: say(w, 0.1)), limit))

@@ -162,6 +162,15 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         offsets = [np.nan_to_num([float((o or {}).get(zone, 0.0))
                                   for zone in structure.furnace.zones])
                    for o in warm.offsets]
+    x0 = None
+    if offsets is not None and warm.x0 is not None:
+        if len(warm.x0) != len(experiments):
+            raise FurnaceError(f"warm start: initial states of {len(warm.x0)} experiment(s) "
+                               f"given for {len(experiments)}")
+        x0 = [np.asarray(x, dtype=float) for x in warm.x0]
+
+    def begin(zp: np.ndarray) -> np.ndarray:
+        return prob.start(zp, offsets, x0)
     if box is None and not seeded(method, starts, spread):
         runs = 1  # every run would repeat the first
     results = []
@@ -176,10 +185,10 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         damping = 1e-3 if warm is None else WARM_DAMPING
         if box is not None and prob.k > 0:
             run = _seeded_run(prob, box, population, generations, rng, starts[0], deadline,
-                              report, offsets, damping)
+                              report, begin, damping)
         else:
             run = _one_run(prob, method, population, generations, rng,
-                           starts, spread, deadline, report, offsets, damping)
+                           starts, spread, deadline, report, begin, damping)
         results.append((run, seed + r, time.perf_counter() - t_run))
     report_done = progress or (lambda _f: None)
     report_done(1.0)
@@ -312,6 +321,10 @@ class WarmStart:
     the box of this many of their standard deviations around `init` (inside the search box),
     seeded with it, before the polish; None: the polish alone. What the data pinned down is
     searched near, what they left loose widely; see `_seeded_run`."""
+    x0: Sequence[Sequence[float]] | None = None
+    """Per experiment (with `offsets`), the initial zone temperatures where a fit of the same
+    records ended: the polish then starts at that fit's whole optimum, which a fit of a
+    model nested in this one (an effect at its null) cannot then end above."""
 
 
 @dataclass
@@ -403,7 +416,7 @@ def _around(prob: Problem, start: np.ndarray, intervals: Mapping[str, tuple[floa
 def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: int,
                 generations: int, rng: np.random.Generator, start: np.ndarray,
                 deadline: float | None, report: Callable[[float], None],
-                offsets: list[np.ndarray] | None, damping: float) -> _Run:
+                begin: Callable[[np.ndarray], np.ndarray], damping: float) -> _Run:
     """A warm start's search: the GA in `box` (see `_around`) on the criterion the polish
     minimises (the records' own unknowns held where the start puts them), the start one of
     its first population; then the polish from the start and, where the search found
@@ -415,7 +428,7 @@ def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: i
     time left at most, the polish the rest."""
     lo, hi = box
     start = np.clip(start, lo, hi)
-    own = prob.start(start, offsets)[prob.k:]
+    own = begin(start)[prob.k:]
     at_start = float(prob.sse_params(start[None], own)[0])
     variance = at_start / max(prob.n_obs - prob.n, 1)
     ga_deadline = None if deadline is None else \
@@ -426,7 +439,7 @@ def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: i
                            deadline=ga_deadline)
     ga_cut = found.generations < generations  # only the deadline ends it early
     picked = [start, found.best] if found.best_f < at_start - variance else [start]
-    polished = [prob.polish(prob.start(z, offsets), deadline, damping=damping) for z in picked]
+    polished = [prob.polish(begin(z), deadline, damping=damping) for z in picked]
     report(1.0)
     best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
     cut = ga_cut or any(p.reason == "time_budget" for p in polished)
@@ -444,7 +457,7 @@ def seeded(method: str, starts: list[np.ndarray], spread: np.ndarray | None) -> 
 def _one_run(prob: Problem, method: str, population: int, generations: int,
              rng: np.random.Generator, starts: list[np.ndarray], spread: np.ndarray | None,
              deadline: float | None, report: Callable[[float], None],
-             offsets: list[np.ndarray] | None = None, damping: float = 1e-3) -> _Run:
+             begin: Callable[[np.ndarray], np.ndarray], damping: float = 1e-3) -> _Run:
     """One run from `starts` (none: the GA over the whole box; several: each polished, the
     first is the GA's centre)."""
     if prob.k == 0:
@@ -453,10 +466,10 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
     if method == "fast" and starts and np.all(spread < 0.1):
         # every value given: polish (several starts: a few steps each, then the best on)
         if len(starts) == 1:
-            p = prob.polish(prob.start(starts[0], offsets), deadline, damping=damping)
+            p = prob.polish(begin(starts[0]), deadline, damping=damping)
         else:
-            p = _lowest([prob.polish(prob.start(z, offsets), deadline, SCOUT_STEPS,
-                                     damping=damping) for z in starts])
+            p = _lowest([prob.polish(begin(z), deadline, SCOUT_STEPS, damping=damping)
+                         for z in starts])
             if p.reason == "iteration_limit":
                 p = prob.polish(p.z, deadline)
         report(1.0)
@@ -485,7 +498,7 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
         if any(np.max(np.abs(cand - p)) < 0.3 for p in picked):
             continue
         picked.append(cand)
-        polished.append(prob.polish(prob.start(cand, offsets), deadline))
+        polished.append(prob.polish(begin(cand), deadline))
     report(1.0)
     best = _lowest(polished)
     cut = ga_cut or any(p.reason == "time_budget" for p in polished)

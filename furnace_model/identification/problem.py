@@ -272,10 +272,12 @@ class Problem:
                 out[name] = "upper"
         return out
 
-    def start(self, zp: np.ndarray, offsets: Sequence[np.ndarray] | None = None) -> np.ndarray:
+    def start(self, zp: np.ndarray, offsets: Sequence[np.ndarray] | None = None,
+              x0: Sequence[np.ndarray] | None = None) -> np.ndarray:
         """The unknown vector from parameters zp: each record's initial state at its first
         readings, its zone offsets at zero, or at `offsets` (per record) when fitted and given,
-        and then the first readings less them (a thermocouple's bias is in its reading);
+        and then the first readings less them (a thermocouple's bias is in its reading), or
+        at `x0` (per record, with `offsets`): where another fit of the records ended;
         inside the records' physical box."""
         per = []
         for j, r in enumerate(self.records):
@@ -283,7 +285,8 @@ class Problem:
                 per.append(np.concatenate([r.x0_guess, np.zeros(self.block - self.nz)]))
             else:
                 off = np.asarray(offsets[j], dtype=float)
-                per.append(np.concatenate([r.x0_guess - off, off]))
+                at = r.x0_guess - off if x0 is None else np.asarray(x0[j], dtype=float)
+                per.append(np.concatenate([at, off]))
         own = np.clip(np.concatenate(per), self.nuisance_lo, self.nuisance_hi) if per else []
         return np.concatenate([zp, own])
 

@@ -298,8 +298,7 @@ def test_a_start_in_a_long_valley_is_followed_to_its_minimum():
     """A wall's rates trading with a zone's make a valley a polish crawls along past its
     step limit (the selfcheck's wall draw 6). The fit's starts end at its minimum all the
     same: polished again from where the fit ends, the criterion does not fall (a race of the
-    starts, the lowest after a few steps going on alone to the step limit, stopped 0.4%
-    above it)."""
+    starts, the lowest after a few steps going on alone to the step limit, stops above it)."""
     from furnace_model.diagnosis import Task, run_task, split
     from furnace_model.diagnosis.cases import case_rng, draw_case
     from furnace_model.effects import WallStorage

@@ -237,6 +237,8 @@ def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
     side valleys."""
     restarts, again = _starts(structure, init, bounds)
     restarts += [{**v, **net} for v in again for net in _networks_for(structure, v, task.fit_data)]
+    if not restarts:
+        return fr
     floor = limits([record_floor(e) for e in task.fit_data], 1.0, AT_FLOOR_Z)
     for values in restarts:
         if all(fr.per_zone[z]["rmse_c"] <= floor[z] for z in floor if z in fr.per_zone):

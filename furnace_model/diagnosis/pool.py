@@ -17,6 +17,7 @@ from .fitting import Task, relative_cost, run_task
 from .limit import TimeLimit
 
 WORKERS = 2
+MANAGER_JOIN_S = 10.0  # dead workers are seen at once; a bound, never a wait
 
 
 def run_all(tasks: list[Task], progress: Callable[[float], None],
@@ -69,12 +70,17 @@ def _stop(pool: ProcessPoolExecutor) -> None:
     """End the pool's work now: on Ctrl-C, or a fit that raised. Leaving the pool as its
     context would (shutdown, waiting) runs every candidate still queued to its end, minutes
     on a long record, before the interrupted command can exit; and a worker that did not get
-    the signal itself (only the command's process was signalled) goes on computing."""
+    the signal itself (only the command's process was signalled) goes on computing. The
+    pool's manager thread is joined once its workers are dead: left running, it closes its
+    wake-up pipe while the interpreter's exit handler writes to it, a traceback on stderr."""
     workers = list(getattr(pool, "_processes", None) or {})
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for pid in workers:
         with contextlib.suppress(OSError):
             os.kill(pid, signal.SIGKILL)
+    if manager is not None:
+        manager.join(timeout=MANAGER_JOIN_S)
 
 
 PR_SET_PDEATHSIG = 1

@@ -32,15 +32,17 @@ def _record(seed: int, n: int = 1500, **sensors) -> tuple:
     return exp, noise - noise.mean(axis=0)
 
 
-@pytest.mark.parametrize("ar, white", [(0.0, 0.0), (0.5, 0.0), (0.7, 0.0), (0.9, 0.0),
-                                       (0.9, 0.7), (0.5, 1.0)])
-def test_floor_is_the_noise_the_zone_temperature_carries(ar, white):
+@pytest.mark.parametrize("ar, white, n", [(0.0, 0.0, 1500), (0.5, 0.0, 1500), (0.7, 0.0, 1500),
+                                          (0.9, 0.0, 1500), (0.9, 0.7, 1500), (0.5, 1.0, 1500),
+                                          (0.0, 0.0, 240), (0.7, 0.0, 240), (0.5, 1.0, 240)])
+def test_floor_is_the_noise_the_zone_temperature_carries(ar, white, n):
     """White or low-pass (first-order autoregression per minute, with or without white noise
-    on top): over 25 records the floor is unbiased against the drawn noise, and the
-    uncertainty it states is the scatter it shows."""
+    on top), over a heat-up or a gateway's four-hour window: over 25 records the floor is
+    unbiased against the drawn noise, and the uncertainty it states is the scatter it
+    shows."""
     ratios, claimed = [], []
     for seed in range(25):
-        exp, noise = _record(seed, noise_ar_per_min=ar, white_sd_c=white)
+        exp, noise = _record(seed, n=n, noise_ar_per_min=ar, white_sd_c=white)
         f = record_floor(exp)
         for w, z in enumerate(PAPER.zones):
             ratios.append(f.zones[z].floor_c / np.std(noise[:, w]))
@@ -86,6 +88,21 @@ def test_faults_and_drifts_do_not_raise_the_floor():
     f = record_floor(exp)
     for w, z in enumerate(PAPER.zones):
         assert f.zones[z].floor_c == pytest.approx(np.std(noise[:, w]), rel=0.1), z
+
+
+@pytest.mark.parametrize("n", [240, 700, 1500])
+def test_a_drift_is_not_read_as_noise_however_long_the_record(n):
+    """A thermocouple drifting 3 degC an hour from a third of the record on: the pair's
+    difference grows by 12 to 60 degC, none of it noise. Over a window shorter than the
+    trend's median, or in the last hours of a long record, a trend that does not follow the
+    drift to its end reads it as noise (a floor up to 1.6 times the drawn noise)."""
+    ratios = []
+    for seed in range(8):
+        exp, noise = _record(seed, n=n)
+        exp.tc[:, 0] -= 0.05 * np.maximum(exp.t_min - 0.3 * n, 0.0)  # soak_1
+        f = record_floor(exp)
+        ratios.append(f.zones["soak"].floor_c / np.std(noise[:, 0]))
+    assert abs(np.mean(ratios) - 1.0) < 0.04, ratios
 
 
 def test_a_lone_thermocouple_borrows_the_floor_of_the_pairs_and_says_so():

@@ -6,8 +6,8 @@ floor of the record it is measured on: thermocouples are replaced between campai
 noisier one makes a held-out record's floor higher than the fitted record's.
 
 The two thermocouples of a zone see the same gas, so their difference holds only their noise,
-their biases and any drift. Biases and drifts are slow: the difference minus its slow trend
-(block medians, interpolated) keeps the noise, whatever its colour. Real thermocouples are
+their biases and any drift. Biases and drifts are slow: the difference minus its slow trend (a
+running median) keeps the noise, whatever its colour. Real thermocouples are
 low-pass (sheath, transmitter filter, turbulence), so nothing here differences the signal:
 a first or second difference sees only the fast part of coloured noise and reads it low.
 The variance of the detrended pair difference is the sum of the two sensors' variances, and
@@ -48,10 +48,20 @@ GAP_Z = 3.0
 """Standard errors of the RMSE-to-floor ratio a miss must also exceed (`limits`)."""
 
 TREND_MIN = 360.0
-"""Minutes per block of the slow trend taken out of a pair's difference. Long against the
-correlation time of thermocouple noise (minutes), so that the noise is kept (a trend over
-blocks of B samples takes about tau / B of a noise of integrated correlation time tau), and
-short against a drift's growth, which the interpolation between block medians follows."""
+"""Minutes of the running median taken as a pair difference's slow trend. Long against the
+correlation time of thermocouple noise (minutes), so that the noise is kept (the median of
+W samples takes about (pi/2) tau / W of a noise of integrated correlation time tau, and that
+share is given back: `TREND_TAKES`), and short against a drift's growth. A median follows a
+monotone drift exactly, its onset's kink included, where a mean or block medians cut
+across it."""
+TREND_SAMPLES = 30
+"""The fewest samples of the running median, however long they span (hourly rows)."""
+TREND_PARTS = 3
+"""A record shorter than this many running medians has one of this share of its samples:
+a short window's drift (a gateway's six hours) is followed, not read as noise."""
+TREND_TAKES = np.pi / 2
+"""The share of the noise's variance, times W / tau, that a running median of W samples
+takes with the trend: a median's variance is pi/2 times a mean's."""
 MAD_TO_SD = 1.482602218505602
 """The median absolute deviation of normal noise times this is its sd."""
 CLIP_SD = 5.0
@@ -188,7 +198,8 @@ def _pair_variance(exp: Experiment, a: int) -> tuple[float, float, float, int] |
         return None
     t = exp.t_min[both]
     d = pair[both, 0] - pair[both, 1]
-    e = d - _slow_trend(t, d)
+    trend, width = _slow_trend(t, d)
+    e = d - trend
     robust = _robust_sd(e)
     if not np.isfinite(robust):
         return None
@@ -196,26 +207,35 @@ def _pair_variance(exp: Experiment, a: int) -> tuple[float, float, float, int] |
         return 0.0, 0.0, float(e.size), int(e.size)
     kept = np.abs(e) <= CLIP_SD * robust
     e = np.where(kept, e, 0.0)  # a left-out sample leaves a zero, not a gap in the series
-    var = float(e @ e / max(kept.sum() - 1, 1))
-    n_eff = float(kept.sum()) / fit_ar(e).correlation_time
+    tau = fit_ar(e).correlation_time
+    var = float(e @ e / max(kept.sum() - 1, 1)) / max(1.0 - TREND_TAKES * tau / width, 0.5)
+    n_eff = float(kept.sum()) / tau
     return var, float(acf(e, 1)[1]), n_eff, int(kept.sum())
 
 
-def _slow_trend(t: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Block medians of d over TREND_MIN-minute blocks, linear between block centres and
-    flat beyond the outer ones: follows a bias (a constant) and a drift (a slope), not the
-    noise."""
-    edges = np.arange(t[0], t[-1] + TREND_MIN, TREND_MIN)
-    idx = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, max(edges.size - 2, 0))
-    centres, medians = [], []
-    for b in np.unique(idx):
-        sel = idx == b
-        if sel.sum() >= 5:
-            centres.append(float(np.mean(t[sel])))
-            medians.append(float(np.median(d[sel])))
-    if not centres:
-        return np.full(d.size, float(np.median(d)))
-    return np.interp(t, centres, medians)
+def _slow_trend(t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, int]:
+    """The running median of d (`TREND_MIN`), and its width in samples. Medians at knots a
+    quarter of a half-width apart, linear between them. Where a knot's window would run off
+    the record, the trend is the line through the medians of the two halves of the window
+    nearest it: a drift running to the record's end is followed to the end, where a
+    truncated window's median would lag it by a quarter of its width."""
+    n = d.size
+    step_min = float(np.median(np.diff(t))) if n > 1 else 1.0
+    width = int(min(max(TREND_MIN / max(step_min, 1e-9), TREND_SAMPLES), n / TREND_PARTS))
+    h = max(width // 2, 1)
+    knots = np.unique(np.r_[np.arange(0, n, max(h // 4, 1)), n - 1])
+    level = np.empty(knots.size)
+    for k, i in enumerate(knots):
+        if h <= i < n - h:
+            level[k] = np.median(d[i - h:i + h + 1])
+            continue
+        lo = max(0, min(i - h, n - (2 * h + 1)))
+        hi = min(n, lo + 2 * h + 1)
+        mid = (lo + hi) // 2
+        m1, m2 = np.median(d[lo:mid]), np.median(d[mid:hi])
+        c1, c2 = np.median(t[lo:mid]), np.median(t[mid:hi])
+        level[k] = m1 + (m2 - m1) * (t[i] - c1) / (c2 - c1) if c2 > c1 else 0.5 * (m1 + m2)
+    return np.interp(t, t[knots], level), 2 * h + 1
 
 
 def _robust_sd(x: np.ndarray) -> float:

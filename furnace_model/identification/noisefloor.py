@@ -225,16 +225,18 @@ def _slow_trend(t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, int]:
     h = max(width // 2, 1)
     knots = np.unique(np.r_[np.arange(0, n, max(h // 4, 1)), n - 1])
     level = np.empty(knots.size)
-    for k, i in enumerate(knots):
-        if h <= i < n - h:
-            level[k] = np.median(d[i - h:i + h + 1])
-            continue
-        lo = max(0, min(i - h, n - (2 * h + 1)))
+    head, tail = knots < h, knots >= n - h
+    inner = ~(head | tail)
+    if inner.any():
+        windows = np.lib.stride_tricks.sliding_window_view(d, 2 * h + 1)
+        level[inner] = np.median(windows[knots[inner] - h], axis=1)
+    for at, lo in ((head, 0), (tail, max(n - (2 * h + 1), 0))):
         hi = min(n, lo + 2 * h + 1)
         mid = (lo + hi) // 2
         m1, m2 = np.median(d[lo:mid]), np.median(d[mid:hi])
         c1, c2 = np.median(t[lo:mid]), np.median(t[mid:hi])
-        level[k] = m1 + (m2 - m1) * (t[i] - c1) / (c2 - c1) if c2 > c1 else 0.5 * (m1 + m2)
+        slope = (m2 - m1) / (c2 - c1) if c2 > c1 else 0.0
+        level[at] = m1 + slope * (t[knots[at]] - c1)
     return np.interp(t, t[knots], level), 2 * h + 1
 
 

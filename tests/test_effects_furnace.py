@@ -387,38 +387,6 @@ def test_a_candidate_at_its_null_starts_where_the_baseline_ended():
     assert run_task(task).sse_fit <= base.sse_fit * (1 + 1e-9)
 
 
-def test_a_combination_at_its_added_effects_null_starts_where_the_kept_set_ended():
-    """A combination is the kept set with the added effect at its null, so its fit cannot
-    end above the kept set's either. On the same window, the drift kept (soak_1 from minute
-    77) and a dead time added: polished from the kept optimum with the dead time's default
-    start, the fit runs the drift's onset to the window's end and ends several times above
-    the drift alone; started also from the kept set's whole end, the dead time at its null,
-    it ends at or below, the drift where it was."""
-    from furnace_model.diagnosis.fitting import Task, run_task
-    from furnace_model.diagnosis.holdout import split
-    from furnace_model.records import load_experiment
-
-    furnace = load_furnace(ROOT / "config/furnaces/paper-production.yaml")
-    record = load_experiment(ROOT / "tests/data/production_drift_window.csv", furnace=furnace)
-    fit_data, hold, tail_of, _ = split([record], None)
-    base = run_task(Task((), {}, fit_data, hold, tail_of, None, 0))
-    opts = {"sensor_drift": {"sensor": "soak_1"}}
-    kept = run_task(Task(("sensor_drift",), opts, fit_data, hold, tail_of,
-                         {**base.params, "t_drift": 77.0, "drift_rate": -0.05}, 0,
-                         baseline_sse=base.sse_fit, baseline_end=base.ended))
-    assert kept.params["t_drift"] == pytest.approx(77.0, abs=5.0)
-    effects = ("sensor_drift", "dead_time")
-    bounds = {k: v for n in effects for k, v in EFFECTS[n].tried.search_bounds(fit_data).items()}
-    alone = run_task(Task(effects, opts, fit_data, hold, tail_of, dict(kept.params), 0,
-                          bounds=bounds))
-    assert alone.sse_fit > 2.0 * kept.sse_fit, (alone.sse_fit, kept.sse_fit)
-    combined = run_task(Task(effects, opts, fit_data, hold, tail_of, dict(kept.params), 0,
-                             bounds=bounds, baseline_sse=kept.sse_fit, baseline_end=kept.ended,
-                             kept=("sensor_drift",)))
-    assert combined.sse_fit <= kept.sse_fit * (1 + 1e-9), (combined.sse_fit, kept.sse_fit)
-    assert combined.params["t_drift"] == pytest.approx(kept.params["t_drift"], abs=5.0)
-
-
 def test_no_further_start_is_polished_once_a_fit_follows_its_records_to_the_noise(
         monkeypatch):
     """The switch's starts on the same window are polished in turn until one fits every

@@ -57,15 +57,12 @@ class Task:
     generations: int | None = None
     """Generations of a search from scratch (init None); None: the fit's default."""
     baseline_sse: float | None = None
-    """The fit criterion of the model the candidate extends (the baseline, or a combination's
-    kept set), with `init` its parameters: the candidate is that model at its added effects'
-    nulls, so a fit of it that ends above this is polished again from there (`_from_null`)."""
+    """The baseline's fit criterion, with `init` the baseline's parameters: the candidate is
+    the baseline at its effects' nulls, so a fit of it that ends above this is polished
+    again from there (`_from_null`)."""
     baseline_end: WarmStart | None = None
-    """Where that model's fit ended on each fitted record (its offsets and initial states):
-    `_from_null` starts there, at that model's own criterion."""
-    kept: tuple[str, ...] = ()
-    """Effects of the model extended (a combination's kept set): `_from_null` leaves them at
-    their values in `init`, that model's optimum, and nulls only the effects added."""
+    """Where the baseline's fit ended on each fitted record (its offsets and initial
+    states): `_from_null` starts there, at the baseline's own criterion."""
     runs: int | None = None
     """Independent searches of a search from scratch; None: BASELINE_RUNS for the baseline,
     one for a candidate."""
@@ -317,8 +314,6 @@ def _from_null(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
     parameter be determined (NaN): the baseline is not nested in it."""
     null: dict[str, float] = {}
     for e in structure.effects:
-        if e.name in task.kept:
-            continue
         values = e.tried.nulls(e)
         if not values or not all(np.isfinite(v) for v in values.values()):
             return fr

@@ -326,8 +326,7 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
             opts = {k: v for k, v in options.items() if k in effs}
             tasks.append(Task(effs, opts, fit_data, hold, tail_of,
                               {**kept.params, **starts.get(n, {})}, seed,
-                              bounds=bounds, baseline_sse=kept.sse_fit,
-                              baseline_end=kept.ended, kept=kept.effects))
+                              bounds=bounds))
         if not tried:
             progress(0.0)  # the stage has begun: its first fit may take minutes
         step = run_all(tasks, progress,

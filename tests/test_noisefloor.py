@@ -95,7 +95,7 @@ def test_a_drift_is_not_read_as_noise_however_long_the_record(n):
     """A thermocouple drifting 3 degC an hour from a third of the record on: the pair's
     difference grows by 12 to 60 degC, none of it noise. Over a window shorter than the
     trend's median, or in the last hours of a long record, a trend that does not follow the
-    drift to its end reads it as noise (a floor up to 1.6 times the drawn noise)."""
+    drift to its end reads it as noise."""
     ratios = []
     for seed in range(8):
         exp, noise = _record(seed, n=n)

@@ -57,8 +57,8 @@ across it."""
 TREND_SAMPLES = 30
 """The fewest samples of the running median, however long they span (hourly rows)."""
 TREND_PARTS = 3
-"""A record shorter than this many running medians has one of this share of its samples:
-a short window's drift (a gateway's six hours) is followed, not read as noise."""
+"""The running median spans at most this share (1/TREND_PARTS) of a record's samples, so
+that a short window's drift (a gateway's six hours) is followed, not read as noise."""
 TREND_TAKES = np.pi / 2
 """The share of the noise's variance, times W / tau, that a running median of W samples
 takes with the trend: a median's variance is pi/2 times a mean's."""

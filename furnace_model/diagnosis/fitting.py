@@ -18,6 +18,7 @@ from ..identification.model import Refinement
 from ..identification.noisefloor import limits, pooled_floor, record_floor
 from ..identification.residuals import lag1
 from ..identification.result import FitResult
+from ..identification.uncertainty import within
 from ..simulation.furnace import Furnace
 from ..simulation.structure import Inputs, ModelStructure
 from .candidate import CandidateResult
@@ -119,6 +120,53 @@ def not_tried(task: Task) -> CandidateResult:
     return CandidateResult(task.effects, {}, {}, dict(nan), dict(nan), identifiable=False,
                            note="not tried within the time limit", cut=True,
                            options={n: dict(task.options.get(n, {})) for n in task.effects})
+
+
+def told_names(c: CandidateResult) -> list[str]:
+    """The parameters of c's effects that its verdict gives with intervals (`Effect.told`)."""
+    return [p for n in c.effects for p in EFFECTS[n].told if p in c.params]
+
+
+def told_task(kept: CandidateResult, fit_data: list[Experiment], holdout: list[Experiment],
+              tail_of: list[int | None], seed: int,
+              bounds: dict[str, tuple[float, float]]) -> Task:
+    """The kept model refitted from where its fit ended, for `profile_told`."""
+    return Task(kept.effects, kept.options, fit_data, holdout, tail_of, dict(kept.params),
+                seed, bounds={k: v for k, v in bounds.items() if k in kept.params},
+                baseline_end=kept.ended)
+
+
+def profile_told(task: Task, kept: CandidateResult) -> CandidateResult:
+    """kept with the intervals of its told parameters (`told_names`) profiled on the fitted
+    records (`told_interval`): the candidates' fits give linearised intervals, which rank
+    them well enough, but the verdict's are read by someone who replaces a thermocouple
+    from them, and a drift's onset trades with its rate along a valley far from quadratic
+    (docs/diagnosis.md, "The verdict's intervals"). The parameters stay the kept fit's.
+    Cut by the time limit: kept as it was, marked `cut`."""
+    names = told_names(kept)
+    if not names or (task.deadline is not None and time.monotonic() >= task.deadline):
+        return dataclasses.replace(kept, cut=bool(names))
+    structure = structure_of(task.effects, task.options, task.furnace)
+    fr = fit(task.fit_data, structure, init=task.init, zone_offsets=True, bounds=task.bounds,
+             profile=names, warm=task.baseline_end, time_budget_s=_budget(task))
+    if fr.stop_reason == "time_budget" or (task.deadline is not None
+                                           and time.monotonic() >= task.deadline):
+        return dataclasses.replace(kept, cut=True)
+    ci = dict(kept.ci95)
+    for n in fr.profiled:
+        ci[n] = told_interval(kept.ci95[n], fr.ci95[n], kept.params[n])
+    return dataclasses.replace(kept, ci95=ci)
+
+
+def told_interval(linearised: tuple[float, float], profiled: tuple[float, float],
+                  value: float) -> tuple[float, float]:
+    """Each end the further of the two. The profile follows the criterion where the
+    quadratic does not hold (the onset's side of the valley it shares with the rate), but
+    where the criterion rises faster than the quadratic it narrows that end, and with a
+    hinge neither is exact: from two to four hours of drift, the profile alone held the
+    rate less often than the linearised interval did, the linearised the onset far less
+    often (docs/diagnosis.md)."""
+    return within((min(linearised[0], profiled[0]), max(linearised[1], profiled[1])), value)
 
 
 def _budget(task: Task) -> float | None:

@@ -35,7 +35,7 @@ from .credit import (
     rank,
     score_against,
 )
-from .fitting import Task, baseline_tasks, structure_of
+from .fitting import Task, baseline_tasks, profile_told, structure_of, told_names, told_task
 from .holdout import split, uncovered
 from .laws import between_laws, further_laws, opts_text
 from .limit import TimeLimit
@@ -225,6 +225,15 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                                        limit)
                      if signals else [])
     candidates = sorted(singles + combos + followed, key=rank)
+    if kept is not None and told_names(kept):
+        (task,), batch = limit.batch([told_task(kept, fit_data, hold, tail_of, seed, bounds)])
+        told = profile_told(task, kept)
+        limit.heard(batch, [told])
+        if told.cut:
+            untried.append(f"the profiled intervals of {kept.label} (linearised ones given)")
+        else:
+            candidates = [told if c is kept else c for c in candidates]
+            kept = told
 
     def remaining(c: CandidateResult) -> list[Located] | None:
         """Where c's held-out residual lies, as the baseline's is located; None without

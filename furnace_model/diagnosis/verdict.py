@@ -141,7 +141,8 @@ def _in_part(base: CandidateResult, kept: CandidateResult, floor: dict[str, floa
     remaining = remaining_of(kept, floor, where, locate_remaining)
     physics = "; and ".join(EFFECTS[n].physics_for(furnace) for n in kept.effects)
     one = len(kept.effects) == 1
-    what, they = ("an effect", "it") if one else (f"{len(kept.effects)} effects", "they")
+    what, they_leave = (("an effect", "it leaves") if one
+                        else (f"{len(kept.effects)} effects", "they leave"))
     first, *more = parts
     closes = (f"Adding {'it' if one else first.effect} closes {first.gap_closed_pct:.0f}% of "
               f"the held-out gap above the noise floor"
@@ -152,7 +153,7 @@ def _in_part(base: CandidateResult, kept: CandidateResult, floor: dict[str, floa
     if place and remaining.where_from == "kept":
         place = f" It {place}."
     elif place:
-        place = (f" Its place was not found on the residual {they} leave; the baseline's "
+        place = (f" Its place was not found on the residual {they_leave}; the baseline's "
                  f"error {place}.")
     sentence = (
         f"The model's error comes in part from {what} it leaves out: {physics} "

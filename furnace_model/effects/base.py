@@ -90,6 +90,10 @@ class Effect:
     """How the diagnosis tries it; by default in its first form from the fitted baseline."""
     drawn: ClassVar[Drawn] = Drawn()
     """How the selfcheck draws it; by default it cannot."""
+    told: ClassVar[tuple[str, ...]] = ()
+    """The parameters `found_within` gives with their 95% intervals: a user acts on them, so
+    the diagnosis profiles their intervals on the model it keeps (an onset and the slope or
+    step it trades with are far from the quadratic a linearised interval assumes)."""
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         """Bind each part to the class; one the class does not declare is made from the

@@ -45,6 +45,7 @@ class FuelChange(Effect):
     physics = "heat per burner changes at one instant (a fuel switch, e.g. natural gas to biogas)"
     tried = TriedFuelChange(null={"fuel_ratio": 1.0})
     drawn = DrawnFuelChange(ranges={"t_fuel_frac": (0.3, 0.8), "fuel_ratio": (0.65, 0.9)})
+    told = ("fuel_ratio", "t_fuel")
     drive_stage = 0  # at the burner: a transport delay then carries it to the zone
 
     @classmethod

@@ -112,6 +112,7 @@ class SensorDrift(Effect):
     name = "sensor_drift"
     physics = "one thermocouple of a pair drifts away from its partner"
     tried = TriedSensorDrift(null={"drift_rate": 0.0}, one_place_at_a_time=True)
+    told = ("drift_rate", "t_drift")
     drawn = DrawnSensorDrift(ranges={"drift_rate": (0.005, 0.03), "t_drift_frac": (0.15, 0.6)})
 
     @classmethod

@@ -23,7 +23,7 @@ polish from the start and from the search's best.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,7 +94,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         bounds: dict[str, tuple[float, float]] | None = None,
         progress: Callable[[float], None] | None = None,
         time_budget_s: float | None = None, zone_offsets: bool = False,
-        profile: bool = True, warm: WarmStart | None = None) -> FitResult:
+        profile: bool | Collection[str] = True, warm: WarmStart | None = None) -> FitResult:
     """Fit the structure's parameters to the experiments (jointly; own initial state each);
     without a structure, the baseline of the furnace the records are of.
 
@@ -108,7 +108,9 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     intervals of parameters the data leave wide follow the criterion (furnace_model.identification.profile)
     instead of its quadratic approximation, where the fit reaches its records' noise floor
     (`_missed_floor`); a refit per trial value, so callers that only rank fits may leave it
-    off.
+    off. Names instead of True: those parameters are profiled whatever their linearised
+    width (a hinge's onset, whose criterion is far from quadratic when it trades with the
+    hinge's slope), and no others.
 
     `warm` (with `init`): a sliding window's refit, which starts from the window before
     (see `WarmStart`); the same optimum and intervals, to the optimiser's and the profile's
@@ -218,8 +220,9 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     per_zone = prob.per_zone(z)
     missed = _missed_floor(per_zone, experiments) if profile else {}
     if profile and not missed:
-        wide = [n for i, n in enumerate(prob.names)
-                if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE]
+        wide = ([n for n in prob.names if n in profile] if not isinstance(profile, bool) else
+                [n for i, n in enumerate(prob.names)
+                 if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE])
         profiled = _profiled(prob, z, float(res @ res), unc, wide, deadline,
                              None if warm is None else warm.intervals)
         ci.update(profiled)

@@ -7,6 +7,7 @@ import json
 import signal
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -164,6 +165,22 @@ def test_summary_counts_absorbed_draws_apart_and_applies_the_acceptance():
     assert "Absorbed (reported apart, not failures):" in text
     assert text.count(ABSORBED_REASON) == 8
     assert "| dead_time | 10 | 0 | 10 | 0 | 9 | 0 | 80 | 95 |" in text
+
+
+def test_the_intervals_a_verdict_gives_are_checked_against_the_truth():
+    """Each case records, for the true effects its verdict names, whether the 95% intervals
+    of their told parameters hold the drawn values; the table counts them."""
+    outs = check(["sensor_drift", "fuel_change"], 1, furnace=PAPER,
+                 candidates=("sensor_drift", "fuel_change"))
+    for o in outs:
+        assert o.named == [o.label], o
+        assert set(o.held) == set(EFFECTS[o.label].told), o
+    text = table(summarize(outs), outs)
+    for p in ("drift_rate", "t_drift", "fuel_ratio", "t_fuel"):
+        n = sum(o.held.get(p, False) for o in outs)
+        assert f"{p} {n} of 1" in text, text
+    missed = replace(outs[0], held=dict.fromkeys(outs[0].held, False))
+    assert "drift_rate 0 of 1" in table(summarize([missed]), [missed])
 
 
 def test_labels_name_effects_combinations_and_faults():

@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 import zlib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -52,6 +52,9 @@ class Outcome:
     gap_closed_pct: float
     elapsed_s: float
     truth: dict
+    held: dict[str, bool] = field(default_factory=dict)
+    """The parameters the verdict gives with 95% intervals (`Effect.told`) of the true
+    effects it names: whether each interval holds the truth."""
 
     def to_json(self) -> dict:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
@@ -91,6 +94,22 @@ def judge_case(case: Case, diagnosis) -> tuple[bool, bool, str]:
     if v.gap_closed_pct < 50.0:
         return False, False, f"named, but closes only {v.gap_closed_pct:.0f}% of the gap"
     return True, False, ""
+
+
+def told_held(case: Case, diagnosis) -> dict[str, bool]:
+    """{parameter: whether its 95% interval holds the truth} for the told parameters
+    (`Effect.told`) of each true effect the verdict names; the truth's onsets are minutes
+    of every record, as the fit's are."""
+    kept = diagnosis.kept
+    if kept is None:
+        return {}
+    out = {}
+    for name in set(diagnosis.verdict.effects) & set(case.truth) & set(kept.effects):
+        for p in EFFECTS[name].told:
+            if p in kept.ci95 and p in case.truth[name]:
+                lo, hi = kept.ci95[p]
+                out[p] = bool(lo <= case.truth[name][p] <= hi)
+    return out
 
 
 BIAS_CHANGE_SD = 3.0
@@ -158,7 +177,7 @@ def check(labels: list[str], draws: int, seed: int = 0, *, form: str = "candidat
             o = Outcome(label, k, case.description, d.verdict.status, list(d.verdict.effects),
                         correct, absorbed, reason, float(d.verdict.shrink_pct),
                         float(getattr(d.verdict, "gap_closed_pct", np.nan)),
-                        time.perf_counter() - t0, case.truth)
+                        time.perf_counter() - t0, case.truth, told_held(case, d))
             out.append(o)
             if report is not None:
                 report(o)
@@ -223,6 +242,11 @@ def table(rows: list[Row], outcomes: list[Outcome]) -> str:
     if apart:
         lines += ["", "Absorbed (reported apart, not failures):"]
         lines += [f"- {o.label} draw {o.draw}: {o.reason}; {o.description}" for o in apart]
+    told = sorted({p for o in outcomes for p in o.held})
+    if told:
+        lines += ["", "95% intervals the verdicts give, holding the truth: " + ", ".join(
+            f"{p} {sum(o.held[p] for o in outcomes if p in o.held)} of "
+            f"{sum(p in o.held for o in outcomes)}" for p in told)]
     wrong = [o for o in outcomes if not o.correct and not o.absorbed]
     if wrong:
         lines += ["", "Not correct:"]

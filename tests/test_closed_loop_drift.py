@@ -116,7 +116,7 @@ def _held(intervals, which: int, name: str) -> float:
                           for row in intervals]))
 
 
-@pytest.mark.slow  # two fits and a closed-loop run per draw: five minutes of one core
+@pytest.mark.slow  # two fits and a closed-loop run per draw: about three minutes of one core
 def test_a_drifts_told_intervals_hold_the_truth_from_hours_of_it(drift_intervals):
     held = {n: _held(drift_intervals, 2, n) for n in SensorDrift.told}
     assert all(0.90 <= v <= 0.99 for v in held.values()), held

@@ -130,7 +130,8 @@ def told_names(c: CandidateResult) -> list[str]:
 def told_task(kept: CandidateResult, fit_data: list[Experiment], holdout: list[Experiment],
               tail_of: list[int | None], seed: int,
               bounds: dict[str, tuple[float, float]]) -> Task:
-    """The kept model refitted from where its fit ended, for `profile_told`."""
+    """The kept model refitted from where its fit ended, for `profile_told` (its own end in
+    `baseline_end`: the warm start a fit of the model nested in it would take)."""
     return Task(kept.effects, kept.options, fit_data, holdout, tail_of, dict(kept.params),
                 seed, bounds={k: v for k, v in bounds.items() if k in kept.params},
                 baseline_end=kept.ended)
@@ -163,9 +164,9 @@ def told_interval(linearised: tuple[float, float], profiled: tuple[float, float]
     """Each end the further of the two. The profile follows the criterion where the
     quadratic does not hold (the onset's side of the valley it shares with the rate), but
     where the criterion rises faster than the quadratic it narrows that end, and with a
-    hinge neither is exact: from two to four hours of drift, the profile alone held the
-    rate less often than the linearised interval did, the linearised the onset far less
-    often (docs/diagnosis.md)."""
+    hinge neither is exact: on a few hours of drift the profile alone holds the rate less
+    often than the linearised interval, and the linearised holds the onset far less often
+    (docs/diagnosis.md)."""
     return within((min(linearised[0], profiled[0]), max(linearised[1], profiled[1])), value)
 
 

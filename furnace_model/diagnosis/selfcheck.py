@@ -104,7 +104,7 @@ def told_held(case: Case, diagnosis) -> dict[str, bool]:
     if kept is None:
         return {}
     out = {}
-    for name in set(diagnosis.verdict.effects) & set(case.truth) & set(kept.effects):
+    for name in [n for n in diagnosis.verdict.effects if n in case.truth and n in kept.effects]:
         for p in EFFECTS[name].told:
             if p in kept.ci95 and p in case.truth[name]:
                 lo, hi = kept.ci95[p]

@@ -220,10 +220,12 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     per_zone = prob.per_zone(z)
     missed = _missed_floor(per_zone, experiments) if profile else {}
     if profile and not missed:
-        wide = ([n for n in prob.names if n in profile] if not isinstance(profile, bool) else
-                [n for i, n in enumerate(prob.names)
-                 if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE])
-        profiled = _profiled(prob, z, float(res @ res), unc, wide, deadline,
+        if isinstance(profile, bool):
+            chosen = [n for i, n in enumerate(prob.names)
+                      if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE]
+        else:
+            chosen = [n for n in prob.names if n in profile]
+        profiled = _profiled(prob, z, float(res @ res), unc, chosen, deadline,
                              None if warm is None else warm.intervals)
         ci.update(profiled)
     named = unc.determined_combinations(undetermined)

@@ -67,6 +67,10 @@ class Task:
     runs: int | None = None
     """Independent searches of a search from scratch; None: BASELINE_RUNS for the baseline,
     one for a candidate."""
+    settled: tuple[str, ...] = ()
+    """Effects whose parameters `init` holds from a fit of these records with them in (a
+    combination's kept effects; all of them in a refit of the kept set): their further
+    starts (`_restarted`) are not tried again, since that fit placed them."""
     deadline: float | None = None
     """time.monotonic() by which the diagnosis must answer (its --time-limit): a fit still
     running then stops, and the candidate is named as not tried."""
@@ -279,23 +283,29 @@ def _with_carried_offsets(fr: FitResult, task: Task, hold_pred: list[np.ndarray]
 def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[str, float],
                bounds: dict[str, tuple[float, float]]) -> FitResult:
     """The fit polished again from the effects' further starts (`Tried.starts`), the best
-    kept, until one follows the records to their noise (`AT_FLOOR_Z`). On a network, a
-    thermocouple's error from a start is also taken off the readings and the network started
-    where the equations' least squares fit what is left: a large drift (tens of degrees on
-    one of a pair) bends the baseline so far that from its rates the drift's fit finds only
-    side valleys."""
-    restarts, again = _starts(structure, init, bounds)
-    restarts += [{**v, **net} for v in again for net in _networks_for(structure, v, task.fit_data)]
-    if not restarts:
-        return fr
+    kept, unless it already follows the records to their noise (`AT_FLOOR_Z`). On a network,
+    a thermocouple's error from a start is also taken off the readings and the network
+    started where the equations' least squares fit what is left: a large drift (tens of
+    degrees on one of a pair) bends the baseline so far that from its rates the drift's fit
+    finds only side valleys. Each group of starts (the effects' own, then those on their
+    networks) is one fit that scouts them all and polishes the best (`fit`'s `further`):
+    a polish of each costs an integrated model minutes, and the scouts' ten steps already
+    leave a start's own misfit behind."""
+    own, again = _starts(structure, init, bounds, task.settled)
     floor = limits([record_floor(e) for e in task.fit_data], 1.0, AT_FLOOR_Z)
-    for values in restarts:
+    for group in (own, again):
         if all(fr.per_zone[z]["rmse_c"] <= floor[z] for z in floor if z in fr.per_zone):
             break
+        if group is again:
+            group = [{**v, **net} for v in again
+                     for net in _networks_for(structure, v, task.fit_data)]
+        if not group:
+            continue
         if _late(task):
             return dataclasses.replace(fr, stop_reason="time_budget")
-        other = fit(task.fit_data, structure, init=values, seed=task.seed, zone_offsets=True,
-                    bounds=bounds, profile=False, time_budget_s=_budget(task))
+        other = fit(task.fit_data, structure, init=group[0], further=group[1:],
+                    seed=task.seed, zone_offsets=True, bounds=bounds, profile=False,
+                    time_budget_s=_budget(task))
         if other.stop_reason == "time_budget":  # a search left unfinished: not tried
             return dataclasses.replace(fr, stop_reason="time_budget")
         if other.sse < fr.sse:
@@ -319,24 +329,28 @@ def _start_of(task: Task, structure: ModelStructure
 
 
 def _starts(structure: ModelStructure, init: dict[str, float],
-            bounds: dict[str, tuple[float, float]]
+            bounds: dict[str, tuple[float, float]], settled: tuple[str, ...] = ()
             ) -> tuple[list[dict[str, float]], list[dict[str, float]]]:
     """`_restarted`'s starts: the effects' own, and those also started with the network the
-    equations' least squares give (none on eq. 11's furnace)."""
+    equations' least squares give (none on eq. 11's furnace). None for the `settled`
+    effects, nor their networks: the kept effects' fit placed them and left their network
+    unbent by them."""
     given = {**structure.defaults(), **init}
     restarts, placed = [], [given]
-    for e in structure.effects:
+    new = [e for e in structure.effects if e.name not in settled]
+    for e in new:
         for s in e.tried.starts(e, init, bounds):
             restarts.append({**given, **s})
             if set(s) <= set(e.tried.nulls(e)):  # a strength alone (a drift's sign): still placed
                 placed.append(restarts[-1])
-    if structure.furnace.paper_structure:
+    if structure.furnace.paper_structure or not new:
         return restarts, []
-    if structure.has_sensor_offsets:
+    bending = ModelStructure(new, furnace=structure.furnace)
+    if bending.has_sensor_offsets:
         # not for a spread of onsets: an error not placed would be taken off at random
         return restarts, placed
     # a change of the inputs at any instant is a start: the polish moves it
-    return restarts, [given, *restarts] if structure.moves_inputs else []
+    return restarts, [given, *restarts] if bending.moves_inputs else []
 
 
 def relative_cost(task: Task) -> float:
@@ -346,7 +360,8 @@ def relative_cost(task: Task) -> float:
     evolutionary search."""
     structure = structure_of(task.effects, task.options, task.furnace)
     init, bounds = _start_of(task, structure)
-    restarts = 0 if init is None else sum(map(len, _starts(structure, init, bounds)))
+    restarts = 0 if init is None else sum(map(len, _starts(structure, init, bounds,
+                                                           task.settled)))
     return (1.0 if structure.linear else 3.0) * (1.0 + 0.1 * restarts)
 
 

@@ -312,7 +312,8 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         again = run_all([Task(kept.effects, {k: v for k, v in options.items()
                                               if k in kept.effects}, fit_data, hold, tail_of,
                               {k: v for k, v in combination.params.items()
-                               if k in structure.names}, seed, bounds=bounds)], progress,
+                               if k in structure.names}, seed, bounds=bounds,
+                              settled=kept.effects)], progress,
                         limit=limit)[0]
         if again.cut:
             untried.append(f"{kept.label} refitted from {combination.label}'s optimum")
@@ -335,7 +336,7 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
             opts = {k: v for k, v in options.items() if k in effs}
             tasks.append(Task(effs, opts, fit_data, hold, tail_of,
                               {**kept.params, **starts.get(n, {})}, seed,
-                              bounds=bounds))
+                              bounds=bounds, settled=kept.effects))
         if not tried:
             progress(0.0)  # the stage has begun: its first fit may take minutes
         step = run_all(tasks, progress,

@@ -94,7 +94,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         bounds: dict[str, tuple[float, float]] | None = None,
         progress: Callable[[float], None] | None = None,
         time_budget_s: float | None = None, zone_offsets: bool = False,
-        profile: bool | Collection[str] = True, warm: WarmStart | None = None) -> FitResult:
+        profile: bool | Collection[str] = True, warm: WarmStart | None = None,
+        further: Sequence[Mapping[str, float]] = ()) -> FitResult:
     """Fit the structure's parameters to the experiments (jointly; own initial state each);
     without a structure, the baseline of the furnace the records are of.
 
@@ -116,6 +117,10 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     (see `WarmStart`); the same optimum and intervals, to the optimiser's and the profile's
     tolerances, for less work. With its `reach` (method fast), the genetic search of
     `population` and `generations` runs around `init` before the polish.
+
+    `further` (with `init`, each giving every parameter): more starts. Each is polished a
+    few steps (`SCOUT_STEPS`) and the best goes on alone, so that the starts an ambiguous
+    onset needs cost about one polish, not one each.
     """
     t_start = time.perf_counter()
     if method not in METHODS:
@@ -130,8 +135,10 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     population = int(population or pop_default)
     generations = int(generations if generations is not None else gen_default)
     deadline = None if time_budget_s is None else t_start + float(time_budget_s)
+    if further and not init:
+        raise FurnaceError("further starts need `init`")
     starts: list[np.ndarray] = []
-    spread, others = None, []
+    spread, others = None, [dict(s) for s in further]
     if not init and method == "fast" and not structure.furnace.paper_structure:
         # a network of many zones: the search starts where the equations' least squares put
         # it, and a warm-started polish takes it from there (the parameters of an effect

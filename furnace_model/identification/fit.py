@@ -454,7 +454,7 @@ def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: i
     polished = [prob.polish(begin(z), deadline, damping=damping) for z in picked]
     report(1.0)
     best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
-    cut = ga_cut or any(p.reason == "time_budget" for p in polished)
+    cut = ga_cut or any(p.reason == "time_budget" for p in [*polished, best])
     return _Run(best.z, best.reason, best.iterations, found.generations, cut, best.free_cost)
 
 
@@ -501,6 +501,9 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
                     found.generations, ga_cut)
     # Polish the best few distinct members: the GA's best may sit in a side valley. The
     # starts are always among them: the extended model may be the baseline with its effect off.
+    # An integrated model's step costs a simulation per parameter (its Jacobian by
+    # differences), so there each member is scouted and only the best polished to the end.
+    steps = POLISH_MAX_ITER if prob.structure.linear else SCOUT_STEPS
     polished: list[Polished] = []
     picked: list[np.ndarray] = []
     first = [np.clip(z, prob.lo, prob.hi) for z in starts]
@@ -510,10 +513,12 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
         if any(np.max(np.abs(cand - p)) < 0.3 for p in picked):
             continue
         picked.append(cand)
-        polished.append(prob.polish(begin(cand), deadline))
+        polished.append(prob.polish(begin(cand), deadline, steps))
     report(1.0)
     best = _lowest(polished)
-    cut = ga_cut or any(p.reason == "time_budget" for p in polished)
+    if best.reason == "iteration_limit" and steps < POLISH_MAX_ITER:
+        best = prob.polish(best.z, deadline)
+    cut = ga_cut or any(p.reason == "time_budget" for p in [*polished, best])
     return _Run(best.z, best.reason, best.iterations, found.generations, cut, best.free_cost)
 
 

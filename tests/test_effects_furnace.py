@@ -389,10 +389,12 @@ def test_a_candidate_at_its_null_starts_where_the_baseline_ended():
 
 def test_no_further_start_is_polished_once_a_fit_follows_its_records_to_the_noise(
         monkeypatch):
-    """The switch's starts on the same window are polished in turn until one fits every
-    zone to its noise (within AT_FLOOR_Z standard errors of the floor): what the others could
-    still take off is the noise's own scatter. The polish that stops them is the first at
-    the floor, and the switch it found is the one of the record."""
+    """The switch's starts on the same window are fitted a group at a time (its own
+    instants scouted together and the best polished, then those on the equations'
+    networks) until a fit follows every zone to its noise (within AT_FLOOR_Z standard
+    errors of the floor): what the others could still take off is the noise's own scatter.
+    The fit that stops them is the first at the floor, and the switch it found is the one
+    of the record."""
     from furnace_model.diagnosis import fitting
     from furnace_model.diagnosis.holdout import split
     from furnace_model.identification.noisefloor import limits, record_floor
@@ -418,6 +420,24 @@ def test_no_further_start_is_polished_once_a_fit_follows_its_records_to_the_nois
     assert len(ends) < starts, (len(ends), starts)  # stopped with starts left
     assert fuel.params["t_fuel"] == pytest.approx(210.0, abs=2.0)
     assert fuel.params["fuel_ratio"] == pytest.approx(0.75, abs=0.01)
+
+
+def test_a_combinations_kept_effects_are_not_started_again():
+    """A combination starts from the kept effects' fit, which placed them (a switch's
+    instant, a drift's sign) and left the network unbent by them: only the added effect's
+    starts, and its networks, are tried again."""
+    from furnace_model.diagnosis.fitting import _starts
+
+    furnace = load_furnace(ROOT / "config/furnaces/paper-production.yaml")
+    fuel, lag = EFFECTS["fuel_change"](furnace=furnace), EFFECTS["sensor_lag"](furnace=furnace)
+    box = {"t_fuel": (0.0, 240.0)}
+    pair = ModelStructure([fuel, lag], furnace=furnace)
+    own, networks = _starts(pair, {}, box)
+    assert len(own) == len(fuel.tried.starts(fuel, {}, box)) > 1 and len(networks) > len(own)
+    assert _starts(pair, {}, box, settled=("fuel_change",)) == ([], [])
+    assert _starts(pair, {}, box, settled=("fuel_change", "sensor_lag")) == ([], [])
+    own, networks = _starts(pair, {}, box, settled=("sensor_lag",))
+    assert len(own) > 1 and networks
 
 
 @pytest.mark.slow  # the candidate's every start: half a minute of one core

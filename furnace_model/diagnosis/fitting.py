@@ -287,30 +287,30 @@ def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
     a thermocouple's error from a start is also taken off the readings and the network
     started where the equations' least squares fit what is left: a large drift (tens of
     degrees on one of a pair) bends the baseline so far that from its rates the drift's fit
-    finds only side valleys. Each group of starts (the effects' own, then those on their
-    networks) is one fit that scouts them all and polishes the best (`fit`'s `further`):
-    a polish of each costs an integrated model minutes, and the scouts' ten steps already
-    leave a start's own misfit behind."""
-    own, again = _starts(structure, init, bounds, task.settled)
+    finds only side valleys. The starts are one fit (`fit`'s `further`): each scouted ten
+    steps, then polished on in the scouts' order until one follows the records to their
+    noise. A start polished to its end costs an integrated model minutes, and the one that
+    reaches the floor is mostly among the first scouts; where none does, every start is
+    polished and the lowest kept."""
     floor = limits([record_floor(e) for e in task.fit_data], 1.0, AT_FLOOR_Z)
-    for group in (own, again):
-        if all(fr.per_zone[z]["rmse_c"] <= floor[z] for z in floor if z in fr.per_zone):
-            break
-        if group is again:
-            group = [{**v, **net} for v in again
-                     for net in _networks_for(structure, v, task.fit_data)]
-        if not group:
-            continue
-        if _late(task):
-            return dataclasses.replace(fr, stop_reason="time_budget")
-        other = fit(task.fit_data, structure, init=group[0], further=group[1:],
-                    seed=task.seed, zone_offsets=True, bounds=bounds, profile=False,
-                    time_budget_s=_budget(task))
-        if other.stop_reason == "time_budget":  # a search left unfinished: not tried
-            return dataclasses.replace(fr, stop_reason="time_budget")
-        if other.sse < fr.sse:
-            fr = other
-    return fr
+
+    def at_floor(per_zone: dict[str, dict[str, float]]) -> bool:
+        return all(per_zone[z]["rmse_c"] <= floor[z] for z in floor if z in per_zone)
+    if at_floor(fr.per_zone):
+        return fr
+    own, again = _starts(structure, init, bounds, task.settled)
+    starts = own + [{**v, **net} for v in again
+                    for net in _networks_for(structure, v, task.fit_data)]
+    if not starts:
+        return fr
+    if _late(task):
+        return dataclasses.replace(fr, stop_reason="time_budget")
+    other = fit(task.fit_data, structure, init=starts[0], further=starts[1:], enough=at_floor,
+                seed=task.seed, zone_offsets=True, bounds=bounds, profile=False,
+                time_budget_s=_budget(task))
+    if other.stop_reason == "time_budget":  # a search left unfinished: not tried
+        return dataclasses.replace(fr, stop_reason="time_budget")
+    return other if other.sse < fr.sse else fr
 
 
 def _start_of(task: Task, structure: ModelStructure

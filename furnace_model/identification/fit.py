@@ -66,7 +66,7 @@ Enough = Callable[[dict[str, dict[str, float]]], bool]
 """Whether a polished start's per-zone figures end a search of several starts (`fit`'s
 `enough`)."""
 SCOUT_STEPS = 10
-"""Polish steps each of several starts takes before the best goes on alone: enough to leave
+"""Polish steps each of several starts takes before the lowest goes on: enough to leave
 a start's own misfit (its offsets and initial states, a zone's scale) behind, and for one in
 a valley the polish cannot leave to show it."""
 WARM_DAMPING = 1e-7
@@ -461,8 +461,8 @@ def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: i
     picked = [start, found.best] if found.best_f < at_start - variance else [start]
     polished = [prob.polish(begin(z), deadline, damping=damping) for z in picked]
     report(1.0)
-    best = min(polished, key=lambda p: np.nan_to_num(float(p.r @ p.r), nan=np.inf))
-    cut = ga_cut or any(p.reason == "time_budget" for p in [*polished, best])
+    best = _lowest(polished)
+    cut = ga_cut or any(p.reason == "time_budget" for p in polished)
     return _Run(best.z, best.reason, best.iterations, found.generations, cut, best.free_cost)
 
 

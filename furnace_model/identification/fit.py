@@ -127,8 +127,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     onset needs cost about one polish, not one each. With `enough` (a test of the fit's
     per-zone figures, as `FitResult.per_zone`) the next lowest goes on too, and so on,
     until one passes it: a scout's ten steps do not always rank the ends, and a caller
-    that knows what a good end is (the records' noise) gets the old guarantee of every
-    start polished before a worse end is kept.
+    that knows what a good end is (the records' noise) gets every start polished before
+    an end that fails it is kept.
     """
     t_start = time.perf_counter()
     if method not in METHODS:

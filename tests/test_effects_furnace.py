@@ -508,7 +508,9 @@ def test_a_fuel_switch_on_a_network_is_found_from_the_rates_its_inputs_give():
 def test_radiation_on_a_network_never_ends_worse_than_the_baseline_it_nests():
     """Known truth (the six-zone selfcheck's dead-time row, draw 0): no radiation. Started
     at half a share from the bent baseline's rates, the radiation fit can stop worse than
-    the baseline it nests; polished again from its null, it is at least the baseline."""
+    the baseline it nests; polished again from its null (the baseline's parameters, offsets
+    and initial states where its fit ended, as the search hands them over), it is at least
+    the baseline."""
     from furnace_model.diagnosis.fitting import Task, run_task
     from furnace_model.diagnosis.holdout import split
     from furnace_model.diagnosis.selfcheck import selfcheck_case
@@ -517,7 +519,7 @@ def test_radiation_on_a_network_never_ends_worse_than_the_baseline_it_nests():
     fit_data, hold, tail_of, _ = split(case.fit, case.holdout)
     base = run_task(Task((), {}, fit_data, hold, tail_of, None, 0))
     rad = run_task(Task(("radiation",), {}, fit_data, hold, tail_of, dict(base.params), 0,
-                        baseline_sse=base.sse_fit))
+                        baseline_sse=base.sse_fit, baseline_end=base.ended))
     assert rad.sse_fit <= base.sse_fit * (1 + 1e-6)
     for z in SIX.zones:
         assert rad.rmse_holdout_c[z] < base.rmse_holdout_c[z] + 0.5, z

@@ -404,6 +404,66 @@ def test_a_record_about_its_operating_point_is_relaxed_and_exact():
     assert not relaxed.any()
 
 
+def _operating_point_record(share: float = 0.8):
+    """Hourly inputs a few percent about a hold near radiation's reference temperature (the
+    relaxation takes it), from the hold's steady state."""
+    rng = np.random.default_rng(3)
+    hours = np.arange(0.0, 2 * 1440.0, 60.0)
+    burners = np.array([6.0, 3.0, 2.0]) * (1.0 + 0.05 * rng.standard_normal((hours.size, 3)))
+    inputs = Inputs(hours, burners, np.full(hours.size, 25.0))
+    hold = Inputs(np.array([0.0]), burners[:1], np.array([25.0]))
+    ms = ModelStructure([Radiation(t_ref_c=1200.0, furnace=PAPER)], furnace=PAPER)
+    values = {**PAPER_TABLE_V, "rad_share": share}
+    x0 = ms.simulate(values, hold, np.array([3e4]), np.full(3, 1200.0)).zones[0, 0]
+    return ms, values, inputs, x0, np.arange(0.0, 2 * 1440.0 + 1, 60.0)
+
+
+def test_a_jacobians_sets_relaxed_from_the_first_give_its_differences():
+    """Known truth: the differences of sets relaxed each from its own linear response
+    (`together`). Relaxed from the first set's trajectory with its linear part
+    (`differences`), the first set is what it is alone and every forward difference
+    (a rate, the share, an initial state) the same to 1e-5 of its size."""
+    ms, values, inputs, x0, t = _operating_point_record()
+    names = ["a", "d", "rad_share"]
+    P = 1 + len(names) + 1
+    sets = {k: np.full(P, float(v)) for k, v in values.items()}
+    for i, name in enumerate(names):
+        sets[name][1 + i] *= 1.0 + 1e-6
+    x0s = np.repeat(x0[None], P, axis=0)
+    x0s[-1, 2] += 1e-3
+    together = ms.simulate(sets, inputs, t, x0s).zones
+    apart = ms.simulate(sets, inputs, t, x0s, batch="differences").zones
+    alone = ms.simulate(values, inputs, t, x0).zones[0]
+    np.testing.assert_allclose(apart[0], alone, rtol=0, atol=1e-9)
+    for p in range(1, P):
+        d_together, d_apart = together[p] - together[0], apart[p] - apart[0]
+        size = np.abs(d_together).max()
+        assert size > 1e-6, p  # each set moves the response
+        assert np.abs(d_apart - d_together).max() < 1e-5 * size, p
+
+
+def test_sets_scored_each_on_its_own_step_only_those_the_relaxation_leaves():
+    """A population with a member far from the law's reference (a heat-up from cold with
+    a strong share, which the relaxation does not take) beside members it takes: scored
+    `each`, the members taken are what they are alone and the other is what the stepping
+    integrator gives it alone; `together`, all are stepped."""
+    ms, values, inputs, x0, t = _operating_point_record()
+    cold = np.full(3, 25.0)
+    sets = {k: np.full(3, float(v)) for k, v in values.items()}
+    sets["rad_share"] = np.array([0.8, 0.9, 0.8])
+    x0s = np.stack([x0, x0, cold])
+    each = ms.simulate(sets, inputs, t, x0s, batch="each").zones
+    for p in range(3):
+        alone = ms.simulate({k: v[p] for k, v in sets.items()}, inputs, t, x0s[p]).zones[0]
+        np.testing.assert_allclose(each[p], alone, rtol=0, atol=1e-8)
+    theta = ms.theta(sets)
+    _, relaxed, _ = ms._relaxed(theta, ms.system(theta), ms.drive(theta, inputs), x0s, 0.0, t,
+                                "each")
+    assert relaxed.tolist() == [True, True, False]
+    together = ms.simulate(sets, inputs, t, x0s).zones
+    assert np.abs(together[:2] - each[:2]).max() > 1e-9  # stepped, not relaxed
+
+
 @pytest.mark.parametrize("first", [0.5, 2.0, 64.0])
 def test_the_grid_laid_out_per_piece_length_is_the_steps_piece_by_piece(first):
     """A record with thousands of input changes and a handful of piece lengths: its steps

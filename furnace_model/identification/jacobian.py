@@ -72,7 +72,7 @@ def forward_differences(prob: Problem, z: np.ndarray,
     for j, r in enumerate(prob.records):
         x0s = np.repeat(prob.x0_of(z, j)[None], zp.shape[0], axis=0)
         x0s[1 + cols.size + np.arange(nx), np.arange(nx)] += h[cols.size:]
-        res = prob.residuals(j, vals, x0s, first)
+        res = prob.residuals(j, vals, x0s, first, batch="differences")
         d = (res[1:] - res[0]) / h[:, None]  # (columns + zones, m_j)
         block = np.zeros((res.shape[1], prob.n))
         block[:, cols] = d[:cols.size].T

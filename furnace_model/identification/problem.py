@@ -15,7 +15,7 @@ from scipy.special import chdtri
 from ..errors import FurnaceError
 from ..experiment import Experiment
 from ..simulation.response import Response
-from ..simulation.structure import Inputs, ModelStructure
+from ..simulation.structure import Batch, Inputs, ModelStructure
 from .jacobian import jacobian
 from .plausible import FLAG_LEVEL, Flag, start_band, zone_bias_bounds
 from .scores import zone_metrics
@@ -175,21 +175,23 @@ class Problem:
         return out
 
     def predict(self, j: int, values: dict[str, np.ndarray], x0: np.ndarray,
-                first_order: np.ndarray | None = None) -> np.ndarray:
+                first_order: np.ndarray | None = None, batch: Batch = "together") -> np.ndarray:
         """Model zone temperatures (P, N, zones) for experiment j; the sets marked in
-        `first_order` (P,) to first order in the nonlinear terms (`jac`)."""
+        `first_order` (P,) to first order in the nonlinear terms (`jac`). `batch`: what the
+        sets are to each other (`Batch`)."""
         r = self.records[j]
         with np.errstate(all="ignore"):
             if first_order is None:
-                response = self._simulate(values, r, x0)
+                response = self._simulate(values, r, x0, batch)
             else:
-                response = self._simulate_split(values, r, x0, first_order)
+                response = self._simulate_split(values, r, x0, first_order, batch)
             y = response.readings(weight=r.tc_weight)
         return y if self.held is None else y + self.held[j]
 
-    def _simulate(self, values: dict[str, np.ndarray], r: Record, x0: np.ndarray) -> Response:
+    def _simulate(self, values: dict[str, np.ndarray], r: Record, x0: np.ndarray,
+                  batch: Batch = "together") -> Response:
         try:
-            return self.structure.simulate(values, r.inputs, r.t, x0)
+            return self.structure.simulate(values, r.inputs, r.t, x0, batch=batch)
         except IndexError:
             # The simulator cannot yet take a mode slower than ~1e9 min (an eigenvalue that
             # is numerically zero) in a batch with shared steps: such a set is a furnace that
@@ -205,15 +207,16 @@ class Problem:
             out = np.full((bad.size, r.t.size, self.nz), np.nan)
             if good.size:
                 out[good] = self.structure.simulate({k: v[good] for k, v in theta.items()},
-                                                    r.inputs, r.t, x0[good]).zones
+                                                    r.inputs, r.t, x0[good], batch=batch).zones
             return Response(r.t, out, self.structure, theta)
 
     def _simulate_split(self, values: dict[str, np.ndarray], r: Record, x0: np.ndarray,
-                        first_order: np.ndarray) -> Response:
+                        first_order: np.ndarray, batch: Batch) -> Response:
         x0 = np.broadcast_to(x0, (first_order.size, x0.shape[-1]))
         fo, full = np.nonzero(first_order)[0], np.nonzero(~first_order)[0]
         out = np.empty((first_order.size, r.t.size, self.nz))
-        out[full] = self._simulate({k: v[full] for k, v in values.items()}, r, x0[full]).zones
+        out[full] = self._simulate({k: v[full] for k, v in values.items()}, r, x0[full],
+                                   batch).zones
         try:
             out[fo] = self.structure.simulate_first_order({k: v[fo] for k, v in values.items()},
                                                           r.inputs, r.t, x0[fo])
@@ -222,9 +225,10 @@ class Problem:
         return Response(r.t, out, self.structure, values)
 
     def residuals(self, j: int, values: dict[str, np.ndarray], x0: np.ndarray,
-                  first_order: np.ndarray | None = None) -> np.ndarray:
+                  first_order: np.ndarray | None = None, batch: Batch = "together"
+                  ) -> np.ndarray:
         r = self.records[j]
-        diff = self.predict(j, values, x0, first_order) - r.y
+        diff = self.predict(j, values, x0, first_order, batch) - r.y
         return diff.reshape(diff.shape[0], -1) if r.complete else diff[:, r.mask]
 
     def sse_params(self, zp: np.ndarray, own: np.ndarray | None = None) -> np.ndarray:
@@ -246,7 +250,7 @@ class Problem:
             step = max(1, _CELLS // (self.nz * r.t.size))
             for p0 in range(0, zp.shape[0], step):
                 sl = slice(p0, p0 + step)
-                res = self.residuals(j, self.values(zp[sl]), x0[None])
+                res = self.residuals(j, self.values(zp[sl]), x0[None], batch="each")
                 if offsets is not None:
                     res = res + offsets
                 total[sl] += np.einsum("pm,pm->p", res, res)
@@ -349,12 +353,13 @@ class Problem:
         return self.remembered("fun", z, lambda: self.fun_many(z[None])[0])
 
     def fun_many(self, Z: np.ndarray) -> np.ndarray:
-        """Residuals (P, m) of unknown vectors (P, n), each experiment in one batched call."""
+        """Residuals (P, m) of unknown vectors (P, n), each experiment in one batched call;
+        each vector scored on its own (never differenced against the others)."""
         vals = self.values(Z[:, :self.k])
         out, nz = [], self.nz
         for j, r in enumerate(self.records):
             i = self.k + self.block * j
-            res = self.residuals(j, vals, Z[:, i:i + nz])
+            res = self.residuals(j, vals, Z[:, i:i + nz], batch="each")
             out.append(res + Z[:, i + nz:i + 2 * nz][:, r.zone_of] if self.offsets_fitted
                        else res)
         return np.concatenate(out, axis=1)

@@ -15,7 +15,7 @@ import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -28,6 +28,14 @@ from .response import Response
 
 if TYPE_CHECKING:
     from ..experiment import Experiment
+
+Batch = Literal["together", "each", "differences"]
+"""What the parameter sets of one call are to each other, where the structure is nonlinear:
+`together`, integrated by one scheme, so that a difference between any two is the model's
+and not the schemes' (up to a few ten-thousandths of a degree); `each`, scored each on its
+own (a population, a polish's trial steps), each by the cheapest scheme that holds for it;
+`differences`, the first and small moves of it (a Jacobian's columns), the others
+integrated from the first one's trajectory."""
 
 
 @dataclass(frozen=True)
@@ -199,12 +207,15 @@ class ModelStructure:
                    for e in self.effects)
 
     def simulate(self, values: Mapping[str, float | np.ndarray], inputs: Inputs, t: np.ndarray,
-                 x0: np.ndarray, t0: float | None = None, states: bool = False) -> Response:
+                 x0: np.ndarray, t0: float | None = None, states: bool = False,
+                 batch: Batch = "together") -> Response:
         """The run at times t from zone temperatures x0 at t0, for P parameter sets.
 
         x0 is (P|1, zones) zone temperatures, or (P|1, n) full states. t0 defaults to the first
         input time. The zone outputs are simulated; with states=True the states are too (one
         simulation gives both), else a response computes them on first use.
+
+        `batch` says what the sets of a nonlinear structure are to each other (`Batch`).
         """
         theta = self.theta(values)
         sys = self.system(theta)
@@ -218,7 +229,7 @@ class ModelStructure:
         def run(C: np.ndarray | None) -> np.ndarray:
             if self.linear:
                 return response(sys.A, sys.B, x0, t0, drive, t, C=C, modes=Modes.of(sys.A))
-            return self._integrate(theta, sys, drive, x0, t0, t, C)
+            return self._integrate(theta, sys, drive, x0, t0, t, C, batch)
 
         if states:
             x = run(None)
@@ -279,8 +290,8 @@ class ModelStructure:
         terms = _Nonlinear(self.effects, theta, sys, np.repeat(u, 3, axis=1))
         return terms(X.reshape(P, 3 * K, n)).reshape(P, K, 3, n)
 
-    def _relaxed(self, theta, sys, drive, x0, t0, t) -> tuple[np.ndarray, np.ndarray,
-                                                              np.ndarray]:
+    def _relaxed(self, theta, sys, drive, x0, t0, t, batch: Batch = "together"
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """States (P, N, n) of a weakly nonlinear structure by waveform relaxation, which
         sets converged (the others are to be integrated step by step), and which cannot be
         simulated at all (not finite from the start).
@@ -300,16 +311,41 @@ class ModelStructure:
         The sweeps run on steps that scale with the network's fastest mode (`_first_step`),
         the same for every set of a call, and to a tolerance far below a finite difference's
         effect, so the result is a smooth function of the parameters as the fit's Jacobian
-        needs."""
+        needs. The sweeps stop once a set leaves them (all are then stepped), or with `each`
+        once every set still in them has converged.
+
+        A Jacobian's sets (`differences`) are small moves of the first: that one is relaxed
+        alone, and the others from its trajectory with its linear part A' (each set's own
+        A - A' moved into R). They start within a finite difference's move of their answer
+        and converge in two or three sweeps instead of eight from their linear responses,
+        with one set of modes and of quadrature weights for them all; and a linear part
+        shared by every set makes their difference that of one smooth discretisation."""
         P, n = sys.A.shape[0], self.n_states
         x0 = np.broadcast_to(x0, (P, n))
         end = max(float(t[-1]), t0) if t.size else t0
-        modes = Modes.of(sys.A)
-        grid = _Grid.of(drive, t0, end, P, _first_step(modes.lam))
-        ok = np.zeros(P, dtype=bool)
+        grid = _Grid.of(drive, t0, end, P, _first_step(Modes.of(sys.A).lam))
         if grid is None:
+            ok = np.zeros(P, dtype=bool)
             return np.empty((P, t.size, n)), ok, ok
-        nodes = grid.at_nodes(response(sys.A, sys.B, x0, t0, drive, grid.nodes, modes=modes))
+        if batch != "differences" or P == 1:
+            return self._sweeps(theta, sys, drive, x0, grid, t0, t, batch == "each")[:3]
+        one, others = np.arange(1), np.arange(1, P)
+        x1, ok1, lost1, about = self._sweeps(*_sets(one, theta, sys, drive, x0, grid),
+                                             t0, t, False)
+        if not ok1[0]:  # all stepped, as the first is
+            return x1.repeat(P, axis=0), ok1.repeat(P), lost1.repeat(P)
+        xr, okr, lostr, _ = self._sweeps(*_sets(others, theta, sys, drive, x0, grid), t0, t,
+                                         False, about)
+        return (np.concatenate([x1, xr]), np.concatenate([ok1, okr]),
+                np.concatenate([lost1, lostr]))
+
+    def _sweeps(self, theta, sys, drive, x0, grid, t0, t, each: bool,
+                about: tuple[np.ndarray, np.ndarray, Modes] | None = None):
+        """`_relaxed`'s sweeps on the grid: states (P, N, n), converged, lost, and the
+        trajectory at the nodes with its linear part and modes (those of the first set).
+        `about`: such a trajectory, linear part and modes (of one set) to start from and
+        keep."""
+        P, n = sys.A.shape[0], self.n_states
         u0 = np.broadcast_to(drive.level_at(t0), (P, sys.B.shape[2]))
         nonlinear = _Nonlinear(self.effects, theta, sys, u0[:, None])
 
@@ -323,36 +359,56 @@ class ModelStructure:
             usable = finite & (np.abs(modes.V).sum(axis=1).max(axis=1)
                                * np.abs(modes.Vinv).sum(axis=1).max(axis=1) < 1e10)
             base = grid.at_nodes(response(A, sys.B, x0, t0, drive, grid.nodes, modes=modes))
-            return J, A, modes, usable, base
+            return J, A, modes, modes, usable, base
+
+        def kept():
+            """The linear part of `about` for every set: each one's own rest in R."""
+            X1, A1, shared = about
+            A = np.repeat(A1, P, axis=0)
+            modes = Modes(*(np.repeat(a, P, axis=0) for a in (shared.lam, shared.V,
+                                                              shared.Vinv)))
+            base = grid.at_nodes(response(A, sys.B, x0, t0, drive, grid.nodes, modes=modes))
+            usable = np.isfinite(base).all(axis=(1, 2, 3))
+            return A - sys.A, A, modes, shared, usable, base
 
         def rest(X, J):
             return self._nonlinear_rhs(theta, sys, X, grid.u) - _times(J, X)
 
-        X = nodes
+        if about is None:
+            X = grid.at_nodes(response(sys.A, sys.B, x0, t0, drive, grid.nodes,
+                                       modes=Modes.of(sys.A)))
+        else:
+            X = np.repeat(about[0], P, axis=0)
         lost = ~np.isfinite(X).all(axis=(1, 2, 3))
         X = np.where(lost[:, None, None, None], 0.0, X)
         scale = 1.0 + np.abs(X).max(axis=(1, 2, 3))
         change = np.full(P, np.inf)
         active = ~lost
+        ok = np.zeros(P, dtype=bool)
+        done = np.zeros(P, dtype=bool)  # with `each`: converged, and left where they are
         for sweep in range(RELAX_SWEEPS):
-            if sweep <= RELAX_CENTRINGS:
-                J, A, modes, usable, base = centred(X)
+            if sweep == 0 or (about is None and sweep <= RELAX_CENTRINGS):
+                J, A, modes, shared, usable, base = centred(X) if about is None else kept()
                 active &= usable
-                convolved = grid.convolver(modes, grid.nodes, t0)
+                convolved = grid.convolver(shared, grid.nodes, t0)
             new = base + grid.at_nodes(convolved(rest(X, J)))
             step = np.abs(new - X).max(axis=(1, 2, 3))
             bad = ~np.isfinite(step)
             step = np.where(bad, np.inf, step)
             slow = (sweep > RELAX_CENTRINGS + 1) & (step > RELAX_CONTRACTION * change)
-            active &= ~bad & ~slow
-            X = np.where(active[:, None, None, None], new, X)
+            active &= ~bad & ~slow | done
+            X = np.where((active & ~done)[:, None, None, None], new, X)
             change = step
-            ok = active & (step <= RELAX_TOL * scale)
-            if not (active | lost).all() or (ok | lost).all():
+            ok = done | active & (step <= RELAX_TOL * scale)
+            if each:
+                done = ok
+            if (ok | lost | ~active).all() if each else \
+                    (not (active | lost).all() or (ok | lost).all()):
                 break
         x = response(A, sys.B, x0, t0, drive, t, modes=modes) \
-            + grid.convolved(modes, rest(X, J), t, t0)
-        return x, ok, lost
+            + grid.convolved(shared, rest(X, J), t, t0)
+        first = Modes(shared.lam[:1], shared.V[:1], shared.Vinv[:1])
+        return x, ok, lost, (X[:1], A[:1], first)
 
     def sensor_offsets(self, values: Mapping[str, float | np.ndarray], t: np.ndarray) -> np.ndarray:
         """Per-thermocouple additive errors (P, N, thermocouples) from sensor effects; zeros
@@ -366,7 +422,7 @@ class ModelStructure:
                 out += off
         return out
 
-    def _integrate(self, theta, sys, drive, x0, t0, t, C):
+    def _integrate(self, theta, sys, drive, x0, t0, t, C, batch: Batch = "together"):
         """Nonlinear structures: the sets whose nonlinear terms all vanish (radiation's share
         at zero) are linear and take the closed form, the others `_stepped`. Both are the same
         function of the parameters: on a linear system the exponential scheme is exact, so
@@ -379,7 +435,7 @@ class ModelStructure:
         if t.size and t[0] < t0:
             return self._exprb(theta, sys, drive, x0, t0, t, C)
         if not off.any():
-            return self._stepped(theta, sys, drive, x0, t0, t, C)
+            return self._stepped(theta, sys, drive, x0, t0, t, C, batch)
         x0 = np.broadcast_to(x0, (P, n))
         lin = np.nonzero(off)[0]
         A, B = sys.A[lin], sys.B[lin]
@@ -393,20 +449,30 @@ class ModelStructure:
         out[rest] = self._stepped({k: v[rest] for k, v in theta.items()},
                                 System(sys.A[rest], sys.B[rest], sys.C[rest]),
                                 _take_drive(drive, rest), x0[rest], t0, t,
-                                None if C is None else C[rest])
+                                None if C is None else C[rest], batch)
         return out
 
-    def _stepped(self, theta, sys, drive, x0, t0, t, C):
+    def _stepped(self, theta, sys, drive, x0, t0, t, C, batch: Batch = "together"):
         """Sets with nonlinear terms: by waveform relaxation where it converges for every set
         of the call, by `_exprb` otherwise. The two differ by their discretisations (up to a
         few ten-thousandths of a degree on a heat-up with a strong radiative share), as much
         as a forward difference moves the response: the sets of one call, which a Jacobian
-        differences against each other, are all taken by the same scheme."""
+        differences against each other, are all taken by the same scheme. Sets scored
+        `each` on their own are stepped only where the relaxation does not take them: a
+        population's few strongly nonlinear members then no longer cost the whole population
+        a step-by-step run."""
         P, n = sys.A.shape[0], self.n_states
         x0 = np.broadcast_to(x0, (P, n))
-        x, ok, lost = self._relaxed(theta, sys, drive, x0, t0, t)
-        if not (ok | lost).all():
+        each = batch == "each"
+        x, ok, lost = self._relaxed(theta, sys, drive, x0, t0, t, batch)
+        rest = ~(ok | lost)
+        if rest.any() and not each:
             return self._exprb(theta, sys, drive, x0, t0, t, C)
+        if rest.any():
+            p = np.nonzero(rest)[0]
+            x[p] = self._exprb({k: v[p] for k, v in theta.items()},
+                               System(sys.A[p], sys.B[p], sys.C[p]), _take_drive(drive, p),
+                               x0[p], t0, t, None)
         x[lost] = np.nan  # as `_exprb` leaves a set that diverges, without costing the others
         if C is None:
             return x
@@ -788,6 +854,12 @@ def _phi123(z: np.ndarray) -> tuple[np.ndarray, ...]:
 
 _FACT = np.cumprod(np.concatenate(([1.0], np.arange(1.0, 21.0))))
 """k! for k = 0..20."""
+
+
+def _sets(p: np.ndarray, theta, sys: System, drive: Drive, x0: np.ndarray, grid: _Grid):
+    """Parameter sets p alone: their theta, system, drive, initial states and grid."""
+    return ({k: v[p] for k, v in theta.items()}, System(sys.A[p], sys.B[p], sys.C[p]),
+            _take_drive(drive, p), x0[p], _Grid(grid.a, grid.h, grid.u[p]))
 
 
 def _take_drive(drive: Drive, p: np.ndarray) -> Drive:

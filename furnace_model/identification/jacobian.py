@@ -47,7 +47,8 @@ def forward_differences(prob: Problem, z: np.ndarray,
                         columns: np.ndarray | None = None, x0: bool = True) -> np.ndarray:
     """Forward differences, all perturbed sets of a record in one batched call: of the free
     parameters in `columns` (all if None) and, with `x0`, of the initial states; the other
-    columns are zero.
+    columns are zero. A nonlinear structure integrates them as small moves of the point
+    (`Batch` "differences": from the point's own trajectory, a few sweeps each).
 
     Where the nonlinear terms vanish at z (radiation's share at zero: a fit that drives
     the effect to its null), every set but the one that switches them on is linear and

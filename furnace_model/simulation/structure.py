@@ -330,10 +330,11 @@ class ModelStructure:
             return np.empty((P, t.size, n)), ok, ok
         if batch != "differences" or P == 1:
             return self._sweeps(theta, sys, drive, x0, grid, t0, t, batch == "each")[:3]
-        x1, ok1, lost1, about = self._sweeps(*_sets(np.arange(1), theta, sys, drive, x0, grid),
-                                             t0, t, False)
+        x1, ok1, _, about = self._sweeps(*_sets(np.arange(1), theta, sys, drive, x0, grid),
+                                         t0, t, False)
         if not ok1[0]:  # all stepped, as the first is
-            return x1.repeat(P, axis=0), ok1.repeat(P), lost1.repeat(P)
+            unrelaxed = np.zeros(P, dtype=bool)
+            return x1.repeat(P, axis=0), unrelaxed, unrelaxed
         # the first too, so that every set takes the same sweeps from the same trajectory:
         # a set the first's differs from by nothing (an unseen burner's gain) gives nothing
         x, ok, lost, _ = self._sweeps(theta, sys, drive, x0, grid, t0, t, False, about)

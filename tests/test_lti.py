@@ -373,20 +373,26 @@ def test_a_slower_network_relaxes_on_longer_steps_and_stays_exact():
     assert np.max(np.abs(y - ref)) < 1e-4
 
 
-def test_a_record_about_its_operating_point_is_relaxed_and_exact():
-    """Hourly inputs that move a few percent about a hold near the law's reference
-    temperature: the waveform relaxation takes the whole record (no step-by-step
-    integration) and stays within 1e-4 degC of Radau at 1e-12; a heat-up from cold with a
-    strong radiative share does not converge and is left to the stepping integrator."""
+def _operating_point_record(days: int):
+    """Hourly inputs a few percent about a hold near radiation's reference temperature (the
+    relaxation takes it), from the hold's steady state, with a strong radiative share."""
     rng = np.random.default_rng(3)
-    hours = np.arange(0.0, 4 * 1440.0, 60.0)
+    hours = np.arange(0.0, days * 1440.0, 60.0)
     burners = np.array([6.0, 3.0, 2.0]) * (1.0 + 0.05 * rng.standard_normal((hours.size, 3)))
     inputs = Inputs(hours, burners, np.full(hours.size, 25.0))
     hold = Inputs(np.array([0.0]), burners[:1], np.array([25.0]))
     ms = ModelStructure([Radiation(t_ref_c=1200.0, furnace=PAPER)], furnace=PAPER)
     values = {**PAPER_TABLE_V, "rad_share": 0.8}
     x0 = ms.simulate(values, hold, np.array([3e4]), np.full(3, 1200.0)).zones[0, 0]
-    t = np.arange(0.0, 4 * 1440.0 + 1, 60.0)
+    return ms, values, inputs, x0, np.arange(0.0, days * 1440.0 + 1, 60.0)
+
+
+def test_a_record_about_its_operating_point_is_relaxed_and_exact():
+    """Hourly inputs that move a few percent about a hold near the law's reference
+    temperature: the waveform relaxation takes the whole record (no step-by-step
+    integration) and stays within 1e-4 degC of Radau at 1e-12; a heat-up from cold with a
+    strong radiative share does not converge and is left to the stepping integrator."""
+    ms, values, inputs, x0, t = _operating_point_record(days=4)
     theta = ms.theta(values)
     sysm = ms.system(theta)
     _, relaxed, _ = ms._relaxed(theta, sysm, ms.drive(theta, inputs), x0[None], 0.0, t)
@@ -404,26 +410,12 @@ def test_a_record_about_its_operating_point_is_relaxed_and_exact():
     assert not relaxed.any()
 
 
-def _operating_point_record(share: float = 0.8):
-    """Hourly inputs a few percent about a hold near radiation's reference temperature (the
-    relaxation takes it), from the hold's steady state."""
-    rng = np.random.default_rng(3)
-    hours = np.arange(0.0, 2 * 1440.0, 60.0)
-    burners = np.array([6.0, 3.0, 2.0]) * (1.0 + 0.05 * rng.standard_normal((hours.size, 3)))
-    inputs = Inputs(hours, burners, np.full(hours.size, 25.0))
-    hold = Inputs(np.array([0.0]), burners[:1], np.array([25.0]))
-    ms = ModelStructure([Radiation(t_ref_c=1200.0, furnace=PAPER)], furnace=PAPER)
-    values = {**PAPER_TABLE_V, "rad_share": share}
-    x0 = ms.simulate(values, hold, np.array([3e4]), np.full(3, 1200.0)).zones[0, 0]
-    return ms, values, inputs, x0, np.arange(0.0, 2 * 1440.0 + 1, 60.0)
-
-
 def test_a_jacobians_sets_relaxed_from_the_first_give_its_differences():
     """Known truth: the differences of sets relaxed each from its own linear response
     (`together`). Relaxed from the first set's trajectory with its linear part
     (`differences`), the first set is what it is alone and every forward difference
     (a rate, the share, an initial state) the same to 1e-5 of its size."""
-    ms, values, inputs, x0, t = _operating_point_record()
+    ms, values, inputs, x0, t = _operating_point_record(days=2)
     names = ["a", "d", "rad_share"]
     P = 1 + len(names) + 1
     sets = {k: np.full(P, float(v)) for k, v in values.items()}
@@ -447,7 +439,7 @@ def test_sets_scored_each_on_its_own_step_only_those_the_relaxation_leaves():
     a strong share, which the relaxation does not take) beside members it takes: scored
     `each`, the members taken are what they are alone and the other is what the stepping
     integrator gives it alone; `together`, all are stepped."""
-    ms, values, inputs, x0, t = _operating_point_record()
+    ms, values, inputs, x0, t = _operating_point_record(days=2)
     cold = np.full(3, 25.0)
     sets = {k: np.full(3, float(v)) for k, v in values.items()}
     sets["rad_share"] = np.array([0.8, 0.9, 0.8])

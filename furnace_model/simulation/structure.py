@@ -34,7 +34,7 @@ Batch = Literal["together", "each", "differences"]
 `together`, integrated by one scheme, so that a difference between any two is the model's
 and not the schemes' (up to a few ten-thousandths of a degree); `each`, scored each on its
 own (a population, a polish's trial steps), each by the cheapest scheme that holds for it;
-`differences`, the first and small moves of it (a Jacobian's columns), the others
+`differences`, the first and small moves of it (a Jacobian's columns), all of them
 integrated from the first one's trajectory."""
 
 

@@ -29,6 +29,7 @@ from furnace_model.diagnosis import (
     split,
 )
 from furnace_model.diagnosis.cases import case_rng, draw_case
+from furnace_model.diagnosis.laws import laws_named
 from furnace_model.diagnosis.search import _determined
 from furnace_model.diagnosis.selfcheck import judge_case
 from furnace_model.effects import EFFECTS, Clues, FuelChange, Radiation, SensorDrift, ZoneBurners
@@ -271,6 +272,17 @@ def test_wall_behind_one_zone_is_named_with_its_zone():
     best = d.to_json()["candidates"][0]
     assert best["options"] == {"wall_storage": {"zones": ["preheat"]}}
     assert "law chosen among zones preheat" in best["note"]
+
+
+def test_the_laws_chosen_among_are_each_named():
+    """A loss tried in its own options (every zone that might lose heat), then in each zone
+    alone: the note names the first by the zones its options give, not a blank."""
+    def cand(options):
+        return CandidateResult(("zone_losses",), {}, {}, {}, {},
+                               options={"zone_losses": options})
+
+    same = [cand({}), cand({"zones": ("soak",)}), cand({"zones": ("heat",)})]
+    assert laws_named(same, PAPER) == "zones soak heat, zones soak, zones heat"
 
 
 def testblend_weight_is_the_least_squares_one():

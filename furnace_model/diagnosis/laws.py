@@ -91,6 +91,14 @@ def _blend(p: CandidateResult, q: CandidateResult, w: float, fit_data: list[Expe
         elapsed_s=p.elapsed_s + q.elapsed_s)
 
 
+def laws_named(same: list[CandidateResult], furnace: Furnace) -> str:
+    """The laws one effect was fitted in, each by its options; the one tried in the effect's
+    own options (most effects' first) by what those are, not left blank."""
+    n = same[0].effects[0]
+    own = opts_text(EFFECTS[n](furnace=furnace).options)
+    return ", ".join(opts_text(c.options.get(n, {})) or own for c in same)
+
+
 def opts_text(opts: dict) -> str:
     return ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} fitted" if v is None
                      else f"{k} {' '.join(v)}" if isinstance(v, tuple) else f"{k} {v}"

@@ -37,7 +37,7 @@ from .credit import (
 )
 from .fitting import Task, baseline_tasks, profile_told, structure_of, told_names, told_task
 from .holdout import split, uncovered
-from .laws import between_laws, further_laws, opts_text
+from .laws import between_laws, further_laws, laws_named
 from .limit import TimeLimit
 from .locate import Located, locate
 from .pool import run_all
@@ -209,8 +209,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
             if mix is not None and rank(mix) < rank(same[0]):
                 same.insert(0, mix)
             else:
-                same[0].note = "; ".join(x for x in (same[0].note, "law chosen among " + ", ".join(
-                    opts_text(c.options[n]) for c in same)) if x)
+                same[0].note = "; ".join(x for x in (same[0].note, "law chosen among "
+                                                     + laws_named(same, furnace)) if x)
         singles.append(same[0])
     singles.sort(key=rank)
     combos, kept, steps = stepwise(singles, base, floor, gap_limit, fit_data, hold, tail_of,

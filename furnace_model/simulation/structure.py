@@ -366,7 +366,7 @@ class ModelStructure:
 
         def kept():
             """The linear part of `about` for every set: each one's own rest in R."""
-            X1, A1, shared = about
+            _, A1, shared = about
             A = np.repeat(A1, P, axis=0)
             modes = Modes(*(np.repeat(a, P, axis=0) for a in (shared.lam, shared.V,
                                                               shared.Vinv)))

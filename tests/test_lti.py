@@ -410,12 +410,21 @@ def test_a_record_about_its_operating_point_is_relaxed_and_exact():
     assert not relaxed.any()
 
 
-def test_a_jacobians_sets_relaxed_from_the_first_give_its_differences():
+def test_a_jacobians_sets_relaxed_from_the_first_give_its_differences(monkeypatch):
     """Known truth: the differences of sets relaxed each from its own linear response
     (`together`). Relaxed from the first set's trajectory with its linear part
     (`differences`), the first set is what it is alone and every forward difference
-    (a rate, the share, an initial state) the same to 1e-5 of its size."""
+    (a rate, the share, an initial state) the same to 1e-5 of its size; and they are
+    relaxed so, the first alone and then all from it, not sent back to `together`."""
     ms, values, inputs, x0, t = _operating_point_record(days=2)
+    sweeps = ModelStructure._sweeps
+    started = []
+
+    def counted(self, theta, *args, **kwargs):
+        about = args[7] if len(args) > 7 else kwargs.get("about")
+        started.append((next(iter(theta.values())).shape[0], about is not None))
+        return sweeps(self, theta, *args, **kwargs)
+
     names = ["a", "d", "rad_share"]
     P = 1 + len(names) + 1
     sets = {k: np.full(P, float(v)) for k, v in values.items()}
@@ -424,7 +433,10 @@ def test_a_jacobians_sets_relaxed_from_the_first_give_its_differences():
     x0s = np.repeat(x0[None], P, axis=0)
     x0s[-1, 2] += 1e-3
     together = ms.simulate(sets, inputs, t, x0s).zones
+    monkeypatch.setattr(ModelStructure, "_sweeps", counted)
     apart = ms.simulate(sets, inputs, t, x0s, batch="differences").zones
+    monkeypatch.undo()
+    assert started == [(1, False), (P, True)]
     alone = ms.simulate(values, inputs, t, x0).zones[0]
     np.testing.assert_allclose(apart[0], alone, rtol=0, atol=1e-9)
     for p in range(1, P):

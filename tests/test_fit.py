@@ -500,3 +500,33 @@ def test_a_sliding_window_warm_start_reaches_the_same_optimum_in_fewer_steps(sce
         assert abs(warm.params[k] - v) < 0.02 * plain.std[k], (k, warm.params[k], v)
     assert warm.sse == pytest.approx(plain.sse, rel=1e-6)
     assert warm.iterations <= 0.6 * plain.iterations, (warm.iterations, plain.iterations)
+
+
+def test_further_starts_stop_once_several_in_a_row_find_nothing_lower(paper_1min, monkeypatch):
+    """Where no end passes `enough`, the scouts are polished on in their order only while
+    they find lower ends: starts that all lead to the one optimum polish the lowest scout
+    and STALLED_STARTS more, not all nine, and the optimum is the one a search from scratch
+    finds; with an `enough` the first end passes, that end alone."""
+    from furnace_model.identification import fit as fit_module
+    from furnace_model.identification.problem import POLISH_MAX_ITER, Problem
+
+    polish = Problem.polish
+    on = []
+
+    def counted(self, z0, deadline, max_iter=POLISH_MAX_ITER, *args, **kwargs):
+        if max_iter == POLISH_MAX_ITER:
+            on.append(max_iter)
+        return polish(self, z0, deadline, max_iter, *args, **kwargs)
+
+    monkeypatch.setattr(Problem, "polish", counted)
+    starts = [{k: v * s for k, v in PAPER_TABLE_V.items()}
+              for s in (0.05, 0.07, 0.1, 0.14, 0.2, 3.0, 5.0, 8.0, 12.0)]
+    never = fit([paper_1min], init=starts[0], further=starts[1:], enough=lambda _z: False,
+                profile=False)
+    assert len(on) == 1 + fit_module.STALLED_STARTS
+    on.clear()
+    first = fit([paper_1min], init=starts[0], further=starts[1:], enough=lambda _z: True,
+                profile=False)
+    assert len(on) == 1
+    assert never.sse == pytest.approx(first.sse, rel=1e-6)
+    assert never.sse == pytest.approx(fit([paper_1min]).sse, rel=1e-6)

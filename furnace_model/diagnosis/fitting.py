@@ -290,8 +290,8 @@ def _restarted(fr: FitResult, task: Task, structure: ModelStructure, init: dict[
     finds only side valleys. The starts are one fit (`fit`'s `further`): each scouted ten
     steps, then polished on in the scouts' order until one follows the records to their
     noise. A start polished to its end costs an integrated model minutes, and the one that
-    reaches the floor is mostly among the first scouts; where none does, every start is
-    polished and the lowest kept."""
+    reaches the floor is mostly among the first scouts; where none does, they are polished
+    on while they still find lower ends (`fit`'s `STALLED_STARTS`), the lowest kept."""
     floor = limits([record_floor(e) for e in task.fit_data], 1.0, AT_FLOOR_Z)
 
     def at_floor(per_zone: dict[str, dict[str, float]]) -> bool:

@@ -69,6 +69,15 @@ SCOUT_STEPS = 10
 """Polish steps each of several starts takes before the lowest goes on: enough to leave
 a start's own misfit (its offsets and initial states, a zone's scale) behind, and for one in
 a valley the polish cannot leave to show it."""
+STALLED_STARTS = 4
+"""Scouts polished on in a row without lowering the lowest end, after which the rest are
+left where none is `enough`: an effect that cannot follow the records to their noise (a
+fuel switch on records without one) would otherwise have every start polished to its end,
+most to their iteration limit in valleys no lower. A valley the effect truly has holds
+many of the starts, and the scouts rank one of them among the first."""
+STALL_GAIN = 1e-3
+"""What an end must take off the lowest so far to count as lower: less is the scatter of
+ends that stopped at their iteration limit in one valley."""
 WARM_DAMPING = 1e-7
 """The first Levenberg-Marquardt damping of a sliding window's refit (`WarmStart`): the
 previous window's optimum is next to this one's, where undamped Gauss-Newton steps converge
@@ -126,9 +135,10 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     few steps (`SCOUT_STEPS`) and the lowest goes on alone, so that the starts an ambiguous
     onset needs cost about one polish, not one each. With `enough` (a test of the fit's
     per-zone figures, as `FitResult.per_zone`) the next lowest goes on too, and so on,
-    until one passes it: a scout's ten steps do not always rank the ends, and a caller
-    that knows what a good end is (the records' noise) gets every start polished before
-    an end that fails it is kept.
+    until one passes it, or until several in a row (`STALLED_STARTS`) end no lower than
+    the lowest so far: a scout's ten steps do not always rank the ends, and a caller that
+    knows what a good end is (the records' noise) gets the starts polished on while they
+    still find lower valleys.
     """
     t_start = time.perf_counter()
     if method not in METHODS:
@@ -480,7 +490,8 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
              begin: Callable[[np.ndarray], np.ndarray], damping: float = 1e-3,
              enough: Enough | None = None) -> _Run:
     """One run from `starts` (none: the GA over the whole box; several given whole: each
-    scouted, then polished on in the scouts' order until one is `enough`, the lowest kept;
+    scouted, then polished on in the scouts' order until one is `enough` or they stall
+    (`STALLED_STARTS`), the lowest kept;
     several not given whole: each polished, the first is the GA's centre)."""
     if prob.k == 0:
         p = prob.polish(prob.start(np.zeros(0)), deadline)
@@ -492,11 +503,17 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
         else:
             scouts = sorted((prob.polish(begin(z), deadline, SCOUT_STEPS, damping=damping)
                              for z in starts), key=_cost)
-            ends = []
+            ends: list[Polished] = []
+            lowest, stalled = np.inf, 0
             for scout in scouts:
                 ends.append(prob.polish(scout.z, deadline)
                             if scout.reason == "iteration_limit" else scout)
                 if enough is None or enough(prob.per_zone(ends[-1].z)):
+                    break
+                cost = _cost(ends[-1])
+                stalled = 0 if cost < lowest * (1.0 - STALL_GAIN) else stalled + 1
+                lowest = min(lowest, cost)
+                if stalled == STALLED_STARTS:
                     break
             p = _lowest(ends)
         report(1.0)

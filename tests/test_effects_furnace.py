@@ -564,6 +564,32 @@ def test_a_six_zone_diagnosis_names_a_drifting_thermocouple_of_a_zone_of_one():
     assert d.to_json()["verdict"]["effects"] == ["sensor_drift"]
 
 
+def test_a_wall_of_one_zone_found_warm_spares_the_other_zones_searches(monkeypatch):
+    """Known truth: the six-zone selfcheck's wall draw 0, a wall behind one zone. On the
+    bent baseline the wall behind every zone misses the floor, and the wall's law of its
+    own zone, warm from it, explains the gap: no zone's law is then searched from scratch
+    (each such search is an evolutionary search and several polishes, for a zone the wall
+    is not behind)."""
+    from furnace_model.diagnosis import diagnose, fitting, pool
+    from furnace_model.diagnosis.selfcheck import judge_case, selfcheck_case
+
+    monkeypatch.setattr(pool, "WORKERS", 1)  # the fits in this process, where they are seen
+    fit, cold = fitting.fit, []
+
+    def seen(data, structure, **kwargs):
+        if kwargs.get("init") is None:
+            wall = [e for e in structure.effects if e.name == "wall_storage"]
+            cold.extend(len(e.options["zones"]) for e in wall)
+        return fit(data, structure, **kwargs)
+
+    monkeypatch.setattr(fitting, "fit", seen)
+    case = selfcheck_case("wall_storage", 0, furnace=SIX)
+    d = diagnose(case.fit, case.holdout, effects=("wall_storage",))
+    assert judge_case(case, d)[0], d.verdict.sentence
+    assert list(d.best().options["wall_storage"]["zones"]) == case.truth["wall_storage"]["zones"]
+    assert cold == [6]  # the wall behind every zone alone
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(("label", "draws"), [
     ("none", (0, 1)), ("wall_storage", (0, 1)), ("zone_losses", (0, 2)),

@@ -146,6 +146,30 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                            counted(len(tasks), lambda w: say(w, 0.1)), limit))
     for c in fitted:
         score_against(c, base, floor)
+
+    def off_floor(c: CandidateResult) -> bool:
+        return any(c.rmse_fit_c[z] > fit_limit[z] for z in zones)
+
+    def from_scratch(results: list[CandidateResult], off: list[int], linear: bool,
+                     stage: str, at: float) -> None:
+        """results[i] for i in `off` searched again from scratch, each kept where that
+        search ends lower."""
+        if off:
+            say(stage, at)
+        cold = run_all([Task(results[i].effects, results[i].options, fit_data, hold, tail_of,
+                             None, seed + 1, bounds=bounds,
+                             generations=None if linear else COLD_GENERATIONS)
+                        for i in off], lambda f: say(stage, at + 0.05 * f),
+                       counted(len(off), lambda w: say(f"{w}, from scratch", at)), limit)
+        for i, c in zip(off, cold, strict=True):
+            if c.cut:
+                untried.append(f"{c.label} searched from scratch")
+                continue
+            score_against(c, base, floor)
+            if np.isfinite(c.sse_fit) and c.sse_fit < results[i].sse_fit:
+                c.note = "; ".join(x for x in (c.note, "searched from scratch") if x)
+                results[i] = c
+
     # A candidate that stays off the floor of a bent baseline may sit in its side valley
     # (seen: strong zone burners, a = 1 and d = 11; strong radiation, a held at its bound):
     # it is searched from scratch too, a nonlinear one with a short evolutionary search
@@ -154,8 +178,10 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     # candidates, and a nonlinear search from scratch costs more than the rest of the
     # diagnosis (radiation several times it) for a verdict it does not change.
     # Then the effects' further laws, on a bent baseline also from scratch, but only while
-    # no candidate alone explains the gap (a preheating-zone wall whose warm law stays off
-    # the floor lets a drift be added in its place). Once a candidate alone explains the
+    # no candidate alone explains the gap, the laws' own warm fits included (a
+    # preheating-zone wall whose warm law stays off the floor lets a drift be added in its
+    # place; a wall or lag of one zone whose warm law reaches the floor leaves nothing for
+    # the other zones' searches to find). Once a candidate alone explains the
     # gap, a nonlinear one that does not gets no further laws at all: each is a search of
     # the integrated model.
     # The linear candidates first, searches and laws, and the rule read again after them:
@@ -164,28 +190,13 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     for linear in (True, False):
         if bent:
             stuck = not explains(fitted)
-            off = [i for i, c in enumerate(fitted)
-                   if is_linear(c) == linear
-                   and (stuck or (linear and helps(c)))
-                   and any(c.rmse_fit_c[z] > fit_limit[z] for z in zones)]
-            if off:
-                say("from scratch", 0.6)
-            cold = run_all([Task(fitted[i].effects, fitted[i].options, fit_data, hold, tail_of,
-                                  None, seed + 1, bounds=bounds,
-                                  generations=None if linear else COLD_GENERATIONS)
-                            for i in off], lambda f: say("from scratch", 0.6 + 0.05 * f),
-                           counted(len(off), lambda w: say(f"{w}, from scratch", 0.6)), limit)
-            for i, c in zip(off, cold, strict=True):
-                if c.cut:
-                    untried.append(f"{c.label} searched from scratch")
-                    continue
-                score_against(c, base, floor)
-                if np.isfinite(c.sse_fit) and c.sse_fit < fitted[i].sse_fit:
-                    c.note = "; ".join(x for x in (c.note, "searched from scratch") if x)
-                    fitted[i] = c
+            from_scratch(fitted, [i for i, c in enumerate(fitted)
+                                  if is_linear(c) == linear
+                                  and (stuck or (linear and helps(c))) and off_floor(c)],
+                         linear, "from scratch", 0.6)
         solved = explains(fitted)
         laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
-                     seed, bent and not solved, bounds, fit_limit)
+                     seed, bounds=bounds)
                 for c, opts in further_laws([c for c in fitted if is_linear(c) == linear],
                                             furnace)
                 if not solved or explains([c]) or linear]
@@ -195,6 +206,9 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                              counted(len(laws), lambda w: say(w, 0.65)), limit))
         for c in more:
             score_against(c, base, floor)
+        if bent and linear and not solved and not explains(more):
+            from_scratch(more, [i for i, c in enumerate(more) if off_floor(c)], True,
+                         "laws from scratch", 0.7)
         fitted += more
     singles = []
     for n in names:

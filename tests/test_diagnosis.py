@@ -16,7 +16,6 @@ import pytest
 from furnace_model.cli.diagnose import summary
 from furnace_model.diagnosis import (
     COLD_GENERATIONS,
-    GAP_RATIO,
     NEAR_RATIO,
     CandidateResult,
     Task,
@@ -197,8 +196,7 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
         assert start[k] == pytest.approx(PAPER_TABLE_V[k], rel=0.03)
     floor = pooled_floor([record_floor(e) for e in case.holdout])
     c = run_task(Task(("zone_burners",), {"zone_burners": {}}, case.fit, case.holdout, [None],
-                      start, 0, True, _bounds(case.fit),
-                      {z: GAP_RATIO * floor[z] for z in PAPER.zones}))
+                      start, 0, bounds=_bounds(case.fit)))
     for z in PAPER.zones:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
     assert c.params["f_heat"] == pytest.approx(case.truth["zone_burners"]["f_heat"], rel=0.1)

@@ -48,13 +48,11 @@ class Task:
     init: dict[str, float] | None
     seed: int
     cold_too: bool = False
-    """Also search from scratch (linear structures): worth it when the baseline bent far to
-    absorb the effect (seen with strong zone burners: a = 1, d = 11), which can hold a warm
-    start in a side valley."""
+    """Also search from scratch in the task (linear structures), the lower fit kept: a
+    logged signal's gain started from a baseline bent far to do without it (as strong zone
+    burners bend a to 1 and d to 11) can stay in that side valley."""
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     """Search boxes narrower than the effect's own: a time within the record, not 0-1e6 min."""
-    cold_above: dict[str, float] | None = None
-    """Per zone: the cold search is skipped when the warm fit is already below these."""
     generations: int | None = None
     """Generations of a search from scratch (init None); None: the fit's default."""
     baseline_sse: float | None = None
@@ -195,9 +193,7 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     if init is not None and task.baseline_sse is not None and fr.sse > task.baseline_sse \
             and fr.stop_reason != "time_budget":
         fr = _from_null(fr, task, structure, init, bounds)
-    off_floor = task.cold_above is None or any(
-        fr.per_zone[z]["rmse_c"] > task.cold_above[z] for z in zones)
-    if init is not None and structure.linear and task.cold_too and off_floor \
+    if init is not None and structure.linear and task.cold_too \
             and fr.stop_reason != "time_budget":
         if _late(task):
             return not_tried(task)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from furnace_model.errors import FurnaceError
 from furnace_model.experiment import Experiment
 from furnace_model.identification.fit import WarmStart, fit
 from furnace_model.identification.model import score
+from furnace_model.identification.problem import Problem
 from furnace_model.identification.uncertainty import from_jacobian
 from furnace_model.simulation.furnace import PAPER
 from furnace_model.simulation.parameters import PAPER_TABLE_V
@@ -530,3 +532,46 @@ def test_further_starts_stop_once_several_in_a_row_find_nothing_lower(paper_1min
     assert len(on) == 1
     assert never.sse == pytest.approx(first.sse, rel=1e-6)
     assert never.sse == pytest.approx(fit([paper_1min]).sse, rel=1e-6)
+
+
+def test_an_integrated_models_free_polish_stops_once_its_offsets_leave_their_box(
+        scenarios, monkeypatch):
+    """Known truth: a radiative heat-up whose soaking-zone thermocouples both read 30 °C
+    high, more than a thermocouple's bias may be. The polish with the records' own unknowns
+    free ends with that offset outside its box, so the boxed polish replaces its end: its
+    steps once it is outside and barely gaining are not taken (each costs a simulation per
+    unknown), and the boxed polish ends where it ends after the free one converged."""
+    from furnace_model.effects import Radiation
+    from furnace_model.identification import problem as problem_module
+
+    structure = ModelStructure([Radiation(furnace=PAPER)], furnace=PAPER)
+    scn = load_scenario(scenarios / "paper_exp1.yaml")
+    plant = Plant(structure, {**PAPER_TABLE_V, "rad_share": 0.4},
+                  SensorSpec(noise_sd_c=TC_SD, bias_sd_c=0.0), seed=1)
+    exp = plant.run(scn.inputs(), np.arange(0.0, 3300.0 + 1e-9, 10.0),
+                    scn.initial_c).to_experiment("exp1")
+    tc = exp.tc.copy()
+    tc[:, :2] += 30.0
+    prob = Problem([dataclasses.replace(exp, tc=tc)], structure, {}, {}, zone_offsets=True)
+    z0 = prob.start(prob.to_z(np.array([{**structure.defaults(), **PAPER_TABLE_V,
+                                         "rad_share": 0.1}[n] for n in prob.names])))
+    phases = []
+    polish = Problem._polish
+
+    def spied(self, *args, **kwargs):
+        out = polish(self, *args, **kwargs)
+        phases.append((kwargs["boxed"], out.iterations, float(out.r @ out.r)))
+        return out
+
+    monkeypatch.setattr(Problem, "_polish", spied)
+    rule, ends = problem_module.OUTSIDE_GAIN_TOL, {}
+    for tol in (rule, 0.0):
+        monkeypatch.setattr(problem_module, "OUTSIDE_GAIN_TOL", tol)
+        phases.clear()
+        prob.polish(z0, None)
+        assert [boxed for boxed, _, _ in phases] == [False, True]
+        ends[tol] = list(phases)
+    (_, cut, _), (_, _, boxed_cut) = ends[rule]
+    (_, full, _), (_, _, boxed_full) = ends[0.0]
+    assert cut < full
+    assert boxed_cut == pytest.approx(boxed_full, rel=1e-5)

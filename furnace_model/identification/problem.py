@@ -30,6 +30,11 @@ POLISH_GAIN_TOL = 1e-7
 1e4 residuals at the noise, a thousandth of the noise variance, where an estimate moves by
 a few hundredths of its sd. A tighter one keeps most polishes stepping to their iteration
 limit for gains that change nothing (docs/performance.md)."""
+OUTSIDE_GAIN_TOL = 1e-3
+"""An integrated model's polish with the records' own unknowns left free stops once they lie
+outside their box and a step lowers the cost by less than this share: that optimum is not
+physical, so the boxed polish that follows replaces it, and each step towards it costs a
+simulation per unknown (docs/performance.md, "An integrated model's free polish")."""
 STOP_REASONS = {
     "converged": f"the polish converged: its last step changed the cost by less than "
                  f"{POLISH_GAIN_TOL:g} relative or the unknowns by less than 1e-9, or no step "
@@ -386,9 +391,7 @@ class Problem:
         if not free_first:
             return self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=True)
         free = self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=False)
-        own = free.z[self.k:]
-        if free.reason == "not_finite" or np.all(
-                (own >= self.nuisance_lo) & (own <= self.nuisance_hi)):
+        if free.reason == "not_finite" or not self._outside(free.z):
             return free
         boxed = self._polish(free.z, deadline, max_iter, gain_tol, damping, boxed=True)
         boxed.free_cost = float(free.r @ free.r)
@@ -453,12 +456,19 @@ class Problem:
             done += 1
             mu = max(mu / 5.0, 1e-9)
             J = self.jac(z)
-            if gain < gain_tol or moved < 1e-9:
+            if gain < gain_tol or moved < 1e-9 or (
+                    not boxed and not self.structure.linear and gain < OUTSIDE_GAIN_TOL
+                    and self._outside(z)):
                 reason = "converged"
                 break
         if trials == 1:  # r came from a call of z alone: what fun(z) would compute
             self._memo["fun"] = (np.asarray(z, dtype=float).tobytes(), r)
         return Polished(z, r, J, reason, done)
+
+    def _outside(self, z: np.ndarray) -> bool:
+        """Whether a record's own unknown lies outside its box."""
+        own = z[self.k:]
+        return bool(np.any((own < self.nuisance_lo) | (own > self.nuisance_hi)))
 
     def param_dict(self, z: np.ndarray) -> dict[str, float]:
         v = self.values(z[:self.k][None])

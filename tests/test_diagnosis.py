@@ -104,11 +104,20 @@ def test_a_combination_with_credit_that_is_not_kept_says_why():
     the summary shows does not by itself say what the verdict kept: its note does.
 
     Also: the combinations' stage is announced as it starts, and each combination is heard
-    as it is fitted (a combination of nonlinear effects takes minutes on a long record)."""
+    as it is fitted (a combination of nonlinear effects takes minutes on a long record); the
+    share done never goes back, from 0 to 1."""
     case = _case(("zone_burners", "sensor_lag"), 300)
     heard: list[str] = []
+    shares: list[float] = []
+
+    def progress(stage: str, share: float) -> None:
+        heard.append(stage)
+        shares.append(share)
     d = diagnose(case.fit, case.holdout, effects=("zone_burners", "sensor_lag", "dead_time"),
-                 progress=lambda stage, _f: heard.append(stage))
+                 progress=progress)
+    assert shares[0] == 0.0 and shares[-1] == 1.0 and heard[-1] == "done"
+    assert all(a <= b for a, b in zip(shares, shares[1:], strict=False)), \
+        list(zip(heard, shares, strict=True))
     combos = [s for s in heard if " fitted in " in s and "+" in s.split(" fitted in ")[0]]
     assert any(s.startswith("zone_burners+sensor_lag fitted in ") for s in combos), heard
     assert heard.index("combinations") < heard.index(combos[0]), heard

@@ -54,6 +54,10 @@ STEP_TRIES = 8
 second effect may show nothing alone while a larger one dominates the error."""
 COLD_GENERATIONS = 15
 """Generations of the search from scratch for a nonlinear candidate (32 sets each)."""
+PASS = 0.075
+"""The share of the progress each pass of searches from scratch and further laws (the
+linear candidates', then the nonlinear ones') takes, between the candidates and the
+combinations."""
 
 
 def check_effects(names) -> tuple[str, ...]:
@@ -85,7 +89,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     def tried(results: list[CandidateResult]) -> list[CandidateResult]:
         untried.extend(c.label for c in results if c.cut and c.label not in untried)
         return [c for c in results if not c.cut]
-    say = progress or (lambda _s, _f: None)
+    say = _onwards(progress)
     names = check_effects(EFFECTS if effects is None else effects)
     fit_data, hold, tail_of, how = split(data, holdout)
     furnace = fit_data[0].furnace
@@ -159,7 +163,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         cold = run_all([Task(results[i].effects, results[i].options, fit_data, hold, tail_of,
                              None, seed + 1, bounds=bounds,
                              generations=None if linear else COLD_GENERATIONS)
-                        for i in off], lambda f: say(stage, at + 0.05 * f),
+                        for i in off], lambda f: say(stage, at + PASS / 3 * f),
                        counted(len(off), lambda w: say(f"{w}, from scratch", at)), limit)
         for i, c in zip(off, cold, strict=True):
             if c.cut:
@@ -187,28 +191,29 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     # The linear candidates first, searches and laws, and the rule read again after them:
     # one that reaches the floor from scratch or in another law (a lag in the zone it is
     # in, of a furnace of many) spares the nonlinear searches.
-    for linear in (True, False):
+    for at, linear in ((0.6, True), (0.6 + PASS, False)):
         if bent:
             stuck = not explains(fitted)
             from_scratch(fitted, [i for i, c in enumerate(fitted)
                                   if is_linear(c) == linear
                                   and (stuck or (linear and helps(c))) and off_floor(c)],
-                         linear, "from scratch", 0.6)
+                         linear, "from scratch", at)
         solved = explains(fitted)
         laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,
                      seed, bounds=bounds)
                 for c, opts in further_laws([c for c in fitted if is_linear(c) == linear],
                                             furnace)
                 if not solved or explains([c]) or linear]
+        begun = at + PASS / 3
         if laws:
-            say("laws", 0.65)
-        more = tried(run_all(laws, lambda f: say("laws", 0.65 + 0.05 * f),
-                             counted(len(laws), lambda w: say(w, 0.65)), limit))
+            say("laws", begun)
+        more = tried(run_all(laws, lambda f, begun=begun: say("laws", begun + PASS / 3 * f),
+                             counted(len(laws), lambda w, begun=begun: say(w, begun)), limit))
         for c in more:
             score_against(c, base, floor)
         if bent and linear and not solved and not explains(more):
             from_scratch(more, [i for i, c in enumerate(more) if off_floor(c)], True,
-                         "laws from scratch", 0.7)
+                         "laws from scratch", at + 2 * PASS / 3)
         fitted += more
     singles = []
     for n in names:
@@ -229,8 +234,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     singles.sort(key=rank)
     combos, kept, steps = stepwise(singles, base, floor, gap_limit, fit_data, hold, tail_of,
                                    seed, options, bounds, starts, gap,
-                                   lambda f: say("combinations", 0.7 + 0.3 * f),
-                                   limit, untried, lambda w: say(w, 0.7))
+                                   lambda f: say("combinations", 0.75 + 0.2 * f),
+                                   limit, untried, lambda w: say(w, 0.75))
     signals = unused_signals(fit_data + hold)
     if signals:
         say("signals", 0.95)
@@ -266,6 +271,18 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     return Diagnosis(fit_data, hold, how, base, floor, where, tests, candidates, verdict,
                      time.perf_counter() - t_start, gap, **noise, kept=kept,
                      time_limit_s=time_limit_s, untried=untried, cut=limit.cut)
+
+
+def _onwards(progress: Callable[[str, float], None] | None) -> Callable[[str, float], None]:
+    """`progress` told the share done as it never goes back: a stage's lines carry where
+    the stage began, and a pool reports its share after the line of the fit it heard."""
+    reached = [0.0]
+
+    def say(stage: str, fraction: float) -> None:
+        reached[0] = max(reached[0], fraction)
+        if progress is not None:
+            progress(stage, reached[0])
+    return say
 
 
 def fitted_words(c: CandidateResult) -> str:

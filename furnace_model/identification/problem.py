@@ -508,8 +508,10 @@ class Polished:
     reason: str
     iterations: int
     free_cost: float | None = None
-    """The cost at the optimum with the records' own unknowns free, where that optimum was
-    not physical and the polish went on inside their box."""
+    """The cost where the polish with the records' own unknowns free ended, where that end
+    was not physical and the polish went on inside their box: at or above the free optimum
+    (an integrated model's stops short of it, `OUTSIDE_GAIN_TOL`), so that a bound that
+    `held_by_bounds` finds costly is at least that costly."""
 
 
 def correlation_time(e: np.ndarray) -> float:

@@ -15,6 +15,7 @@ from furnace_model.diagnosis.hourlyroom import ROOM, TRUTH, hourly_room
 from furnace_model.effects.radiation import Radiation
 from furnace_model.effects.tried import Clues
 from furnace_model.identification.fit import fit
+from furnace_model.identification.problem import POLISH_GAIN_TOL
 from furnace_model.simulation.structure import ModelStructure
 
 
@@ -83,8 +84,9 @@ def test_a_wall_in_a_heated_room_is_named(room, tmp_path):
 
 def test_radiation_is_tried_at_the_records_own_temperature():
     """A room's radiation candidate, referred to its own mean temperature, starts beside the
-    baseline it nests and ends no worse than it; referred to a furnace's 900 °C its share
-    trades against the loss along a curved valley and the polish ends above the baseline."""
+    baseline it nests and ends no worse than it (to the polish's tolerance); referred to a
+    furnace's 900 °C its share trades against the loss along a curved valley and the polish
+    ends above the baseline."""
     record = hourly_room(1, ("wall_storage",), days=7)
     furnace = record.furnace
     trial = Radiation.tried.trial(Clues([record], [record], furnace=furnace))
@@ -92,11 +94,14 @@ def test_radiation_is_tried_at_the_records_own_temperature():
     assert Radiation.tried.law_options({"exponent": None}, trial.options) == \
         {"exponent": None, "t_ref_c": trial.options["t_ref_c"]}
     base = fit([record], ModelStructure([], furnace=furnace), zone_offsets=True, profile=False)
-    structure = ModelStructure([Radiation(**trial.options, furnace=furnace)], furnace=furnace)
-    fr = fit([record], structure, init={**structure.defaults(), **base.params},
-             zone_offsets=True, profile=False)
-    assert fr.stop_reason == "converged"
-    assert fr.sse <= base.sse * (1 + 1e-9)
+    ends = []
+    for options in (trial.options, {**trial.options, "t_ref_c": 900.0}):
+        structure = ModelStructure([Radiation(**options, furnace=furnace)], furnace=furnace)
+        fr = fit([record], structure, init={**structure.defaults(), **base.params},
+                 zone_offsets=True, profile=False)
+        assert fr.stop_reason == "converged"
+        ends.append(fr.sse)
+    assert ends[0] <= base.sse * (1 + POLISH_GAIN_TOL) < ends[1]
 
 
 def test_a_sun_nobody_logged_is_left_unexplained_beside_the_wall(room, tmp_path, capsys):

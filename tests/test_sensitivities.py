@@ -203,3 +203,49 @@ def test_exact_jacobian_on_random_parameter_sets(shipped):
                 h = 1e-5 * max(1.0, abs(z[i])) if i < prob.k else 1e-2
                 assert err <= tol * scale + rounding / h, (
                     f"{shipped} {name} {col}: {err:.3g} against a column of {scale:.3g}")
+
+
+@pytest.mark.parametrize("steps", [4, 150], ids=["few segments", "many segments"])
+def test_closed_form_with_a_conjugate_pair_of_modes(steps):
+    """A network with a cycle has a conjugate pair of modes: the closed form's real
+    products must give the derivatives of the real response there too, in both its
+    branches (a heat-up's few long segments, and an input that moves every sample or two),
+    against central differences of the simulator."""
+    from furnace_model.simulation.lti import Drive, response
+    from furnace_model.simulation.sensitivity import response_sensitivity
+
+    rng = np.random.default_rng(5)
+    n, m = 4, 2
+    T = np.eye(n) + 0.3 * rng.normal(size=(n, n))
+    core = np.zeros((n, n))
+    core[:2, :2] = [[-0.05, 0.03], [-0.03, -0.05]]
+    core[2, 2], core[3, 3] = -0.1, -0.2
+    A = T @ core @ np.linalg.inv(T)
+    assert np.iscomplexobj(np.linalg.eigvals(A))
+    B, C = rng.normal(size=(n, m)), rng.normal(size=(3, n))
+    E, F, g = 0.01 * rng.normal(size=(n, n)), rng.normal(size=(n, m)), rng.normal(size=m)
+    t = np.arange(0.0, 300.0, 1.0)
+    s = np.sort(rng.uniform(1.0, 290.0, steps))
+    u0, du = rng.normal(size=(1, m)), rng.normal(size=(1, steps, m))
+    x0 = rng.normal(size=n)
+
+    def simulated(theta, x=x0):
+        drive = Drive(0.0, u0 + theta[2] * g, s, du)
+        return response((A + theta[0] * E)[None], (B + theta[1] * F)[None], x[None], 0.0,
+                        drive, t, C)[0]
+
+    p = 3
+    dA = np.stack([E, np.zeros((n, n)), np.zeros((n, n))])
+    dB = np.stack([np.zeros((n, m)), F, np.zeros((n, m))])
+    d_u0 = np.stack([np.zeros(m), np.zeros(m), g])
+    dy, dy0 = response_sensitivity(A, B, C, dA, dB, Drive(0.0, u0, s, du), d_u0,
+                                   np.zeros((p, steps, m)), x0, np.eye(n), 0.0, t)
+    h = 1e-5
+    for i in range(p):
+        up, down = np.zeros(p), np.zeros(p)
+        up[i], down[i] = h, -h
+        ref = (simulated(up) - simulated(down)) / (2 * h)
+        assert np.abs(dy[i] - ref).max() <= 1e-6 * np.abs(ref).max(), i
+    for i in range(n):
+        ref = simulated(np.zeros(p), x0 + np.eye(n)[i]) - simulated(np.zeros(p))
+        assert np.abs(dy0[i] - ref).max() <= 1e-9 * np.abs(ref).max(), i

@@ -6,7 +6,8 @@ small size over every core and spins its threads between calls: on the 2-core ga
 under the diagnosis's own pool of one process per core, those threads only contend
 (measured in docs/performance.md). threadpoolctl finds whichever BLAS the installed numpy
 and scipy carry and sets its thread count while the block runs; the caller's setting is
-restored after.
+restored after. Entering it also sets the C allocator for the numerics' large temporaries
+(`furnace_model.allocator`), once per process.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ import functools
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import ParamSpec, TypeVar
+
+from .allocator import keep_freed_blocks
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -33,12 +36,18 @@ def one_thread() -> Iterator[None]:
         return
     from threadpoolctl import threadpool_limits
 
+    keep_freed_blocks()
     with threadpool_limits(limits=1, user_api="blas"):
         _held += 1
         try:
             yield
         finally:
             _held -= 1
+
+
+def held() -> bool:
+    """Whether this process's BLAS is held to one thread (inside `one_thread`)."""
+    return _held > 0
 
 
 def on_one_thread(f: Callable[P, R]) -> Callable[P, R]:

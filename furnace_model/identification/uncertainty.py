@@ -17,6 +17,7 @@ from itertools import combinations
 
 import numpy as np
 
+from ..blas import held
 from .autoregression import fit_ar
 
 Z95 = 1.959963984540054
@@ -209,11 +210,13 @@ _GRAM_ROWS = 256
 
 
 def gram(J: np.ndarray, blocked: bool = False) -> np.ndarray:
-    """J'J. `blocked`: summed over blocks of rows. A Jacobian with a few dozen columns (a
-    network of many zones) crosses OpenBLAS's threshold for threads, and on a machine whose
-    cores are busy its threads wait on each other, a hundred times slower than one thread.
-    The blocks stay below the threshold; the sum differs from the plain product by rounding."""
-    if not blocked:
+    """J'J. `blocked`: summed over blocks of rows unless BLAS is held to one thread already
+    (`blas.one_thread`, as in every fit). A Jacobian with a few dozen columns (a network of
+    many zones) crosses OpenBLAS's threshold for threads, and on a machine whose cores are
+    busy its threads wait on each other, a hundred times slower than one thread. The blocks
+    stay below the threshold, at a third more than the one product on one thread; the sum
+    differs from the plain product by rounding."""
+    if not blocked or held():
         return J.T @ J
     H = np.zeros((J.shape[1], J.shape[1]))
     for a in range(0, J.shape[0], _GRAM_ROWS):

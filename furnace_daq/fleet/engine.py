@@ -21,13 +21,6 @@ from pathlib import Path
 
 from furnace_model.errors import FurnaceError
 
-WORKER_ENVIRON = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
-"""Dask's nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536 (to hand freed memory
-back to the system). Setting it turns off glibc's sliding mmap threshold, so that every
-array above 128 KiB is mapped afresh and faulted in page by page: a diagnosis, which makes
-such temporaries by the thousand, then spends more time in the kernel than in numpy. Left
-unset, the workers allocate as any process does."""
-
 
 class EngineError(FurnaceError):
     """The cluster cannot be started or reached."""
@@ -47,7 +40,6 @@ def open_client(scheduler: str | None = None, workers: int | None = None,
     exit, a running cluster is left running."""
     import logging
 
-    import dask
     from distributed import Client, LocalCluster
 
     # Dask's own INFO lines (scheduler and worker start, dashboard) are not ours to print:
@@ -69,13 +61,12 @@ def open_client(scheduler: str | None = None, workers: int | None = None,
     # Without the dashboard the scheduler still serves a few HTTP routes (health, metrics):
     # on a port of the kernel's choosing, so that two jobs side by side do not contend for
     # 8787, and on loopback like everything else.
-    with dask.config.set(WORKER_ENVIRON):
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               host="127.0.0.1",
-                               dashboard_address="127.0.0.1:8787" if dashboard else None,
-                               scheduler_kwargs=None if dashboard else {
-                                   "dashboard": False, "dashboard_address": "127.0.0.1:0"},
-                               silence_logs=logging.WARNING)
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                           host="127.0.0.1",
+                           dashboard_address="127.0.0.1:8787" if dashboard else None,
+                           scheduler_kwargs=None if dashboard else {
+                               "dashboard": False, "dashboard_address": "127.0.0.1:0"},
+                           silence_logs=logging.WARNING)
     try:
         client = Client(cluster)
         try:

@@ -6,12 +6,12 @@ tables are as large. glibc maps a block above its mmap threshold afresh from the
 and hands the free memory at its heap's top back once more of it lies there than its trim
 threshold. Its sliding threshold follows the largest block freed but trims at twice that,
 so most of one iteration's temporaries go back to the kernel and the next iteration's are
-faulted in again page by page, each page zeroed first: a six-zone Jacobian took 14 ms where
-its arithmetic takes 6 (docs/performance.md, "The allocator"). Blocks up to
-`MMAP_THRESHOLD` are served from the heap here and up to `TRIM_THRESHOLD` of free memory is
-kept, so those blocks are reused. A process keeps at most what it used at its peak. The
-settings hold for the process and the workers it forks; where the C library is not glibc,
-nothing changes.
+faulted in again page by page, each page zeroed first: more work than the arithmetic done
+on them (docs/performance.md, "The closed form in real arithmetic, and the allocator").
+Blocks up to `MMAP_THRESHOLD` are served from the heap here and up to `TRIM_THRESHOLD` of
+free memory is kept, so those blocks are reused. A process keeps at most what it used at
+its peak. The settings hold for the process and the workers it forks; where the C library
+is not glibc, nothing changes.
 """
 
 from __future__ import annotations

@@ -26,6 +26,8 @@ M_MMAP_THRESHOLD = -3
 MMAP_THRESHOLD = 32 << 20
 """The largest glibc accepts on a 64-bit system."""
 TRIM_THRESHOLD = 256 << 20
+"""Free memory kept at the heap's top: above what one iteration frees at once (a six-zone
+fit's temporaries are tens of MB), below a diagnosis worker's whole peak (some 400 MB)."""
 
 _set = False
 

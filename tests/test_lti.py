@@ -242,7 +242,7 @@ def test_per_set_step_times_equal_the_direct_sum(modes, steps):
     """A furnace in closed loop moves its inputs nearly every sample, a heat-up a dozen
     times: either way the impulses (summed per sample and carried, or spread over their
     blocks: lti._impulse_response) equal one exponential per sample and step
-    (`_superposed_direct`), for steps between samples, on them and after the last."""
+    (`direct_sum`), for steps between samples, on them and after the last."""
     from furnace_model.simulation import lti
 
     rng = np.random.default_rng(3)
@@ -260,8 +260,48 @@ def test_per_set_step_times_equal_the_direct_sum(modes, steps):
     if modes == "real":
         z, w, dw = z.real, w.real, dw.real
     fast = lti._superposed(lam, z, w, s, dw, -2.0, t)
-    direct = lti._superposed_direct(lam, z, w, s, dw, -2.0, t)
+    direct = direct_sum(lam, z, w, s, dw, -2.0, t)
     np.testing.assert_allclose(fast, direct, rtol=1e-9, atol=1e-9 * np.abs(direct).max())
+
+
+def direct_sum(lam, z, w, s, dw, t_start, t):
+    """The reference of the closed forms: every step's response summed at every sample, one
+    exponential per sample and step, phi(tau) = tau where an eigenvalue is zero."""
+    from furnace_model.simulation.lti import _propagators
+
+    lam3 = lam[:, :, None]
+    e, phi = _propagators(lam3, (t - t_start)[None, None, :])
+    Z = z[:, :, None] * e + w[:, :, None] * phi
+    for k in range(s.shape[1]):
+        _, phi = _propagators(lam3, np.maximum(t[None, :] - s[:, k, None], 0.0)[:, None, :])
+        Z += dw[:, k, :, None] * phi
+    return Z
+
+
+@pytest.mark.parametrize("modes", ["real", "complex"])
+def test_a_set_with_a_zero_eigenvalue_is_walked_exactly(modes):
+    """A set whose furnace keeps its heat (an eigenvalue zero, or too small for -w/lam) among
+    others, under per-set steps every sample or so, between samples, on them and after the
+    last: each set equals the direct sum of its steps' responses."""
+    from furnace_model.simulation import lti
+
+    rng = np.random.default_rng(8)
+    P, n, N, K = 4, 3, 900, 700
+    lam = -np.exp(rng.uniform(-6.0, 1.0, (P, n)))
+    lam[1, 0], lam[2, 2] = 0.0, -3e-11
+    if modes == "complex":
+        lam = lam + 1j * np.array([0.0, 0.05, -0.05])
+    t = np.cumsum(rng.choice([1.0, 1.0, 0.5, 30.0], N))
+    s = np.sort(np.concatenate([rng.uniform(0.0, t[-1] + 5.0, (P, K - 50)),
+                                np.broadcast_to(t[::18], (P, 50))], axis=1), axis=1)
+    z = rng.normal(0.0, 100.0, (P, n)) + 0j * lam
+    w = rng.normal(0.0, 10.0, (P, n)) + 0j * lam
+    dw = rng.normal(0.0, 1.0, (P, K, n)) + 0j * lam[:, None, :]
+    if modes == "real":
+        z, w, dw = z.real, w.real, dw.real
+    walked = lti._superposed(lam, z, w, s, dw, 0.0, t)
+    direct = direct_sum(lam, z, w, s, dw, 0.0, t)
+    np.testing.assert_allclose(walked, direct, rtol=1e-9, atol=1e-9 * np.abs(direct).max())
 
 
 def reference_nonlinear(structure: ModelStructure, values: dict, inputs: Inputs, t: np.ndarray,

@@ -51,20 +51,29 @@ class Drive:
 
     def levels_at(self, times: np.ndarray) -> np.ndarray:
         """`level_at` for many times at once, (P|1, T, m): one cumulative sum of the steps
-        instead of a pass over them per time."""
-        if self.s.ndim > 1:
-            return np.stack([self.level_at(float(x)) for x in times], axis=1)
-        order = np.argsort(self.s, kind="stable")
-        summed = np.cumsum(self.du[:, order], axis=1)
-        k = np.searchsorted(self.s[order], times, side="right")
-        summed = np.concatenate([np.zeros((summed.shape[0], 1, summed.shape[2])), summed],
-                                axis=1)
-        return self.u0[:, None] + summed[:, k]
+        instead of a pass over them per time (per parameter set where each has its own
+        steps: a record whose input moves every minute has as many steps as times)."""
+        if self.s.ndim == 1:
+            return _levels(self.s, self.du, self.u0, times)
+        P = self.s.shape[0]
+        du = np.broadcast_to(self.du, (P,) + self.du.shape[1:])
+        u0 = np.broadcast_to(self.u0, (P, self.u0.shape[-1]))
+        return np.concatenate([_levels(self.s[p], du[p:p + 1], u0[p:p + 1], times)
+                               for p in range(P)])
 
     def breakpoints(self, p: int = 0) -> np.ndarray:
         """Sorted distinct step times of parameter set p."""
         s = self.s if self.s.ndim == 1 else self.s[p]
         return np.unique(s)
+
+
+def _levels(s: np.ndarray, du: np.ndarray, u0: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Levels (P|1, T, m) at `times` of steps du (P|1, K, m) at s (K,) from u0 (P|1, m)."""
+    order = np.argsort(s, kind="stable")
+    summed = np.cumsum(du[:, order], axis=1)
+    k = np.searchsorted(s[order], times, side="right")
+    summed = np.concatenate([np.zeros((summed.shape[0], 1, summed.shape[2])), summed], axis=1)
+    return u0[:, None] + summed[:, k]
 
 
 @dataclass(frozen=True)
@@ -404,7 +413,7 @@ def _superposed(lam, z, w, s, dw, t_start, t):
     runs in blocks (`_in_sample_blocks`, or for many steps `_summed_per_sample`), so a call
     costs a few passes over the (P, n, N) result instead of one exponential per sample and
     step. Parameter sets with a (numerically) zero
-    eigenvalue, where dw/lam does not exist, take `_superposed_direct`.
+    eigenvalue, where dw/lam does not exist, are walked one at a time (`_walked`).
     """
     P, n = lam.shape
     if s.ndim == 1:
@@ -413,9 +422,8 @@ def _superposed(lam, z, w, s, dw, t_start, t):
     flat = np.any(np.abs(lam) * span <= 1e-6, axis=1)
     dtype = np.result_type(lam, z, w, dw, float)
     Z = np.empty((P, n, t.size), dtype)
-    if flat.any():
-        f = np.nonzero(flat)[0]
-        Z[f] = _superposed_direct(lam[f], z[f], w[f], s[f], dw[f], t_start, t)
+    for p in np.nonzero(flat)[0]:
+        Z[p] = _walked(lam[p:p + 1], z[p:p + 1], w[p:p + 1], s[p], dw[p:p + 1], t_start, t)[0]
     ok = np.nonzero(~flat)[0]
     if ok.size == 0 or t.size == 0:
         return Z
@@ -529,16 +537,25 @@ def _in_sample_blocks(lam, t, p, i, alpha, beta, dtype):
     return y.reshape(P, n, M * L)[:, :, :N]
 
 
-def _superposed_direct(lam, z, w, s, dw, t_start, t):
-    """Sum the step responses, one exponential per sample and step: exact also where an
-    eigenvalue is zero (phi(tau) = tau there)."""
-    if s.ndim == 1:  # shared steps sent here because an eigenvalue is (numerically) zero
-        s = np.broadcast_to(s, (lam.shape[0], s.size))
-    lam3 = lam[:, :, None]
-    e, phi = _propagators(lam3, (t - t_start)[None, None, :])
-    Z = z[:, :, None] * e + w[:, :, None] * phi
-    for k in np.nonzero(np.any(dw != 0, axis=(0, 2)))[0]:  # steps that change nothing cost nothing
-        tau = np.maximum(t[None, :] - s[:, k, None], 0.0)[:, None, :]  # (P, 1, N)
-        _, phi = _propagators(lam3, tau)
-        Z += dw[:, k, :, None] * phi
-    return Z
+def _walked(lam, z, w, s, dw, t_start, t):
+    """Modal states (P, n, N) under steps at times s (K,) shared by the P sets, s >= t_start,
+    walked from segment to segment as z(tau) = e^(lam tau) z0 + phi(tau) w with
+    phi = (e^(lam tau) - 1) / lam, which is tau where lam is zero: exact at any eigenvalue,
+    where the steady states -w/lam of the other paths do not exist (a furnace that keeps
+    all its heat, which a search over a wide box proposes). The segments' starts are carried
+    in blocks (`carried`), so that a record whose input moves every sample costs a few
+    passes over it, not one exponential per sample and step."""
+    order = np.argsort(s, kind="stable")
+    s, dw = s[order], dw[:, order]
+    uniq = np.unique(s)
+    bounds = np.concatenate(([t_start], uniq[uniq > t_start]))
+    last_idx = np.searchsorted(s, bounds, side="right") - 1
+    held = np.concatenate([w[:, None], w[:, None, :] + np.cumsum(dw, axis=1)],
+                          axis=1)[:, last_idx + 1]  # (P, segments, n): the input on each
+    ends = np.append(bounds, bounds[-1])
+    _, phi = _propagators(lam[:, None, :], np.diff(ends)[None, :, None])
+    starts = (carried(lam, ends, phi * held)
+              + np.exp(lam[:, None, :] * (bounds - bounds[0])[None, :, None]) * z[:, None])
+    seg = np.searchsorted(bounds, t, side="right") - 1
+    e, phi = _propagators(lam[:, None, :], (t - bounds[seg])[None, :, None])
+    return np.swapaxes(e * starts[:, seg] + phi * held[:, seg], 1, 2)

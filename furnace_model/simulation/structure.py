@@ -506,10 +506,11 @@ class ModelStructure:
         first = _first_step(np.linalg.eigvals(sys.A))
         hard = np.zeros(P, dtype=bool)
         diverged = np.zeros(P, dtype=bool)
-        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        levels = np.broadcast_to(drive.levels_at(edges[:-1]), (P, edges.size - 1, sys.B.shape[2]))
+        for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
             if hi <= lo:
                 continue
-            u = np.broadcast_to(drive.level_at(lo), (P, sys.B.shape[2]))
+            u = levels[:, i]
             Bu = np.einsum("pnm,pm->pn", sys.B, u)
             nonlinear = _Nonlinear(self.effects, theta, sys, u[:, None])
             bounds = _step_bounds(lo, hi, first)

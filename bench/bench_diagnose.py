@@ -12,14 +12,14 @@ diagnosis picks the holdout. The others come from furnace_model.diagnosis.cases.
 only the baseline is fitted), a case the baseline absorbs badly (zone burners: every
 candidate fitted, warm and cold), a lag, a nonlinear effect (radiation); and the shape of a
 measured building record (furnace_model.diagnosis.hourlyroom: one zone, four weeks of
-hourly rows, a wall and a sensor lag); and a day of production in closed loop
-(draw_closed_loop_case with a drifting thermocouple, its fitted record from minute 720 to
-2160: the loops change the burners nearly every minute), with the candidates
-`sensor_drift` and `zone_losses`; and the six hours around a fuel switch in production (the
-window an online diagnosis is given, draw_closed_loop_case with a fuel change, from 210
-minutes before the switch to 150 after), with every candidate. Every
-case is written to files first, so that both trees diagnose the same bytes through the
-command line.
+hourly rows, a wall and a sensor lag), and the same room over two weeks of minute rows with
+its heating moved every minute (20 161 samples, every one an input change); and a day of
+production in closed loop (draw_closed_loop_case with a drifting thermocouple, its fitted
+record from minute 720 to 2160: the loops change the burners nearly every minute), with the
+candidates `sensor_drift` and `zone_losses`; and the six hours around a fuel switch in
+production (the window an online diagnosis is given, draw_closed_loop_case with a fuel
+change, from 210 minutes before the switch to 150 after), with every candidate. Every case is
+written to files first, so that both trees diagnose the same bytes through the command line.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
 CASES = ("paper pair", "control", "zone_burners", "sensor_lag", "radiation", "hourly room",
-         "production day", "fuel window")
+         "minute room", "production day", "fuel window")
 SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"
 
 
@@ -70,6 +70,12 @@ def write_case(name: str, d: Path) -> list[str]:
         effects = ("wall_storage", "sensor_lag")
         return [csv(hourly_room(1, effects), "a"), "--holdout",
                 csv(hourly_room(2, effects), "b"), "--furnace", str(d / "room.yaml")]
+    if name == "minute room":
+        (d / "room.yaml").write_text(ROOM)
+        effects = ("wall_storage", "sensor_lag")
+        return [csv(hourly_room(1, effects, 14, sample_min=1), "a"), "--holdout",
+                csv(hourly_room(2, effects, 14, sample_min=1), "b"), "--furnace",
+                str(d / "room.yaml")]
     if name == "production day":
         case = draw_closed_loop_case("sensor_drift", np.random.default_rng(3))
         return [csv(case.fit[0].between(720.0, 2160.0), "day"), "--furnace",

@@ -32,18 +32,24 @@ EFFECT_TRUTH = {"wall_storage": {"k_gw": 2e-3, "k_wg": 6e-4}, "sensor_lag": {"ta
 """The values of the effects a room record can carry: a heavy wall, a sensor in a housing."""
 
 
-def hourly_room(seed: int, effects: tuple[str, ...] = (), days: int = 28) -> Experiment:
+def hourly_room(seed: int, effects: tuple[str, ...] = (), days: int = 28,
+                sample_min: int = 60) -> Experiment:
     """A heated room: heating modulated every hour around a daily cycle, sun by day with the
-    weather of the day, ambient in a daily cycle; `effects` among EFFECT_TRUTH's."""
+    weather of the day, ambient in a daily cycle; `effects` among EFFECT_TRUTH's.
+    `sample_min` below 60: a row every so many minutes, and the heating moved with each row
+    (a controller modulating it), so that every row is an input change."""
     unknown = [e for e in effects if e not in EFFECT_TRUTH]
     if unknown:
         raise ValueError(f"a room record carries {sorted(EFFECT_TRUTH)}, not {unknown}")
+    held = min(sample_min, 60)
+    if sample_min < 1 or 60 % held:
+        raise ValueError(f"sample_min {sample_min}: rows every whole minutes that divide an hour")
     furnace = parse_furnace(ROOM)
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, days * 1440 + 1)
     hours = np.floor(t / 60)
-    heat = np.clip(6 + 3 * np.sin(2 * np.pi * hours / 24 + 1)
-                   + np.repeat(rng.normal(0, 1.5, t.size // 60 + 1), 60)[:t.size], 0, 12)
+    heat = np.clip(6 + 3 * np.sin(2 * np.pi * np.floor(t / held) / (1440 // held) + 1)
+                   + np.repeat(rng.normal(0, 1.5, t.size // held + 1), held)[:t.size], 0, 12)
     sun = np.clip(800 * np.sin(2 * np.pi * (hours % 24 - 6) / 24), 0, None) \
         * np.repeat(rng.uniform(0.3, 1.0, t.size // 1440 + 1), 1440)[:t.size]
     air = 5 + 5 * np.sin(2 * np.pi * hours / 24 - 2)
@@ -54,6 +60,6 @@ def hourly_room(seed: int, effects: tuple[str, ...] = (), days: int = 28) -> Exp
     for e in effects:
         values.update(EFFECT_TRUTH[e])
     plant = Plant(structure, values, SensorSpec(noise_sd_c=0.05, bias_sd_c=0.1), seed)
-    run = plant.run(inputs, np.arange(0.0, days * 1440 + 1, 60.0), np.array([18.0]),
+    run = plant.run(inputs, np.arange(0.0, days * 1440 + 1, float(sample_min)), np.array([18.0]),
                     pd.Timestamp("2026-01-05T00:00:00Z"))
     return run.to_experiment(f"room-{seed}")

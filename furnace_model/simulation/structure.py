@@ -514,13 +514,17 @@ class ModelStructure:
             Bu = np.einsum("pnm,pm->pn", sys.B, u)
             nonlinear = _Nonlinear(self.effects, theta, sys, u[:, None])
             bounds = _step_bounds(lo, hi, first)
-            for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            # the samples inside each step, and on its end (t ascending): one search per
+            # piece, not a pass over the record per step
+            after = np.searchsorted(t, bounds[:-1], side="right")
+            below = np.searchsorted(t, bounds[1:], side="left")
+            upto = np.searchsorted(t, bounds[1:], side="right")
+            for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
                 step = _Linearised(nonlinear, sys.A, Bu, x)
                 x = step.end(b - a)
-                idx = np.nonzero((t > a) & (t < b))[0]
-                if idx.size:
-                    out[:, idx] = step.inside(t[idx] - a)
-                out[:, (t == b) if b < end else (t >= b)] = x[:, None]
+                if below[k] > after[k]:
+                    out[:, after[k]:below[k]] = step.inside(t[after[k]:below[k]] - a)
+                out[:, below[k]:(upto[k] if b < end else t.size)] = x[:, None]
                 hard |= step.bad
                 diverged |= step.diverged
         hard &= ~diverged
@@ -608,6 +612,34 @@ def _step_bounds(lo: float, hi: float, first: float = FIRST_STEP_MIN) -> np.ndar
     return np.array(ends)
 
 
+def _piece_steps(spans: np.ndarray, first: float) -> tuple[np.ndarray, np.ndarray]:
+    """`_step_bounds` from 0 over pieces of lengths `spans`: how many steps each piece takes,
+    and each step's start within its piece, all pieces' in a row.
+
+    Every piece starts the same sequence of steps (first, doubling, then the longest), so
+    the sequence is laid out once, as far as the longest piece, and each piece keeps the
+    steps that end short of its end by a tenth of a step; its last step runs to its end.
+    A record with an input change every minute, or a logger whose rows are a few seconds off
+    their grid, has thousands of pieces: built one by one, they cost a Python turn each."""
+    longest = max(RADIATION_STEP_MIN, first)
+    doublings = int(np.ceil(np.log2(longest / first))) if longest > first else 0
+    h = np.minimum(first * 2.0 ** np.arange(doublings + 1), longest)
+    more = max(0, int(np.ceil((float(spans.max()) + longest - h.sum()) / longest))) + 1
+    h = np.concatenate([h, np.full(more, longest)])
+    ends = np.cumsum(h)  # as _step_bounds adds them, one after another
+
+    def cut(j: np.ndarray) -> np.ndarray:  # _step_bounds' test: the step at j ends the piece
+        return (spans - ends[j]) < 0.1 * h[j]
+
+    kept = np.minimum(np.searchsorted(ends + 0.1 * h, spans, side="right"), ends.size - 1)
+    kept = kept - ((kept > 0) & cut(np.maximum(kept - 1, 0)))  # the test's rounding, exactly
+    kept = kept + ~cut(kept)
+    counts = kept + 1
+    starts = np.concatenate(([0.0], np.cumsum(np.diff(np.concatenate(([0.0], ends))))))
+    into = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    return counts, starts[into]
+
+
 def _first_step(lam: np.ndarray) -> float:
     """The nonlinear integrators' first step after an input change for modes lam (P, n):
     FIRST_STEP_MIN doubled while it stays within the fastest mode's time constant over all
@@ -663,16 +695,8 @@ class _Grid:
         spans = spans[spans > 0]
         if not los.size:
             return None
-        # Pieces of one length step alike: a record with an input change every minute has
-        # thousands of pieces and a handful of lengths, so the steps are laid out per length
-        # and repeated, not built piece by piece.
-        lengths, kind = np.unique(spans, return_inverse=True)
-        steps = [np.diff(_step_bounds(0.0, length, first)) for length in lengths]
-        counts = np.array([h.size for h in steps])[kind]
-        since = np.concatenate([np.cumsum(np.concatenate(([0.0], x[:-1]))) for x in steps])
-        first_of = np.cumsum([0] + [h.size for h in steps])[kind]  # a piece's length's steps
-        into = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        a = np.repeat(los, counts) + since[np.repeat(first_of, counts) + into]
+        counts, since = _piece_steps(spans, first)
+        a = np.repeat(los, counts) + since
         u = np.broadcast_to(drive.levels_at(los), (P, los.size, drive.u0.shape[-1]))
         return cls(a, np.diff(np.concatenate((a, last))), np.repeat(u, counts, axis=1))
 

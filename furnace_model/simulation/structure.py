@@ -555,11 +555,12 @@ class ModelStructure:
             cuts = drive.breakpoints(p)
             edges = np.concatenate(([t0], cuts[(cuts > t0) & (cuts < end)], [end]))
             x = np.array(x0[p])
-            for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+            levels = drive.levels_at(edges[:-1], p)[0]
+            first = np.searchsorted(t, edges, side="left")  # the samples of each piece
+            for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
                 if hi <= lo:
                     continue
-                level = drive.level_at(lo)
-                u = level[min(p, level.shape[0] - 1)][None]
+                u = levels[i][None]
 
                 def rhs(_t, xv, A=A, B=B, u=u, th=th):
                     dx = A[0] @ xv + B[0] @ u[0]
@@ -568,7 +569,7 @@ class ModelStructure:
                             dx = dx + eff.nonlinear_rhs(th, xv[None], A, B, u)[0]
                     return dx
 
-                idx = np.nonzero((t >= lo) & (t < hi))[0]
+                idx = np.arange(first[i], first[i + 1])
                 with warnings.catch_warnings():
                     # its complaints end in sol.success, which is checked: not for stderr
                     warnings.simplefilter("ignore")

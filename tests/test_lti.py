@@ -508,16 +508,22 @@ def test_sets_scored_each_on_its_own_step_only_those_the_relaxation_leaves():
     assert np.abs(together[:2] - each[:2]).max() > 1e-9  # stepped, not relaxed
 
 
+@pytest.mark.parametrize("pieces", ["a handful of lengths", "each its own length"])
 @pytest.mark.parametrize("first", [0.5, 2.0, 64.0])
-def test_the_grid_laid_out_per_piece_length_is_the_steps_piece_by_piece(first):
-    """A record with thousands of input changes and a handful of piece lengths: its steps
-    come from one layout per length, and are those `_step_bounds` takes piece by piece (to
-    rounding of the pieces' start times)."""
+def test_the_grid_laid_out_once_is_the_steps_piece_by_piece(first, pieces):
+    """A record with thousands of input changes, of a handful of lengths (a minute grid) or
+    each its own (a logger's rows seconds off their grid): its steps come from one layout
+    cut per piece, and are those `_step_bounds` takes piece by piece (to rounding of the
+    pieces' start times)."""
     from furnace_model.simulation.lti import Drive
     from furnace_model.simulation.structure import _Grid, _step_bounds
 
     rng = np.random.default_rng(11)
-    s = np.cumsum(rng.choice([1.0, 1.0, 2.5, 60.0, 0.3], 3000))
+    if pieces == "a handful of lengths":
+        s = np.cumsum(rng.choice([1.0, 1.0, 2.5, 60.0, 0.3], 3000))
+    else:
+        s = np.cumsum(5.0 + rng.uniform(-0.7, 0.7, 3000) + rng.choice([0.0, 300.0], 3000,
+                                                                        p=[0.99, 0.01]))
     drive = Drive(0.0, np.zeros((1, 1)), s, np.zeros((1, s.size, 1)))
     end = float(s[-1]) + 17.0
     grid = _Grid.of(drive, 0.25, end, 1, first)
@@ -529,3 +535,22 @@ def test_the_grid_laid_out_per_piece_length_is_the_steps_piece_by_piece(first):
     np.testing.assert_allclose(grid.h, np.concatenate([np.diff(b) for b in bounds]), rtol=0,
                                atol=1e-9)
     assert grid.a[0] == 0.25 and grid.a[-1] + grid.h[-1] == end
+
+
+def test_levels_of_per_set_steps_are_the_levels_at_each_time():
+    """Per-set step times (a fuel switch moves the steps after its instant), unsorted, some
+    on the times asked and some before the drive's start: the levels found by one
+    cumulative sum per set, for every set or one, are those in force at each time."""
+    from furnace_model.simulation.lti import Drive
+
+    rng = np.random.default_rng(12)
+    P, K, m = 3, 400, 2
+    s = rng.uniform(-10.0, 500.0, (P, K))
+    times = np.sort(np.concatenate([rng.uniform(-20.0, 520.0, 150), s[1, :20]]))
+    for du_sets in (P, 1):  # increments per set, or shared
+        drive = Drive(0.0, rng.normal(0.0, 5.0, (P, m)), s, rng.normal(0.0, 1.0, (du_sets, K, m)))
+        each = np.stack([drive.level_at(float(x)) for x in times], axis=1)
+        np.testing.assert_allclose(drive.levels_at(times), each, rtol=0, atol=1e-9)
+        for p in range(P):
+            np.testing.assert_allclose(drive.levels_at(times, p)[0], each[p], rtol=0,
+                                       atol=1e-9)

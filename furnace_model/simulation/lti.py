@@ -183,18 +183,29 @@ _BLOCK = 256
 """Parameter sets per block: keeps a block's (n, N) work arrays in cache."""
 
 
+def segment_bounds(s: np.ndarray, t_start: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shared step times s (K,) as constant-input segments from t_start: the order that
+    sorts s (stable), each segment's start (t_start, then every distinct step time after
+    it) and the sorted steps' index of the last one in force there (-1: none). A record's
+    step times come sorted and mostly distinct; with an input change every sample this is
+    called with every simulation, so the distinct times are read off the sorted array
+    instead of sorted again."""
+    order = np.argsort(s, kind="stable")
+    s = s[order]
+    distinct = s[np.concatenate(([True], s[1:] != s[:-1]))] if s.size else s
+    bounds = np.concatenate(([t_start], distinct[distinct > t_start]))
+    return order, bounds, np.searchsorted(s, bounds, side="right") - 1
+
+
 def _segments(lam, out, z, w, s, dw, t_start, t):
     """Shared step times: walk the constant-input segments in order, exact within each.
 
     On a segment with modal input w, z(tau) = (z0 + w/lam) exp(lam tau) - w/lam, so the
     output is G exp(lam tau) + H with per-segment constants G, H.
     """
-    order = np.argsort(s, kind="stable")
-    s, dw = s[order], dw[:, order]
-    uniq = np.unique(s)
+    order, bounds, last_idx = segment_bounds(s, t_start)
+    dw = dw[:, order]
     w_after = w[:, None, :] + np.cumsum(dw, axis=1)  # modal input after step k
-    bounds = np.concatenate(([t_start], uniq[uniq > t_start]))
-    last_idx = np.searchsorted(s, bounds, side="right") - 1
     P, q = out.shape[0], out.shape[1]
     seg_of = np.searchsorted(bounds, t, side="right") - 1
     cells = lam.shape[1] * t.size
@@ -550,11 +561,8 @@ def _walked(lam, z, w, s, dw, t_start, t):
     all its heat, which a search over a wide box proposes). The segments' starts are carried
     in blocks (`carried`), so that a record whose input moves every sample costs a few
     passes over it, not one exponential per sample and step."""
-    order = np.argsort(s, kind="stable")
-    s, dw = s[order], dw[:, order]
-    uniq = np.unique(s)
-    bounds = np.concatenate(([t_start], uniq[uniq > t_start]))
-    last_idx = np.searchsorted(s, bounds, side="right") - 1
+    order, bounds, last_idx = segment_bounds(s, t_start)
+    dw = dw[:, order]
     held = np.concatenate([w[:, None], w[:, None, :] + np.cumsum(dw, axis=1)],
                           axis=1)[:, last_idx + 1]  # (P, segments, n): the input on each
     ends = np.append(bounds, bounds[-1])

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lti import Drive, Modes, carried, segment_starts
+from .lti import Drive, Modes, carried, segment_bounds, segment_starts
 
 _BLOCK = 4096
 """Samples per block of the per-sample coefficient tables."""
@@ -67,12 +67,9 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
     u0 = np.asarray(drive.u0)[0]
     d_u0 = np.zeros((p, m)) if d_u0 is None else d_u0
     d_du = np.zeros((p,) + du.shape) if d_du is None else d_du
-    order = np.argsort(s, kind="stable")
-    s, du, d_du = s[order], du[order], d_du[:, order]
-    uniq = np.unique(s)
-    bounds = np.concatenate(([t0], uniq[uniq > t0]))
+    order, bounds, last = segment_bounds(s, t0)
+    du, d_du = du[order], d_du[:, order]
     Kb = bounds.size
-    last = np.searchsorted(s, bounds, side="right") - 1
     if s.size:
         U = np.where((last >= 0)[:, None], (u0 + np.cumsum(du, axis=0))[np.maximum(last, 0)], u0)
         dU = np.where((last >= 0)[None, :, None],

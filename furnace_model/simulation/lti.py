@@ -428,8 +428,8 @@ def _superposed(lam, z, w, s, dw, t_start, t):
     carries the fraction of a sample period between the step and that sample. The recursion
     runs in blocks (`_in_sample_blocks`, or for many steps `_summed_per_sample`), so a call
     costs a few passes over the (P, n, N) result instead of one exponential per sample and
-    step. Parameter sets with a (numerically) zero
-    eigenvalue, where dw/lam does not exist, are walked one at a time (`_walked`).
+    step. Parameter sets with a (numerically) zero eigenvalue, where dw/lam does not exist,
+    are walked one at a time (`_walked`).
     """
     P, n = lam.shape
     if s.ndim == 1:

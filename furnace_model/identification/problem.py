@@ -195,25 +195,7 @@ class Problem:
 
     def _simulate(self, values: dict[str, np.ndarray], r: Record, x0: np.ndarray,
                   batch: Batch = "together") -> Response:
-        try:
-            return self.structure.simulate(values, r.inputs, r.t, x0, batch=batch)
-        except IndexError:
-            # The simulator cannot yet take a mode slower than ~1e9 min (an eigenvalue that
-            # is numerically zero) in a batch with shared steps: such a set is a furnace that
-            # never cools, far from any data. Score the others; those get NaN.
-            theta = self.structure.theta(values)
-            lam = np.linalg.eigvals(self.structure.system(theta).A)
-            span = max(float(r.t[-1] - r.t[0]), 1.0)
-            bad = np.any(np.abs(lam) * span <= 1e-6, axis=1)
-            if not bad.any():
-                raise
-            good = np.nonzero(~bad)[0]
-            x0 = np.broadcast_to(x0, (bad.size, x0.shape[-1]))
-            out = np.full((bad.size, r.t.size, self.nz), np.nan)
-            if good.size:
-                out[good] = self.structure.simulate({k: v[good] for k, v in theta.items()},
-                                                    r.inputs, r.t, x0[good], batch=batch).zones
-            return Response(r.t, out, self.structure, theta)
+        return self.structure.simulate(values, r.inputs, r.t, x0, batch=batch)
 
     def _simulate_split(self, values: dict[str, np.ndarray], r: Record, x0: np.ndarray,
                         first_order: np.ndarray, batch: Batch) -> Response:
@@ -222,11 +204,8 @@ class Problem:
         out = np.empty((first_order.size, r.t.size, self.nz))
         out[full] = self._simulate({k: v[full] for k, v in values.items()}, r, x0[full],
                                    batch).zones
-        try:
-            out[fo] = self.structure.simulate_first_order({k: v[fo] for k, v in values.items()},
-                                                          r.inputs, r.t, x0[fo])
-        except IndexError:  # a mode too slow for the closed form: as _simulate does
-            out[fo] = self._simulate({k: v[fo] for k, v in values.items()}, r, x0[fo]).zones
+        out[fo] = self.structure.simulate_first_order({k: v[fo] for k, v in values.items()},
+                                                      r.inputs, r.t, x0[fo])
         return Response(r.t, out, self.structure, values)
 
     def residuals(self, j: int, values: dict[str, np.ndarray], x0: np.ndarray,

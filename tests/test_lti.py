@@ -278,11 +278,13 @@ def direct_sum(lam, z, w, s, dw, t_start, t):
     return Z
 
 
+@pytest.mark.parametrize("steps", ["per set", "shared"])
 @pytest.mark.parametrize("modes", ["real", "complex"])
-def test_a_set_with_a_zero_eigenvalue_is_walked_exactly(modes):
+def test_a_set_with_a_zero_eigenvalue_is_walked_exactly(modes, steps):
     """A set whose furnace keeps its heat (an eigenvalue zero, or too small for -w/lam) among
-    others, under per-set steps every sample or so, between samples, on them and after the
-    last: each set equals the direct sum of its steps' responses."""
+    others, under steps every sample or so (each set's own, or the record's), between
+    samples, on them and after the last: each set equals the direct sum of its steps'
+    responses."""
     from furnace_model.simulation import lti
 
     rng = np.random.default_rng(8)
@@ -299,8 +301,10 @@ def test_a_set_with_a_zero_eigenvalue_is_walked_exactly(modes):
     dw = rng.normal(0.0, 1.0, (P, K, n)) + 0j * lam[:, None, :]
     if modes == "real":
         z, w, dw = z.real, w.real, dw.real
+    if steps == "shared":
+        s = s[0]
     walked = lti._superposed(lam, z, w, s, dw, 0.0, t)
-    direct = direct_sum(lam, z, w, s, dw, 0.0, t)
+    direct = direct_sum(lam, z, w, np.broadcast_to(s, (P, K)), dw, 0.0, t)
     np.testing.assert_allclose(walked, direct, rtol=1e-9, atol=1e-9 * np.abs(direct).max())
 
 

@@ -54,17 +54,13 @@ class Drive:
         alone: one cumulative sum of the steps instead of a pass over them per time (per
         set where each has its own steps: a record whose input moves every minute has as
         many steps as times)."""
-        if p is not None:
-            i, j = min(p, self.du.shape[0] - 1), min(p, self.u0.shape[0] - 1)
-            return _levels(self.s if self.s.ndim == 1 else self.s[p], self.du[i:i + 1],
-                           self.u0[j:j + 1], times)
-        if self.s.ndim == 1:
+        if p is None and self.s.ndim == 1:
             return _levels(self.s, self.du, self.u0, times)
-        P = self.s.shape[0]
-        du = np.broadcast_to(self.du, (P,) + self.du.shape[1:])
-        u0 = np.broadcast_to(self.u0, (P, self.u0.shape[-1]))
-        return np.concatenate([_levels(self.s[q], du[q:q + 1], u0[q:q + 1], times)
-                               for q in range(P)])
+        if p is None:
+            return np.concatenate([self.levels_at(times, q) for q in range(self.s.shape[0])])
+        i, j = min(p, self.du.shape[0] - 1), min(p, self.u0.shape[0] - 1)
+        return _levels(self.s if self.s.ndim == 1 else self.s[p], self.du[i:i + 1],
+                       self.u0[j:j + 1], times)
 
     def breakpoints(self, p: int = 0) -> np.ndarray:
         """Sorted distinct step times of parameter set p."""

@@ -558,3 +558,45 @@ def test_levels_of_per_set_steps_are_the_levels_at_each_time():
         for p in range(P):
             np.testing.assert_allclose(drive.levels_at(times, p)[0], each[p], rtol=0,
                                        atol=1e-9)
+
+
+def test_the_relaxations_quadrature_is_the_forced_response_at_its_nodes_and_between():
+    """Known truth: d' = A d + g(t), d(t0) = 0, for g quadratic on each step through its
+    values at the step's start, middle and end, integrated step by step by Radau at 1e-12.
+    A sweep's convolver (at the grid's own nodes, weighing each step's middle only) and the
+    convolver at any times (the samples) both give it; sets with real and complex modes,
+    steps from a fraction of the fastest mode's time constant to many of them."""
+    from furnace_model.simulation.lti import Drive
+    from furnace_model.simulation.structure import _Grid
+
+    A = np.array([[[-0.9, 0.4], [0.1, -0.05]], [[-0.2, 0.5], [-0.6, -0.3]]])  # real, complex
+    s = np.array([3.0, 3.5, 40.0, 41.0, 90.0])
+    drive = Drive(0.0, np.zeros((2, 1)), s, np.zeros((2, s.size, 1)))
+    grid = _Grid.of(drive, 0.0, 130.0, 2, 0.25)
+    nodes = grid.nodes
+    g = np.stack([np.stack([np.sin(nodes / (7.0 + p)), np.cos(nodes / 5.0) * (1 + p)], -1)
+                  for p in range(2)])  # (P, nodes, n)
+    modes = Modes.of(A)
+    times = np.sort(np.random.default_rng(4).uniform(0.0, 130.0, 40))
+    at_nodes = grid.node_convolver(modes)(grid.at_nodes(g))
+    anywhere = grid.convolved(modes, grid.at_nodes(g), times, 0.0)
+    assert grid.a.size > 30 and np.iscomplexobj(modes.lam)
+
+    for p in range(2):
+        d, ref_nodes, ref_times = np.zeros(2), [np.zeros(2)], []
+        for k, (a, h) in enumerate(zip(grid.a, grid.h, strict=True)):
+            g0, gh, g1 = g[p, 2 * k], g[p, 2 * k + 1], g[p, 2 * k + 2]
+            c1, c2 = (4 * gh - 3 * g0 - g1) / h, 2 * (g1 - 2 * gh + g0) / h ** 2
+            inside = times[(times > a) & (times <= a + h)]
+            at = np.unique(np.concatenate([[a + h / 2, a + h], inside]))
+            sol = solve_ivp(lambda t, x, a=a, g0=g0, c1=c1, c2=c2, M=A[p]: M @ x + g0
+                            + c1 * (t - a) + c2 * (t - a) ** 2, (a, a + h), d, method="Radau",
+                            rtol=1e-12, atol=1e-12, t_eval=at)
+            ref_nodes += [sol.y[:, at == a + h / 2][:, 0], sol.y[:, -1]]
+            ref_times += [sol.y[:, at == x][:, 0] for x in inside]
+            d = sol.y[:, -1]
+        ref = np.array(ref_nodes)
+        np.testing.assert_allclose(at_nodes[p].reshape(-1, 2)[0::3], ref[0:-1:2], atol=1e-8)
+        np.testing.assert_allclose(at_nodes[p, :, 1], ref[1::2], atol=1e-8)
+        np.testing.assert_allclose(at_nodes[p, :, 2], ref[2::2], atol=1e-8)
+        np.testing.assert_allclose(anywhere[p], np.array(ref_times), atol=1e-8)

@@ -282,7 +282,14 @@ def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
     what steps starting at T[:K] (T[K] the last one's end) carry from one to the next, per
     mode lam (P, n), for contributions c (P, K, n); T ascending. lam (1, n): the same modes
     for every row of c (one system's sensitivities to P parameters), whose exponentials are
-    then taken once, not once per row.
+    then taken once, not once per row. `carrier` for many c over the same modes and times."""
+    return carrier(lam, T, c.shape[1])(c)
+
+
+def carrier(lam: np.ndarray, T: np.ndarray, K: int) -> Callable[[np.ndarray], np.ndarray]:
+    """`carried` over K steps for many contributions against the same modes and times: a
+    waveform relaxation's sweeps change the contributions only, and the exponentials are
+    half of a walk's cost.
 
     Why blocks: a step-by-step loop over thousands of steps (a furnace in closed loop
     changes its burners every minute) costs more than all the arithmetic. Within a block,
@@ -291,26 +298,25 @@ def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
     keeps its relative precision, and a block is short enough (CARRY_SPAN e-folds of its
     fastest mode) that 1 / E never overflows. Only what each block hands the next is a loop.
     Where that would make more than CARRY_LOOP blocks (a step much longer than the others, or
-    a sensor lag of seconds on minute samples), `_carried_clamped` takes them instead."""
-    K = c.shape[1]
+    a sensor lag of seconds on minute samples), `_clamped_carrier` takes them instead."""
     T = np.asarray(T, dtype=float)
     gaps = np.diff(T[:K + 1])
     L = _block_length(float(np.max(np.abs(np.real(lam)), initial=0.0))
                       * float(np.max(gaps, initial=0.0)))
     if -(-K // L) > CARRY_LOOP:
-        return _carried_clamped(lam, T, c)
-    cp = _in_rows_of(c, L)
-    nb = cp.shape[1]
+        return _clamped_carrier(lam, T, K)
+    nb = -(-K // L)
     Tp = np.concatenate([T[:K + 1], np.full(nb * L - K, T[K])])  # nb * L + 1 times
     first = Tp[0:nb * L:L]  # each block's start
     at = Tp[:-1].reshape(nb, L) - first[:, None]  # T[k] - T0, k in the block
     after = Tp[1:].reshape(nb, L) - first[:, None]  # T[j+1] - T0
     lam4 = lam[:, None, None, :]
     span = Tp[L::L] - first  # (nb,)
-    return _in_blocks(cp, np.exp(lam4 * at[None, :, :, None]),
-                      lambda: np.exp(-lam4 * after[None, :, :, None]),
-                      np.exp(lam[:, None, :] * span[None, :, None]),
-                      np.exp(lam4 * (span[:, None] - after)[None, :, :, None]))[:, :K]
+    walk = _blocks(np.exp(lam4 * at[None, :, :, None]),
+                   np.exp(-lam4 * after[None, :, :, None]) if L > 1 else None,
+                   np.exp(lam[:, None, :] * span[None, :, None]),
+                   np.exp(lam4 * (span[:, None] - after)[None, :, :, None]))
+    return lambda c: walk(_in_rows_of(c, L))[:, :K]
 
 
 def _block_length(fastest: float) -> int:
@@ -327,50 +333,54 @@ def _in_rows_of(x: np.ndarray, L: int) -> np.ndarray:
                           axis=1).reshape(P, nb, L, n)
 
 
-def _in_blocks(cp: np.ndarray, E: np.ndarray, rise: Callable[[], np.ndarray],
-               to_end: np.ndarray, fall: np.ndarray) -> np.ndarray:
+def _blocks(E: np.ndarray, rise: np.ndarray | None, to_end: np.ndarray, fall: np.ndarray
+            ) -> Callable[[np.ndarray], np.ndarray]:
     """`carried` on blocks (P, nb, L, n) of contributions, given each mode's decay from its
     block's start to each step's start (E), the inverse of that to each step's end (rise,
     needed only for blocks longer than a step), to the block's end (to_end, (P|1, nb, n)),
     and from each step's end to the block's end (fall): E_k times the cumulative sum of
     c[j] / E_(j+1), and what each block hands the next (its exponents never positive)."""
-    P, nb, L, n = cp.shape
-    inner = np.zeros(cp.shape, np.result_type(cp, E))
-    if L > 1:  # sums over j < k: the cumulative sum shifted by one within the block
-        summed = np.cumsum(cp * rise(), axis=2)
-        inner[:, :, 1:] = E[:, :, 1:] * summed[:, :, :-1]
-    handed = np.sum(cp * fall, axis=2)
-    S = np.empty((P, nb, n), dtype=inner.dtype)
-    S[:, 0] = 0.0
-    for b in range(1, nb):
-        S[:, b] = to_end[:, b - 1] * S[:, b - 1] + handed[:, b - 1]
-    return (E * S[:, :, None, :] + inner).reshape(P, nb * L, n)
+    def walk(cp: np.ndarray) -> np.ndarray:
+        P, nb, L, n = cp.shape
+        inner = np.zeros(cp.shape, np.result_type(cp, E))
+        if L > 1:  # sums over j < k: the cumulative sum shifted by one within the block
+            summed = np.cumsum(cp * rise, axis=2)
+            inner[:, :, 1:] = E[:, :, 1:] * summed[:, :, :-1]
+        handed = np.sum(cp * fall, axis=2)
+        S = np.empty((P, nb, n), dtype=inner.dtype)
+        S[:, 0] = 0.0
+        for b in range(1, nb):
+            S[:, b] = to_end[:, b - 1] * S[:, b - 1] + handed[:, b - 1]
+        return (E * S[:, :, None, :] + inner).reshape(P, nb * L, n)
+    return walk
 
 
-def _carried_clamped(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """`carried` with each step counted at most CARRY_GONE e-folds long, and a mode that
+def _clamped_carrier(lam: np.ndarray, T: np.ndarray, K: int
+                     ) -> Callable[[np.ndarray], np.ndarray]:
+    """`carrier` with each step counted at most CARRY_GONE e-folds long, and a mode that
     forgets everything at every step carrying each step's contribution alone: neither then
-    sets the blocks' length. Slower per element than `carried`'s own blocks (each mode's
+    sets the blocks' length. Slower per element than `carrier`'s own blocks (each mode's
     exponents are summed step by step), so taken only where those blocks would be many."""
-    K = c.shape[1]
-    T = np.asarray(T, dtype=float)
     steps = lam[:, None, :] * np.diff(T[:K + 1])[None, :, None]  # (P|1, K, n) exponents
     decay = np.maximum(np.real(steps), -CARRY_GONE)
     gone = np.all(decay <= -CARRY_GONE, axis=1) if K else np.zeros(lam.shape, dtype=bool)
     decay = np.where(gone[:, None, :], 0.0, decay)
     steps = decay + 1j * np.imag(steps) if np.iscomplexobj(steps) else decay
     L = _block_length(float(np.max(-decay, initial=0.0)))
-    cp = _in_rows_of(c, L)
     # each block's exponents from its start: to the end of step j (after), to its start (at)
     after = np.cumsum(_in_rows_of(steps, L), axis=2)
     at = np.concatenate([np.zeros_like(after[:, :, :1]), after[:, :, :-1]], axis=2)
     span = after[:, :, -1]
-    out = _in_blocks(cp, np.exp(at), lambda: np.exp(-after), np.exp(span),
-                     np.exp(span[:, :, None] - after))[:, :K]
-    if gone.any():  # what each step adds, and nothing of before
-        alone = np.concatenate([np.zeros_like(c[:, :1]), c[:, :-1]], axis=1)
-        out = np.where(gone[:, None, :], alone, out)
-    return out
+    walk = _blocks(np.exp(at), np.exp(-after) if L > 1 else None, np.exp(span),
+                   np.exp(span[:, :, None] - after))
+
+    def carry(c: np.ndarray) -> np.ndarray:
+        out = walk(_in_rows_of(c, L))[:, :K]
+        if gone.any():  # what each step adds, and nothing of before
+            alone = np.concatenate([np.zeros_like(c[:, :1]), c[:, :-1]], axis=1)
+            out = np.where(gone[:, None, :], alone, out)
+        return out
+    return carry
 
 
 _DIRECT_CELLS = 100_000

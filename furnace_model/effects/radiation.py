@@ -84,6 +84,8 @@ class Radiation(Effect):
         # the linearisation of this one at the reference temperature. An emissivity that
         # changes with temperature, 1 + s (T_K / T_ref - 1), makes the law other than a power
         # of T (the furnace's own law, for the diagnosis's robustness check).
+        # Worked zone by zone over the S states (P, zones, S): with the zones innermost, every
+        # product of a relaxation's thousands of nodes would loop over two or three numbers.
         p, tref = self.options["exponent"], self.options["t_ref_c"] + KELVIN
         s = self.options["emissivity_slope"]
         if p is None:
@@ -91,18 +93,22 @@ class Radiation(Effect):
 
         def excess(T):
             ratio = np.maximum(T + KELVIN, 1.0) / tref
-            law = ratio ** p
-            if s:  # the hot path of every radiation fit: no work for a power law
+            if isinstance(p, float) and p == 4.0:  # the hot path: squares, not a power
+                law = ratio * ratio
+                law *= law
+            else:
+                law = ratio ** p
+            if s:
                 law *= np.maximum(1.0 + s * (ratio - 1.0), 0.0)
             return tref / (p + s) * law - T
 
         w = theta["rad_share"][:, None, None]
         nz = self.n_zones
-        r = excess(X[..., :nz])  # (P, S, zones)
-        r_air = excess(U[..., self.u_air:self.u_air + 1])
+        r = excess(np.swapaxes(X[..., :nz], 1, 2).copy())  # (P, zones, S)
+        r_air = excess(U[:, None, :, self.u_air])  # (P, 1, S)
         K = A[:, :nz, :nz] * (1.0 - np.eye(nz))
-        k_air = B[:, None, :nz, self.u_air]
+        k_air = B[:, :nz, self.u_air, None]
+        moved = K @ r - (K.sum(axis=2)[:, :, None] + k_air) * r + k_air * r_air
         dx = np.zeros(X.shape)
-        dx[..., :nz] = w * (r @ np.swapaxes(K, 1, 2) - K.sum(axis=2)[:, None] * r
-                            + k_air * (r_air - r))
+        dx[..., :nz] = np.swapaxes(w * moved, 1, 2)
         return dx

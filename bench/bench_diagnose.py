@@ -13,7 +13,9 @@ only the baseline is fitted), a case the baseline absorbs badly (zone burners: e
 candidate fitted, warm and cold), a lag, a nonlinear effect (radiation); and the shape of a
 measured building record (furnace_model.diagnosis.hourlyroom: one zone, four weeks of
 hourly rows, a wall and a sensor lag), and the same room over two weeks of minute rows with
-its heating moved every minute (20 161 samples, every one an input change); and a day of
+its heating moved every minute (20 161 samples, every one an input change); two rooms that
+are not our model's plant (`two_rooms`: a wall behind each, thermostats, heat from people
+nobody logged, five weeks of hourly rows with an outage); and a day of
 production in closed loop (draw_closed_loop_case with a drifting thermocouple, its fitted
 record from minute 720 to 2160: the loops change the burners nearly every minute), with the
 candidates `sensor_drift` and `zone_losses`; and the six hours around a fuel switch in
@@ -35,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from furnace_model.diagnosis.cases import draw_case, draw_closed_loop_case
 from furnace_model.diagnosis.hourlyroom import ROOM, hourly_room
@@ -43,7 +46,7 @@ from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.scenario import load_scenario
 
 CASES = ("paper pair", "control", "zone_burners", "sensor_lag", "radiation", "hourly room",
-         "minute room", "production day", "fuel window")
+         "minute room", "two rooms", "production day", "fuel window")
 SCENARIOS = Path(__file__).resolve().parent.parent / "config" / "scenarios"
 
 
@@ -53,6 +56,63 @@ def paper_pair() -> list:
         sc = load_scenario(SCENARIOS / f"{name}.yaml")
         out.append(Plant.from_scenario(sc, seed=seed).run_scenario(sc).to_experiment(name))
     return out
+
+
+TWO_ROOMS = """
+name: building
+zones:
+  - {name: office, burners: 1, thermocouples: 1, heat: {kind: rate, unit: kW, max: 8}}
+  - {name: lab, burners: 1, thermocouples: 1, heat: {kind: rate, unit: kW, max: 6}}
+links: chain
+ambient: [office, lab]
+burner_heat: own_zone
+"""
+
+
+def two_rooms(seed: int, days: int = 35, row_min: int = 60) -> pd.DataFrame:
+    """Two heated rooms simulated by a plant that is not the model's: each room's air (a
+    time constant of about half an hour) exchanges heat with its own heavy wall, the other
+    room and the outside, its heater held by a thermostat (PI, 21 degC by day on weekdays,
+    17 at other times), and people heat it on weekdays, which the log does not carry. The
+    log keeps one reading per room (0.08 degC of noise, to the tenth), each row's mean heat,
+    the outside air and a humidity nobody modelled, every `row_min` minutes, with 1% of one
+    room's readings missing and a five-hour outage."""
+    rng = np.random.default_rng(seed)
+    n = days * 1440
+    t = np.arange(n)
+    hour, weekday = (t // 60) % 24, (t // 1440) % 7 < 5
+    weather = np.convolve(np.repeat(rng.normal(0, 3, days + 1), 1440)[:n], np.ones(720) / 720,
+                          mode="same")
+    outside = 4 + 6 * np.sin(2 * np.pi * (t / 1440 - 0.375)) + weather
+    people = (weekday & (hour >= 8) & (hour < 18)).astype(float)
+    setpoint = np.where(people > 0, 21.0, 17.0)
+    air_wall, wall_out, air_out, rooms = 1 / 30, 1 / 400, 1 / 600, 1 / 200
+    x = np.array([19.0, 17.0, 19.0, 17.0])  # office air, its wall, lab air, its wall
+    heat, air, integral = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(2)
+    for i in range(n):
+        err = setpoint[i] - x[[0, 2]]
+        integral = np.clip(integral + err / 120, 0, 1.5)
+        heat[i] = np.clip(0.5 * err + integral, 0, 1) * np.array([8.0, 6.0])
+        q = 0.012 * heat[i] + people[i] * np.array([0.01, 0.02])
+        a, w, other = x[[0, 2]], x[[1, 3]], x[[2, 0]]  # each room's air, wall, neighbour
+        x = x + np.ravel(np.stack([
+            air_wall * (w - a) + air_out * (outside[i] - a) + rooms * (other - a) + q,
+            (air_wall * (a - w) + wall_out * (outside[i] - w)) / 12.0], axis=1))
+        air[i] = x[[0, 2]]
+    rows = np.arange(0, n, row_min)
+    mean_heat = heat.reshape(-1, row_min, 2).mean(axis=1)
+    stamps = pd.Timestamp("2026-01-05T00:00:00+01:00") + pd.to_timedelta(rows, unit="min")
+    frame = pd.DataFrame({
+        "timestamp": [s.isoformat() for s in stamps],
+        "tc_office_1": np.round(air[rows, 0] + rng.normal(0, 0.08, rows.size), 1),
+        "heat_office": np.round(mean_heat[:, 0], 3),
+        "tc_lab_1": np.round(air[rows, 1] + rng.normal(0, 0.08, rows.size), 1),
+        "heat_lab": np.round(mean_heat[:, 1], 3),
+        "t_air": np.round(outside[rows], 1),
+        "humidity": np.round(50 + 10 * people[rows] + rng.normal(0, 2, rows.size), 1)})
+    frame.loc[rng.choice(rows.size, rows.size // 100, replace=False), "tc_lab_1"] = np.nan
+    cut = rows.size // 3
+    return frame.drop(index=range(cut, cut + max(1, 300 // row_min)))
 
 
 def write_case(name: str, d: Path) -> list[str]:
@@ -76,6 +136,12 @@ def write_case(name: str, d: Path) -> list[str]:
         return [csv(hourly_room(1, effects, 14, sample_min=1), "a"), "--holdout",
                 csv(hourly_room(2, effects, 14, sample_min=1), "b"), "--furnace",
                 str(d / "room.yaml")]
+    if name == "two rooms":
+        (d / "building.yaml").write_text(TWO_ROOMS)
+        for seed, stem in ((1, "a"), (2, "b")):
+            two_rooms(seed).to_csv(d / f"{stem}.csv", index=False)
+        return [str(d / "a.csv"), "--holdout", str(d / "b.csv"), "--furnace",
+                str(d / "building.yaml")]
     if name == "production day":
         case = draw_closed_loop_case("sensor_drift", np.random.default_rng(3))
         return [csv(case.fit[0].between(720.0, 2160.0), "day"), "--furnace",

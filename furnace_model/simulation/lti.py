@@ -289,7 +289,7 @@ def carried(lam: np.ndarray, T: np.ndarray, c: np.ndarray) -> np.ndarray:
 def carrier(lam: np.ndarray, T: np.ndarray, K: int) -> Callable[[np.ndarray], np.ndarray]:
     """`carried` over K steps for many contributions against the same modes and times: a
     waveform relaxation's sweeps change the contributions only, and the exponentials are
-    half of a walk's cost.
+    nearly half of a walk's cost.
 
     Why blocks: a step-by-step loop over thousands of steps (a furnace in closed loop
     changes its burners every minute) costs more than all the arithmetic. Within a block,

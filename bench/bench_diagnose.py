@@ -86,7 +86,8 @@ def two_rooms(seed: int, days: int = 35, row_min: int = 60) -> pd.DataFrame:
     outside = 4 + 6 * np.sin(2 * np.pi * (t / 1440 - 0.375)) + weather
     people = (weekday & (hour >= 8) & (hour < 18)).astype(float)
     setpoint = np.where(people > 0, 21.0, 17.0)
-    air_wall, wall_out, air_out, rooms = 1 / 30, 1 / 400, 1 / 600, 1 / 200
+    air_wall, wall_out, air_out, rooms = 1 / 30, 1 / 400, 1 / 600, 1 / 200  # per minute
+    wall_c = 12.0  # a wall's heat capacity, in its room's air's
     x = np.array([19.0, 17.0, 19.0, 17.0])  # office air, its wall, lab air, its wall
     heat, air, integral = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(2)
     for i in range(n):
@@ -97,7 +98,7 @@ def two_rooms(seed: int, days: int = 35, row_min: int = 60) -> pd.DataFrame:
         a, w, other = x[[0, 2]], x[[1, 3]], x[[2, 0]]  # each room's air, wall, neighbour
         x = x + np.ravel(np.stack([
             air_wall * (w - a) + air_out * (outside[i] - a) + rooms * (other - a) + q,
-            (air_wall * (a - w) + wall_out * (outside[i] - w)) / 12.0], axis=1))
+            (air_wall * (a - w) + wall_out * (outside[i] - w)) / wall_c], axis=1))
         air[i] = x[[0, 2]]
     rows = np.arange(0, n, row_min)
     mean_heat = heat.reshape(-1, row_min, 2).mean(axis=1)

@@ -93,7 +93,7 @@ class Radiation(Effect):
 
         def excess(T):
             ratio = np.maximum(T + KELVIN, 1.0) / tref
-            if isinstance(p, float) and p == 4.0:  # the hot path: squares, not a power
+            if np.ndim(p) == 0 and p == 4.0:  # the hot path: squares, not a power
                 law = ratio * ratio
                 law *= law
             else:

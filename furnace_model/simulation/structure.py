@@ -721,9 +721,9 @@ class _Grid:
 
     def convolver(self, modes: Modes, t: np.ndarray, t0: float
                   ) -> Callable[[np.ndarray], np.ndarray]:
-        """`convolved` for many forcings against the same modes and times: the relaxation's
-        sweeps change the forcing only, and the mode's weights over each step and up to each
-        time (exponentials and phi functions) are most of a convolution's cost."""
+        """`convolved` for many forcings against the same modes and times: the modes'
+        weights over each step and up to each time (exponentials and phi functions) are most
+        of a convolution's cost, and are taken once."""
         a, K = self.a, self.a.size
         k_of = np.clip(np.searchsorted(a, t, side="left") - 1, 0, K - 1)
         e, *w = self._node_weights(modes.lam, np.maximum(t - a[k_of], 0.0), k_of)

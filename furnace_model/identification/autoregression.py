@@ -45,9 +45,20 @@ class AR:
         |A^-T x|^2 for the series' covariance Sigma."""
         if not self.phi.size:
             return x
-        from scipy.signal import lfilter  # a slow package to import, for this filter alone
+        # A^T is unit upper triangular with -phi_i on its i-th superdiagonal: LAPACK's banded
+        # triangular solve is that backward recursion, without scipy.signal's import (half a
+        # second, paid again by every forked worker that first needs it).
+        from scipy.linalg.lapack import dtbtrs
 
-        return lfilter([1.0], np.r_[1.0, -self.phi], x[::-1], axis=0)[::-1]
+        p = self.phi.size
+        b = np.asarray(x, dtype=float).reshape(len(x), -1)
+        band = np.empty((p + 1, b.shape[0]))
+        band[:p] = -self.phi[::-1, None]
+        band[p] = 1.0
+        y, info = dtbtrs(band, b, uplo="U", trans="N", diag="U")
+        if info != 0:
+            raise ValueError(f"the autoregression's adjoint failed (LAPACK info {info})")
+        return y.reshape(np.shape(x))
 
 
 def acf(e: np.ndarray, lags: int) -> np.ndarray:

@@ -645,6 +645,13 @@ def _finite(outcome: dict, names: tuple[str, ...], positive: frozenset[str]) -> 
     return all(isinstance(v, float | int) and math.isfinite(v) and (v > 0 or p not in positive)
                for p, v in values)
 
+def moves_data_clock(msg: FurnaceMessage) -> bool:
+    """Whether a message's publish time is the data clock: a reading's. A failed poll is
+    stamped with the host's time (the PLC gave no clock), and burner states may come from
+    CAN on the host's clock; a clock that jumped to either and back would cut, or pace,
+    months of empty windows."""
+    return isinstance(msg, Ambient) or isinstance(msg, Thermocouples) and msg.error is None
+
 
 @dataclass
 class WindowCutter:
@@ -669,12 +676,10 @@ class WindowCutter:
         self.resampler = Resampler(self.step_ns, 0, self.furnace)
 
     def feed(self, topic: str, msg: FurnaceMessage | dict, pub_ns: int) -> list[Window]:
-        """Only readings move the data clock: a failed poll is stamped with the host's time
-        and burner states may come from CAN on the host's clock; both still enter the bins.
-        A decoded dict is read as its topic's class."""
+        """Only readings move the data clock (`moves_data_clock`); the other messages still
+        enter the bins. A decoded dict is read as its topic's class."""
         msg = as_message(topic, msg, self.furnace)
-        if isinstance(msg, Thermocouples) and msg.error is not None \
-                or not isinstance(msg, Thermocouples | Ambient):
+        if not moves_data_clock(msg):
             self.resampler.add(topic, msg, pub_ns)
             return []
         out: list[Window] = []

@@ -55,6 +55,7 @@ from .logmeta import (
     refit_config,
 )
 from .mcaplog import encode
+from .refit import moves_data_clock
 from .refitworker import RefitRunner
 
 PUMP_EVERY = 256
@@ -185,10 +186,12 @@ def settings(paths: list[Path], config: DaqConfig | None
 def _feed(runner: RefitRunner, first, messages, refit: RefitConfig,
           speed: float | None) -> None:
     t_wall0 = time.monotonic()
-    pub0 = first[3]
+    pub0: int | None = None
     limit = 2  # windows waiting beyond the one in flight before reading pauses
     for n, (name, msg, _log_ns, pub_ns) in enumerate(_chain(first, messages), 1):
-        if speed is not None:
+        if speed is not None and moves_data_clock(msg):  # paced as the windows are cut
+            if pub0 is None:
+                pub0, t_wall0 = pub_ns, time.monotonic()
             ahead = (pub_ns - pub0) / 1e9 / speed - (time.monotonic() - t_wall0)
             if ahead > 0:
                 runner.pump(ahead)

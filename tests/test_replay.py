@@ -389,7 +389,8 @@ def test_a_failing_state_write_or_consumer_is_an_event_not_a_stop(tmp_path):
 
 
 def test_replay_at_a_given_speed_is_paced_by_the_data_clock(live, tmp_path):
-    pubs = [pub for t, _, _, pub in live["msgs"] if t == THERMOCOUPLES]
+    # a failed poll is stamped with the host's clock: not the data's span
+    pubs = [pub for t, m, _, pub in live["msgs"] if t == THERMOCOUPLES and "error" not in m]
     span_s = (pubs[-1] - pubs[0]) / 1e9
     speed = span_s / 3.0  # three seconds of wall time
     t0 = time.monotonic()
@@ -397,3 +398,57 @@ def test_replay_at_a_given_speed_is_paced_by_the_data_clock(live, tmp_path):
            for m in replay(live["logs"], live["config"], tmp_path / "paced.mcap", speed=speed)]
     assert time.monotonic() - t0 >= 2.9
     assert_same_timeline(got, live_params(live))
+
+
+def _with_failed_poll(logs: list[Path], out: Path) -> None:
+    """The logs' messages in one file, with a failed poll (every thermocouple
+    `comm_error`) after the middle reading, published on the host's clock as the daemon
+    stamps one: months from the PLC's clock here."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with out.open("wb") as sink:
+        writer = Writer(sink)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        middle = None
+        for path in logs:
+            with path.open("rb") as f:
+                reader = make_reader(f)
+                for record in reader.iter_metadata():
+                    writer.add_metadata(record.name, record.metadata)
+                rows = list(reader.iter_messages())
+            for schema, channel, m in rows:
+                if schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(schema.name, schema.encoding,
+                                                                schema.data)
+                if channel.id not in channels:
+                    channels[channel.id] = writer.register_channel(
+                        channel.topic, channel.message_encoding, schemas[schema.id],
+                        channel.metadata)
+                writer.add_message(channels[channel.id], m.log_time, m.data, m.publish_time)
+                if middle is None and channel.topic == THERMOCOUPLES \
+                        and m.log_time >= (rows[0][2].log_time + rows[-1][2].log_time) // 2:
+                    middle = m.log_time + 1
+                    quality = dict.fromkeys(json.loads(m.data)["quality"], "comm_error")
+                    writer.add_message(channels[channel.id], middle, json.dumps(
+                        {"quality": quality, "error": "timeout"}).encode(), middle)
+        writer.finish()
+    assert middle is not None
+
+
+def test_a_failed_poll_on_the_hosts_clock_neither_paces_nor_cuts_the_replay(live, tmp_path):
+    """Its publish time is the host's (the PLC gave none): paced on it, a replay at a given
+    speed slept for the months between the two clocks."""
+    log = tmp_path / "with_failed_poll.mcap"
+    _with_failed_poll(live["logs"], log)
+    pubs = [pub for t, m, _, pub in read_messages([log]) if t == THERMOCOUPLES and "error" not in m]
+    speed = (pubs[-1] - pubs[0]) / 1e9 / 2.0  # two seconds of wall time
+    out = tmp_path / "paced.mcap"
+    proc = subprocess.run([sys.executable, "-m", "furnace_daq.cli", "replay", str(log),
+                           "--out", str(out), "--speed", f"{speed:g}"],
+                          capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    assert_same_timeline([m for t, m, _, _ in read_messages([out]) if t == MODEL_PARAMETERS],
+                         live_params(live))

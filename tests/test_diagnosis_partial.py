@@ -128,6 +128,30 @@ def test_the_parts_of_two_kept_effects_add_up_to_the_whole():
         == "unexplained"
 
 
+def test_an_explanation_held_by_its_carried_error_says_so():
+    """Within the noise limit alone the sentence says the error is down to the noise; held
+    only by what the fit's parameters carry, it says that, with the carried figure, and never
+    that 1.2 °C is the noise of 0.70."""
+    floor = {z: 0.7 for z in PAPER.zones}
+    near = {z: 0.9 for z in PAPER.zones}
+    base = _cand((), {"soak": 1.0, "heat": 3.3, "preheat": 1.9}, 0.0, 0.0)
+    at_noise = _cand(("wall_storage",), {"soak": 0.8, "heat": 0.85, "preheat": 0.8}, 90.0, 60.0)
+    v = judge(base, at_noise, [at_noise], floor, near, ("heat",), [], furnace=PAPER)
+    assert v.status == "explained"
+    assert "down to about the thermocouple noise of 0.70 °C" in v.sentence, v.sentence
+    carried = dataclasses.replace(at_noise, rmse_holdout_c={"soak": 0.8, "heat": 1.2,
+                                                            "preheat": 0.8},
+                                  carried_c={"soak": 0.3, "heat": 2.2, "preheat": 0.4})
+    v = judge(base, carried, [carried], floor, near, ("heat",), [], furnace=PAPER)
+    assert v.status == "explained"
+    assert "noise" in v.sentence and "down to about" not in v.sentence, v.sentence
+    assert "parameters' own uncertainty (up to 2.2 °C there)" in v.sentence, v.sentence
+    # without the carry the same error is off the floor
+    v = judge(base, dataclasses.replace(carried, carried_c={}), [carried], floor, near,
+              ("heat",), [], furnace=PAPER)
+    assert v.status == "explained_in_part", v.sentence
+
+
 def _diagnosis(status, effects, closed=80.0):
     verdict = SimpleNamespace(status=status, effects=list(effects), gap_closed_pct=closed,
                               shrink_pct=40.0)

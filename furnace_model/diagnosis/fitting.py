@@ -11,7 +11,7 @@ import numpy as np
 
 from ..effects import EFFECTS, Effect
 from ..experiment import Experiment
-from ..identification.carried import carried_error
+from ..identification.carried import carried_error, carried_onto_tail
 from ..identification.equationerror import equation_error_starts
 from ..identification.fit import WarmStart, fit
 from ..identification.model import Refinement
@@ -414,18 +414,24 @@ def _networks_for(structure: ModelStructure, values: dict[str, float],
 
 
 def _carried(fr: FitResult, task: Task, refined: Refinement | None) -> dict[str, float]:
-    """What the fit's parameter uncertainty carries onto the whole held-out records
-    (`carried.carried_error`), at the gap's level of evidence. A tail of a fitted record
-    continues the fitted run and is given none: its start was estimated with the
-    parameters, and the linearisation would have to carry that too."""
-    if refined is None:
-        return dict.fromkeys(task.furnace.zones, 0.0)
-    whole = [task.holdout[i] for i, j in enumerate(task.tail_of) if j is None]
+    """What the fit's uncertainty carries onto the held-out records, at the gap's level of
+    evidence: onto whole records with their own start and offsets re-estimated
+    (`carried.carried_error`), onto a tail of a fitted record with the fitted start and
+    offsets it continues from (`carried.carried_onto_tail`; `split` cuts at most one)."""
     floors = pooled_floor([record_floor(e) for e in task.fit_data])
     counts = {z: sum(int(np.isfinite(e.zone_temp[:, w]).sum()) for e in task.fit_data)
               for w, z in enumerate(task.furnace.zones)}
     noise = float(np.sqrt(sum(counts[z] * floors[z] ** 2 for z in counts if np.isfinite(floors[z]))
                           / max(sum(counts[z] for z in counts if np.isfinite(floors[z])), 1)))
+    if refined is None:
+        tails = [(i, j) for i, j in enumerate(task.tail_of) if j is not None]
+        if not tails:
+            return dict.fromkeys(task.furnace.zones, 0.0)
+        i, j = tails[0]
+        return carried_onto_tail(fr, join(task.fit_data[j], task.holdout[i]),
+                                 len(task.fit_data[j]), fr.x0[j], fr.offsets(j), noise,
+                                 CARRIED_Z)
+    whole = [task.holdout[i] for i, j in enumerate(task.tail_of) if j is None]
     offsets = [np.array([o[z] for z in task.furnace.zones]) if o else np.zeros(len(counts))
                for o in (refined.zone_offsets_c or [None] * len(whole))]
     return carried_error(fr, whole, refined.x0, offsets, noise, CARRIED_Z)

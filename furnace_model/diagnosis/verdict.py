@@ -110,8 +110,7 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
             f"({', '.join(best.effects)}){_found_words(best)}. Adding {it} cuts the held-out "
             f"error in the {ZONE_WORDS[worst]} zone from {temp_c(base.rmse_holdout_c[worst])} to "
             f"{temp_c(best.rmse_holdout_c[worst])} °C (pooled over zones "
-            f"{best.shrink_pct:.0f}% smaller), down to about the thermocouple noise of "
-            f"{temp_c(floor[worst])} °C."
+            f"{best.shrink_pct:.0f}% smaller), {_down_to(best, floor, near, worst)}."
             + _unseen_words(best, furnace))
     if kept is not None and credited(kept):
         return _in_part(base, kept, floor, worst, where, furnace, steps, candidates,
@@ -126,6 +125,18 @@ def judge(base: CandidateResult, kept: CandidateResult | None,
         f"{ZONE_WORDS[worst]} zone against a noise floor of {temp_c(floor[worst])} °C), but "
         f"none of the candidate effects brings it down to the noise."
         + (f" It {place}." if place else "") + tried + missing_words)
+
+
+def _down_to(best: CandidateResult, floor: dict[str, float], near: dict[str, float],
+             zone: str) -> str:
+    """Where an explaining model's held-out error ends: at the noise, or, past it, within
+    what its own parameters' uncertainty carries there (never the noise alone: a number
+    told must be true for the record)."""
+    carried = best.carried_c.get(zone, 0.0)
+    if best.rmse_holdout_c[zone] <= near[zone] or carried < 0.05:
+        return f"down to about the thermocouple noise of {temp_c(floor[zone])} °C"
+    return (f"within what the thermocouple noise of {temp_c(floor[zone])} °C and the fitted "
+            f"parameters' own uncertainty (up to {temp_c(carried)} °C there) allow")
 
 
 def _in_part(base: CandidateResult, kept: CandidateResult, floor: dict[str, float],

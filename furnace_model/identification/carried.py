@@ -16,6 +16,15 @@ Jacobian columns are projected out, as refitting them would), as a quantile: the
 error a zone picks up is a weighted sum of chi-squares (the covariance's directions as the
 zone's readings see them), taken by Satterthwaite's scaled chi-square.
 
+A held-out tail of a fitted record (the last part of one window) is not re-estimated: it
+continues the fitted run from the initial state and offsets the fitted rows gave together
+with the parameters. Given the parameters, those own unknowns follow them (their least
+squares on the fitted rows) and keep a spread of their own (the noise over what the fitted
+rows see of them), independent of the parameters'; the tail's prediction moves with both
+(`carried_onto_tail`). Counted as nothing, a window in closed loop whose held-out hours step
+the setpoints to where the fitted hours never went missed them by what its loosely
+determined rates carry, and that was read as an effect left out.
+
 Two choices keep it from hiding what the diagnosis looks for. The covariance is the white
 one scaled to the records' noise floor, not the residual's: an unmodelled effect inflates
 the residual and colours it, and that is the misfit to find, not uncertainty to allow for.
@@ -33,7 +42,7 @@ from scipy.special import chdtri, ndtr
 from ..experiment import Experiment
 from .problem import Problem
 from .result import FitResult
-from .uncertainty import Z95
+from .uncertainty import Z95, Uncertainty
 
 LINEAR_HALF_WIDTH = 0.5
 """A direction of the parameters (log scale for rates) whose 95% half-width is wider than
@@ -62,20 +71,75 @@ def carried_error(fr: FitResult, records: list[Experiment], x0: list[np.ndarray]
     J = np.nan_to_num(prob.jac(at))
     Jp, N = J[:, :prob.k], J[:, prob.k:]
     Jp = Jp - N @ np.linalg.lstsq(N, Jp, rcond=None)[0]  # the records' own unknowns refitted
+    root = _root(unc, noise_sd_c)
+    if root is None:
+        return out
+    zone_of = np.concatenate([r.zone_of for r in prob.records])
+    return _quantiles(zones, zone_of, Jp @ root, z)
 
+
+def carried_onto_tail(fr: FitResult, joined: Experiment, n_head: int, x0: np.ndarray,
+                      offsets: np.ndarray, noise_sd_c: float, z: float) -> dict[str, float]:
+    """Per zone, the RMSE (°C) over the rows of `joined` from `n_head` on (a held-out tail
+    continuing a fitted record, the fitted rows before it) that the fit's uncertainty alone
+    reaches with probability norm.cdf(z): the parameters' and, given them, the fitted
+    record's own initial state `x0` and `offsets` (see the module's docstring)."""
+    zones = fr.structure.furnace.zones
+    out = dict.fromkeys(zones, 0.0)
+    unc = fr.uncertainty
+    if unc is None or not unc.names or unc.cov_white is None or n_head >= len(joined):
+        return out
+    fixed = {n: v for n, v in fr.params.items() if n not in unc.names}
+    prob = Problem([joined], fr.structure, fixed, {}, zone_offsets=True)
+    at = prob.start(unc.z.copy())
+    nz = prob.nz
+    at[prob.k:prob.k + nz] = np.asarray(x0, dtype=float)[:nz]
+    at[prob.k + nz:prob.k + 2 * nz] = np.asarray(offsets, dtype=float)
+    J = np.nan_to_num(prob.jac(at))
+    record = prob.records[0]
+    head = np.nonzero(record.mask)[0] < n_head
+    Jp, N = J[:, :prob.k], J[:, prob.k:]
+    if not head.any() or head.all():
+        return out
+    # the own unknowns given the parameters: their least squares on the fitted rows ...
+    follow = np.linalg.lstsq(N[head], Jp[head], rcond=None)[0]
+    Jp_tail = Jp[~head] - N[~head] @ follow
+    # ... and their own spread there, independent of the parameters'
+    w, V = np.linalg.eigh(np.linalg.pinv(N[head].T @ N[head]))
+    own = V[:, w > 0] * (noise_sd_c * np.sqrt(w[w > 0]))
+    root = _root(unc, noise_sd_c, wide="clip")
+    rows = N[~head] @ own if root is None else np.hstack([Jp_tail @ root, N[~head] @ own])
+    return _quantiles(zones, record.zone_of[~head], rows, z)
+
+
+def _root(unc: Uncertainty, noise_sd_c: float, wide: str = "drop") -> np.ndarray | None:
+    """R with R R' the parameters' white covariance scaled to the noise floor; the
+    directions wider than `LINEAR_HALF_WIDTH` left out (`wide` "drop": the held-out records
+    estimate them) or held to that width ("clip": nothing estimates them again, and they
+    carry at least that much). None when nothing is left."""
     w, V = np.linalg.eigh(unc.cov_white)
     scale = min(1.0, (noise_sd_c / unc.sigma) ** 2) if unc.sigma > 0 else 1.0
-    keep = (w > 0) & (Z95 * np.sqrt(np.maximum(w, 0.0) * scale) <= LINEAR_HALF_WIDTH)
+    var = np.maximum(w, 0.0) * scale
+    widest = (LINEAR_HALF_WIDTH / Z95) ** 2
+    if wide == "clip":
+        var = np.minimum(var, widest)
+    keep = (var > 0) & (var <= widest)
     if not keep.any():
-        return out
-    root = V[:, keep] * np.sqrt(w[keep] * scale)  # cov = root root'
-    zone_of = np.concatenate([r.zone_of for r in prob.records])
+        return None
+    return V[:, keep] * np.sqrt(var[keep])
+
+
+def _quantiles(zones: tuple[str, ...], zone_of: np.ndarray, rows: np.ndarray,
+               z: float) -> dict[str, float]:
+    """Per zone, the norm.cdf(z) quantile of the RMS of `rows` @ e over that zone's rows, e
+    standard normal: a weighted sum of chi-squares, by Satterthwaite's scaled chi-square."""
+    out = dict.fromkeys(zones, 0.0)
     p = float(ndtr(z))
     for k, zone in enumerate(zones):
-        rows = Jp[zone_of == k] @ root
-        if rows.shape[0] == 0:
+        mine = rows[zone_of == k]
+        if mine.shape[0] == 0:
             continue
-        lam = np.linalg.svd(rows, compute_uv=False) ** 2 / rows.shape[0]
+        lam = np.linalg.svd(mine, compute_uv=False) ** 2 / mine.shape[0]
         mean, spread = float(lam.sum()), float((lam ** 2).sum())
         if mean <= 0.0:
             continue

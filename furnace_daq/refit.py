@@ -645,6 +645,7 @@ def _finite(outcome: dict, names: tuple[str, ...], positive: frozenset[str]) -> 
     return all(isinstance(v, float | int) and math.isfinite(v) and (v > 0 or p not in positive)
                for p, v in values)
 
+
 def moves_data_clock(msg: FurnaceMessage) -> bool:
     """Whether a message's publish time is the data clock: a reading's. A failed poll is
     stamped with the host's time (the PLC gave no clock), and burner states may come from

@@ -21,9 +21,9 @@ continues the fitted run from the initial state and offsets the fitted rows gave
 with the parameters. Given the parameters, those own unknowns follow them (their least
 squares on the fitted rows) and keep a spread of their own (the noise over what the fitted
 rows see of them), independent of the parameters'; the tail's prediction moves with both
-(`carried_onto_tail`). Counted as nothing, a window in closed loop whose held-out hours step
-the setpoints to where the fitted hours never went missed them by what its loosely
-determined rates carry, and that was read as an effect left out.
+(`carried_onto_tail`). Without it, a window in closed loop whose held-out hours step the
+setpoints to where the fitted hours never went misses them by what its loosely determined
+rates carry, and that would read as an effect left out.
 
 Two choices keep it from hiding what the diagnosis looks for. The covariance is the white
 one scaled to the records' noise floor, not the residual's: an unmodelled effect inflates

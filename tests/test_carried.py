@@ -141,3 +141,20 @@ def test_the_error_carried_onto_a_windows_tail_holds_the_true_miss_as_often_as_i
     assert n >= 12 * len(furnace.zones), n
     assert 0.6 <= within[1.0] / n <= 0.98, within
     assert within[CARRIED_Z] >= 0.97 * n, within
+
+
+def test_a_window_whose_fitted_hours_charge_no_slab_sets_charging_on_its_tail():
+    """The start-up's first charging falls in the held-out hours of a window: the fitted
+    hours do not see the charging gains, so the tail sets them (as a whole held-out record
+    does) and a furnace with nothing wrong has no gap. Predicted with the gains where the
+    fit left them, the tail missed by tens of degrees and the verdict was `unexplained`."""
+    record = draw_closed_loop_case(None, case_rng(11, "none", 0)).fit[0]
+    t = float(record.t_min[0]) + 400.0  # charging from minute 700
+    window = record.between(t, t + 360.0)
+    (head,), _, _, _ = split([window], None)
+    assert not np.any(head.disturbances) and np.any(window.disturbances)
+    d = diagnose([window], effects=("sensor_drift",))
+    assert d.verdict.status == "no_gap", d.verdict.sentence
+    assert set(d.baseline.held_out_fitted) == {"gain_charging_heat", "gain_charging_preheat"}
+    zones = window.furnace.zones
+    assert all(d.baseline.rmse_holdout_c[z] < 1.5 * d.noise_floor_c[z] for z in zones)

@@ -206,7 +206,7 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
     if fr.stop_reason == "time_budget":
         return not_tried(task)
     fit_pred = fitted_predictions(fr, task.fit_data)
-    unseen = unseen_by_fit(fr, bounds) if any(j is None for j in task.tail_of) else ()
+    unseen = unseen_by_fit(fr, bounds)
     hold_pred, refined = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of,
                                              unseen)
     carried = fr.carried_offsets()
@@ -228,7 +228,7 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         sse_fit=fr.sse, n_obs=fr.n_obs,
         n_params=len(structure.names) + 2 * len(zones) * len(task.fit_data),
         rho1=lag1(res), rho1_holdout=lag1(hold_res), n_holdout=n_hold,
-        held_out_fitted=unseen, carried_c=_carried(fr, task, refined),
+        held_out_fitted=unseen, carried_c=_carried(fr, task, refined, unseen),
         elapsed_s=time.perf_counter() - t0, warnings=list(fr.warnings),
         offsets_c=None if carried is None else dict(zip(zones, map(float, carried), strict=True)),
         ended=WarmStart(offsets=fr.zone_offsets_c, x0=[x.tolist() for x in fr.x0]),
@@ -413,11 +413,13 @@ def _networks_for(structure: ModelStructure, values: dict[str, float],
     return [first, *others] if on_bound else [first]
 
 
-def _carried(fr: FitResult, task: Task, refined: Refinement | None) -> dict[str, float]:
+def _carried(fr: FitResult, task: Task, refined: Refinement | None,
+             unseen: tuple[str, ...]) -> dict[str, float]:
     """What the fit's uncertainty carries onto the held-out records, at the gap's level of
     evidence: onto whole records with their own start and offsets re-estimated
     (`carried.carried_error`), onto a tail of a fitted record with the fitted start and
-    offsets it continues from (`carried.carried_onto_tail`; `split` cuts at most one)."""
+    offsets it continues from (`carried.carried_onto_tail`; `split` cuts at most one), but
+    for the `unseen` parameters, which the held-out data set."""
     floors = pooled_floor([record_floor(e) for e in task.fit_data])
     counts = {z: sum(int(np.isfinite(e.zone_temp[:, w]).sum()) for e in task.fit_data)
               for w, z in enumerate(task.furnace.zones)}
@@ -430,7 +432,7 @@ def _carried(fr: FitResult, task: Task, refined: Refinement | None) -> dict[str,
         i, j = tails[0]
         return carried_onto_tail(fr, join(task.fit_data[j], task.holdout[i]),
                                  len(task.fit_data[j]), fr.x0[j], fr.offsets(j), noise,
-                                 CARRIED_Z)
+                                 CARRIED_Z, refitted=unseen)
     whole = [task.holdout[i] for i, j in enumerate(task.tail_of) if j is None]
     offsets = [np.array([o[z] for z in task.furnace.zones]) if o else np.zeros(len(counts))
                for o in (refined.zone_offsets_c or [None] * len(whole))]
@@ -464,8 +466,9 @@ def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Exp
     held-out experiments (None without one). A whole held-out experiment gets its own
     initial state and offsets from its data, and the parameters in `unseen` (by the fitted
     data) are estimated on the whole held-out experiments together; a tail cut from a
-    fitted experiment continues the fitted run (same start, same thermocouples): nothing
-    is estimated on it."""
+    fitted experiment continues the fitted run (same start, same thermocouples), and only
+    the parameters in `unseen` are estimated on it (a window whose fitted hours never
+    charge a slab cannot say what charging does in the hours after)."""
     out: list[np.ndarray | None] = [None] * len(holdout)
     whole = [i for i, j in enumerate(tail_of) if j is None]
     refined = None
@@ -477,7 +480,11 @@ def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Exp
         if j is None:
             continue
         joined = join(data[j], holdout[i])
-        out[i] = fr.predict(joined, fr.x0[j], fr.offsets(j))[len(data[j]):]
+        if unseen:
+            on_tail = fr.refine([joined], free=unseen, x0=[fr.x0[j]], offsets=[fr.offsets(j)])
+            out[i] = on_tail.predict(0)[len(data[j]):]
+        else:
+            out[i] = fr.predict(joined, fr.x0[j], fr.offsets(j))[len(data[j]):]
     return [p for p in out if p is not None], refined
 
 

@@ -36,6 +36,8 @@ what the fitted data do not see at all is estimated on the held-out records inst
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from scipy.special import chdtri, ndtr
 
@@ -79,11 +81,14 @@ def carried_error(fr: FitResult, records: list[Experiment], x0: list[np.ndarray]
 
 
 def carried_onto_tail(fr: FitResult, joined: Experiment, n_head: int, x0: np.ndarray,
-                      offsets: np.ndarray, noise_sd_c: float, z: float) -> dict[str, float]:
+                      offsets: np.ndarray, noise_sd_c: float, z: float,
+                      refitted: Sequence[str] = ()) -> dict[str, float]:
     """Per zone, the RMSE (°C) over the rows of `joined` from `n_head` on (a held-out tail
     continuing a fitted record, the fitted rows before it) that the fit's uncertainty alone
     reaches with probability norm.cdf(z): the parameters' and, given them, the fitted
-    record's own initial state `x0` and `offsets` (see the module's docstring)."""
+    record's own initial state `x0` and `offsets` (see the module's docstring). The
+    parameters in `refitted` (those the fitted rows do not see, set on the tail itself)
+    carry nothing; the others' directions wider than `LINEAR_HALF_WIDTH` are held to it."""
     zones = fr.structure.furnace.zones
     out = dict.fromkeys(zones, 0.0)
     unc = fr.uncertainty
@@ -103,21 +108,25 @@ def carried_onto_tail(fr: FitResult, joined: Experiment, n_head: int, x0: np.nda
         return out
     # the own unknowns given the parameters: their least squares on the fitted rows ...
     follow = np.linalg.lstsq(N[head], Jp[head], rcond=None)[0]
-    Jp_tail = Jp[~head] - N[~head] @ follow
+    seen = np.array([n not in refitted for n in unc.names])
+    Jp_tail = (Jp[~head] - N[~head] @ follow)[:, seen]
     # ... and their own spread there, independent of the parameters'
     w, V = np.linalg.eigh(np.linalg.pinv(N[head].T @ N[head]))
     own = V[:, w > 0] * (noise_sd_c * np.sqrt(w[w > 0]))
-    root = _root(unc, noise_sd_c, wide="clip")
+    root = _root(unc, noise_sd_c, wide="clip", among=seen)
     rows = N[~head] @ own if root is None else np.hstack([Jp_tail @ root, N[~head] @ own])
     return _quantiles(zones, record.zone_of[~head], rows, z)
 
 
-def _root(unc: Uncertainty, noise_sd_c: float, wide: str = "drop") -> np.ndarray | None:
-    """R with R R' the parameters' white covariance scaled to the noise floor; the
-    directions wider than `LINEAR_HALF_WIDTH` left out (`wide` "drop": the held-out records
-    estimate them) or held to that width ("clip": nothing estimates them again, and they
-    carry at least that much). None when nothing is left."""
-    w, V = np.linalg.eigh(unc.cov_white)
+def _root(unc: Uncertainty, noise_sd_c: float, wide: str = "drop",
+          among: np.ndarray | None = None) -> np.ndarray | None:
+    """R with R R' the white covariance of the parameters (`among` them, a mask: the others
+    marginalised) scaled to the noise floor; the directions wider than `LINEAR_HALF_WIDTH`
+    left out (`wide` "drop": the held-out records estimate them) or held to that width
+    ("clip": nothing estimates them again, and they carry at least that much). None when
+    nothing is left."""
+    cov = unc.cov_white if among is None else unc.cov_white[np.ix_(among, among)]
+    w, V = np.linalg.eigh(cov)
     scale = min(1.0, (noise_sd_c / unc.sigma) ** 2) if unc.sigma > 0 else 1.0
     var = np.maximum(w, 0.0) * scale
     widest = (LINEAR_HALF_WIDTH / Z95) ** 2

@@ -466,9 +466,10 @@ def holdout_predictions(fr: FitResult, data: list[Experiment], holdout: list[Exp
     held-out experiments (None without one). A whole held-out experiment gets its own
     initial state and offsets from its data, and the parameters in `unseen` (by the fitted
     data) are estimated on the whole held-out experiments together; a tail cut from a
-    fitted experiment continues the fitted run (same start, same thermocouples), and only
-    the parameters in `unseen` are estimated on it (a window whose fitted hours never
-    charge a slab cannot say what charging does in the hours after)."""
+    fitted experiment continues the fitted run (same start, same thermocouples); where
+    parameters are `unseen`, they are estimated on the run with its tail, the start again
+    with them and the offsets held (a window whose fitted hours never charge a slab cannot
+    say what charging does in the hours after)."""
     out: list[np.ndarray | None] = [None] * len(holdout)
     whole = [i for i, j in enumerate(tail_of) if j is None]
     refined = None

@@ -107,19 +107,20 @@ def test_the_error_carried_onto_a_windows_tail_holds_the_true_miss_as_often_as_i
     its first 70% and the rest predicted on from the fitted start and offsets: the fitted
     model's miss against the true model's there is within the carried error at one standard
     deviation's level (84%) about as often as that, and at the gap's level nearly always
-    (measured on 23 windows: 59 and 69 of 69 zones). Counted as nothing, the loosely
-    determined rates of a window held at its setpoints made their miss a gap. A fit that
-    misses its own floor is no estimate of the truth for the carry to spread around (one
-    window of these: the preheating zone's rates collapsed onto their bounds)."""
+    (measured: 43 and 51 of 51 zones here, 59 and 69 of 69 on 23 windows of six records).
+    Counted as nothing, the loosely determined rates of a window held at its setpoints made
+    their miss a gap. A fit that misses its own floor is no estimate of the truth for the
+    carry to spread around (one window of these: the preheating zone's rates collapsed
+    onto their bounds)."""
     scenario = production_scenario()
     furnace = scenario.furnace
     structure = ModelStructure(furnace=furnace)
     truth = {n: v for n, v in scenario.values().items() if n in structure.names}
     within = {1.0: 0, CARRIED_Z: 0}
     n = 0
-    for k in range(4):
+    for k in range(2):
         record = draw_closed_loop_case(None, case_rng(11, "none", k)).fit[0]
-        for start in (800.0, 1300.0, 1800.0, 2300.0):  # production: the slabs charged
+        for start in np.arange(800.0, 2401.0, 200.0):  # production: the slabs charged
             t = float(record.t_min[0]) + start
             (head,), (tail,), _, _ = split([record.between(t, t + 360.0)], None)
             fr = fit([head], structure, seed=k, zone_offsets=True, profile=False)

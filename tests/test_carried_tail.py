@@ -31,8 +31,8 @@ def test_the_error_carried_onto_a_windows_tail_holds_the_true_miss_as_often_as_i
     model's miss against the true model's there is within the carried error at one standard
     deviation's level (84%) about as often as that, and at the gap's level nearly always
     (measured: 43 and 51 of 51 zones here, 59 and 69 of 69 on 23 windows of six records).
-    Counted as nothing, the loosely determined rates of a window held at its setpoints made
-    their miss a gap. A fit that misses its own floor is no estimate of the truth for the
+    Counted as nothing, the loosely determined rates of a window held at its setpoints would
+    make their miss a gap. A fit that misses its own floor is no estimate of the truth for the
     carry to spread around (one window of these: the preheating zone's rates collapsed
     onto their bounds)."""
     scenario = production_scenario()
@@ -71,7 +71,7 @@ def test_a_window_whose_fitted_hours_charge_no_slab_sets_charging_on_its_tail():
     """The start-up's first charging falls in the held-out hours of a window: the fitted
     hours do not see the charging gains, so the tail sets them (as a whole held-out record
     does) and a furnace with nothing wrong has no gap. Predicted with the gains where the
-    fit left them, the tail missed by tens of degrees and the verdict was `unexplained`."""
+    fit left them, the tail misses by tens of degrees, an error no effect explains."""
     record = draw_closed_loop_case(None, case_rng(11, "none", 0)).fit[0]
     t = float(record.t_min[0]) + 400.0  # charging from minute 700
     window = record.between(t, t + 360.0)

@@ -165,9 +165,9 @@ def check_faults_story(done: subprocess.CompletedProcess, out: Path, *, onset_h:
     """The production story with a drifting soak_1 and a later fuel change, told by the
     daemon's online diagnosis: first soak_1 named with its onset and a rate whose interval
     holds the truth (said not to be pinned down where the window holds little of the
-    drift), then set aside; after that only the fuel change is named (a window too short after it may leave the
-    gap unexplained, never blamed on another effect), and named it is; in that order in
-    the log and on the terminal."""
+    drift), then set aside; after that only the fuel change is named (a window too short
+    after it may leave the gap unexplained, never blamed on another effect), and named it
+    is; in that order in the log and on the terminal."""
     from furnace_model.log.messages import ModelDiagnosis, ModelEvent, ModelEventKind
     from furnace_model.log.schema import MODEL_DIAGNOSIS, MODEL_EVENTS
 

@@ -440,7 +440,7 @@ def _with_failed_poll(logs: list[Path], out: Path) -> None:
 
 def test_a_failed_poll_on_the_hosts_clock_neither_paces_nor_cuts_the_replay(live, tmp_path):
     """Its publish time is the host's (the PLC gave none): paced on it, a replay at a given
-    speed slept for the months between the two clocks."""
+    speed would sleep for the months between the two clocks."""
     log = tmp_path / "with_failed_poll.mcap"
     _with_failed_poll(live["logs"], log)
     pubs = [pub for t, m, _, pub in read_messages([log]) if t == THERMOCOUPLES and "error" not in m]

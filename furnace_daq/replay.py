@@ -185,8 +185,8 @@ def settings(paths: list[Path], config: DaqConfig | None
 
 def _feed(runner: RefitRunner, first, messages, refit: RefitConfig,
           speed: float | None) -> None:
-    t_wall0 = time.monotonic()
     pub0: int | None = None
+    t_wall0 = 0.0  # set with pub0, at the first reading that moves the data clock
     limit = 2  # windows waiting beyond the one in flight before reading pauses
     for n, (name, msg, _log_ns, pub_ns) in enumerate(_chain(first, messages), 1):
         if speed is not None and moves_data_clock(msg):  # paced as the windows are cut

@@ -62,16 +62,7 @@ def carried_error(fr: FitResult, records: list[Experiment], x0: list[np.ndarray]
     unc = fr.uncertainty
     if unc is None or not records or not unc.names or unc.cov_white is None:
         return out
-    fixed = {n: v for n, v in fr.params.items() if n not in unc.names}
-    prob = Problem(records, fr.structure, fixed, {}, zone_offsets=True)
-    at = prob.start(unc.z.copy())
-    nz = prob.nz
-    for j in range(len(records)):
-        i = prob.k + prob.block * j
-        at[i:i + nz] = np.asarray(x0[j], dtype=float)[:nz]
-        at[i + nz:i + 2 * nz] = np.asarray(offsets[j], dtype=float)
-    J = np.nan_to_num(prob.jac(at))
-    Jp, N = J[:, :prob.k], J[:, prob.k:]
+    prob, Jp, N = _jacobian(fr, records, x0, offsets)
     Jp = Jp - N @ np.linalg.lstsq(N, Jp, rcond=None)[0]  # the records' own unknowns refitted
     root = _root(unc, noise_sd_c)
     if root is None:
@@ -94,16 +85,9 @@ def carried_onto_tail(fr: FitResult, joined: Experiment, n_head: int, x0: np.nda
     unc = fr.uncertainty
     if unc is None or not unc.names or unc.cov_white is None or n_head >= len(joined):
         return out
-    fixed = {n: v for n, v in fr.params.items() if n not in unc.names}
-    prob = Problem([joined], fr.structure, fixed, {}, zone_offsets=True)
-    at = prob.start(unc.z.copy())
-    nz = prob.nz
-    at[prob.k:prob.k + nz] = np.asarray(x0, dtype=float)[:nz]
-    at[prob.k + nz:prob.k + 2 * nz] = np.asarray(offsets, dtype=float)
-    J = np.nan_to_num(prob.jac(at))
+    prob, Jp, N = _jacobian(fr, [joined], [x0], [offsets])
     record = prob.records[0]
     head = np.nonzero(record.mask)[0] < n_head
-    Jp, N = J[:, :prob.k], J[:, prob.k:]
     if not head.any() or head.all():
         return out
     # the own unknowns given the parameters: their least squares on the fitted rows ...
@@ -116,6 +100,23 @@ def carried_onto_tail(fr: FitResult, joined: Experiment, n_head: int, x0: np.nda
     root = _root(unc, noise_sd_c, wide="clip", among=seen)
     rows = N[~head] @ own if root is None else np.hstack([Jp_tail @ root, N[~head] @ own])
     return _quantiles(zones, record.zone_of[~head], rows, z)
+
+
+def _jacobian(fr: FitResult, records: list[Experiment], x0: Sequence[np.ndarray],
+              offsets: Sequence[np.ndarray]) -> tuple[Problem, np.ndarray, np.ndarray]:
+    """The residual's Jacobian over `records` at the fit's parameters and each record's
+    `x0` and `offsets`, split into the fitted parameters' columns and the records' own."""
+    unc = fr.uncertainty
+    fixed = {n: v for n, v in fr.params.items() if n not in unc.names}
+    prob = Problem(records, fr.structure, fixed, {}, zone_offsets=True)
+    at = prob.start(unc.z.copy())
+    nz = prob.nz
+    for j in range(len(records)):
+        i = prob.k + prob.block * j
+        at[i:i + nz] = np.asarray(x0[j], dtype=float)[:nz]
+        at[i + nz:i + 2 * nz] = np.asarray(offsets[j], dtype=float)
+    J = np.nan_to_num(prob.jac(at))
+    return prob, J[:, :prob.k], J[:, prob.k:]
 
 
 def _root(unc: Uncertainty, noise_sd_c: float, wide: str = "drop",

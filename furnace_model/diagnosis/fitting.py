@@ -27,6 +27,10 @@ from .credit import CARRIED_Z, identifiable
 BASELINE_RUNS = 3
 """The baseline is cheap and everything is measured against it: independent searches, so
 that a side valley of eq. 11 is not mistaken for a gap."""
+SAME_END = 1e-6
+"""Two searches whose criteria lie within this share of each other ended in one minimum:
+the polish stops when a step gains less than a tenth of it, and a side valley lies whole
+percents above (docs/performance.md, "The baseline's third search")."""
 
 AT_FLOOR_Z = 1.0
 """Standard errors of the RMSE-to-floor ratio (`noisefloor.limits`) within which a fit
@@ -88,12 +92,23 @@ def baseline_tasks(fit_data: list[Experiment], holdout: list[Experiment],
                    tail_of: list[int | None], seed: int) -> list[Task]:
     """The baseline's searches as one task each, for a pool to run side by side: the
     lowest criterion among their results is the baseline `run_task` fits in one task with
-    BASELINE_RUNS runs (run r of a fit uses seed + r). One task where no seed moves the
-    search: on a network of many zones the baseline is polished from the equations' least
-    squares (`identification.fit.seeded`)."""
+    BASELINE_RUNS runs (run r of a fit uses seed + r); the diagnosis runs the first two,
+    and the others only where those two end apart (`baseline_settled`). One task where no
+    seed moves the search: on a network of many zones the baseline is polished from the
+    equations' least squares (`identification.fit.seeded`)."""
     runs = BASELINE_RUNS if fit_data[0].furnace.paper_structure else 1
     return [Task((), {}, fit_data, holdout, tail_of, None, seed + r, runs=1)
             for r in range(runs)]
+
+
+def baseline_settled(first: list[CandidateResult]) -> bool:
+    """Whether the baseline's first searches leave nothing for the others: two from
+    different seeds that ended in one minimum (`SAME_END`) have found the one the others
+    find, and each further search costs as much as they did."""
+    if len(first) < 2:
+        return False
+    sse = sorted(c.sse_fit for c in first[:2])
+    return bool(np.isfinite(sse[1]) and sse[1] - sse[0] <= SAME_END * sse[0])
 
 
 def run_task(task: Task) -> CandidateResult:

@@ -35,7 +35,15 @@ from .credit import (
     rank,
     score_against,
 )
-from .fitting import Task, baseline_tasks, profile_told, structure_of, told_names, told_task
+from .fitting import (
+    Task,
+    baseline_settled,
+    baseline_tasks,
+    profile_told,
+    structure_of,
+    told_names,
+    told_task,
+)
 from .holdout import split, uncovered
 from .laws import between_laws, further_laws, laws_named
 from .limit import TimeLimit
@@ -96,8 +104,12 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     zones = furnace.zones
     names = tuple(n for n in names if _applies(n, furnace, effects is not None))
     say("baseline", 0.0)
-    base = min(run_all(baseline_tasks(fit_data, hold, tail_of, seed),
-                       lambda f: say("baseline", 0.1 * f)), key=lambda c: c.sse_fit)
+    searches = baseline_tasks(fit_data, hold, tail_of, seed)
+    n = len(searches)
+    base_runs = run_all(searches[:2], lambda f: say("baseline", 0.1 * f * min(n, 2) / n))
+    if not baseline_settled(base_runs):  # the others only where the first two end apart
+        base_runs += run_all(searches[2:], lambda f: say("baseline", 0.1 * (2 + f * (n - 2)) / n))
+    base = min(base_runs, key=lambda c: c.sse_fit)
     every = fit_data + hold
     floors = [record_floor(e) for e in every]
     fit_floors, hold_floors = floors[:len(fit_data)], floors[len(fit_data):]

@@ -51,6 +51,9 @@ def test_a_drifting_thermocouple_under_control_is_named_with_its_onset(draw):
     for name in SensorDrift.told:
         width = kept.ci95[name][1] - kept.ci95[name][0]
         assert again.ci95[name] == pytest.approx(kept.ci95[name], abs=0.05 * width), name
+        # the diagnosis profiles each told parameter in a task of its own: the same interval
+        alone = profile_told(dataclasses.replace(task, told=(name,)), kept)
+        assert alone.ci95[name] == again.ci95[name], name
     late = profile_told(dataclasses.replace(task, deadline=-math.inf), kept)
     assert late.cut and late.ci95 == kept.ci95
 

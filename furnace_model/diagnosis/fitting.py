@@ -76,6 +76,8 @@ class Task:
     deadline: float | None = None
     """time.monotonic() by which the diagnosis must answer (its --time-limit): a fit still
     running then stops, and the candidate is named as not tried."""
+    told: tuple[str, ...] = ()
+    """The told parameters `profile_told` profiles (none: all of `told_names`)."""
 
     @property
     def furnace(self) -> Furnace:
@@ -146,12 +148,14 @@ def told_names(c: CandidateResult) -> list[str]:
 
 def told_task(kept: CandidateResult, fit_data: list[Experiment], holdout: list[Experiment],
               tail_of: list[int | None], seed: int,
-              bounds: dict[str, tuple[float, float]]) -> Task:
+              bounds: dict[str, tuple[float, float]], told: tuple[str, ...] = ()) -> Task:
     """The kept model refitted from where its fit ended, for `profile_told` (its own end in
-    `baseline_end`: the warm start a fit of the model nested in it would take)."""
+    `baseline_end`: the warm start a fit of the model nested in it would take); `told`: the
+    parameters to profile, one task each for a pool (each profile is a search of its own
+    from the same end), none: all."""
     return Task(kept.effects, kept.options, fit_data, holdout, tail_of, dict(kept.params),
                 seed, bounds={k: v for k, v in bounds.items() if k in kept.params},
-                baseline_end=kept.ended)
+                baseline_end=kept.ended, told=told)
 
 
 def profile_told(task: Task, kept: CandidateResult) -> CandidateResult:
@@ -160,8 +164,8 @@ def profile_told(task: Task, kept: CandidateResult) -> CandidateResult:
     them well enough, but the verdict's are read by someone who replaces a thermocouple
     from them, and a drift's onset trades with its rate along a valley far from quadratic
     (docs/diagnosis.md, "The verdict's intervals"). The parameters stay the kept fit's.
-    Cut by the time limit: kept as it was, marked `cut`."""
-    names = told_names(kept)
+    Cut by the time limit: kept as it was, marked `cut`. Only `task.told` when it names any."""
+    names = list(task.told) or told_names(kept)
     if not names or (task.deadline is not None and time.monotonic() >= task.deadline):
         return dataclasses.replace(kept, cut=bool(names))
     structure = structure_of(task.effects, task.options, task.furnace)

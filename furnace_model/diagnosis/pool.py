@@ -22,23 +22,26 @@ MANAGER_JOIN_S = 10.0  # dead workers are seen at once; a bound, never a wait
 
 def run_all(tasks: list[Task], progress: Callable[[float], None],
             finished: Callable[[CandidateResult], None] | None = None,
-            limit: TimeLimit | None = None) -> list[CandidateResult]:
-    """The tasks' results in their order; `progress` hears the share done, `finished` each
-    result as it comes. `limit`: the diagnosis's time limit, by which each task ends, fitted
-    or named as not tried (`CandidateResult.cut`); it hears which were cut."""
+            limit: TimeLimit | None = None,
+            work: Callable[[Task], CandidateResult] = run_task) -> list[CandidateResult]:
+    """`work`'s results of the tasks (a module-level function or a partial of one: the pool
+    pickles it), in their order; `progress` hears the share done, `finished` each result as
+    it comes. `limit`: the diagnosis's time limit, by which each task ends, fitted or named
+    as not tried (`CandidateResult.cut`); it hears which were cut."""
     if not tasks:
         return []
     names: list[str] = []
     if limit is not None:
         tasks, names = limit.batch(tasks)
-    results = _run(tasks, progress, finished or (lambda _c: None))
+    results = _run(tasks, progress, finished or (lambda _c: None), work)
     if limit is not None:
         limit.heard(names, results)
     return results
 
 
 def _run(tasks: list[Task], progress: Callable[[float], None],
-         done: Callable[[CandidateResult], None]) -> list[CandidateResult]:
+         done: Callable[[CandidateResult], None],
+         work: Callable[[Task], CandidateResult]) -> list[CandidateResult]:
     out: list[CandidateResult] = []
     if WORKERS > 1 and len(tasks) > 1:
         ctx = multiprocessing.get_context("fork")
@@ -46,7 +49,7 @@ def _run(tasks: list[Task], progress: Callable[[float], None],
         pool = ProcessPoolExecutor(max_workers=WORKERS, mp_context=ctx,
                                    initializer=die_with_parent, initargs=(os.getpid(),))
         try:
-            futures = {pool.submit(run_task, tasks[i]): i for i in order}
+            futures = {pool.submit(work, tasks[i]): i for i in order}
             results = {}
             # heard as each finishes: the slow fit submitted first must not hold back the
             # lines of the quick ones that finish beside it
@@ -60,7 +63,7 @@ def _run(tasks: list[Task], progress: Callable[[float], None],
         pool.shutdown()
         return [results[i] for i in range(len(tasks))]
     for k, t in enumerate(tasks):
-        out.append(run_task(t))
+        out.append(work(t))
         done(out[-1])
         progress((k + 1) / len(tasks))
     return out

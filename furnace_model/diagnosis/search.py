@@ -4,6 +4,8 @@ added one at a time; the verdict is judged on what it keeps."""
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import time
 from collections.abc import Callable, Iterable, Sequence
 
@@ -256,15 +258,24 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                                        limit)
                      if signals else [])
     candidates = sorted(singles + combos + followed, key=rank)
-    if kept is not None and told_names(kept):
-        (task,), batch = limit.batch([told_task(kept, fit_data, hold, tail_of, seed, bounds)])
-        told = profile_told(task, kept)
-        limit.heard(batch, [told])
-        if told.cut:
-            untried.append(f"the profiled intervals of {kept.label} (linearised ones given)")
-        else:
-            candidates = [told if c is kept else c for c in candidates]
-            kept = told
+    told = told_names(kept) if kept is not None else []
+    if told:
+        # one profile per parameter, side by side: each is a search of its own
+        parts = run_all([told_task(kept, fit_data, hold, tail_of, seed, bounds, (n,))
+                         for n in told], lambda _f: None, limit=limit,
+                        work=functools.partial(profile_told, kept=kept))
+        cut = [n for n, part in zip(told, parts, strict=True) if part.cut]
+        if cut:
+            which = "" if len(cut) == len(told) else f" ({', '.join(cut)})"
+            untried.append(f"the profiled intervals of {kept.label}{which} (linearised ones "
+                           "given)")
+        if len(cut) < len(told):
+            ci = dict(kept.ci95)
+            ci.update({n: part.ci95[n] for n, part in zip(told, parts, strict=True)
+                       if not part.cut})
+            profiled = dataclasses.replace(kept, ci95=ci)
+            candidates = [profiled if c is kept else c for c in candidates]
+            kept = profiled
 
     def remaining(c: CandidateResult) -> list[Located] | None:
         """Where c's held-out residual lies, as the baseline's is located; None without

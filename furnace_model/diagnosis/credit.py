@@ -149,7 +149,7 @@ def score_against(c: CandidateResult, base: CandidateResult, floor: dict[str, fl
 
 
 def helps(c: CandidateResult) -> bool:
-    """Closes part of the gap and lowers the BIC: worth a further law or a second search."""
+    """Closes part of the gap and lowers the BIC: worth a further law."""
     return c.gap_closed_pct > 0 and c.delta_bic < 0
 
 

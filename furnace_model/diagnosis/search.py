@@ -32,7 +32,6 @@ from .credit import (
     NEAR_Z,
     closes,
     credited,
-    helps,
     near_floor,
     rank,
     score_against,
@@ -191,10 +190,10 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     # A candidate that stays off the floor of a bent baseline may sit in its side valley
     # (seen: strong zone burners, a = 1 and d = 11; strong radiation, a held at its bound):
     # it is searched from scratch too, a nonlinear one with a short evolutionary search
-    # (each generation is a batch). A linear one that helps always: it is cheap. Any other
-    # only while no candidate alone explains the gap: on a bent baseline that is most
-    # candidates, and a nonlinear search from scratch costs more than the rest of the
-    # diagnosis (radiation several times it) for a verdict it does not change.
+    # (each generation is a batch), but only while no candidate alone explains the gap: on
+    # a bent baseline most candidates help a little, and their searches from scratch cost a
+    # fifth of the diagnosis (a nonlinear one more than the rest of it, radiation several
+    # times) for a verdict they do not change.
     # Then the effects' further laws, on a bent baseline also from scratch, but only while
     # no candidate alone explains the gap, the laws' own warm fits included (a
     # preheating-zone wall whose warm law stays off the floor lets a drift be added in its
@@ -209,8 +208,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         if bent:
             stuck = not explains(fitted)
             from_scratch(fitted, [i for i, c in enumerate(fitted)
-                                  if is_linear(c) == linear
-                                  and (stuck or (linear and helps(c))) and off_floor(c)],
+                                  if is_linear(c) == linear and stuck and off_floor(c)],
                          linear, "from scratch", at)
         solved = explains(fitted)
         laws = [Task((c.effects[0],), {c.effects[0]: opts}, fit_data, hold, tail_of, c.params,

@@ -29,8 +29,8 @@ BASELINE_RUNS = 3
 that a side valley of eq. 11 is not mistaken for a gap."""
 SAME_END = 1e-6
 """Two searches whose criteria lie within this share of each other ended in one minimum:
-the polish stops when a step gains less than a tenth of it, and a side valley lies whole
-percents above (docs/performance.md, "The baseline's third search")."""
+the polish stops when a step gains less than a tenth of it, so two that meet agree far
+closer (docs/performance.md, "The baseline's third search")."""
 
 AT_FLOOR_Z = 1.0
 """Standard errors of the RMSE-to-floor ratio (`noisefloor.limits`) within which a fit

@@ -106,10 +106,11 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     names = tuple(n for n in names if _applies(n, furnace, effects is not None))
     say("baseline", 0.0)
     searches = baseline_tasks(fit_data, hold, tail_of, seed)
-    n = len(searches)
-    base_runs = run_all(searches[:2], lambda f: say("baseline", 0.1 * f * min(n, 2) / n))
-    if not baseline_settled(base_runs):  # the others only where the first two end apart
-        base_runs += run_all(searches[2:], lambda f: say("baseline", 0.1 * (2 + f * (n - 2)) / n))
+    first, rest = searches[:2], searches[2:]
+    share = len(first) / len(searches)
+    base_runs = run_all(first, lambda f: say("baseline", 0.1 * share * f))
+    if rest and not baseline_settled(base_runs):  # only where the first two end apart
+        base_runs += run_all(rest, lambda f: say("baseline", 0.1 * (share + (1 - share) * f)))
     base = min(base_runs, key=lambda c: c.sse_fit)
     every = fit_data + hold
     floors = [record_floor(e) for e in every]

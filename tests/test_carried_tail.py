@@ -30,11 +30,10 @@ def test_the_error_carried_onto_a_windows_tail_holds_the_true_miss_as_often_as_i
     its first 70% and the rest predicted on from the fitted start and offsets: the fitted
     model's miss against the true model's there is within the carried error at one standard
     deviation's level (84%) about as often as that, and at the gap's level nearly always
-    (measured: 43 and 51 of 51 zones here, 59 and 69 of 69 on 23 windows of six records).
-    Counted as nothing, the loosely determined rates of a window held at its setpoints would
-    make their miss a gap. A fit that misses its own floor is no estimate of the truth for the
-    carry to spread around (one window of these: the preheating zone's rates collapsed
-    onto their bounds)."""
+    (docs/diagnosis.md, step 3). Counted as nothing, the loosely determined rates of a window
+    held at its setpoints would make their miss a gap. A fit that misses its own floor is no
+    estimate of the truth for the carry to spread around (its rates can collapse onto their
+    bounds)."""
     scenario = production_scenario()
     furnace = scenario.furnace
     structure = ModelStructure(furnace=furnace)

@@ -486,7 +486,7 @@ def test_the_baselines_searches_side_by_side_are_the_baseline_of_one_task():
 def test_the_baselines_third_search_runs_only_where_the_first_two_end_apart(label, k, settled):
     """Two searches from different seeds that end in one minimum leave nothing for the
     third: on the control's draw it ends no lower. Where the first two end apart (a wall's
-    draw whose second search stops in a side valley 22% up), the third is searched."""
+    draw whose second search stops in a side valley), the third is searched."""
     from furnace_model.diagnosis.fitting import SAME_END, baseline_settled, baseline_tasks
     from furnace_model.diagnosis.selfcheck import selfcheck_case
 

@@ -192,9 +192,9 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     # (seen: strong zone burners, a = 1 and d = 11; strong radiation, a held at its bound):
     # it is searched from scratch too, a nonlinear one with a short evolutionary search
     # (each generation is a batch), but only while no candidate alone explains the gap: on
-    # a bent baseline most candidates help a little, and their searches from scratch cost a
-    # fifth of the diagnosis (a nonlinear one more than the rest of it, radiation several
-    # times) for a verdict they do not change.
+    # a bent baseline most candidates help a little, and searching them all again costs
+    # much of the diagnosis (a nonlinear one more than the rest of it) for a verdict it
+    # does not change.
     # Then the effects' further laws, on a bent baseline also from scratch, but only while
     # no candidate alone explains the gap, the laws' own warm fits included (a
     # preheating-zone wall whose warm law stays off the floor lets a drift be added in its

@@ -109,13 +109,7 @@ def _jacobian(fr: FitResult, records: list[Experiment], x0: Sequence[np.ndarray]
     unc = fr.uncertainty
     fixed = {n: v for n, v in fr.params.items() if n not in unc.names}
     prob = Problem(records, fr.structure, fixed, {}, zone_offsets=True)
-    at = prob.start(unc.z.copy())
-    nz = prob.nz
-    for j in range(len(records)):
-        i = prob.k + prob.block * j
-        at[i:i + nz] = np.asarray(x0[j], dtype=float)[:nz]
-        at[i + nz:i + 2 * nz] = np.asarray(offsets[j], dtype=float)
-    J = np.nan_to_num(prob.jac(at))
+    J = np.nan_to_num(prob.jac(prob.start(unc.z.copy(), offsets, x0)))
     return prob, J[:, :prob.k], J[:, prob.k:]
 
 

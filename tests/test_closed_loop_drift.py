@@ -13,7 +13,12 @@ import pytest
 
 from furnace_model.diagnosis import diagnose
 from furnace_model.diagnosis.cases import SENSORS_SPEC, draw_closed_loop_case, production_scenario
-from furnace_model.diagnosis.fitting import profile_told, told_interval, told_task
+from furnace_model.diagnosis.fitting import (
+    profile_told,
+    told_interval,
+    told_task,
+    with_told,
+)
 from furnace_model.effects import EFFECTS
 from furnace_model.effects.sensor_drift import SensorDrift
 from furnace_model.identification.fit import fit
@@ -48,14 +53,23 @@ def test_a_drifting_thermocouple_under_control_is_named_with_its_onset(draw):
     task = told_task(kept, d.fit_data, [], [], 0,
                      EFFECTS["sensor_drift"].tried.search_bounds(d.fit_data))
     again = profile_told(task, kept)
+    parts = {}
     for name in SensorDrift.told:
         width = kept.ci95[name][1] - kept.ci95[name][0]
         assert again.ci95[name] == pytest.approx(kept.ci95[name], abs=0.05 * width), name
         # the diagnosis profiles each told parameter in a task of its own: the same interval
-        alone = profile_told(dataclasses.replace(task, told=(name,)), kept)
-        assert alone.ci95[name] == again.ci95[name], name
+        parts[name] = profile_told(dataclasses.replace(task, told=(name,)), kept)
+        assert parts[name].ci95[name] == again.ci95[name], name
     late = profile_told(dataclasses.replace(task, deadline=-math.inf), kept)
     assert late.cut and late.ci95 == kept.ci95
+    # a limit that cut one profile of two: the other's interval given, the cut one named
+    first, second = SensorDrift.told
+    merged, said = with_told(kept, [first, second], [parts[first], late])
+    assert merged.ci95[first] == parts[first].ci95[first]
+    assert merged.ci95[second] == kept.ci95[second]
+    assert said is not None and f"({second})" in said and first not in said
+    none, all_said = with_told(kept, [first, second], [late, late])
+    assert none is kept and all_said == said.replace(f" ({second})", "")
 
 
 @pytest.mark.slow  # half a minute of one core

@@ -485,20 +485,36 @@ def test_the_baselines_searches_side_by_side_are_the_baseline_of_one_task():
 @pytest.mark.parametrize("label, k, settled", [("none", 1, True), ("wall_storage", 4, False)])
 def test_the_baselines_third_search_runs_only_where_the_first_two_end_apart(label, k, settled):
     """Two searches from different seeds that end in one minimum leave nothing for the
-    third: on the control's draw it ends no lower. Where the first two end apart (a wall's
-    draw whose second search stops in a side valley), the third is searched."""
+    third: on the control's draw it ends no lower, and the diagnosis does not run it (its
+    baseline stage stops at the share of two searches in three). Where the first two end
+    apart (a wall's draw whose second search stops in a side valley), the third is
+    searched and the stage runs to its end."""
     from furnace_model.diagnosis.fitting import SAME_END, baseline_settled, baseline_tasks
     from furnace_model.diagnosis.selfcheck import selfcheck_case
 
     case = selfcheck_case(label, k, furnace=PAPER)
     fit_data, hold, tail_of, _ = split(case.fit, case.holdout)
     runs = [run_task(t) for t in baseline_tasks(fit_data, hold, tail_of, 0)]
-    assert baseline_settled(runs[:2]) is settled
+    assert len(runs) == 3 and baseline_settled(runs[:2]) is settled
     first = min(c.sse_fit for c in runs[:2])
     if settled:
         assert runs[2].sse_fit >= first * (1 - SAME_END)
     else:
         assert max(c.sse_fit for c in runs[:2]) > first * 1.01
+
+    class Past(Exception):
+        """The diagnosis has left its baseline stage."""
+
+    heard = []
+
+    def progress(stage: str, fraction: float) -> None:
+        if stage != "baseline":
+            raise Past
+        heard.append(fraction)
+
+    with pytest.raises(Past):
+        diagnose(case.fit, case.holdout, progress=progress)
+    assert heard[-1] == pytest.approx(0.1 * 2 / 3 if settled else 0.1)
 
 
 def test_a_baseline_that_no_seed_moves_is_searched_once():

@@ -180,6 +180,20 @@ def profile_told(task: Task, kept: CandidateResult) -> CandidateResult:
     return dataclasses.replace(kept, ci95=ci)
 
 
+def with_told(kept: CandidateResult, told: list[str], parts: list[CandidateResult]
+              ) -> tuple[CandidateResult, str | None]:
+    """kept with the intervals of the `told` parameters whose profiles ran (`parts`, one
+    `profile_told` each, in the order of `told`), and what to name among the untried where
+    the time limit cut some (None: it cut none); a cut one keeps its linearised interval."""
+    cut = [n for n, part in zip(told, parts, strict=True) if part.cut]
+    ci = dict(kept.ci95)
+    ci.update({n: part.ci95[n] for n, part in zip(told, parts, strict=True) if not part.cut})
+    which = "" if len(cut) == len(told) else f" ({', '.join(cut)})"
+    words = (f"the profiled intervals of {kept.label}{which} (linearised ones given)"
+             if cut else None)
+    return (kept if len(cut) == len(told) else dataclasses.replace(kept, ci95=ci)), words
+
+
 def told_interval(linearised: tuple[float, float], profiled: tuple[float, float],
                   value: float) -> tuple[float, float]:
     """Each end the further of the two. The profile follows the criterion where the

@@ -4,7 +4,6 @@ added one at a time; the verdict is judged on what it keeps."""
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -44,6 +43,7 @@ from .fitting import (
     structure_of,
     told_names,
     told_task,
+    with_told,
 )
 from .holdout import split, uncovered
 from .laws import between_laws, further_laws, laws_named
@@ -263,18 +263,11 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         parts = run_all([told_task(kept, fit_data, hold, tail_of, seed, bounds, (n,))
                          for n in told], lambda _f: None, limit=limit,
                         work=functools.partial(profile_told, kept=kept))
-        cut = [n for n, part in zip(told, parts, strict=True) if part.cut]
-        if cut:
-            which = "" if len(cut) == len(told) else f" ({', '.join(cut)})"
-            untried.append(f"the profiled intervals of {kept.label}{which} (linearised ones "
-                           "given)")
-        if len(cut) < len(told):
-            ci = dict(kept.ci95)
-            ci.update({n: part.ci95[n] for n, part in zip(told, parts, strict=True)
-                       if not part.cut})
-            profiled = dataclasses.replace(kept, ci95=ci)
-            candidates = [profiled if c is kept else c for c in candidates]
-            kept = profiled
+        profiled, words = with_told(kept, told, parts)
+        if words is not None:
+            untried.append(words)
+        candidates = [profiled if c is kept else c for c in candidates]
+        kept = profiled
 
     def remaining(c: CandidateResult) -> list[Located] | None:
         """Where c's held-out residual lies, as the baseline's is located; None without

@@ -125,6 +125,19 @@ def test_a_zone_without_any_reading_is_refused(tmp_path):
     assert "Traceback" not in r.stderr
 
 
+def test_a_record_with_fewer_readings_than_unknowns_is_refused(tmp_path):
+    """Three rows of the paper's furnace: nine readings against six parameters and each
+    zone's initial state and offset. Any parameter set fits them exactly, so nothing can be
+    estimated; said so, not a traceback from a residual variance of zero."""
+    short = tmp_path / "short.csv"
+    rows = "".join(f"{i},{900 + i},{800 + 2 * i},{600 + 3 * i},{i},{i},{i}\n" for i in range(3))
+    short.write_text("t_min,tc_soak_1,tc_heat_1,tc_preheat_1,burners_soak,burners_heat,"
+                     "burners_preheat\n" + rows)
+    r = cli("fit", str(short))
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "too few readings to fit: 9 for 12 unknowns" in r.stderr, r.stderr
+
+
 def test_zone_offsets_are_fitted_unless_switched_off(exp_files, tmp_path):
     data = str(exp_files["paper_exp1"])
     docs = {}

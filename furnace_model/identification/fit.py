@@ -149,6 +149,11 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         raise FurnaceError("runs must be at least 1")
     structure = structure or ModelStructure(furnace=experiments[0].furnace)
     prob = Problem(experiments, structure, fixed or {}, bounds or {}, zone_offsets)
+    if prob.n_obs <= prob.n:
+        own = "initial state and zone offsets" if zone_offsets else "initial state"
+        raise FurnaceError(f"too few readings to fit: {prob.n_obs} for {prob.n} unknowns "
+                           f"({prob.k} parameters and each record's {own}); a fit needs more "
+                           "readings than unknowns")
     pop_default, gen_default = GA_DEFAULTS[method]
     population = int(population or pop_default)
     generations = int(generations if generations is not None else gen_default)

@@ -277,3 +277,21 @@ def data_window(args: argparse.Namespace) -> dict:
     if start is not None and end is not None and start >= end:
         raise FurnaceError(f"--from {start.isoformat()} is not before --to {end.isoformat()}")
     return {"start": start, "end": end, "period_s": args.period}
+
+
+def read_data(paths: list, args: argparse.Namespace, furnace, command: str) -> list:
+    """The records `paths` name, read as `records.load_experiments` reads them within the
+    data window, each with its lone glitches left out (`furnace_model.glitches`) and said
+    on stderr as `command`'s warnings."""
+    import sys
+
+    from ..glitches import without_glitches
+    from ..records import load_experiments
+
+    out = []
+    for e in load_experiments(paths, **data_window(args), furnace=furnace):
+        e, words = without_glitches(e)
+        for w in words:
+            print(f"{command}: warning: {w}", file=sys.stderr)
+        out.append(e)
+    return out

@@ -20,9 +20,9 @@ from .arguments import (
     add_data_window,
     add_effects_from,
     add_furnace,
-    data_window,
     furnace_of,
     output_file,
+    read_data,
 )
 from .names import EFFECTS, effect_names, is_effect
 
@@ -107,14 +107,12 @@ def stage_lines(stream=None):
 def run(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose
     from ..experiment import outage_words
-    from ..records import load_experiments
 
     if args.report:
         require("report", "--report")
-    window = data_window(args)
     furnace = furnace_of(args)
-    data = load_experiments(args.data, **window, furnace=furnace)
-    hold = load_experiments(args.holdout, **window, furnace=furnace) if args.holdout else None
+    data = read_data(args.data, args, furnace, "furnace-model diagnose")
+    hold = read_data(args.holdout, args, furnace, "furnace-model diagnose") if args.holdout else None
     for e in data + (hold or []):
         for w in outage_words(e):
             print(f"furnace-model diagnose: warning: {w}", file=sys.stderr)

@@ -20,11 +20,11 @@ from .arguments import (
     add_data_window,
     add_effects_from,
     add_furnace,
-    data_window,
     furnace_of,
     output_dir,
     output_file,
     positive_int,
+    read_data,
 )
 from .diagnose import effect_list
 from .names import METHODS
@@ -155,7 +155,6 @@ def run(args: argparse.Namespace) -> int:
     from ..effects import EFFECTS
     from ..effects.plugins import guarded
     from ..identification.fit import fit
-    from ..records import load_experiments
     from ..simulation.structure import ModelStructure
 
     if args.plot:
@@ -167,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
                                     for n in args.effects or ()], furnace=furnace)
     except ValueError as exc:
         raise FurnaceError(str(exc)) from None
-    experiments = load_experiments(args.data, **data_window(args), furnace=furnace)
+    experiments = read_data(args.data, args, furnace, "furnace-model fit")
     names = [e.name for e in experiments]
     if len(set(names)) != len(names):
         raise FurnaceError(f"two data files share the name {names}: plots and tables need "

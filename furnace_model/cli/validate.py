@@ -19,11 +19,11 @@ from .arguments import (
     add_data_window,
     add_effects_from,
     add_furnace,
-    data_window,
     furnace_of,
     output_dir,
     output_file,
     positive_int,
+    read_data,
 )
 
 if TYPE_CHECKING:
@@ -139,14 +139,13 @@ def run(args: argparse.Namespace) -> int:
 
     from ..experiment import outage_words
     from ..identification.scores import zone_metrics
-    from ..records import load_experiments
 
     furnace = furnace_of(args)
     model = load_model(args.params, furnace)
     if args.zone_offsets is not None:
         model = dataclasses.replace(model, zone_offsets=args.zone_offsets)
     params, structure = model.params, model.structure
-    experiments = load_experiments(args.data, **data_window(args), furnace=furnace)
+    experiments = read_data(args.data, args, furnace, "furnace-model validate")
     for e in experiments:
         for w in outage_words(e):
             print(f"furnace-model validate: warning: {w}", file=sys.stderr)

@@ -2,10 +2,10 @@
 beside it, which agree with each other (a junction that opened for one poll, a value
 logged in the wrong unit, a transmission error). A thermal capacity cannot go there and
 back within a sample period, but a least-squares fit follows such a reading as if it
-could: one reading 75 °C off a room's record at 0.05 °C of noise weighs more than the
-rest of the record, and moves every parameter and every verdict. Such a reading is left
-out (its cell made blank, as a missing reading is) and named, so that nothing is changed
-unsaid.
+could: a single reading tens of degrees off a record whose noise is a tenth of a degree
+weighs more than all the rest, and moves every parameter and every verdict. Such a
+reading is left out (its cell made blank, as a missing reading is) and named, so that
+nothing is changed unsaid.
 
 The test is on the reading's departure from the mean of its neighbours, measured against
 that same departure's spread over the whole column (its median absolute value), and

@@ -8,6 +8,11 @@ import argparse
 import math
 from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..experiment import Experiment
+    from ..simulation.furnace import Furnace
 
 DISTRIBUTION = "furnace-daq"
 """The installed distribution both commands belong to (pyproject.toml's project name)."""
@@ -279,7 +284,8 @@ def data_window(args: argparse.Namespace) -> dict:
     return {"start": start, "end": end, "period_s": args.period}
 
 
-def read_data(paths: list, args: argparse.Namespace, furnace, command: str) -> list:
+def read_data(paths: list[str], args: argparse.Namespace, furnace: Furnace,
+              command: str) -> list[Experiment]:
     """The records `paths` name, read as `records.load_experiments` reads them within the
     data window, each with its lone glitches left out (`furnace_model.glitches`) and said
     on stderr as `command`'s warnings."""

@@ -93,6 +93,13 @@ class Experiment:
         return np.concatenate([self.burners[:-1], 0.5 * (air[:-1] + air[1:]),
                                self.disturbances[:-1]], axis=1).astype(float)
 
+    def time_words(self, t_min: float) -> str:
+        """A time of the record as a reader finds it: its UTC date and minute where the
+        record has a start time, else its minute."""
+        if self.start_time is None:
+            return f"minute {t_min:g}"
+        return (self.start_time + pd.Timedelta(minutes=t_min)).strftime("%Y-%m-%d %H:%M") + "Z"
+
     def sample_period_min(self) -> float:
         return float(np.median(np.diff(self.t_min))) if len(self) > 1 else float("nan")
 
@@ -135,12 +142,8 @@ def outage_words(exp: Experiment) -> list[str]:
 
     out = []
     for lo, hi in exp.outages():
-        if exp.start_time is not None:
-            at = (exp.start_time + pd.Timedelta(minutes=lo)).strftime("%Y-%m-%d %H:%M")
-            span = f"from {at}Z"
-        else:
-            span = f"from minute {lo:g}"
-        out.append(f"{exp.name}: no rows for {duration(60 * (hi - lo))} {span} (more than "
+        out.append(f"{exp.name}: no rows for {duration(60 * (hi - lo))} from "
+                   f"{exp.time_words(lo)} (more than "
                    f"{OUTAGE_PERIODS:g} sample periods): the model holds the inputs of the row "
                    "before across it; if they changed there, fit the parts on either side as "
                    "records of their own")

@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-import pandas as pd
 
 from .experiment import OUTAGE_PERIODS, Experiment
 
@@ -74,7 +73,7 @@ def without_glitches(exp: Experiment) -> tuple[Experiment, list[str]]:
     tc = exp.tc.copy()
     for g in found:
         tc[g.row, exp.furnace.tc_columns.index(g.column)] = np.nan
-    shown = ", ".join(f"{g.column} at {_when(exp, g.t_min)} ({g.value:g} °C where the readings "
+    shown = ", ".join(f"{g.column} at {exp.time_words(g.t_min)} ({g.value:g} °C where the readings "
                       f"beside it average {g.expected:.4g})" for g in found[:5])
     more = f" and {len(found) - 5} more" if len(found) > 5 else ""
     return replace(exp, tc=tc), [
@@ -82,9 +81,3 @@ def without_glitches(exp: Experiment) -> tuple[Experiment, list[str]]:
         f"which agree: {shown}{more}; a thermal capacity cannot go there and back within a "
         "sample, so these are the sensor's or the logging's; blank them in the file to "
         "silence this"]
-
-
-def _when(exp: Experiment, t_min: float) -> str:
-    if exp.start_time is None:
-        return f"minute {t_min:g}"
-    return (exp.start_time + pd.Timedelta(minutes=t_min)).strftime("%Y-%m-%d %H:%M") + "Z"

@@ -1,15 +1,18 @@
 """The records a command names, whatever their kind: each CSV or Parquet file of the tabular
 contract is one (`furnace_model.experiment`), MCAP logs one per directory
-(`furnace_model.log.experiment`)."""
+(`furnace_model.log.experiment`); and a record's parts between its outages, which the
+commands take as records of their own (`between_outages`)."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable
 from pathlib import Path
 
 import pandas as pd
 
-from .experiment import DEFAULT_T_AIR_C, Experiment, read_table
+from .errors import FurnaceError
+from .experiment import DEFAULT_T_AIR_C, OUTAGE_PERIODS, Experiment, read_table
 from .log.experiment import group_logs, is_log, load_log
 from .log.resample import DEFAULT_PERIOD_S
 from .simulation.furnace import Furnace
@@ -48,3 +51,45 @@ def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
         return load_experiments([path], t_air_default, start=start, end=end,
                                 period_s=period_s, furnace=furnace)[0]
     return read_table(path, t_air_default, start=start, end=end, furnace=furnace)
+
+
+MIN_PART_ROWS = 10
+"""Rows a part between outages needs to be kept: fewer determine little beyond the part's
+own start and offsets."""
+
+
+def between_outages(exp: Experiment) -> tuple[list[Experiment], list[str]]:
+    """exp's parts between its outages (`Experiment.outages`), each a record of its own
+    (named exp's name, `-1`, `-2`, ...), and a warning that says so; exp itself where it has
+    none. Across an outage the inputs are unknown: a model that held the last row's across
+    it (a fit of the record whole) would carry a wrong state into the next part and be
+    judged on it, where each part from its own start is fitted to what was measured, as
+    the daemon's refit fits a window from the first reading after an outage. Parts of
+    fewer than `MIN_PART_ROWS` rows are left out and named."""
+    from .progress import duration
+
+    spans = exp.outages()
+    if not spans:
+        return [exp], []
+    starts = [float(exp.t_min[0])] + [hi for _, hi in spans]
+    ends = [lo for lo, _ in spans] + [float(exp.t_min[-1])]
+    parts = [exp.rows((exp.t_min >= a) & (exp.t_min <= b)) for a, b in zip(starts, ends,
+                                                                            strict=True)]
+    kept = [dataclasses.replace(p, name=f"{exp.name}-{k + 1}")
+            for k, p in enumerate(q for q in parts if len(q) >= MIN_PART_ROWS)]
+    left = [(a, len(p)) for a, p in zip(starts, parts, strict=True) if len(p) < MIN_PART_ROWS]
+    if not kept:
+        raise FurnaceError(f"{exp.source or exp.name}: no part between its outages (rows more "
+                           f"than {OUTAGE_PERIODS:g} sample periods apart) has {MIN_PART_ROWS} "
+                           "rows to fit")
+
+    gaps = ", ".join(f"{duration(60 * (hi - lo))} from {exp.time_words(lo)}" for lo, hi in spans)
+    words = (f"{exp.name}: no rows for {gaps} (more than {OUTAGE_PERIODS:g} sample periods): "
+             "the inputs there are unknown, so it is taken as "
+             f"{len(kept)} record{'s' if len(kept) > 1 else ''} "
+             f"({', '.join(p.name for p in kept)}), each with its own initial state and "
+             "offsets")
+    if left:
+        words += f"; left out, fewer than {MIN_PART_ROWS} rows: " + ", ".join(
+            f"{n} row{'s' if n > 1 else ''} from {exp.time_words(a)}" for a, n in left)
+    return kept, [words]

@@ -126,3 +126,59 @@ def test_the_diagnosis_waits_for_a_fitted_part_past_the_change_after_the_outage_
     # the fitted part must reach a tenth of a window (1 h) past the change
     assert _holds(whole, 6 * h) and not _holds(whole, 7 * h)
     assert _holds(cut, 7 * h) and not _holds(cut, int(7.3 * h))
+
+
+def test_a_records_parts_between_outages_are_records_of_their_own():
+    """Parts split at each outage, named in order, with every row of the record in one part;
+    a part too short to fit left out and named; none long enough: refused."""
+    from furnace_model.errors import FurnaceError
+    from furnace_model.records import MIN_PART_ROWS, between_outages
+
+    s = scenario("paper_exp1")
+    run = simulate(s)
+    keep = (run.t_min < 1200) | ((run.t_min >= 1300) & (run.t_min < 1305)) \
+        | (run.t_min >= 1400)
+    exp = Experiment("exp1", run.t_min[keep], run.tc[keep], run.burners[keep],
+                     np.full(keep.sum(), s.t_air_c), s.start_time, furnace=PAPER)
+    parts, (words,) = between_outages(exp)
+    assert [p.name for p in parts] == ["exp1-1", "exp1-2"]
+    assert parts[0].t_min[-1] == 1199.0 and parts[1].t_min[0] == 1400.0
+    assert len(parts[0]) + len(parts[1]) + 5 == len(exp)
+    assert all(p.outages() == [] for p in parts)
+    assert words.startswith("exp1: no rows for 1.7 h from 2026-03-03 01:59Z, 1.6 h from ")
+    assert "taken as 2 records (exp1-1, exp1-2)" in words
+    assert words.endswith(f"left out, fewer than {MIN_PART_ROWS} rows: 5 rows from "
+                          "2026-03-03 03:40Z")
+    whole = Experiment("exp1", run.t_min, run.tc, run.burners, np.full(run.t_min.size,
+                       s.t_air_c), s.start_time, furnace=PAPER)
+    assert between_outages(whole) == ([whole], [])
+    bits = exp.rows(exp.t_min % 100 < 3)  # three rows every 100 minutes
+    with pytest.raises(FurnaceError, match="no part between its outages"):
+        between_outages(bits)
+
+
+def test_diagnose_takes_a_record_with_an_outage_as_its_parts(tmp_path):
+    """A room with a wall, hourly over two weeks, 73 hours of rows missing in which its
+    heating moved as every other hour: held across, the input of the hour before the
+    outage made a gap that a fuel change was named for; taken as its two parts, the fit
+    of the first predicts the second from its own start and the wall is named."""
+    import subprocess
+    import sys
+
+    from furnace_model.diagnosis.hourlyroom import ROOM, hourly_room
+
+    furnace = tmp_path / "room.yaml"
+    furnace.write_text(ROOM)
+    frame = hourly_room(1, ("wall_storage",), days=14).to_frame()
+    csv = tmp_path / "room.csv"
+    frame.drop(index=range(100, 173)).to_csv(csv, index=False)
+    r = subprocess.run([sys.executable, "-m", "furnace_model.cli", "diagnose", str(csv),
+                        "--furnace", str(furnace), "--quiet"], capture_output=True, text=True,
+                       timeout=600, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    assert "room: no rows for 74.0 h from 2026-01-09 03:00Z" in r.stderr, r.stderr
+    assert "taken as 2 records (room-1, room-2)" in r.stderr, r.stderr
+    verdict = r.stdout.splitlines()[0]
+    assert verdict in ("Verdict: explained (wall_storage)",
+                       "Verdict: explained_in_part (wall_storage)"), r.stdout[:600]
+    assert "Fitted: room-1; held out: whole experiments: room-2 held out" in r.stdout

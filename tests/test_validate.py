@@ -150,13 +150,21 @@ def test_a_horizon_of_no_samples_is_refused(fitted):
     assert "--horizon: must be at least 1, got 0" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_validate_warns_of_an_outage_in_the_record(fitted, tmp_path):
-    """The model holds the inputs across 100 minutes without a row: said, with the span,
-    and the record is still scored."""
+def test_validate_scores_a_record_with_an_outage_as_its_two_parts(fitted, tmp_path):
+    """100 minutes without a row, whose inputs are unknown: said, with the span, and each
+    part is scored from its own start, as a record of its own, as near the noise as the
+    whole record is (the model holding the inputs across would miss after it)."""
     lines = (fitted / "paper_exp2.csv").read_text().splitlines(keepends=True)
     holed = tmp_path / "holed.csv"
     holed.write_text("".join(lines[:1201] + lines[1301:]))  # header, then minutes 0-1199
     r = cli("validate", "--params", str(fitted / "fit.json"), str(holed))
     assert r.returncode == 0, r.stderr
-    assert "furnace-model validate: warning: holed: no rows for 1.7 h from " in r.stderr
-    assert "| holed | soak |" in r.stdout
+    assert ("furnace-model validate: warning: holed: no rows for 1.7 h from " in r.stderr
+            and "taken as 2 records (holed-1, holed-2)" in r.stderr), r.stderr
+    whole = cli("validate", "--params", str(fitted / "fit.json"), str(fitted / "paper_exp2.csv"))
+    worst = {}
+    for name, out in (("holed-1", r.stdout), ("holed-2", r.stdout), ("paper_exp2", whole.stdout)):
+        rows = [line.split("|") for line in out.splitlines() if line.startswith(f"| {name} |")]
+        assert len(rows) == 3, out  # a row per zone
+        worst[name] = max(float(row[4]) for row in rows)  # RMSE
+    assert max(worst["holed-1"], worst["holed-2"]) < 1.5 * worst["paper_exp2"], worst

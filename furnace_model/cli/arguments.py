@@ -287,17 +287,19 @@ def data_window(args: argparse.Namespace) -> dict:
 def read_data(paths: list[str], args: argparse.Namespace, furnace: Furnace,
               command: str) -> list[Experiment]:
     """The records `paths` name, read as `records.load_experiments` reads them within the
-    data window, each with its lone glitches left out (`furnace_model.glitches`) and said
-    on stderr as `command`'s warnings."""
+    data window, each with its lone glitches left out (`furnace_model.glitches`) and taken
+    as its parts between outages (`records.between_outages`), both said on stderr as
+    `command`'s warnings."""
     import sys
 
     from ..glitches import without_glitches
-    from ..records import load_experiments
+    from ..records import between_outages, load_experiments
 
     out = []
     for e in load_experiments(paths, **data_window(args), furnace=furnace):
-        e, words = without_glitches(e)
-        for w in words:
+        e, glitched = without_glitches(e)
+        parts, split = between_outages(e)
+        for w in glitched + split:
             print(f"{command}: warning: {w}", file=sys.stderr)
-        out.append(e)
+        out += parts
     return out

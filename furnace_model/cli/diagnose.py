@@ -106,16 +106,11 @@ def stage_lines(stream=None):
 
 def run(args: argparse.Namespace) -> int:
     from ..diagnosis import diagnose
-    from ..experiment import outage_words
-
     if args.report:
         require("report", "--report")
     furnace = furnace_of(args)
     data = read_data(args.data, args, furnace, "furnace-model diagnose")
     hold = read_data(args.holdout, args, furnace, "furnace-model diagnose") if args.holdout else None
-    for e in data + (hold or []):
-        for w in outage_words(e):
-            print(f"furnace-model diagnose: warning: {w}", file=sys.stderr)
     result = diagnose(data, hold, effects=args.effects, seed=args.seed,
                       progress=None if args.quiet else stage_lines(),
                       time_limit_s=args.time_limit)

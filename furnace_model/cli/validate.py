@@ -137,7 +137,6 @@ def load_model(path: Path, furnace=None) -> Model:
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from ..experiment import outage_words
     from ..identification.scores import zone_metrics
 
     furnace = furnace_of(args)
@@ -146,9 +145,6 @@ def run(args: argparse.Namespace) -> int:
         model = dataclasses.replace(model, zone_offsets=args.zone_offsets)
     params, structure = model.params, model.structure
     experiments = read_data(args.data, args, furnace, "furnace-model validate")
-    for e in experiments:
-        for w in outage_words(e):
-            print(f"furnace-model validate: warning: {w}", file=sys.stderr)
     k = args.horizon
     refined = model.refine(experiments)  # each record alone: its start, its offsets
     per_exp = {e.name: zone_metrics(e.zone_temp, refined.predict(j), furnace.zones)
@@ -211,7 +207,7 @@ def run(args: argparse.Namespace) -> int:
             except OSError as exc:
                 raise FurnaceError(f"{args.plot}: cannot write plots: "
                                    f"{exc.strerror or exc}") from None
-    print(f"scored {len(experiments)} file(s)", file=sys.stderr)
+    print(f"scored {len(experiments)} record(s)", file=sys.stderr)
     return 0
 
 

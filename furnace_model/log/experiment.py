@@ -6,9 +6,8 @@ What makes one record. A log directory is one furnace's history: its files (fini
 in time order into one record, as `logs export` joins the files it is given. Log files named
 on a command line join the same way when they lie in one directory, with that directory's
 files named through it; logs in different directories are different records. A gap in the
-log (the daemon stopped) stays a gap: no rows, and the model holds the last burner state
-across it (a fit warns of it, `Experiment.outages`), so a window (`start`/`end`) should
-leave out a long outage during which the burners changed.
+log (the daemon stopped) stays a gap: no rows (`Experiment.outages`), and the commands take
+the parts on either side as records of their own (`furnace_model.records.between_outages`).
 
 Left out of a directory: a `.mcap.part` whose writer died before writing anything (empty, or
 cut inside the MCAP header), and a `.mcap.part` whose `.recovered.mcap` copy sits beside it

@@ -93,3 +93,23 @@ def between_outages(exp: Experiment) -> tuple[list[Experiment], list[str]]:
         words += f"; left out, fewer than {MIN_PART_ROWS} rows: " + ", ".join(
             f"{n} row{'s' if n > 1 else ''} from {exp.time_words(a)}" for a, n in left)
     return kept, [words]
+
+
+def read_records(paths: Iterable[str | Path], t_air_default: float = DEFAULT_T_AIR_C, *,
+                 start: pd.Timestamp | None = None, end: pd.Timestamp | None = None,
+                 period_s: float | None = None, furnace: Furnace
+                 ) -> tuple[list[Experiment], list[str]]:
+    """The records the commands and the fleet's jobs fit and diagnose: those
+    `load_experiments` reads, each with its lone glitches left out
+    (`furnace_model.glitches`) and taken as its parts between outages (`between_outages`),
+    and the warnings that say what was done."""
+    from .glitches import without_glitches
+
+    out, words = [], []
+    for e in load_experiments(paths, t_air_default, start=start, end=end, period_s=period_s,
+                              furnace=furnace):
+        e, glitched = without_glitches(e)
+        parts, split = between_outages(e)
+        out += parts
+        words += glitched + split
+    return out, words

@@ -228,16 +228,20 @@ def diagnose_pair(pair: Pair) -> dict:
     import pandas as pd
 
     from furnace_model.diagnosis import diagnose
-    from furnace_model.records import load_experiments
+    from furnace_model.records import read_records
 
     prepare_worker(pair.effects_from)
     cpu0 = time.process_time()
+    read: list[str] = []
 
     def load(files, span):
         _, lo, hi = span
-        return load_experiments(files, pair.t_air_default, start=pd.Timestamp(lo, tz="UTC"),
-                                end=pd.Timestamp(hi, tz="UTC"), period_s=pair.period_s,
-                                furnace=pair.description)
+        records, words = read_records(files, pair.t_air_default,
+                                      start=pd.Timestamp(lo, tz="UTC"),
+                                      end=pd.Timestamp(hi, tz="UTC"), period_s=pair.period_s,
+                                      furnace=pair.description)
+        read.extend(words)
+        return records
 
     d = diagnose(load(pair.fit_files, pair.fit), load(pair.holdout_files, pair.holdout),
                  effects=pair.effects, seed=pair.seed)
@@ -254,6 +258,7 @@ def diagnose_pair(pair: Pair) -> dict:
         row[f"rmse_holdout_carried_offsets_{z}_c"] = number(held.get(z))
         row[f"noise_floor_{z}_c"] = number(d.noise_floor_c[z])
     row["flags"] = len(d.baseline.flags)
+    row["read"] = "; ".join(read)  # what reading the logs left out or split
     row["cpu_s"] = time.process_time() - cpu0
     return {"rows": [row], "diagnosis": d.to_json()}
 

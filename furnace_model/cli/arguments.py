@@ -286,20 +286,13 @@ def data_window(args: argparse.Namespace) -> dict:
 
 def read_data(paths: list[str], args: argparse.Namespace, furnace: Furnace,
               command: str) -> list[Experiment]:
-    """The records `paths` name, read as `records.load_experiments` reads them within the
-    data window, each with its lone glitches left out (`furnace_model.glitches`) and taken
-    as its parts between outages (`records.between_outages`), both said on stderr as
-    `command`'s warnings."""
+    """The records `paths` name within the data window, as `records.read_records` reads
+    them, with its warnings on stderr as `command`'s."""
     import sys
 
-    from ..glitches import without_glitches
-    from ..records import between_outages, load_experiments
+    from ..records import read_records
 
-    out = []
-    for e in load_experiments(paths, **data_window(args), furnace=furnace):
-        e, glitched = without_glitches(e)
-        parts, split = between_outages(e)
-        for w in glitched + split:
-            print(f"{command}: warning: {w}", file=sys.stderr)
-        out += parts
-    return out
+    records, words = read_records(paths, **data_window(args), furnace=furnace)
+    for w in words:
+        print(f"{command}: warning: {w}", file=sys.stderr)
+    return records

@@ -46,17 +46,18 @@ def fit_campaign(task: CampaignFit) -> dict:
     import pandas as pd
 
     from furnace_model.identification.fit import fit
-    from furnace_model.records import load_experiments
+    from furnace_model.records import read_records
     from furnace_model.simulation.structure import ModelStructure
 
     from ..engine import prepare_worker
 
     prepare_worker(task.effects_from)
     name, lo, hi = task.campaign
-    data = load_experiments(task.files, task.t_air_default, start=pd.Timestamp(lo, tz="UTC"),
-                            end=pd.Timestamp(hi, tz="UTC"), period_s=task.period_s,
-                            furnace=task.description)
+    data, read = read_records(task.files, task.t_air_default, start=pd.Timestamp(lo, tz="UTC"),
+                              end=pd.Timestamp(hi, tz="UTC"), period_s=task.period_s,
+                              furnace=task.description)
     result = fit(data, ModelStructure(furnace=task.description), seed=task.seed, zone_offsets=True)
+    result.warnings[:0] = read  # what reading the logs left out, as `furnace-model fit` says
     row: dict[str, Any] = {"furnace": task.furnace, "campaign": name, "status": result.status,
                            "sigma_c": result.sigma_c, "elapsed_s": result.elapsed_s,
                            "undetermined": ",".join(result.undetermined)}

@@ -76,6 +76,7 @@ import numpy as np
 import pandas as pd
 
 from furnace_model.experiment import Experiment
+from furnace_model.glitches import without_glitches
 from furnace_model.identification.fit import WarmStart, fit
 from furnace_model.identification.noisefloor import GAP_RATIO, GAP_Z, limits, record_floor
 from furnace_model.identification.result import FitResult
@@ -132,6 +133,9 @@ class Window:
     with the drift fitted the data until then."""
     outage: tuple[int, int] | None = None
     """(last reading before, first after) of the outage whose rows before were left out."""
+    glitched: tuple[str, ...] = ()
+    """What the window's lone glitched readings, left out of its experiment, were
+    (`furnace_model.glitches`: a reading far from the two beside it, which agree)."""
 
     @property
     def gap_fraction(self) -> float:
@@ -164,10 +168,12 @@ def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
     # As logs export -> load: a missing ambient holds the last reading, the default before any.
     air = pd.Series(rows.t_air).ffill().fillna(t_air_default).to_numpy()
     t0 = int(rows.t[0])
-    exp = Experiment(name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
-                     pd.Timestamp(t0, unit="ns", tz="UTC"), name, furnace=resampler.furnace,
-                     disturbances=rows.disturbances)
-    return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps, outage=outage)
+    exp, glitched = without_glitches(Experiment(
+        name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
+        pd.Timestamp(t0, unit="ns", tz="UTC"), name, furnace=resampler.furnace,
+        disturbances=rows.disturbances))
+    return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps, outage=outage,
+                  glitched=tuple(glitched))
 
 
 def _after_outage(window: Window, verb: str) -> str:
@@ -475,6 +481,8 @@ class RefitChain:
         exp = window.experiment
         if window.outage and status == "ok":
             detail = "; ".join(x for x in (_after_outage(window, "fitted"), detail) if x)
+        if window.glitched and status == "ok":
+            detail = "; ".join(x for x in (*window.glitched, detail) if x)
         return ModelParameters(status, detail, iso_time(window.start_ns), iso_time(window.end_ns),
                                0 if exp is None else len(exp), round(window.gap_fraction, 6),
                                window.burner_steps)

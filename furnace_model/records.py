@@ -56,6 +56,10 @@ def load_experiment(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
 MIN_PART_ROWS = 10
 """Rows a part between outages needs to be kept: fewer determine little beyond the part's
 own start and offsets."""
+MIN_PART_SHARE = 0.1
+"""...and this share of the longest part's rows: a diagnosis of one record holds out a
+whole part, and twenty rows before a short outage must not become the fitted record of
+a month held out."""
 
 
 def between_outages(exp: Experiment) -> tuple[list[Experiment], list[str]]:
@@ -65,7 +69,8 @@ def between_outages(exp: Experiment) -> tuple[list[Experiment], list[str]]:
     it (a fit of the record whole) would carry a wrong state into the next part and be
     judged on it, where each part from its own start is fitted to what was measured, as
     the daemon's refit fits a window from the first reading after an outage. Parts of
-    fewer than `MIN_PART_ROWS` rows are left out and named."""
+    fewer than `MIN_PART_ROWS` rows, or `MIN_PART_SHARE` of the longest part's, are left
+    out and named."""
     from .progress import duration
 
     spans = exp.outages()
@@ -75,9 +80,10 @@ def between_outages(exp: Experiment) -> tuple[list[Experiment], list[str]]:
     ends = [lo for lo, _ in spans] + [float(exp.t_min[-1])]
     parts = [exp.rows((exp.t_min >= a) & (exp.t_min <= b)) for a, b in zip(starts, ends,
                                                                             strict=True)]
+    least = max(MIN_PART_ROWS, MIN_PART_SHARE * max(len(p) for p in parts))
     kept = [dataclasses.replace(p, name=f"{exp.name}-{k + 1}")
-            for k, p in enumerate(q for q in parts if len(q) >= MIN_PART_ROWS)]
-    left = [(a, len(p)) for a, p in zip(starts, parts, strict=True) if len(p) < MIN_PART_ROWS]
+            for k, p in enumerate(q for q in parts if len(q) >= least)]
+    left = [(a, len(p)) for a, p in zip(starts, parts, strict=True) if len(p) < least]
     if not kept:
         raise FurnaceError(f"{exp.source or exp.name}: no part between its outages (rows more "
                            f"than {OUTAGE_PERIODS:g} sample periods apart) has {MIN_PART_ROWS} "
@@ -90,8 +96,9 @@ def between_outages(exp: Experiment) -> tuple[list[Experiment], list[str]]:
              f"({', '.join(p.name for p in kept)}), each with its own initial state and "
              "offsets")
     if left:
-        words += f"; left out, fewer than {MIN_PART_ROWS} rows: " + ", ".join(
-            f"{n} row{'s' if n > 1 else ''} from {exp.time_words(a)}" for a, n in left)
+        words += (f"; left out, fewer than {MIN_PART_ROWS} rows or a tenth of the longest "
+                  "part's: " + ", ".join(f"{n} row{'s' if n > 1 else ''} from "
+                                         f"{exp.time_words(a)}" for a, n in left))
     return kept, [words]
 
 

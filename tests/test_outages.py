@@ -130,7 +130,9 @@ def test_the_diagnosis_waits_for_a_fitted_part_past_the_change_after_the_outage_
 
 def test_a_records_parts_between_outages_are_records_of_their_own():
     """Parts split at each outage, named in order, with every row of the record in one part;
-    a part too short to fit left out and named; none long enough: refused."""
+    a part too short to fit left out and named, and one short beside the longest (a
+    diagnosis of one record holds out a whole part: twenty rows must not be fitted for the
+    rest); none long enough: refused."""
     from furnace_model.errors import FurnaceError
     from furnace_model.records import MIN_PART_ROWS, between_outages
 
@@ -147,8 +149,14 @@ def test_a_records_parts_between_outages_are_records_of_their_own():
     assert all(p.outages() == [] for p in parts)
     assert words.startswith("exp1: no rows for 1.7 h from 2026-03-03 01:59Z, 1.6 h from ")
     assert "taken as 2 records (exp1-1, exp1-2)" in words
-    assert words.endswith(f"left out, fewer than {MIN_PART_ROWS} rows: 5 rows from "
-                          "2026-03-03 03:40Z")
+    assert words.endswith(f"left out, fewer than {MIN_PART_ROWS} rows or a tenth of the "
+                          "longest part's: 5 rows from 2026-03-03 03:40Z")
+    late = (run.t_min < 20) | (run.t_min >= 30)
+    head = Experiment("exp1", run.t_min[late], run.tc[late], run.burners[late],
+                      np.full(late.sum(), s.t_air_c), s.start_time, furnace=PAPER)
+    (rest,), (said,) = between_outages(head)
+    assert rest.name == "exp1-1" and rest.t_min[0] == 30.0
+    assert said.endswith("20 rows from 2026-03-02 06:00Z")
     whole = Experiment("exp1", run.t_min, run.tc, run.burners, np.full(run.t_min.size,
                        s.t_air_c), s.start_time, furnace=PAPER)
     assert between_outages(whole) == ([whole], [])

@@ -143,10 +143,9 @@ def outage_words(exp: Experiment) -> list[str]:
     out = []
     for lo, hi in exp.outages():
         out.append(f"{exp.name}: no rows for {duration(60 * (hi - lo))} from "
-                   f"{exp.time_words(lo)} (more than "
-                   f"{OUTAGE_PERIODS:g} sample periods): the model holds the inputs of the row "
-                   "before across it; if they changed there, fit the parts on either side as "
-                   "records of their own")
+                   f"{exp.time_words(lo)} (more than {OUTAGE_PERIODS:g} sample periods): the "
+                   "model holds the inputs of the row before across it; if they changed there, "
+                   "fit the parts on either side as records of their own")
     return out
 
 

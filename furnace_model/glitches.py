@@ -44,18 +44,22 @@ def glitches(exp: Experiment) -> list[Glitch]:
     """The lone readings of each thermocouple column that depart from both readings beside
     it, which lie next to it in time (no outage between) and agree with each other."""
     out = []
-    near = OUTAGE_PERIODS * exp.sample_period_min() if len(exp) > 1 else 0.0
+    if len(exp) < 3:
+        return []
+    step = np.diff(exp.t_min)
+    near = OUTAGE_PERIODS * exp.sample_period_min()
+    beside = (step[:-1] <= near) & (step[1:] <= near)  # no outage on either side
     for c, column in enumerate(exp.furnace.tc_columns):
         x = exp.tc[:, c]
         i = np.flatnonzero(np.isfinite(x[:-2]) & np.isfinite(x[1:-1]) & np.isfinite(x[2:])
-                           & (exp.t_min[2:] - exp.t_min[:-2] <= 2.0 * near)) + 1
+                           & beside) + 1
         if i.size < 20:
             continue
         mid = 0.5 * (x[i - 1] + x[i + 1])
         dev = x[i] - mid
         typical = 1.4826 * float(np.median(np.abs(dev)))
-        step = np.diff(np.unique(x[np.isfinite(x)]))
-        typical = max(typical, float(step.min()) if step.size else 0.0)  # a logger's quantum
+        quantum = np.diff(np.unique(x[np.isfinite(x)]))  # a logger's rounding
+        typical = max(typical, float(quantum.min()) if quantum.size else 0.0)
         if typical <= 0.0:
             continue
         far = (np.abs(dev) > GLITCH_SPREADS * typical) \

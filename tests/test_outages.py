@@ -168,8 +168,9 @@ def test_a_records_parts_between_outages_are_records_of_their_own():
 def test_diagnose_takes_a_record_with_an_outage_as_its_parts(tmp_path):
     """A room with a wall, hourly over two weeks, 73 hours of rows missing in which its
     heating moved as every other hour: held across, the input of the hour before the
-    outage made a gap that a fuel change was named for; taken as its two parts, the fit
-    of the first predicts the second from its own start and the wall is named."""
+    outage would drive the model through it and leave a gap for another effect to be named
+    for; taken as its two parts, the fit of the first predicts the second from its own
+    start and the wall is named."""
     import subprocess
     import sys
 

@@ -47,6 +47,24 @@ def test_only_the_bracket_is_trusted_beyond_the_crossing():
     assert hi == pytest.approx(2.0, rel=0.03)
 
 
+@pytest.mark.parametrize("power", [3.0, 4.0])
+@pytest.mark.parametrize("half", [5.0, 100.0])
+def test_a_trial_near_the_rise_ends_the_search_wherever_it_falls(power, half):
+    """A criterion rising faster than the quadratic, searched from a linearised half-width
+    at or past the box: the first trial lands far past the rise and the bracket it opens
+    narrows by tenths, so a later trial within 5% of the rise ends that side's search,
+    which would otherwise go on to its step limit (eight per side)."""
+    count = [0]
+
+    def sse(z):
+        count[0] += 1
+        return 10.0 + 4.0 * abs(z) ** power
+
+    lo, hi = profile_interval(sse, 0.0, half, 10.0, 4.0, -50.0, 50.0)
+    assert lo == pytest.approx(-1.0, rel=0.015) and hi == pytest.approx(1.0, rel=0.015)
+    assert count[0] <= 12
+
+
 def test_a_warm_start_finds_the_cold_ends_in_fewer_evaluations():
     """Skewed criteria of random widths and powers, each searched from the linearised
     half-width and again from ends 3% off (a neighbouring window's): both find the

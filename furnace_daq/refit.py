@@ -77,6 +77,7 @@ import pandas as pd
 
 from furnace_model.experiment import Experiment
 from furnace_model.glitches import without_glitches
+from furnace_model.heldreadings import without_held
 from furnace_model.identification.fit import WarmStart, fit
 from furnace_model.identification.noisefloor import GAP_RATIO, GAP_Z, limits, record_floor
 from furnace_model.identification.result import FitResult
@@ -133,9 +134,11 @@ class Window:
     with the drift fitted the data until then."""
     outage: tuple[int, int] | None = None
     """(last reading before, first after) of the outage whose rows before were left out."""
-    glitched: tuple[str, ...] = ()
-    """What the window's lone glitched readings, left out of its experiment, were
-    (`furnace_model.glitches`: a reading far from the two beside it, which agree)."""
+    left_out: tuple[str, ...] = ()
+    """What the readings left out of the window's experiment were: runs of one reading
+    repeated far longer than its column's repeat (`furnace_model.heldreadings`: a frozen
+    transmitter) and lone glitched ones (`furnace_model.glitches`: a reading far from the
+    two beside it, which agree)."""
 
     @property
     def gap_fraction(self) -> float:
@@ -168,12 +171,13 @@ def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
     # As logs export -> load: a missing ambient holds the last reading, the default before any.
     air = pd.Series(rows.t_air).ffill().fillna(t_air_default).to_numpy()
     t0 = int(rows.t[0])
-    exp, glitched = without_glitches(Experiment(
+    exp, held = without_held(Experiment(
         name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
         pd.Timestamp(t0, unit="ns", tz="UTC"), name, furnace=resampler.furnace,
         disturbances=rows.disturbances))
+    exp, glitched = without_glitches(exp)
     return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps, outage=outage,
-                  glitched=tuple(glitched))
+                  left_out=tuple(held + glitched))
 
 
 def _after_outage(window: Window, verb: str) -> str:
@@ -481,8 +485,8 @@ class RefitChain:
         exp = window.experiment
         if window.outage and status == "ok":
             detail = "; ".join(x for x in (_after_outage(window, "fitted"), detail) if x)
-        if window.glitched and status == "ok":
-            detail = "; ".join(x for x in (*window.glitched, detail) if x)
+        if window.left_out and status == "ok":
+            detail = "; ".join(x for x in (*window.left_out, detail) if x)
         return ModelParameters(status, detail, iso_time(window.start_ns), iso_time(window.end_ns),
                                0 if exp is None else len(exp), round(window.gap_fraction, 6),
                                window.burner_steps)

@@ -107,16 +107,19 @@ def read_records(paths: Iterable[str | Path], t_air_default: float = DEFAULT_T_A
                  period_s: float | None = None, furnace: Furnace
                  ) -> tuple[list[Experiment], list[str]]:
     """The records the commands and the fleet's jobs fit and diagnose: those
-    `load_experiments` reads, each with its lone glitches left out
-    (`furnace_model.glitches`) and taken as its parts between outages (`between_outages`),
-    and the warnings that say what was done."""
+    `load_experiments` reads, each with the readings a logger held left out
+    (`furnace_model.heldreadings`), then its lone glitches (`furnace_model.glitches`), and
+    taken as its parts between outages (`between_outages`), and the warnings that say what
+    was done."""
     from .glitches import without_glitches
+    from .heldreadings import without_held
 
     out, words = [], []
     for e in load_experiments(paths, t_air_default, start=start, end=end, period_s=period_s,
                               furnace=furnace):
+        e, held = without_held(e)
         e, glitched = without_glitches(e)
         parts, split = between_outages(e)
         out += parts
-        words += glitched + split
+        words += held + glitched + split
     return out, words

@@ -14,9 +14,9 @@ import pytest
 from furnace_model.diagnosis import diagnose
 from furnace_model.diagnosis.cases import SENSORS_SPEC, draw_closed_loop_case, production_scenario
 from furnace_model.diagnosis.fitting import (
+    end_task,
     profile_told,
     told_interval,
-    told_task,
     with_told,
 )
 from furnace_model.effects import EFFECTS
@@ -50,7 +50,7 @@ def test_a_drifting_thermocouple_under_control_is_named_with_its_onset(draw):
     # the verdict's intervals are profiled: profiling them again from the kept fit moves
     # them no further than the profile's own tolerance; a time limit that leaves no time
     # for it keeps the linearised ones and says so
-    task = told_task(kept, d.fit_data, [], [], 0,
+    task = end_task(kept, d.fit_data, [], [], 0,
                      EFFECTS["sensor_drift"].tried.search_bounds(d.fit_data))
     again = profile_told(task, kept)
     parts = {}

@@ -28,8 +28,8 @@ from furnace_model.diagnosis import (
     split,
 )
 from furnace_model.diagnosis.cases import case_rng, draw_case
+from furnace_model.diagnosis.fitting import determined
 from furnace_model.diagnosis.laws import laws_named
-from furnace_model.diagnosis.search import _determined
 from furnace_model.diagnosis.selfcheck import judge_case
 from furnace_model.effects import EFFECTS, Clues, FuelChange, Radiation, SensorDrift, ZoneBurners
 from furnace_model.effects.zone_burners import soak_only_heads
@@ -197,15 +197,16 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
     base = run_task(Task((), {}, case.fit, case.holdout, [None], None, 0))
     assert abs(np.log(base.params["f"] / PAPER_TABLE_V["f"])) > np.log(10.0), base.params
     trial = ZoneBurners.tried.trial(Clues(case.fit, case.fit + case.holdout, bent=True,
-                                          baseline_on=lambda heads: _determined(heads, 0),
                                           furnace=PAPER))
-    start = trial.start
-    assert not trial.from_baseline and set(start) == {"a", "f"}
+    start = determined(trial.start_on, 0)
+    assert set(start) == {"a", "f"}
     for k in start:
         assert start[k] == pytest.approx(PAPER_TABLE_V[k], rel=0.03)
     floor = pooled_floor([record_floor(e) for e in case.holdout])
+    # as the diagnosis gives it: the baseline's start, replaced in the task by the heads'
     c = run_task(Task(("zone_burners",), {"zone_burners": {}}, case.fit, case.holdout, [None],
-                      start, 0, bounds=_bounds(case.fit)))
+                      dict(base.params), 0, bounds=_bounds(case.fit), baseline_sse=base.sse_fit,
+                      baseline_end=base.ended, start_on=trial.start_on))
     for z in PAPER.zones:
         assert c.rmse_holdout_c[z] < NEAR_RATIO * floor[z], (z, c.rmse_holdout_c)
     assert c.params["f_heat"] == pytest.approx(case.truth["zone_burners"]["f_heat"], rel=0.1)
@@ -214,8 +215,7 @@ def test_zone_burner_fit_starts_from_the_data_before_other_burners_fire():
                            case.fit[0].burners * [1, 0, 0], case.fit[0].t_air, furnace=PAPER)
     assert soak_only_heads([soak_only]) is None
     assert ZoneBurners.tried.trial(Clues([soak_only], [soak_only], bent=True,
-                                         baseline_on=lambda heads: _determined(heads, 0),
-                                         furnace=PAPER)).from_baseline
+                                         furnace=PAPER)).start_on is None
 
 
 @pytest.mark.slow  # a cold GA search of a nonlinear candidate: the selfcheck's radiation rows cover it

@@ -6,11 +6,13 @@ right on them."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
 
 from furnace_model.cli import main
+from furnace_model.diagnosis.credit import MAX_RATIO
 from furnace_model.diagnosis.hourlyroom import ROOM, TRUTH, hourly_room
 from furnace_model.effects.radiation import Radiation
 from furnace_model.effects.tried import Clues
@@ -122,3 +124,38 @@ def test_a_sun_nobody_logged_is_left_unexplained_beside_the_wall(room, tmp_path,
     # the baseline's offset takes up what the model leaves out, and the report says so
     said = capsys.readouterr().out
     assert "an offset there may take up part of the model's error" in said
+
+
+FAST_AIR = {"loss_room": 0.02, "gain_room": 0.05, "gain_solar_room": 1e-4, "k_gw": 0.2,
+            "k_wg": 0.003}
+"""A room whose air settles within five minutes behind a heavy wall: at hourly rows its
+rates are known only as ratios."""
+
+
+def test_a_wall_whose_strength_only_its_profile_determines_is_named(tmp_path, capsys):
+    """Two weeks of hourly rows of a room whose air settles within minutes and whose sun the
+    record does not log. The wall's linearised intervals run along the direction the air's
+    rates leave flat (loss, gain and k_gw in proportion) to the box, k_wg's too; the
+    criterion pins k_wg within percents, and on its profile the wall is named."""
+    records = []
+    for seed, name in ((1, "a"), (2, "b")):
+        path = tmp_path / f"{name}.csv"
+        hourly_room(seed, ("wall_storage",), days=14, values=FAST_AIR).to_frame() \
+            .drop(columns=["solar"]).to_csv(path, index=False)
+        records.append(str(path))
+    (tmp_path / "room.yaml").write_text(ROOM.split("disturbances:")[0])
+    out = tmp_path / "d.json"
+    assert main(["diagnose", records[0], "--holdout", records[1], "--furnace",
+                 str(tmp_path / "room.yaml"), "--json", str(out)]) == 0
+    d = json.loads(out.read_text())
+    assert d["verdict"]["effects"] == ["wall_storage"], d["verdict"]
+    assert d["verdict"]["status"] in ("explained", "explained_in_part")
+    wall = next(c for c in d["candidates"] if c["effects"] == ["wall_storage"])
+    assert wall["identifiable"] and wall["credit"]
+    lo, hi = wall["ci95"]["k_wg"]  # linearised: the whole box
+    assert hi / lo > MAX_RATIO
+    judged = re.search(r"k_wg in \[([0-9.e-]+), ([0-9.e-]+)\]", wall["note"])
+    assert judged, wall["note"]
+    lo, hi = float(judged[1]), float(judged[2])
+    assert 0.8 * FAST_AIR["k_wg"] < lo < hi < 1.25 * FAST_AIR["k_wg"]
+    assert "profiling the strengths" in capsys.readouterr().err

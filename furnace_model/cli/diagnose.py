@@ -82,6 +82,8 @@ STAGES = {"baseline": "fitting the baseline", "candidates": "fitting the candida
           "from scratch": "searching the candidates that stay off the noise floor "
                           "from scratch",
           "laws": "fitting the further laws of the effects that help",
+          "strengths": "profiling the strengths whose linearised intervals alone keep "
+                       "candidates from credit",
           "combinations": "trying combinations of the effects that earn credit",
           "signals": "trying the logged signals the model does not use as inputs",
           "done": "judging"}

@@ -57,11 +57,11 @@ class CandidateResult:
     """Offsets and initial temperatures of the fitted and held-out records on their
     physical bounds (`furnace_model.identification.plausible`)."""
     signal: str = ""
+    """A logged signal the baseline does not use, entered as an input
+    (`furnace_model.diagnosis.signals`); empty for an effect."""
     cut: bool = False
     """Not fitted to its end within the diagnosis's time limit: named as not tried, never
     judged."""
-    """A logged signal the baseline does not use, entered as an input
-    (`furnace_model.diagnosis.signals`); empty for an effect."""
 
     @property
     def label(self) -> str:

@@ -9,7 +9,9 @@ when that shows in a printed percent.
 
 A candidate's own parameters must be determined and away from the value at which the
 effect vanishes: an extension that improves the fit with an interval reaching "no effect"
-has merely bent to the noise or to another effect.
+has merely bent to the noise or to another effect. Its intervals are linearised; a
+candidate held from credit by them alone is judged again on its profiled ones
+(`fitting.profile_strength`).
 
 A candidate is also measured against the noise: a zone has a gap when its held-out error
 stands clear of the noise floor (`GAP_RATIO`), and a candidate explains it when it comes
@@ -19,12 +21,16 @@ is worth a further law or a further effect, by the same rules.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from ..identification.noisefloor import GAP_Z
 from ..identification.result import FitResult
 from .candidate import CandidateResult
 
+UNDETERMINED = "the data do not determine it"
+"""How the notes say that an effect's strength is not determined (`identifiable`)."""
 MAX_RATIO = 4.0
 """A positive strength parameter counts as determined when its 95% interval spans less than
 this factor: one that could be anything from a trace to a flood is not an estimate."""
@@ -92,8 +98,24 @@ def identifiable(fr: FitResult, effects: tuple[str, ...]) -> tuple[bool, str]:
             else:
                 ok_any = True
         if not ok_any:
-            notes.append(f"{name}: the data do not determine it ({'; '.join(why)})")
+            notes.append(f"{name}: {UNDETERMINED} ({'; '.join(why)})")
     return not notes, "; ".join(notes)
+
+
+def strength_rejudged(c: CandidateResult, judged: CandidateResult) -> None:
+    """c judged again on whether the data determine its strength (`judged`, from
+    `fitting.profile_strength`): its words on that replaced by the new judgement's, and
+    where its strength is now determined, the profiled intervals that show it."""
+    note = c.note
+    for name in c.effects:
+        note = re.sub(rf"(^|; ){re.escape(name)}: {UNDETERMINED} \([^()]*\)", "", note)
+    now = judged.note
+    if judged.identifiable:
+        shown = "; ".join(f"{n} in [{lo:.4g}, {hi:.4g}]" for n, (lo, hi) in judged.ci95.items())
+        now = (f"strength determined on its profiled intervals ({shown}; 95%, white noise), "
+               "which its linearised ones spread along a direction the data leave nearly flat")
+    c.identifiable = judged.identifiable
+    c.note = "; ".join(x for x in (now, note.removeprefix("; ")) if x)
 
 
 def delta_bic(c: CandidateResult, ref: CandidateResult) -> float:

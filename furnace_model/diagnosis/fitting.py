@@ -78,6 +78,9 @@ class Task:
     running then stops, and the candidate is named as not tried."""
     told: tuple[str, ...] = ()
     """The told parameters `profile_told` profiles (none: all of `told_names`)."""
+    start_on: list[Experiment] | None = None
+    """Records whose baseline fit, with what they determine, replaces `init` (the rest
+    searched; `Trial.start_on`): fitted here, in the pool, not before the stage."""
 
     @property
     def furnace(self) -> Furnace:
@@ -146,16 +149,17 @@ def told_names(c: CandidateResult) -> list[str]:
     return [p for n in c.effects for p in EFFECTS[n].told if p in c.params]
 
 
-def told_task(kept: CandidateResult, fit_data: list[Experiment], holdout: list[Experiment],
-              tail_of: list[int | None], seed: int,
-              bounds: dict[str, tuple[float, float]], told: tuple[str, ...] = ()) -> Task:
-    """The kept model refitted from where its fit ended, for `profile_told` (its own end in
-    `baseline_end`: the warm start a fit of the model nested in it would take); `told`: the
-    parameters to profile, one task each for a pool (each profile is a search of its own
-    from the same end), none: all."""
-    return Task(kept.effects, kept.options, fit_data, holdout, tail_of, dict(kept.params),
-                seed, bounds={k: v for k, v in bounds.items() if k in kept.params},
-                baseline_end=kept.ended, told=told)
+def end_task(c: CandidateResult, fit_data: list[Experiment], holdout: list[Experiment],
+             tail_of: list[int | None], seed: int,
+             bounds: dict[str, tuple[float, float]], told: tuple[str, ...] = ()) -> Task:
+    """c's model refitted from where its fit ended, for a profile from its optimum
+    (`profile_told`, `profile_strength`; its own end in `baseline_end`: the warm start a
+    fit of the model nested in it would take); `told`: the parameters `profile_told`
+    profiles, one task each for a pool (each profile is a search of its own from the same
+    end), none: all."""
+    return Task(c.effects, c.options, fit_data, holdout, tail_of, dict(c.params),
+                seed, bounds={k: v for k, v in bounds.items() if k in c.params},
+                baseline_end=c.ended, told=told)
 
 
 def profile_told(task: Task, kept: CandidateResult) -> CandidateResult:
@@ -178,6 +182,51 @@ def profile_told(task: Task, kept: CandidateResult) -> CandidateResult:
     for n in fr.profiled:
         ci[n] = told_interval(kept.ci95[n], fr.ci95[n], kept.params[n])
     return dataclasses.replace(kept, ci95=ci)
+
+
+def strengths_inside(effects: tuple[str, ...], options: dict[str, dict],
+                     params: dict[str, float], furnace: Furnace,
+                     bounds: dict[str, tuple[float, float]]) -> list[str]:
+    """The effects' strength parameters (`Tried.nulls`) whose values in `params` lie inside
+    their search boxes: one on an edge has an interval that reaches it, however profiled."""
+    structure = structure_of(effects, options, furnace)
+    out = []
+    for effect in structure.effects:
+        box = {p.name: bounds.get(p.name, (p.lo, p.hi)) for p in effect.params}
+        for name in effect.tried.nulls(effect):
+            if name in box and name in params:
+                lo, hi = box[name]
+                margin = 1e-6 * (hi - lo)
+                if lo + margin < params[name] < hi - margin:
+                    out.append(name)
+    return out
+
+
+def profile_strength(task: Task) -> CandidateResult:
+    """Whether the data determine the strength of the task's model (`identifiable`), judged
+    on its strength parameters' white intervals profiled from where its fit ended
+    (`fit`'s `white_profile`; the task from `end_task`): a linearisation spreads every
+    parameter along a direction the criterion leaves nearly flat, so that a strength the
+    criterion pins to a few percent looks like anything from a trace to a flood (a wall
+    behind a room's air that settles within the hour between its rows: docs/diagnosis.md,
+    step 4). Only the judgement is returned (`identifiable`, `note`, and the intervals
+    profiled as `ci95`); cut by the time limit: marked `cut`."""
+    names = strengths_inside(task.effects, task.options, task.init or {}, task.furnace,
+                             task.bounds)
+    structure = structure_of(task.effects, task.options, task.furnace)
+    nan = {z: float("nan") for z in task.furnace.zones}
+    judged = CandidateResult(task.effects, {}, {}, dict(nan), dict(nan), identifiable=False,
+                             cut=True)
+    if not names or _late(task):
+        return judged
+    fr = fit(task.fit_data, structure, init=task.init, zone_offsets=True, bounds=task.bounds,
+             profile=False, warm=task.baseline_end, time_budget_s=_budget(task),
+             white_profile=names)
+    if fr.stop_reason == "time_budget" or _late(task):
+        return judged
+    ident, note = identifiable(fr, task.effects)
+    return dataclasses.replace(judged, identifiable=ident, note=note, cut=False,
+                               ci95={n: fr.ci95_white[n] for n in names})
 
 
 def with_told(kept: CandidateResult, told: list[str], parts: list[CandidateResult]
@@ -205,11 +254,22 @@ def told_interval(linearised: tuple[float, float], profiled: tuple[float, float]
     return within((min(linearised[0], profiled[0]), max(linearised[1], profiled[1])), value)
 
 
+def determined(records: list[Experiment], seed: int) -> dict[str, float]:
+    """The baseline fitted on `records`, with the parameters they determine."""
+    fr = fit(records, ModelStructure(furnace=records[0].furnace), seed=seed, zone_offsets=True,
+             profile=False)
+    return {k: v for k, v in fr.params.items() if k not in fr.undetermined}
+
+
 def _budget(task: Task) -> float | None:
     return None if task.deadline is None else max(task.deadline - time.monotonic(), 0.0)
 
 
 def _run_task(task: Task, t0: float) -> CandidateResult:
+    if task.start_on:
+        start = determined(task.start_on, task.seed)
+        task = dataclasses.replace(task, start_on=None, **(
+            {"init": start, "baseline_sse": None, "baseline_end": None} if start else {}))
     structure = structure_of(task.effects, task.options, task.furnace)
     zones = task.furnace.zones
     init, bounds = _start_of(task, structure)

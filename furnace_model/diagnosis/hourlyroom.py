@@ -6,6 +6,8 @@ truth; what is hourly is only what the record keeps."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 import pandas as pd
 
@@ -33,9 +35,11 @@ EFFECT_TRUTH = {"wall_storage": {"k_gw": 2e-3, "k_wg": 6e-4}, "sensor_lag": {"ta
 
 
 def hourly_room(seed: int, effects: tuple[str, ...] = (), days: int = 28,
-                sample_min: int = 60) -> Experiment:
+                sample_min: int = 60, values: Mapping[str, float] | None = None
+                ) -> Experiment:
     """A heated room: heating modulated every hour around a daily cycle, sun by day with the
-    weather of the day, ambient in a daily cycle; `effects` among EFFECT_TRUTH's.
+    weather of the day, ambient in a daily cycle; `effects` among EFFECT_TRUTH's, `values`
+    true values over TRUTH's and theirs.
     `sample_min` below 60: a row every so many minutes, and the heating moved with each row
     (a controller modulating it), so that every row is an input change."""
     unknown = [e for e in effects if e not in EFFECT_TRUTH]
@@ -56,10 +60,11 @@ def hourly_room(seed: int, effects: tuple[str, ...] = (), days: int = 28,
     inputs = Inputs.from_samples(t, heat[:, None], air, disturbances=sun[:, None])
     structure = ModelStructure([EFFECTS[e](zones=("room",), furnace=furnace) for e in effects],
                                furnace=furnace)
-    values = {**structure.defaults(), **TRUTH}
+    truth = {**structure.defaults(), **TRUTH}
     for e in effects:
-        values.update(EFFECT_TRUTH[e])
-    plant = Plant(structure, values, SensorSpec(noise_sd_c=0.05, bias_sd_c=0.1), seed)
+        truth.update(EFFECT_TRUTH[e])
+    truth.update(values or {})
+    plant = Plant(structure, truth, SensorSpec(noise_sd_c=0.05, bias_sd_c=0.1), seed)
     run = plant.run(inputs, np.arange(0.0, days * 1440 + 1, float(sample_min)), np.array([18.0]),
                     pd.Timestamp("2026-01-05T00:00:00Z"))
     return run.to_experiment(f"room-{seed}")

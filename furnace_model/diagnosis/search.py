@@ -4,6 +4,7 @@ added one at a time; the verdict is judged on what it keeps."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -14,7 +15,6 @@ from ..blas import on_one_thread
 from ..effects import EFFECTS, Clues
 from ..errors import FurnaceError
 from ..experiment import Experiment
-from ..identification.fit import fit
 from ..identification.noisefloor import (
     GAP_RATIO,
     GAP_Z,
@@ -34,15 +34,18 @@ from .credit import (
     near_floor,
     rank,
     score_against,
+    strength_rejudged,
 )
 from .fitting import (
     Task,
     baseline_settled,
     baseline_tasks,
+    end_task,
+    profile_strength,
     profile_told,
+    strengths_inside,
     structure_of,
     told_names,
-    told_task,
     with_told,
 )
 from .holdout import split, uncovered
@@ -132,8 +135,8 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     noise = {"record_floors": floors, "noise_floor_fit_c": pooled_floor(fit_floors),
              "gap_limit_c": base.allowed(gap_limit), "sensor_noise_c": _pooled_tc(floors)}
 
-    clues = Clues(fit_data, every, baseline_on=lambda heads: _determined(heads, seed),
-                  predictions=base.fit_pred + base.holdout_pred, furnace=furnace)
+    clues = Clues(fit_data, every, predictions=base.fit_pred + base.holdout_pred,
+                  furnace=furnace)
     if not gap:
         # Nothing to explain: no extension can beat the noise on held-out data.
         verdict = judge(base, None, [], floor, near, gap, where, furnace=furnace)
@@ -152,13 +155,11 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     say("candidates", 0.1)
     trials = {n: EFFECTS[n].tried.trial(clues) for n in names}
     options = {n: t.options for n, t in trials.items()}
-    starts = {n: t.start for n, t in trials.items() if t.from_baseline}
-    inits = {n: {**base.params, **t.start} if t.from_baseline else t.start
-             for n, t in trials.items()}
+    starts = {n: t.start for n, t in trials.items()}
     bounds = {k: v for n in names for k, v in EFFECTS[n].tried.search_bounds(fit_data).items()}
-    tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of, inits[n], seed,
-                  bounds=bounds, baseline_sse=base.sse_fit if trials[n].from_baseline else None,
-                  baseline_end=base.ended if trials[n].from_baseline else None)
+    tasks = [Task((n,), {n: options.get(n, {})}, fit_data, hold, tail_of,
+                  {**base.params, **starts[n]}, seed, bounds=bounds, baseline_sse=base.sse_fit,
+                  baseline_end=base.ended, start_on=trials[n].start_on)
              for n in names]
     fitted = tried(run_all(tasks, lambda f: say("candidates", 0.1 + 0.5 * f),
                            counted(len(tasks), lambda w: say(w, 0.1)), limit))
@@ -244,6 +245,21 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                 same[0].note = "; ".join(x for x in (same[0].note, "law chosen among "
                                                      + laws_named(same, furnace)) if x)
         singles.append(same[0])
+    # A single held from credit by its strength's linearised intervals alone is judged
+    # again on their profiles (fitting.profile_strength). Only these: a profile is a refit
+    # per trial value, and for any other candidate the judgement would change nothing.
+    doubtful = [c for c in singles
+                if not c.identifiable and credited(dataclasses.replace(c, identifiable=True))
+                and strengths_inside(c.effects, c.options, c.params, furnace, bounds)]
+    if doubtful:
+        say("strengths", 0.75)
+    judged = run_all([end_task(c, fit_data, hold, tail_of, seed, bounds) for c in doubtful],
+                     lambda _f: None, limit=limit, work=profile_strength)
+    for c, j in zip(doubtful, judged, strict=True):
+        if j.cut:
+            untried.append(f"the profiled strength of {c.label}")
+        else:
+            strength_rejudged(c, j)
     singles.sort(key=rank)
     combos, kept, steps = stepwise(singles, base, floor, gap_limit, fit_data, hold, tail_of,
                                    seed, options, bounds, starts, gap,
@@ -260,7 +276,7 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
     told = told_names(kept) if kept is not None else []
     if told:
         # one profile per parameter, side by side: each is a search of its own
-        parts = run_all([told_task(kept, fit_data, hold, tail_of, seed, bounds, (n,))
+        parts = run_all([end_task(kept, fit_data, hold, tail_of, seed, bounds, (n,))
                          for n in told], lambda _f: None, limit=limit,
                         work=functools.partial(profile_told, kept=kept))
         profiled, words = with_told(kept, told, parts)
@@ -448,12 +464,3 @@ def _applies(name: str, furnace, asked: bool) -> bool:
     if why and asked:
         raise FurnaceError(f"{name} does not apply to furnace '{furnace.name}': {why}")
     return not why
-
-
-def _determined(records: list[Experiment], seed: int) -> dict[str, float]:
-    """The baseline fitted on `records`, with the parameters they determine."""
-    from ..simulation.structure import ModelStructure
-
-    fr = fit(records, ModelStructure(furnace=records[0].furnace), seed=seed, zone_offsets=True,
-             profile=False)
-    return {k: v for k, v in fr.params.items() if k not in fr.undetermined}

@@ -9,7 +9,7 @@ data choose the form or the start) and the diagnosis asks the part, never the ef
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
@@ -37,8 +37,6 @@ class Clues:
     bent: bool = False
     """The baseline fits the fitted data worse than their noise allows: it has bent to
     absorb something, and a warm start from it may sit in a side valley."""
-    baseline_on: Callable[[list[Experiment]], dict[str, float]] | None = None
-    """The baseline fitted on other records (parts of these), with what they determine."""
     predictions: list[np.ndarray] = field(default_factory=list)
     """The baseline's zone predictions on `records` (N, zones) each, as the thermocouples
     read them (its offsets included)."""
@@ -57,8 +55,10 @@ class Trial:
     options: dict[str, Any] = field(default_factory=dict)
     start: dict[str, float] = field(default_factory=dict)
     """Starting values of parameters, over the fitted baseline's."""
-    from_baseline: bool = True
-    """False: start from `start` alone, the rest of the parameters searched."""
+    start_on: list[Experiment] | None = None
+    """Parts of the fitted records whose own baseline fit, with what they determine, is the
+    start instead, the rest of the parameters searched (where they determine nothing, the
+    fitted baseline's); fitted in the candidate's task, beside the other candidates."""
 
 
 @dataclass

@@ -44,8 +44,7 @@ class TriedZoneBurners(Tried):
         other burners (seen: f at its bound), a start from which the zone-burner fit stays
         in a side valley."""
         heads = soak_only_heads(clues.fit_data) if clues.bent else None
-        start = clues.baseline_on(heads) if heads and clues.baseline_on else None
-        return Trial(start=start, from_baseline=False) if start else Trial()
+        return Trial(start_on=heads)
 
 
 class DrawnZoneBurners(Drawn):

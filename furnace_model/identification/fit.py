@@ -107,8 +107,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         progress: Callable[[float], None] | None = None,
         time_budget_s: float | None = None, zone_offsets: bool = False,
         profile: bool | Collection[str] = True, warm: WarmStart | None = None,
-        further: Sequence[Mapping[str, float]] = (), enough: Enough | None = None
-        ) -> FitResult:
+        further: Sequence[Mapping[str, float]] = (), enough: Enough | None = None,
+        white_profile: Collection[str] = ()) -> FitResult:
     """Fit the structure's parameters to the experiments (jointly; own initial state each);
     without a structure, the baseline of the furnace the records are of.
 
@@ -139,6 +139,13 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     the lowest so far: a scout's ten steps do not always rank the ends, and a caller that
     knows what a good end is (the records' noise) gets the starts polished on while they
     still find lower valleys.
+
+    `white_profile`: parameters whose white-noise intervals (`ci95_white`) follow the
+    criterion too, whatever the floor: a diagnosis asks of them whether the data determine
+    an effect's strength, and where another direction is nearly flat (a room's air that
+    settles within the hour its rows are apart: its rates known only as ratios) the
+    linearisation spreads every parameter along it, a strength the criterion pins to a few
+    percent included.
     """
     t_start = time.perf_counter()
     if method not in METHODS:
@@ -258,6 +265,9 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
         profiled = _profiled(prob, z, float(res @ res), unc, chosen, deadline,
                              None if warm is None else warm.intervals)
         ci.update(profiled)
+    chosen = [n for n in prob.names if n in white_profile]
+    if chosen:
+        ci_white.update(_profiled(prob, z, float(res @ res), unc, chosen, deadline, white=True))
     named = unc.determined_combinations(undetermined)
     combos = [name for name, _ in named]
     combo_values = {}
@@ -388,23 +398,25 @@ def _missed_floor(per_zone: Mapping[str, Mapping[str, float]],
 
 def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
               names: list[str], deadline: float | None,
-              starts: Mapping[str, tuple[float, float]] | None = None
+              starts: Mapping[str, tuple[float, float]] | None = None, white: bool = False
               ) -> dict[str, tuple[float, float]]:
     """Profile-likelihood intervals of the named (wide) parameters, in their own units; the
-    criterion's rise at the ends is the linearised interval's, with the residual's colour.
+    criterion's rise at the ends is the linearised interval's, with the residual's colour
+    (`white`: the white-noise interval's, without it).
     `starts` (own units): where each search starts (a neighbouring window's ends)."""
     out = {}
-    white = unc.cov_white if unc.cov_white is not None else unc.cov
+    white_cov = unc.cov_white if unc.cov_white is not None else unc.cov
+    cov = white_cov if white else unc.cov
     for name in names:
         i = prob.names.index(name)
         if deadline is not None and time.perf_counter() > deadline:
             break
-        colour = unc.cov[i, i] / white[i, i] if white[i, i] > 0 else 1.0
+        colour = 1.0 if white or white_cov[i, i] <= 0 else unc.cov[i, i] / white_cov[i, i]
         rise = Z95 ** 2 * unc.sigma ** 2 * colour
         # Start each refit where the linearisation puts the others for that value (along
         # the valley: d follows e at fixed d/e), not where they were; from there Gauss-Newton
         # steps (little damping) reach the minimum in two or three.
-        along = np.delete(unc.cov[:, i] / unc.cov[i, i], i)
+        along = np.delete(cov[:, i] / cov[i, i], i)
         rest = np.delete(z, i)
 
         def sse_at(z_i: float, i=i, rest=rest, along=along) -> float:
@@ -420,7 +432,7 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
             if prob.log[i]:
                 ends = np.log(np.where(ends > 0, ends, np.nan))
             start = (float(ends[0]), float(ends[1]))
-        lo, hi = profile_interval(sse_at, float(z[i]), Z95 * float(np.sqrt(unc.cov[i, i])),
+        lo, hi = profile_interval(sse_at, float(z[i]), Z95 * float(np.sqrt(cov[i, i])),
                                   sse, rise, float(prob.lo[i]), float(prob.hi[i]), start)
         if prob.log[i]:
             out[name] = within((float(np.exp(lo)), float(np.exp(hi))), float(np.exp(z[i])))

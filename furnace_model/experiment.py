@@ -195,7 +195,7 @@ def read_table(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
         if kind == "csv":
             if path.stat().st_size == 0:
                 raise DataError(file, "empty file: no header and no data")
-            frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+            frame = _read_csv(path)
         else:
             frame = pd.read_parquet(path)
     except DataError:
@@ -208,6 +208,28 @@ def read_table(path: str | Path, t_air_default: float = DEFAULT_T_AIR_C, *,
                                  row_offset=2 if kind == "csv" else 1,
                                  row_label="line" if kind == "csv" else "row",
                                  start=start, end=end, furnace=furnace)
+
+
+def _case_hint(wanted: list[str], cols: list[str]) -> str:
+    """Words for columns the file has under another case than the names wanted."""
+    found = [c for c in cols if c.lower() in {w.lower() for w in wanted} and c not in wanted]
+    return (f"; the file has {', '.join(found)}: column names are matched as written, "
+            "in lower case" if found else "")
+
+
+def _read_csv(path: Path) -> pd.DataFrame:
+    """A CSV's cells as text. A spreadsheet in a language whose decimal mark is a comma
+    writes ';' between fields and ',' in its numbers, and one saved as text writes tabs:
+    the header says which (a ';' or a tab and no ','), and a decimal comma is read as a
+    point."""
+    with path.open(encoding="utf-8-sig", errors="replace") as fh:
+        header = fh.readline()
+    sep = next((s for s in (";", "\t") if s in header and "," not in header), ",")
+    frame = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True,
+                        sep=sep, encoding="utf-8-sig")
+    if sep == ",":
+        return frame
+    return frame.apply(lambda column: column.str.replace(",", ".", regex=False))
 
 
 def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
@@ -244,11 +266,12 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
     missing = [c for c in (*burner_columns, *furnace.disturbance_columns) if c not in cols]
     if missing:
         raise err(f"missing required column(s): {', '.join(missing)} "
-                  f"(furnace '{furnace.name}')")
+                  f"(furnace '{furnace.name}'){_case_hint(missing, cols)}")
     for z, n in zip(furnace.zones, furnace.thermocouples, strict=True):
         if not any(f"tc_{z}_{i}" in cols for i in range(1, n + 1)):
-            need = " or ".join(f"tc_{z}_{i}" for i in range(1, n + 1))
-            raise err(f"zone '{z}' has no thermocouple column (need {need})")
+            names = [f"tc_{z}_{i}" for i in range(1, n + 1)]
+            raise err(f"zone '{z}' has no thermocouple column (need {' or '.join(names)})"
+                      + _case_hint(names, cols))
     if len(frame) == 0:
         raise err("no data rows")
 

@@ -81,6 +81,29 @@ def test_broken_files_get_their_own_error(tmp_path, mutate, match):
     assert "run.csv" in str(info.value)
 
 
+@pytest.mark.parametrize("sep, decimal", [(";", ","), ("\t", "."), (";", ".")])
+def test_a_spreadsheets_separators_and_decimal_commas_read_alike(tmp_path, sep, decimal):
+    """A spreadsheet in a language whose decimal mark is a comma saves ';' between fields
+    and ',' in numbers (Excel with a byte-order mark), one saved as text uses tabs: the
+    same record as the comma-separated file."""
+    rows = [r.replace(",", sep) for r in ROWS]
+    rows = [r.replace(".", decimal) for r in rows]
+    path = tmp_path / "sheet.csv"
+    path.write_text("\n".join([HEADER.replace(",", sep), *rows]) + "\n", encoding="utf-8-sig")
+    exp = load_experiment(path, furnace=PAPER)
+    ref = load_experiment(write(tmp_path, [HEADER, *ROWS]), furnace=PAPER)
+    np.testing.assert_array_equal(exp.tc, ref.tc)
+    np.testing.assert_array_equal(exp.t_air, ref.t_air)
+    assert exp.t_air[2] == 30.5
+
+
+def test_a_column_named_in_another_case_is_pointed_at(tmp_path):
+    header = HEADER.replace("tc_preheat_1,tc_preheat_2", "TC_PREHEAT_1,TC_PREHEAT_2")
+    with pytest.raises(DataError, match=r"need tc_preheat_1 or tc_preheat_2\); the file has "
+                                        r"TC_PREHEAT_1, TC_PREHEAT_2: column names are matched"):
+        load_experiment(write(tmp_path, [header, *ROWS]), furnace=PAPER)
+
+
 def test_timestamp_without_offset_is_refused(tmp_path):
     lines = [HEADER.replace("t_min", "timestamp"), "2026-03-04T10:00:00" + ROWS[0][1:]]
     with pytest.raises(DataError, match=r"line 2: timestamp has no UTC offset"):

@@ -77,7 +77,6 @@ import pandas as pd
 
 from furnace_model.experiment import Experiment
 from furnace_model.glitches import without_glitches
-from furnace_model.heldreadings import without_held
 from furnace_model.identification.fit import WarmStart, fit
 from furnace_model.identification.noisefloor import GAP_RATIO, GAP_Z, limits, record_floor
 from furnace_model.identification.result import FitResult
@@ -96,6 +95,7 @@ from furnace_model.log.schema import param_names
 from furnace_model.simulation.furnace import Furnace
 from furnace_model.simulation.network import parameters
 from furnace_model.simulation.structure import ModelStructure
+from furnace_model.stuckreadings import without_stuck
 
 from .daqconfig import RefitConfig
 
@@ -136,7 +136,7 @@ class Window:
     """(last reading before, first after) of the outage whose rows before were left out."""
     left_out: tuple[str, ...] = ()
     """What the readings left out of the window's experiment were: runs of one reading
-    repeated far longer than its column's repeat (`furnace_model.heldreadings`: a frozen
+    repeated far longer than its column's repeat (`furnace_model.stuckreadings`: a frozen
     transmitter) and lone glitched ones (`furnace_model.glitches`: a reading far from the
     two beside it, which agree)."""
 
@@ -171,7 +171,7 @@ def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
     # As logs export -> load: a missing ambient holds the last reading, the default before any.
     air = pd.Series(rows.t_air).ffill().fillna(t_air_default).to_numpy()
     t0 = int(rows.t[0])
-    exp, held = without_held(Experiment(
+    exp, held = without_stuck(Experiment(
         name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
         pd.Timestamp(t0, unit="ns", tz="UTC"), name, furnace=resampler.furnace,
         disturbances=rows.disturbances))

@@ -14,7 +14,8 @@ from __future__ import annotations
 import contextlib
 import os
 import warnings
-from dataclasses import dataclass, field
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -93,6 +94,14 @@ class Experiment:
         return np.concatenate([self.burners[:-1], 0.5 * (air[:-1] + air[1:]),
                                self.disturbances[:-1]], axis=1).astype(float)
 
+    def without_readings(self, cells: Iterable[tuple[str, int | slice]]) -> Experiment:
+        """The record with these thermocouple readings blank, as missing ones are: (column,
+        row or rows)."""
+        tc = self.tc.copy()
+        for column, rows in cells:
+            tc[rows, self.furnace.tc_columns.index(column)] = np.nan
+        return replace(self, tc=tc)
+
     def time_words(self, t_min: float) -> str:
         """A time of the record as a reader finds it: its UTC date and minute where the
         record has a start time, else its minute."""
@@ -134,6 +143,12 @@ class Experiment:
             cols[c] = self.disturbances[:, i]
         cols.update(self.signals)
         return pd.DataFrame(cols)
+
+
+def listed(items: list[str], most: int = 5) -> str:
+    """The first `most` items, and how many more."""
+    more = f" and {len(items) - most} more" if len(items) > most else ""
+    return ", ".join(items[:most]) + more
 
 
 def outage_words(exp: Experiment) -> list[str]:

@@ -16,11 +16,11 @@ the spread. Only departures many times beyond both are taken.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from .experiment import OUTAGE_PERIODS, Experiment
+from .experiment import OUTAGE_PERIODS, Experiment, listed
 
 GLITCH_SPREADS = 15.0
 """A departure from the neighbours' mean this many times the column's typical one (its
@@ -74,14 +74,10 @@ def without_glitches(exp: Experiment) -> tuple[Experiment, list[str]]:
     found = glitches(exp)
     if not found:
         return exp, []
-    tc = exp.tc.copy()
-    for g in found:
-        tc[g.row, exp.furnace.tc_columns.index(g.column)] = np.nan
-    shown = ", ".join(f"{g.column} at {exp.time_words(g.t_min)} ({g.value:g} °C where the readings "
-                      f"beside it average {g.expected:.4g})" for g in found[:5])
-    more = f" and {len(found) - 5} more" if len(found) > 5 else ""
-    return replace(exp, tc=tc), [
+    shown = listed([f"{g.column} at {exp.time_words(g.t_min)} ({g.value:g} °C where the "
+                    f"readings beside it average {g.expected:.4g})" for g in found])
+    return exp.without_readings((g.column, g.row) for g in found), [
         f"{exp.name}: {len(found)} lone reading(s) left out, each far from the two beside it, "
-        f"which agree: {shown}{more}; a thermal capacity cannot go there and back within a "
+        f"which agree: {shown}; a thermal capacity cannot go there and back within a "
         "sample, so these are the sensor's or the logging's; blank them in the file to "
         "silence this"]

@@ -107,17 +107,17 @@ def read_records(paths: Iterable[str | Path], t_air_default: float = DEFAULT_T_A
                  period_s: float | None = None, furnace: Furnace
                  ) -> tuple[list[Experiment], list[str]]:
     """The records the commands and the fleet's jobs fit and diagnose: those
-    `load_experiments` reads, each with the readings a logger held left out
-    (`furnace_model.heldreadings`), then its lone glitches (`furnace_model.glitches`), and
+    `load_experiments` reads, each with its readings stuck at one value left out
+    (`furnace_model.stuckreadings`), then its lone glitches (`furnace_model.glitches`), and
     taken as its parts between outages (`between_outages`), and the warnings that say what
     was done."""
     from .glitches import without_glitches
-    from .heldreadings import without_held
+    from .stuckreadings import without_stuck
 
     out, words = [], []
     for e in load_experiments(paths, t_air_default, start=start, end=end, period_s=period_s,
                               furnace=furnace):
-        e, held = without_held(e)
+        e, held = without_stuck(e)
         e, glitched = without_glitches(e)
         parts, split = between_outages(e)
         out += parts

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from furnace_daq.daqconfig import RefitConfig
 from furnace_daq.plantlog import run_messages
 from furnace_daq.refitworker import RefitRunner
@@ -25,6 +27,26 @@ def scenario(name: str, duration_min: float | None = None) -> Scenario:
 
 def simulate(s: Scenario, seed: int = 1) -> PlantRun:
     return Plant.from_scenario(s, seed=seed).run_scenario(s)
+
+
+def window_fits(run: PlantRun, config: RefitConfig) -> list[dict]:
+    """The /model/parameters message of each window of a run, cut and fitted in this
+    process as the daemon's worker does."""
+    from furnace_daq.refit import RefitChain, WindowCutter
+
+    cutter, chain = WindowCutter(config, furnace=PAPER), RefitChain(config, furnace=PAPER)
+    return [chain.process(w)[0].to_json() for topic, msg, t in run_messages(run)
+            for w in cutter.feed(topic, msg, t)]
+
+
+def assert_fits_alike(clean: list[dict], other: list[dict], rel: float = 0.05) -> None:
+    """The windows of a run with something left out fit as those of the run without it."""
+    assert len(clean) == len(other)
+    for a, b in zip(clean, other, strict=True):
+        assert b["status"] == a["status"]
+        if a["status"] == "ok":
+            for p in "abcdef":
+                assert b[p] == pytest.approx(a[p], rel=rel), (p, a["detail"])
 
 
 def through_pipeline(run: PlantRun, config: RefitConfig, messages=None, timeout: float = 120.0

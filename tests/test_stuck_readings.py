@@ -1,4 +1,4 @@
-"""Readings a logger held (known truth: simulated records with a run of one reading repeated
+"""Readings stuck at one value (known truth: simulated records with a run of one reading repeated
 by hand): found where they are, left out after their first, and named; records whose
 readings repeat because of their rounding and their pace are left alone."""
 
@@ -14,7 +14,7 @@ import pytest
 
 from furnace_model.diagnosis.cases import draw_closed_loop_case
 from furnace_model.diagnosis.hourlyroom import hourly_room
-from furnace_model.heldreadings import MIN_HELD_REPEATS, held_readings, without_held
+from furnace_model.stuckreadings import MIN_STUCK_REPEATS, stuck_readings, without_stuck
 
 ROOT = Path(__file__).resolve().parents[1]
 ONE_ROOM = """
@@ -37,12 +37,12 @@ def _held(exp, column: int, first: int, rows: int):
 def test_a_held_run_is_found_where_it_is_and_only_its_repeats_left_out():
     """Two days of an hourly room logged to a tenth of a degree, its reading held from row
     300: the run's first reading (the last the sensor gave) is kept, the 47 after it
-    blanked, nothing else touched; a run one row short of `MIN_HELD_REPEATS` is left."""
+    blanked, nothing else touched; a run one row short of `MIN_STUCK_REPEATS` is left."""
     room = _rounded(hourly_room(1, ("wall_storage",)), 0.1)
-    bad = _held(_held(room, 0, 300, 48), 0, 500, MIN_HELD_REPEATS)
-    found = held_readings(bad)
+    bad = _held(_held(room, 0, 300, 48), 0, 500, MIN_STUCK_REPEATS)
+    found = stuck_readings(bad)
     assert [(h.column, h.first, h.last) for h in found] == [("tc_room_1", 300, 347)]
-    cleaned, said = without_held(bad)
+    cleaned, said = without_stuck(bad)
     blank = ~np.isfinite(cleaned.tc) & np.isfinite(bad.tc)
     assert np.flatnonzero(blank[:, 0]).tolist() == list(range(301, 348))
     assert np.array_equal(cleaned.tc[~blank], bad.tc[~blank])
@@ -58,7 +58,7 @@ def test_readings_that_repeat_by_their_rounding_and_pace_are_not_held(quantum):
                hourly_room(3, ("wall_storage",))]
     records += draw_closed_loop_case("sensor_drift", np.random.default_rng(5)).fit
     for exp in records:
-        assert held_readings(exp if quantum is None else _rounded(exp, quantum)) == []
+        assert stuck_readings(exp if quantum is None else _rounded(exp, quantum)) == []
 
 
 def test_fit_leaves_a_held_run_out_and_says_where(tmp_path):
@@ -85,12 +85,9 @@ def test_a_refit_window_leaves_a_frozen_reading_out_and_says_so():
     """The daemon's windows of a week of burner steps, the first soak thermocouple frozen
     for an hour and a half: each window that holds the run leaves it out after its first
     reading, says so in its message, and fits as the windows of the same run without it."""
-    from refit_helpers import scenario, simulate
+    from refit_helpers import assert_fits_alike, scenario, simulate, window_fits
 
     from furnace_daq.daqconfig import RefitConfig
-    from furnace_daq.plantlog import run_messages
-    from furnace_daq.refit import RefitChain, WindowCutter
-    from furnace_model.simulation.furnace import PAPER
 
     s = scenario("week_steps", duration_min=9 * 60)
     config = RefitConfig(period_s=3600.0, window_s=6 * 3600.0, method="polish")
@@ -99,14 +96,7 @@ def test_a_refit_window_leaves_a_frozen_reading_out_and_says_so():
         run = simulate(s)
         if kind == "frozen":
             run.tc[301:391, 0] = run.tc[300, 0]
-        cutter, chain = WindowCutter(config, furnace=PAPER), RefitChain(config, furnace=PAPER)
-        out[kind] = [chain.process(w)[0].to_json() for topic, msg, t in run_messages(run)
-                     for w in cutter.feed(topic, msg, t)]
+        out[kind] = window_fits(run, config)
     holding = [m for m in out["frozen"] if "repeated unchanged" in m["detail"]]
     assert holding and all("tc_soak_1 " in m["detail"] for m in holding)
-    assert len(out["clean"]) == len(out["frozen"])
-    for clean, frozen in zip(out["clean"], out["frozen"], strict=True):
-        assert frozen["status"] == clean["status"]
-        if clean["status"] == "ok":
-            for p in "abcdef":
-                assert frozen[p] == pytest.approx(clean[p], rel=0.05), (p, clean["detail"])
+    assert_fits_alike(out["clean"], out["frozen"])

@@ -209,7 +209,7 @@ def profile_strength(task: Task) -> CandidateResult:
     parameter along a direction the criterion leaves nearly flat, so that a strength the
     criterion pins to a few percent looks like anything from a trace to a flood (a wall
     behind a room's air that settles within the hour between its rows: docs/diagnosis.md,
-    step 4). Only the judgement is returned (`identifiable`, `note`, and the intervals
+    step 5). Only the judgement is returned (`identifiable`, `note`, and the intervals
     profiled as `ci95`); cut by the time limit: marked `cut`."""
     names = strengths_inside(task.effects, task.options, task.init or {}, task.furnace,
                              task.bounds)

@@ -352,6 +352,11 @@ def experiment_from_frame(frame: pd.DataFrame, file: str = "<table>",
         warnings.warn(DataWarning(file, f"furnace '{furnace.name}' has thermocouple(s) "
                                         f"{', '.join(absent)} that the file lacks: their zones "
                                         "are read from the others"), stacklevel=2)
+    if "t_air" not in cols:
+        warnings.warn(DataWarning(file, f"no 't_air' column: the ambient is taken as "
+                                        f"{t_air_default:g} °C throughout; where the zones lose "
+                                        "heat to an outside that moves (a building's weather), "
+                                        "give its readings as t_air"), stacklevel=2)
     # Ambient changes slowly: an empty cell holds the last reading (the default before any).
     t_air = pd.Series(t_air).ffill().fillna(t_air_default).to_numpy()
     return Experiment(Path(file).stem, t_min, tc, burners, t_air, start_time, file,

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from furnace_model.errors import DataError
+from furnace_model.errors import DataError, DataWarning
 from furnace_model.records import load_experiment
 from furnace_model.simulation.furnace import PAPER
 
@@ -95,6 +95,14 @@ def test_a_spreadsheets_separators_and_decimal_commas_read_alike(tmp_path, sep, 
     np.testing.assert_array_equal(exp.tc, ref.tc)
     np.testing.assert_array_equal(exp.t_air, ref.t_air)
     assert exp.t_air[2] == 30.5
+
+
+def test_a_file_without_ambient_says_what_it_takes(tmp_path):
+    header = HEADER.removesuffix(",t_air")
+    rows = [r.rsplit(",", 1)[0] for r in ROWS]
+    with pytest.warns(DataWarning, match=r"no 't_air' column: the ambient is taken as 30 °C"):
+        exp = load_experiment(write(tmp_path, [header, *rows]), furnace=PAPER)
+    assert exp.t_air.tolist() == [30.0] * 4
 
 
 def test_a_column_named_in_another_case_is_pointed_at(tmp_path):

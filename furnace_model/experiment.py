@@ -153,15 +153,18 @@ def listed(items: list[str], most: int = 5) -> str:
 
 def outage_words(exp: Experiment) -> list[str]:
     """A warning per outage of the record (`Experiment.outages`), with its span."""
+    return [f"{exp.name}: no rows for {gap_words(exp, [span])}: the model holds the inputs of "
+            "the row before across it; if they changed there, fit the parts on either side "
+            "as records of their own" for span in exp.outages()]
+
+
+def gap_words(exp: Experiment, spans: list[tuple[float, float]]) -> str:
+    """The record's outages `spans` (minutes) as a reader finds them: how long, from when."""
     from .progress import duration
 
-    out = []
-    for lo, hi in exp.outages():
-        out.append(f"{exp.name}: no rows for {duration(60 * (hi - lo))} from "
-                   f"{exp.time_words(lo)} (more than {OUTAGE_PERIODS:g} sample periods): the "
-                   "model holds the inputs of the row before across it; if they changed there, "
-                   "fit the parts on either side as records of their own")
-    return out
+    return (", ".join(f"{duration(60 * (hi - lo))} from {exp.time_words(lo)}"
+                      for lo, hi in spans)
+            + f" (more than {OUTAGE_PERIODS:g} sample periods)")
 
 
 def write_table(frame: pd.DataFrame, path: str | Path) -> None:

@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from .errors import FurnaceError
-from .experiment import DEFAULT_T_AIR_C, OUTAGE_PERIODS, Experiment, read_table
+from .experiment import DEFAULT_T_AIR_C, OUTAGE_PERIODS, Experiment, gap_words, read_table
 from .log.experiment import group_logs, is_log, load_log
 from .log.resample import DEFAULT_PERIOD_S
 from .simulation.furnace import Furnace
@@ -71,8 +71,6 @@ def between_outages(exp: Experiment) -> tuple[list[Experiment], list[str]]:
     the daemon's refit fits a window from the first reading after an outage. Parts of
     fewer than `MIN_PART_ROWS` rows, or `MIN_PART_SHARE` of the longest part's, are left
     out and named."""
-    from .progress import duration
-
     spans = exp.outages()
     if not spans:
         return [exp], []
@@ -89,8 +87,7 @@ def between_outages(exp: Experiment) -> tuple[list[Experiment], list[str]]:
                            f"than {OUTAGE_PERIODS:g} sample periods apart) has {MIN_PART_ROWS} "
                            "rows to fit")
 
-    gaps = ", ".join(f"{duration(60 * (hi - lo))} from {exp.time_words(lo)}" for lo, hi in spans)
-    words = (f"{exp.name}: no rows for {gaps} (more than {OUTAGE_PERIODS:g} sample periods): "
+    words = (f"{exp.name}: no rows for {gap_words(exp, spans)}: "
              "the inputs there are unknown, so it is taken as "
              f"{len(kept)} record{'s' if len(kept) > 1 else ''} "
              f"({', '.join(p.name for p in kept)}), each with its own initial state and "

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -57,7 +57,8 @@ def fit_campaign(task: CampaignFit) -> dict:
                               end=pd.Timestamp(hi, tz="UTC"), period_s=task.period_s,
                               furnace=task.description)
     result = fit(data, ModelStructure(furnace=task.description), seed=task.seed, zone_offsets=True)
-    result.warnings[:0] = read  # what reading the logs left out, as `furnace-model fit` says
+    # what reading the logs left out first, as `furnace-model fit` says it
+    result = replace(result, warnings=[*read, *result.warnings])
     row: dict[str, Any] = {"furnace": task.furnace, "campaign": name, "status": result.status,
                            "sigma_c": result.sigma_c, "elapsed_s": result.elapsed_s,
                            "undetermined": ",".join(result.undetermined)}

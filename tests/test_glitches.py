@@ -4,6 +4,7 @@ commands that read records say so and fit what is left."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from dataclasses import replace
@@ -87,12 +88,17 @@ def test_a_command_leaves_a_glitch_out_and_says_where(tmp_path, command):
     frame.loc[120, "tc_room_1"] = 95.0
     csv = tmp_path / "room.csv"
     frame.to_csv(csv, index=False)
+    out = tmp_path / "out.json"
     r = subprocess.run([sys.executable, "-m", "furnace_model.cli", command, str(csv),
-                        "--furnace", str(furnace), *(["--quiet"] if command == "diagnose" else [])],
+                        "--furnace", str(furnace), "--json", str(out),
+                        *(["--quiet"] if command == "diagnose" else [])],
                        capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert r.returncode == 0, r.stderr
     assert (f"furnace-model {command}: warning: room: 1 lone reading(s) left out" in r.stderr
             and "tc_room_1 at 2026-01-10 00:00Z (95 °C" in r.stderr), r.stderr
+    # and in the JSON: a fit's first warning, a diagnosis's `read`
+    said = json.loads(out.read_text())["warnings" if command == "fit" else "read"]
+    assert said[0].startswith("room: 1 lone reading(s) left out"), said
     if command == "diagnose":
         assert r.stdout.startswith("Verdict: explained (wall_storage)"), r.stdout[:400]
 

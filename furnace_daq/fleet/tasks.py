@@ -260,7 +260,7 @@ def diagnose_pair(pair: Pair) -> dict:
     row["flags"] = len(d.baseline.flags)
     row["read"] = "; ".join(read)  # what reading the logs left out or split
     row["cpu_s"] = time.process_time() - cpu0
-    return {"rows": [row], "diagnosis": d.to_json()}
+    return {"rows": [row], "diagnosis": {**d.to_json(), "read": read}}
 
 
 # -- selfcheck ------------------------------------------------------------------------------

@@ -285,9 +285,10 @@ def data_window(args: argparse.Namespace) -> dict:
 
 
 def read_data(paths: list[str], args: argparse.Namespace, furnace: Furnace,
-              command: str) -> list[Experiment]:
+              command: str) -> tuple[list[Experiment], list[str]]:
     """The records `paths` name within the data window, as `records.read_records` reads
-    them, with its warnings on stderr as `command`'s."""
+    them, and its warnings (what reading left out or split), said on stderr as `command`'s
+    and returned for the command's JSON."""
     import sys
 
     from ..records import read_records
@@ -295,4 +296,4 @@ def read_data(paths: list[str], args: argparse.Namespace, furnace: Furnace,
     records, words = read_records(paths, **data_window(args), furnace=furnace)
     for w in words:
         print(f"{command}: warning: {w}", file=sys.stderr)
-    return records
+    return records, words

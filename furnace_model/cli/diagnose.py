@@ -111,14 +111,18 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         require("report", "--report")
     furnace = furnace_of(args)
-    data = read_data(args.data, args, furnace, "furnace-model diagnose")
-    hold = read_data(args.holdout, args, furnace, "furnace-model diagnose") if args.holdout else None
+    data, read = read_data(args.data, args, furnace, "furnace-model diagnose")
+    hold = None
+    if args.holdout:
+        hold, read_hold = read_data(args.holdout, args, furnace, "furnace-model diagnose")
+        read += read_hold
     result = diagnose(data, hold, effects=args.effects, seed=args.seed,
                       progress=None if args.quiet else stage_lines(),
                       time_limit_s=args.time_limit)
     print(summary(result))
     if args.json:
-        _write(args.json, json.dumps(result.to_json(), indent=1, allow_nan=False) + "\n")
+        _write(args.json, json.dumps({**result.to_json(), "read": read}, indent=1,
+                                     allow_nan=False) + "\n")
     if args.report:
         from ..report import write_report
 

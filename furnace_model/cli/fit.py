@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
                                     for n in args.effects or ()], furnace=furnace)
     except ValueError as exc:
         raise FurnaceError(str(exc)) from None
-    experiments = read_data(args.data, args, furnace, "furnace-model fit")
+    experiments, read = read_data(args.data, args, furnace, "furnace-model fit")
     names = [e.name for e in experiments]
     if len(set(names)) != len(names):
         raise FurnaceError(f"two data files share the name {names}: plots and tables need "
@@ -184,7 +184,9 @@ def run(args: argparse.Namespace) -> int:
     for w in result.warnings:
         print(f"furnace-model fit: warning: {w}", file=sys.stderr)
     if args.json:
-        _write_json(args.json, result.to_json([str(p) for p in args.data]))
+        doc = result.to_json([str(p) for p in args.data])
+        doc["warnings"] = [*read, *doc["warnings"]]  # what reading left out first, as said
+        _write_json(args.json, doc)
     if args.plot:
         from ..plots import plot_fit  # matplotlib only when plots are asked for
 

@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
     if args.zone_offsets is not None:
         model = dataclasses.replace(model, zone_offsets=args.zone_offsets)
     params, structure = model.params, model.structure
-    experiments = read_data(args.data, args, furnace, "furnace-model validate")
+    experiments, read = read_data(args.data, args, furnace, "furnace-model validate")
     k = args.horizon
     refined = model.refine(experiments)  # each record alone: its start, its offsets
     per_exp = {e.name: zone_metrics(e.zone_temp, refined.predict(j), furnace.zones)
@@ -193,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
                                         if corrections else None),
                "x0": {e.name: [float(v) for v in refined.x0[j]]
                       for j, e in enumerate(experiments)},
-               "flags": [f.to_json() for f in refined.flags]}
+               "flags": [f.to_json() for f in refined.flags], "read": read}
         try:
             args.json.write_text(json.dumps(doc, indent=1) + "\n")
         except OSError as exc:

@@ -30,9 +30,15 @@ DEFAULT_T_AIR_C = 30.0
 TEMPERATURE_RANGE_C = (-273.15, 3000.0)
 MAX_SPAN_MIN = 10 * 366 * 24 * 60.0
 OUTAGE_PERIODS = 5.0
-"""Rows further apart than this many sample periods leave an outage between them: a
-simulation holds the row before's inputs across it, right only if nothing changed there.
-A sample or two missing is an acquisition's ordinary loss; five in a row is a stop."""
+"""Rows further apart than this many of the record's usual spacings (`row_spacing_min`)
+leave an outage between them: a simulation holds the row before's inputs across it, right
+only if nothing changed there. A sample or two missing is an acquisition's ordinary loss;
+five in a row is a stop."""
+USUAL_SPACING = 0.95
+"""The record's usual spacing between rows: the spacing this share of its rows keep or
+less. A sampled record's period; a record logged on change (a historian's row only where a
+value moved by its deadband, so that a row's absence means nothing moved) spaces its rows
+by minutes to hours, and those gaps hold its inputs, as the model does."""
 
 
 @dataclass
@@ -112,13 +118,19 @@ class Experiment:
     def sample_period_min(self) -> float:
         return float(np.median(np.diff(self.t_min))) if len(self) > 1 else float("nan")
 
+    def row_spacing_min(self) -> float:
+        """The record's usual spacing between rows (`USUAL_SPACING`), in minutes."""
+        if len(self) < 2:
+            return float("nan")
+        return float(np.quantile(np.diff(self.t_min), USUAL_SPACING))
+
     def outages(self, longest_min: float | None = None) -> list[tuple[float, float]]:
         """(last row before, first row after), in minutes, of every spacing between rows
-        longer than `longest_min` (default: OUTAGE_PERIODS sample periods)."""
+        longer than `longest_min` (default: OUTAGE_PERIODS usual spacings)."""
         if len(self) < 3:
             return []
         if longest_min is None:
-            longest_min = OUTAGE_PERIODS * self.sample_period_min()
+            longest_min = OUTAGE_PERIODS * self.row_spacing_min()
         k = np.flatnonzero(np.diff(self.t_min) > longest_min)
         return [(float(self.t_min[i]), float(self.t_min[i + 1])) for i in k]
 
@@ -164,7 +176,7 @@ def gap_words(exp: Experiment, spans: list[tuple[float, float]]) -> str:
 
     return (", ".join(f"{duration(60 * (hi - lo))} from {exp.time_words(lo)}"
                       for lo, hi in spans)
-            + f" (more than {OUTAGE_PERIODS:g} sample periods)")
+            + f" (more than {OUTAGE_PERIODS:g} times the record's usual row spacing)")
 
 
 def write_table(frame: pd.DataFrame, path: str | Path) -> None:

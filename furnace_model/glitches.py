@@ -47,7 +47,7 @@ def glitches(exp: Experiment) -> list[Glitch]:
     if len(exp) < 3:
         return []
     step = np.diff(exp.t_min)
-    near = OUTAGE_PERIODS * exp.sample_period_min()
+    near = OUTAGE_PERIODS * exp.row_spacing_min()
     beside = (step[:-1] <= near) & (step[1:] <= near)  # no outage on either side
     for c, column in enumerate(exp.furnace.tc_columns):
         x = exp.tc[:, c]

@@ -84,8 +84,8 @@ def between_outages(exp: Experiment) -> tuple[list[Experiment], list[str]]:
     left = [(a, len(p)) for a, p in zip(starts, parts, strict=True) if len(p) < least]
     if not kept:
         raise FurnaceError(f"{exp.source or exp.name}: no part between its outages (rows more "
-                           f"than {OUTAGE_PERIODS:g} sample periods apart) has {MIN_PART_ROWS} "
-                           "rows to fit")
+                           f"than {OUTAGE_PERIODS:g} times its usual row spacing apart) has "
+                           f"{MIN_PART_ROWS} rows to fit")
 
     words = (f"{exp.name}: no rows for {gap_words(exp, spans)}: "
              "the inputs there are unknown, so it is taken as "

@@ -160,9 +160,13 @@ def test_a_records_parts_between_outages_are_records_of_their_own():
     whole = Experiment("exp1", run.t_min, run.tc, run.burners, np.full(run.t_min.size,
                        s.t_air_c), s.start_time, furnace=PAPER)
     assert between_outages(whole) == ([whole], [])
-    bits = exp.rows(exp.t_min % 100 < 3)  # three rows every 100 minutes
-    with pytest.raises(FurnaceError, match="no part between its outages"):
-        between_outages(bits)
+    # rows logged in bursts, three every 100 minutes, are spaced so, not stopped
+    bits = exp.rows(exp.t_min % 100 < 3)
+    assert bits.outages() == [] and between_outages(bits) == ([bits], [])
+    with pytest.MonkeyPatch.context() as mp:  # no part long enough: said, not fitted
+        mp.setattr("furnace_model.records.MIN_PART_ROWS", 10 ** 6)
+        with pytest.raises(FurnaceError, match="no part between its outages"):
+            between_outages(exp)
 
 
 def test_diagnose_takes_a_record_with_an_outage_as_its_parts(tmp_path):
@@ -191,3 +195,33 @@ def test_diagnose_takes_a_record_with_an_outage_as_its_parts(tmp_path):
     assert verdict in ("Verdict: explained (wall_storage)",
                        "Verdict: explained_in_part (wall_storage)"), r.stdout[:600]
     assert "Fitted: room-1; held out: whole experiments: room-2 held out" in r.stdout
+
+
+def test_a_record_logged_on_change_is_spaced_not_stopped(tmp_path):
+    """A historian's record of a room, a row only where the reading moved by its 0.2 °C
+    deadband (the heating as it stood then), rows minutes to hours apart, most a few, and a
+    day the historian was down: only that day is an outage. Split at five median spacings,
+    it was dozens of records of a few rows, each with its own start and offsets."""
+    from furnace_model.cli import main
+    from furnace_model.diagnosis.hourlyroom import ROOM, hourly_room
+    from furnace_model.records import read_records
+    from furnace_model.simulation.furnacefile import parse_furnace
+
+    minute = hourly_room(1, ("wall_storage",), days=14, sample_min=1)
+    frame = minute.to_frame()
+    keep, last = [], None
+    for i, t in enumerate(frame["tc_room_1"].round(1)):
+        if last is None or abs(t - last) > 0.2 - 1e-9:
+            keep.append(i)
+            last = t
+    logged = frame.iloc[keep]
+    logged = logged[~logged["timestamp"].str.startswith("2026-01-10")]
+    steps = np.diff(minute.t_min[keep])
+    assert np.median(steps) < 10 < steps.max()  # irregular by design
+    (tmp_path / "room.yaml").write_text(ROOM)
+    logged.to_csv(tmp_path / "a.csv", index=False)
+    parts, said = read_records([tmp_path / "a.csv"], furnace=parse_furnace(ROOM))
+    assert len(parts) == 2, said
+    assert said[0].startswith("a: no rows for 2") and "from 2026-01-09 23:" in said[0], said
+    assert main(["fit", str(tmp_path / "a.csv"), "--furnace", str(tmp_path / "room.yaml"),
+                 "--json", str(tmp_path / "fit.json")]) == 0

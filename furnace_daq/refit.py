@@ -171,13 +171,13 @@ def cut_window(resampler: Resampler, start_ns: int, end_ns: int, step_ns: int,
     # As logs export -> load: a missing ambient holds the last reading, the default before any.
     air = pd.Series(rows.t_air).ffill().fillna(t_air_default).to_numpy()
     t0 = int(rows.t[0])
-    exp, held = without_stuck(Experiment(
+    exp, stuck = without_stuck(Experiment(
         name, (rows.t - t0) / 60e9, rows.tc, rows.burners, air,
         pd.Timestamp(t0, unit="ns", tz="UTC"), name, furnace=resampler.furnace,
         disturbances=rows.disturbances))
     exp, glitched = without_glitches(exp)
     return Window(start_ns, end_ns, exp, expected, complete, exp.burner_steps, outage=outage,
-                  left_out=tuple(held + glitched))
+                  left_out=tuple(stuck + glitched))
 
 
 def _after_outage(window: Window, verb: str) -> str:

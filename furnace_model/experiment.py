@@ -157,6 +157,14 @@ class Experiment:
         return pd.DataFrame(cols)
 
 
+def resolution(y: np.ndarray) -> float:
+    """The step a reading is logged to: the least gap between its distinct values (about
+    nothing for a reading kept to full precision; 0 with fewer than two values)."""
+    gaps = np.diff(np.unique(y[np.isfinite(y)]))  # every column's values on one grid
+    gaps = gaps[gaps > 0]
+    return float(gaps.min()) if gaps.size else 0.0
+
+
 def listed(items: list[str], most: int = 5) -> str:
     """The first `most` items, and how many more."""
     more = f" and {len(items) - most} more" if len(items) > most else ""

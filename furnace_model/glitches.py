@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .experiment import OUTAGE_PERIODS, Experiment, listed
+from .experiment import OUTAGE_PERIODS, Experiment, listed, resolution
 
 GLITCH_SPREADS = 15.0
 """A departure from the neighbours' mean this many times the column's typical one (its
@@ -58,8 +58,7 @@ def glitches(exp: Experiment) -> list[Glitch]:
         mid = 0.5 * (x[i - 1] + x[i + 1])
         dev = x[i] - mid
         typical = 1.4826 * float(np.median(np.abs(dev)))
-        quantum = np.diff(np.unique(x[np.isfinite(x)]))  # a logger's rounding
-        typical = max(typical, float(quantum.min()) if quantum.size else 0.0)
+        typical = max(typical, resolution(x))  # a logger's rounding
         if typical <= 0.0:
             continue
         far = (np.abs(dev) > GLITCH_SPREADS * typical) \

@@ -114,9 +114,9 @@ def read_records(paths: Iterable[str | Path], t_air_default: float = DEFAULT_T_A
     out, words = [], []
     for e in load_experiments(paths, t_air_default, start=start, end=end, period_s=period_s,
                               furnace=furnace):
-        e, held = without_stuck(e)
+        e, stuck = without_stuck(e)
         e, glitched = without_glitches(e)
         parts, split = between_outages(e)
         out += parts
-        words += held + glitched + split
+        words += stuck + glitched + split
     return out, words

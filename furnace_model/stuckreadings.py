@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .experiment import Experiment, listed
+from .experiment import Experiment, listed, resolution
 
 STUCK_CHANCE = 1e-6
 """A run of repeats is taken as stuck when the column's repeats, at its own rate and as if
@@ -56,8 +56,7 @@ def stuck_readings(exp: Experiment) -> list[Stuck]:
             continue
         edges = np.flatnonzero(np.diff(np.concatenate(([0], same.astype(np.int8), [0]))))
         repeats = int(same.sum())
-        moves = np.abs(np.diff(x))
-        quantum = float(np.min(moves[moves > 0], initial=np.inf))
+        quantum = resolution(x) or np.inf  # a column of one value has no steps to count
         for start, end in zip(edges[::2], edges[1::2], strict=True):
             run = int(end - start)  # repeats in a row: steps start..end-1
             if run < MIN_STUCK_REPEATS:

@@ -201,7 +201,7 @@ def test_a_record_logged_on_change_is_spaced_not_stopped(tmp_path):
     """A historian's record of a room, a row only where the reading moved by its 0.2 °C
     deadband (the heating as it stood then), rows minutes to hours apart, most a few, and a
     day the historian was down: only that day is an outage. Split at five median spacings,
-    it was dozens of records of a few rows, each with its own start and offsets."""
+    it would be dozens of records of a few rows, each with its own start and offsets."""
     from furnace_model.cli import main
     from furnace_model.diagnosis.hourlyroom import ROOM, hourly_room
     from furnace_model.records import read_records

@@ -80,7 +80,7 @@ class Task:
     """The told parameters `profile_told` profiles (none: all of `told_names`)."""
     start_on: list[Experiment] | None = None
     """Records whose baseline fit, with what they determine, replaces `init` (the rest
-    searched; `Trial.start_on`): fitted here, in the pool, not before the stage."""
+    searched; `Trial.start_on`): fitted in the task, so in the pool beside the others."""
 
     @property
     def furnace(self) -> Furnace:

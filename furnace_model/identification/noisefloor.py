@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..experiment import Experiment
+from ..experiment import Experiment, resolution
 from .autoregression import acf, fit_ar
 
 GAP_RATIO = 1.25
@@ -152,7 +152,7 @@ def record_floor(exp: Experiment) -> RecordFloor:
             tc_sd, how = lone_sd(exp, w)
             var_d, lag1, n_eff = 2.0 * tc_sd * tc_sd, np.nan, np.nan
         tc_sd = max(float(np.sqrt(var_d / 2.0)),
-                    _resolution(exp.tc[:, a:a + furnace.thermocouples[w]]) / np.sqrt(12.0))
+                    resolution(exp.tc[:, a:a + furnace.thermocouples[w]]) / np.sqrt(12.0))
         rel = 1.0 / np.sqrt(2.0 * n_eff) if np.isfinite(n_eff) and n_eff > 0 else np.nan
         zones[zone] = ZoneFloor(tc_sd * np.sqrt(mean_inv), tc_sd, how, float(rel), lag1,
                                 float(n_eff), samples)
@@ -286,14 +286,6 @@ def equation_error_sd(exp: Experiment, w: int) -> float:
     spread = 1.0 + float(np.sum(coef[:readings] ** 2))
     dof = b.size / (b.size - X.shape[1])
     return _robust_sd(b - X @ coef) * float(np.sqrt(dof / spread))
-
-
-def _resolution(y: np.ndarray) -> float:
-    """The step a reading is logged to: the least gap between its distinct values (about
-    nothing for a reading kept to full precision)."""
-    gaps = np.diff(np.unique(y[np.isfinite(y)]))  # every column's values on one grid
-    gaps = gaps[gaps > 0]
-    return float(gaps.min()) if gaps.size else 0.0
 
 
 def second_difference_sd(y: np.ndarray) -> tuple[float, float]:

@@ -54,9 +54,14 @@ PROFILE_WIDE = 0.25
 interval is profiled instead: nearer, the criterion is close enough to quadratic for the
 linearised interval to hold the truth as often as it says (docs/identification.md,
 coverage)."""
-PROFILE_GAIN_TOL = 1e-7
-"""A profile's refit is converged to this share of the criterion: its rise is wanted to a
-few percent, and it is thousands of times smaller than the criterion."""
+PROFILE_RISE_SHARE = 0.01
+"""A profile's refit has converged when a step lowers the criterion by less than this share
+of the rise its interval ends at: the rise is wanted to a few percent, and near a minimum
+the steps left would take less than the last one did."""
+PROFILE_OUTSIDE = 2.0
+"""A profile's trial whose criterion stays above this many times the rise is outside its
+interval whatever the refit's last steps would take (`Problem.polish`'s `above`): its
+exact height only steers the next trial, by the square root of its rise."""
 AT_BOUND_SHARE = 1e-3
 """A parameter this close to an edge of its box (a share of the box's width on the search
 scale: 1.2% of a rate's value) is reported on it: the polish stops once a step gains less
@@ -414,17 +419,22 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
         colour = 1.0 if white or white_cov[i, i] <= 0 else unc.cov[i, i] / white_cov[i, i]
         rise = Z95 ** 2 * unc.sigma ** 2 * colour
         # Start each refit where the linearisation puts the others for that value (along
-        # the valley: d follows e at fixed d/e), not where they were; from there Gauss-Newton
-        # steps (little damping) reach the minimum in two or three.
+        # the valley: d follows e at fixed d/e), from the refitted trial nearest it (the
+        # optimum, at first), not where they were; from there Gauss-Newton steps (little
+        # damping) reach the minimum in two or three.
         along = np.delete(cov[:, i] / cov[i, i], i)
-        rest = np.delete(z, i)
+        refitted = {float(z[i]): np.delete(z, i)}
 
-        def sse_at(z_i: float, i=i, rest=rest, along=along) -> float:
-            start = rest.copy()
-            start[:along.size] += along * (z_i - z[i])
-            r = prob.holding(i, z_i).polish(start, deadline, 30, PROFILE_GAIN_TOL, 1e-7,
-                                                   free_first=False).r
-            return float(r @ r)
+        def sse_at(z_i: float, i=i, along=along, refitted=refitted, rise=rise) -> float:
+            near = min(refitted, key=lambda v: abs(v - z_i))
+            start = refitted[near].copy()
+            start[:along.size] += along * (z_i - near)
+            p = prob.holding(i, z_i).polish(start, deadline, 30, PROFILE_RISE_SHARE * rise / sse,
+                                            1e-7, free_first=False,
+                                            above=sse + PROFILE_OUTSIDE * rise)
+            if p.reason != "above":
+                refitted[z_i] = p.z
+            return float(p.r @ p.r)
 
         start = None
         if starts is not None and name in starts:  # on the search scale; NaN: no guide

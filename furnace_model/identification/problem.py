@@ -44,6 +44,8 @@ STOP_REASONS = {
     "time_budget": "the time budget ran out before the search finished",
     "ga_generations": "the genetic algorithm ran all its generations; method ga has no polish",
     "not_finite": "the model cannot be simulated at the point the polish started from",
+    "above": "the polish's cost stays above the level asked whatever its steps left take "
+             "(a profile's trial outside its interval)",
 }
 """Why a run's search stopped (FitResult.stop_reason, the runs' stop_reason)."""
 
@@ -353,7 +355,7 @@ class Problem:
 
     def polish(self, z0: np.ndarray, deadline: float | None, max_iter: int = POLISH_MAX_ITER,
                gain_tol: float = POLISH_GAIN_TOL, damping: float = 1e-3,
-               free_first: bool = True
+               free_first: bool = True, above: float | None = None
                ) -> Polished:
         """Levenberg-Marquardt from z0, parameters kept in their box and the records' own
         unknowns in theirs; converged when a step lowers the cost by less than `gain_tol`
@@ -366,9 +368,15 @@ class Problem:
         optimum does not touch can still block the path to it and leave the fit in a side
         valley (docs/identification.md). `free_first=False`: boxed from the start, for a start
         next to a boxed optimum already found (a profile's trial values), whose bounds are
-        already the ones that hold."""
+        already the ones that hold.
+
+        `above`: a level of the cost that is all the caller asks about (a profile's trial,
+        outside its interval or not). The polish stops ("above") once its cost less what
+        the steps left to it could take at its last step's gain stays above that level: a
+        trial far outside need not be refitted to the end to be known outside."""
         if not free_first:
-            return self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=True)
+            return self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=True,
+                                above=above)
         free = self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=False)
         if free.reason == "not_finite" or not self._outside(free.z):
             return free
@@ -377,7 +385,8 @@ class Problem:
         return boxed
 
     def _polish(self, z0: np.ndarray, deadline: float | None, max_iter: int,
-                gain_tol: float, damping: float, boxed: bool) -> Polished:
+                gain_tol: float, damping: float, boxed: bool, above: float | None = None
+                ) -> Polished:
         """One Levenberg-Marquardt run; `boxed`: the records' own unknowns in their box.
 
         The steps are those of scipy's least_squares, solved on the n x n normal equations
@@ -429,11 +438,14 @@ class Problem:
             if not accepted:
                 reason = "converged"  # no step lowers the cost: a minimum to working precision
                 break
-            gain = (cost - c_new) / cost
+            drop = cost - c_new
+            gain = drop / cost
             moved = np.max(np.abs(z_new - z) / (1.0 + np.abs(z)))
             z, r, cost = z_new, r_new, c_new
             done += 1
             mu = max(mu / 5.0, 1e-9)
+            if above is not None and c_new - (max_iter - done) * drop > above:
+                return Polished(z, r, np.full((r.size, self.n), np.nan), "above", done)
             J = self.jac(z)
             if gain < gain_tol or moved < 1e-9 or (
                     not boxed and not self.structure.linear and gain < OUTSIDE_GAIN_TOL
@@ -479,7 +491,8 @@ class Problem:
 
 @dataclass
 class Polished:
-    """Where a polish ended and why (a key of STOP_REASONS), after how many accepted steps."""
+    """Where a polish ended and why (a key of STOP_REASONS), after how many accepted steps;
+    J is NaN where it stopped "above" (no caller of such a polish needs it)."""
 
     z: np.ndarray
     r: np.ndarray

@@ -152,19 +152,20 @@ def _drive_derivatives(drive: Drive, h: np.ndarray
 
 def _assemble(prob: Problem, per_record: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     """The records' output derivatives (k, N, zones) and (zones, N, zones) as residual rows,
-    each record's initial states and offsets in its own columns."""
+    each record's initial states and offsets in its own columns. Filled as its transpose,
+    whose rows are the derivatives as they come, and returned as a view of it (column
+    major): writing the columns of a row-major array strides through all of it."""
     k, nz = prob.k, prob.nz
     rows = [r.zone_of.size for r in prob.records]
-    J = np.zeros((sum(rows), prob.n))
+    Jt = np.zeros((prob.n, sum(rows)))
     at = 0
     for j, (r, (dy, dy0)) in enumerate(zip(prob.records, per_record, strict=True)):
-        block = J[at:at + rows[j]]
+        block = Jt[:, at:at + rows[j]]
         for cols, d in ((slice(0, k), dy), (slice(k + prob.block * j, k + prob.block * j + nz),
                                              dy0)):
-            by_row = d.transpose(1, 2, 0)  # (N, zones, columns)
-            block[:, cols] = (by_row.reshape(rows[j], d.shape[0]) if r.complete
-                              else by_row[r.mask])
+            flat = d.reshape(d.shape[0], d.shape[1] * d.shape[2])  # a row's zones together
+            block[cols] = flat if r.complete else flat[:, r.mask.ravel()]
         if prob.offsets_fitted:
-            block[np.arange(rows[j]), k + prob.block * j + nz + r.zone_of] = 1.0
+            block[k + prob.block * j + nz + r.zone_of, np.arange(rows[j])] = 1.0
         at += rows[j]
-    return J
+    return Jt.T

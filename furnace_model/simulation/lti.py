@@ -273,6 +273,9 @@ a step as this long, so that one long step (or a mode of a second on minute samp
 not shorten every block."""
 CARRY_BLOCK_MAX = 256
 """The longest block of `carried` (slow modes): its arrays stay a few times the input's."""
+CARRY_SHORT = 16
+"""Steps up to which `carrier` takes its recursion step by step: a heat-up's few burner
+changes cost less so than as blocks, whose tables cost as much as a dozen steps."""
 CARRY_LOOP = 64
 """Blocks of `carried` beyond which their loop costs more than clamping the steps does."""
 
@@ -301,6 +304,8 @@ def carrier(lam: np.ndarray, T: np.ndarray, K: int) -> Callable[[np.ndarray], np
     a sensor lag of seconds on minute samples), `_clamped_carrier` takes them instead."""
     T = np.asarray(T, dtype=float)
     gaps = np.diff(T[:K + 1])
+    if K <= CARRY_SHORT:
+        return _stepped_carrier(lam, gaps)
     L = _block_length(float(np.max(np.abs(np.real(lam)), initial=0.0))
                       * float(np.max(gaps, initial=0.0)))
     if -(-K // L) > CARRY_LOOP:
@@ -317,6 +322,21 @@ def carrier(lam: np.ndarray, T: np.ndarray, K: int) -> Callable[[np.ndarray], np
                    np.exp(lam[:, None, :] * span[None, :, None]),
                    np.exp(lam4 * (span[:, None] - after)[None, :, :, None]))
     return lambda c: walk(_in_rows_of(c, L))[:, :K]
+
+
+def _stepped_carrier(lam: np.ndarray, gaps: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """`carrier` as its recursion, step by step (`CARRY_SHORT`); a step's decay counted at
+    most CARRY_GONE e-folds, as the blocks count it, so that no product goes subnormal."""
+    steps = lam[:, None, :] * gaps[None, :, None]  # (P|1, K, n)
+    decay = np.exp(np.maximum(np.real(steps), -CARRY_GONE)
+                   + (1j * np.imag(steps) if np.iscomplexobj(steps) else 0.0))
+
+    def carry(c: np.ndarray) -> np.ndarray:
+        out = np.zeros(c.shape, np.result_type(c, decay))
+        for k in range(1, c.shape[1]):
+            out[:, k] = decay[:, k - 1] * out[:, k - 1] + c[:, k - 1]
+        return out
+    return carry
 
 
 def _block_length(fastest: float) -> int:

@@ -30,6 +30,12 @@ POLISH_GAIN_TOL = 1e-7
 1e4 residuals at the noise, a thousandth of the noise variance, where an estimate moves by
 a few hundredths of its sd. A tighter one keeps most polishes stepping to their iteration
 limit for gains that change nothing (docs/performance.md)."""
+POLISH_NOISE_SHARE = 1e-3
+"""Nor does it go on once a step lowers the cost by less than this share of the residuals'
+variance: what POLISH_GAIN_TOL comes to at 1e4 residuals, held on shorter records too. A
+window of a furnace in production has about a thousand, where the relative tolerance alone
+asked a ten-thousandth of the variance, and polishes crawled along valley floors for it
+(docs/performance.md)."""
 OUTSIDE_GAIN_TOL = 1e-3
 """An integrated model's polish with the records' own unknowns left free stops once they lie
 outside their box and a step lowers the cost by less than this share: that optimum is not
@@ -37,8 +43,8 @@ physical, so the boxed polish that follows replaces it, and each step towards it
 simulation per unknown (docs/performance.md, "An integrated model's free polish")."""
 STOP_REASONS = {
     "converged": f"the polish converged: its last step changed the cost by less than "
-                 f"{POLISH_GAIN_TOL:g} relative or the unknowns by less than 1e-9, or no step "
-                 "lowered the cost",
+                 f"{POLISH_GAIN_TOL:g} relative or {POLISH_NOISE_SHARE:g} of the residuals' "
+                 "variance, or the unknowns by less than 1e-9, or no step lowered the cost",
     "iteration_limit": f"the polish reached its limit of {POLISH_MAX_ITER} iterations before "
                        "converging",
     "time_budget": "the time budget ran out before the search finished",
@@ -447,7 +453,8 @@ class Problem:
             if above is not None and c_new - (max_iter - done) * drop > above:
                 return Polished(z, r, np.full((r.size, self.n), np.nan), "above", done)
             J = self.jac(z)
-            if gain < gain_tol or moved < 1e-9 or (
+            noise = POLISH_NOISE_SHARE * c_new / max(self.n_obs - self.n, 1)
+            if gain < gain_tol or drop < noise or moved < 1e-9 or (
                     not boxed and not self.structure.linear and gain < OUTSIDE_GAIN_TOL
                     and self._outside(z)):
                 reason = "converged"

@@ -431,9 +431,13 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
         refitted = {float(z[i]): np.delete(z, i)}
 
         def sse_at(z_i: float, i=i, along=along, refitted=refitted, rise=rise) -> float:
-            near = min(refitted, key=lambda v: abs(v - z_i))
+            near, *others = sorted(refitted, key=lambda v: abs(v - z_i))
             start = refitted[near].copy()
-            start[:along.size] += along * (z_i - near)
+            if others:  # along the chord of the two nearest: the valley as refitted
+                start += (refitted[near] - refitted[others[0]]) * (
+                    (z_i - near) / (near - others[0]))
+            else:
+                start[:along.size] += along * (z_i - near)
             p = prob.holding(i, z_i).polish(start, deadline, 30, PROFILE_RISE_SHARE * rise / sse,
                                             1e-7, free_first=False,
                                             above=sse + PROFILE_OUTSIDE * rise)

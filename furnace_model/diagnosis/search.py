@@ -59,8 +59,10 @@ from .verdict import judge
 
 MAX_EFFECTS = 3
 SSE_GAIN = 1e-3
-"""The share by which a refit of the kept effects must lower their fitted squared error to
-replace them: more than an optimiser's tolerance, far less than a real side valley's step."""
+"""The share by which a refit of the kept effects must lower their fitted squared error (or
+their held-out error, refitted from a combination that closes the gap) to replace them:
+more than an optimiser's tolerance, far less than a real side valley's step. A refit that
+ends where the kept set did is not a second row of the table."""
 STEP_TRIES = 8
 """Further effects tried at each step of the combination search, the best singles first: a
 second effect may show nothing alone while a larger one dominates the error."""
@@ -433,8 +435,8 @@ def stepwise(singles: list[CandidateResult], base: CandidateResult, floor: dict[
         # still leaves a clear gap and the effect closes most of it (what lies within the
         # noise is no gap for an effect to close).
         again = refit(kept, best)
-        if np.isfinite(again.rmse_holdout_pooled()) and \
-                again.rmse_holdout_pooled() < kept.rmse_holdout_pooled() and credited(again):
+        if np.isfinite(again.rmse_holdout_pooled()) and credited(again) and \
+                again.rmse_holdout_pooled() < (1 - SSE_GAIN) * kept.rmse_holdout_pooled():
             tried.append(again)
             kept = steps[-1] = again
             if no_gap(kept) or not closes(best, kept, floor):

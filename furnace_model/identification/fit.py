@@ -72,9 +72,9 @@ Enough = Callable[[dict[str, dict[str, float]]], bool]
 `enough`)."""
 SAME_END = 0.1
 """Two polished members of the genetic search whose costs differ by less than this share of
-the residuals' variance end in one valley: on the paper's heat-ups (two experiments, eight
-seeds, two searches each, with and without zone offsets) the first two always did, and a
-third never ended lower."""
+the residuals' variance end in one valley, the same fit as far as the data can tell: two
+distinct members that lead there say the search does, and a third is polished only where
+they disagree (docs/performance.md, "The polish's steps")."""
 SCOUT_STEPS = 10
 """Polish steps each of several starts takes before the lowest goes on: enough to leave
 a start's own misfit (its offsets and initial states, a zone's scale) behind, and for one in
@@ -423,10 +423,10 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
             break
         colour = 1.0 if white or white_cov[i, i] <= 0 else unc.cov[i, i] / white_cov[i, i]
         rise = Z95 ** 2 * unc.sigma ** 2 * colour
-        # Start each refit where the linearisation puts the others for that value (along
-        # the valley: d follows e at fixed d/e), from the refitted trial nearest it (the
-        # optimum, at first), not where they were; from there Gauss-Newton steps (little
-        # damping) reach the minimum in two or three.
+        # Start each refit where the others lie for that value along the valley (d follows
+        # e at fixed d/e), not where they were: the chord of the two refitted trials nearest
+        # it, or at first the linearisation from the optimum; from there Gauss-Newton steps
+        # (little damping) reach the minimum in one to three.
         along = np.delete(cov[:, i] / cov[i, i], i)
         refitted = {float(z[i]): np.delete(z, i)}
 

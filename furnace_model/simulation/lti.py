@@ -326,7 +326,8 @@ def carrier(lam: np.ndarray, T: np.ndarray, K: int) -> Callable[[np.ndarray], np
 
 def _stepped_carrier(lam: np.ndarray, gaps: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     """`carrier` as its recursion, step by step (`CARRY_SHORT`); a step's decay counted at
-    most CARRY_GONE e-folds, as the blocks count it, so that no product goes subnormal."""
+    most CARRY_GONE e-folds, as `_clamped_carrier` counts it, so that no product goes
+    subnormal."""
     steps = lam[:, None, :] * gaps[None, :, None]  # (P|1, K, n)
     decay = np.exp(np.maximum(np.real(steps), -CARRY_GONE)
                    + (1j * np.imag(steps) if np.iscomplexobj(steps) else 0.0))

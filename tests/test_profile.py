@@ -163,3 +163,32 @@ def test_a_fit_that_misses_its_noise_floor_keeps_its_intervals_linearised(scenar
     assert "offset may carry part of the model's error" in said[0]  # fitted with offsets
     worst = max(weaker_fit.per_zone, key=lambda z: weaker_fit.per_zone[z]["rmse_c"])
     assert worst in said[0]
+
+
+def test_a_trial_far_outside_is_known_outside_before_its_refit_ends(scenarios, monkeypatch):
+    """The paper's first heat-up without zone offsets leaves d on its upper bound and its
+    linearised half-width past the box, so each profile's first trial lands on the box's
+    far edge, far above the rise: its refit stops once it cannot come back below (reason
+    "above"), and the intervals are those that refits run to their end give."""
+    from furnace_model.identification import fit as fit_module
+    from furnace_model.identification.problem import Problem
+
+    sc = load_scenario(scenarios / "paper_exp1.yaml")
+    exp = Plant.from_scenario(sc, seed=1).run_scenario(sc).to_experiment()
+    polish = Problem._polish
+    reasons: list[str] = []
+
+    def counted(self, *args, **kwargs):
+        done = polish(self, *args, **kwargs)
+        reasons.append(done.reason)
+        return done
+
+    monkeypatch.setattr(Problem, "_polish", counted)
+    early = fit([exp])
+    assert {"d", "e"} <= set(early.profiled) and "above" in reasons
+    monkeypatch.setattr(fit_module, "PROFILE_OUTSIDE", np.inf)
+    reasons.clear()
+    full = fit([exp])
+    assert "above" not in reasons
+    for name in ("d", "e"):
+        assert early.ci95[name] == pytest.approx(full.ci95[name], rel=1e-3), name

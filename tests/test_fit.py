@@ -575,3 +575,30 @@ def test_an_integrated_models_free_polish_stops_once_its_offsets_leave_their_box
     (_, full, _), (_, _, boxed_full) = ends[0.0]
     assert cut < full
     assert boxed_cut == pytest.approx(boxed_full, rel=1e-5)
+
+
+def test_members_that_end_in_one_valley_leave_the_rest_unpolished(paper_1min, monkeypatch):
+    """Two distinct members of the genetic search polished to one end (within a tenth of
+    the residuals' variance) leave the third unpolished, and the fit is the one that
+    polishing all three gives: the same SSE and parameters to the polish's tolerance."""
+    from furnace_model.identification import fit as fit_module
+    from furnace_model.identification.problem import POLISH_MAX_ITER, Problem
+
+    polish = Problem.polish
+    full: list[int] = []
+
+    def counted(self, z0, deadline, max_iter=POLISH_MAX_ITER, *args, **kwargs):
+        if max_iter == POLISH_MAX_ITER and not args and not kwargs:
+            full.append(max_iter)  # a member's polish, not a profile's refit
+        return polish(self, z0, deadline, max_iter, *args, **kwargs)
+
+    monkeypatch.setattr(Problem, "polish", counted)
+    two = fit([paper_1min], profile=False)
+    assert len(full) == 2
+    monkeypatch.setattr(fit_module, "SAME_END", 0.0)
+    full.clear()
+    three = fit([paper_1min], profile=False)
+    assert len(full) == 3
+    assert two.sse == pytest.approx(three.sse, rel=1e-6)
+    for name in ("a", "b", "c", "f"):
+        assert two.params[name] == pytest.approx(three.params[name], rel=1e-3), name

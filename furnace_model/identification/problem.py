@@ -34,8 +34,8 @@ POLISH_NOISE_SHARE = 1e-3
 """Nor does it go on once a step lowers the cost by less than this share of the residuals'
 variance: what POLISH_GAIN_TOL comes to at 1e4 residuals, held on shorter records too. A
 window of a furnace in production has about a thousand, where the relative tolerance alone
-asked a ten-thousandth of the variance, and polishes crawled along valley floors for it
-(docs/performance.md)."""
+asks a ten-thousandth of the variance, a gain a polish along a valley's floor finds step
+after step (docs/performance.md)."""
 OUTSIDE_GAIN_TOL = 1e-3
 """An integrated model's polish with the records' own unknowns left free stops once they lie
 outside their box and a step lowers the cost by less than this share: that optimum is not

@@ -5,11 +5,13 @@ Exact (`furnace_model.simulation.sensitivity`): every parameter that moves the s
 matrices, its input levels or a thermocouple's own error, and every initial state, in one
 pass over each record. The derivatives of the matrices and levels themselves are central
 differences of how the structure builds them (no simulation, and exact to about 1e-10 for
-the rational expressions they are); those of the response are closed-form. Two kinds of
-parameter stay with forward differences, one simulation per column: those that move the
-times at which the input steps (a dead time, the instant of a fuel change), where the
-response is not differentiable in the closed form's terms (and those that move what the
-sensors read, C), and every parameter of a structure with a nonlinear term (radiation).
+the rational expressions they are); those of the response are closed-form, and so are
+those of a parameter that moves the instants at which the input steps (a dead time, the
+instant of a fuel change): each moved step is an impulse in the input's derivative. Some
+parameters stay with forward differences, one simulation per column: one that moves a
+step's instant and its level at once (an instant within a difference step of another
+step), one that moves what the sensors read (C), and every parameter of a structure with a
+nonlinear term (radiation).
 """
 
 from __future__ import annotations
@@ -112,11 +114,12 @@ def _exact(prob: Problem, z: np.ndarray) -> np.ndarray:
     per_record = []
     for j, r in enumerate(prob.records):
         drive = structure.drive(theta, r.inputs)
-        base, d_u0, d_du, moved = _drive_derivatives(drive, h)
+        base, d_u0, d_du, d_s, moved = _drive_derivatives(drive, h)
         timed |= moved
         x0 = structure.full_state(prob.x0_of(z, j)[None])[0]
         dy, dy0 = response_sensitivity(sys.A[0], sys.B[0], sys.C[0], dA, dB, base, d_u0,
-                                          d_du, x0, directions, float(r.inputs.t[0]), r.t, modes)
+                                          d_du, x0, directions, float(r.inputs.t[0]), r.t, modes,
+                                          d_s)
         if sensed.size:
             off = structure.sensor_offsets({n: v[rows] for n, v in vals.items()}, r.t)
             d_off = (off[1::2] - off[2::2]) / (2.0 * h[sensed])[:, None, None]
@@ -132,22 +135,25 @@ def _exact(prob: Problem, z: np.ndarray) -> np.ndarray:
 
 
 def _drive_derivatives(drive: Drive, h: np.ndarray
-                       ) -> tuple[Drive, np.ndarray, np.ndarray, np.ndarray]:
+                       ) -> tuple[Drive, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The drive of the central set (set 0 of 1 + 2k: the point, then each parameter up,
-    then down), the derivatives of its levels (k, m) and (k, K, m), and which parameters
-    move its step times (whose levels' derivative is then meaningless)."""
+    then down), the derivatives of its levels (k, m) and (k, K, m) and of its step times
+    (k, K), and which parameters move both a step's time and the levels: across the
+    difference's span an instant then passes another step, so neither derivative holds."""
     k = h.size
     P = 1 + 2 * k
     s = np.broadcast_to(drive.s, (P,) + np.shape(drive.s)[-1:])
     u0 = np.broadcast_to(drive.u0, (P,) + drive.u0.shape[1:])
     du = np.broadcast_to(drive.du, (P,) + drive.du.shape[1:])
-    moved = np.any(s[1:] != s[0], axis=1)
-    moved = moved[:k] | moved[k:]
+    d_s = (s[1:1 + k] - s[1 + k:]) / (2.0 * h)[:, None]
     d_u0 = (u0[1:1 + k] - u0[1 + k:]) / (2.0 * h)[:, None]
     d_du = (du[1:1 + k] - du[1 + k:]) / (2.0 * h)[:, None, None]
-    d_u0[moved], d_du[moved] = 0.0, 0.0
+    timed = np.any(s[1:] != s[0], axis=1)
+    levels = np.any(u0[1:] != u0[0], axis=1) | np.any(du[1:] != du[0], axis=(1, 2))
+    moved = (timed[:k] | timed[k:]) & (levels[:k] | levels[k:])
+    d_s[moved], d_u0[moved], d_du[moved] = 0.0, 0.0, 0.0
     base = Drive(drive.t0, u0[:1], s[0], du[:1])
-    return base, d_u0, d_du, moved
+    return base, d_u0, d_du, d_s, moved
 
 
 def _assemble(prob: Problem, per_record: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:

@@ -18,6 +18,10 @@ No eigenvector derivative is needed, and one pass gives every parameter's column
 finite difference needs a simulation per column and is good to about the square root of
 the rounding. Modes that (nearly) coincide, as the lags of several zones with one time
 constant do, take the quotient's limit as a series (`_coefficients`).
+
+A parameter that moves the instant s_k of a step du_k (a dead time, a fuel switch) moves
+the input by -du_k ds_k/dp over an instant: an impulse, so sigma jumps by -W B du_k ds_k/dp
+at s_k and decays from there as from any other segment's start.
 """
 
 from __future__ import annotations
@@ -40,8 +44,8 @@ class NoClosedForm(ValueError):
 def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.ndarray,
                          dB: np.ndarray, drive: Drive, d_u0: np.ndarray | None,
                          d_du: np.ndarray | None, x0: np.ndarray, dx0: np.ndarray,
-                         t0: float, t: np.ndarray, modes: Modes | None = None
-                         ) -> tuple[np.ndarray, np.ndarray]:
+                         t0: float, t: np.ndarray, modes: Modes | None = None,
+                         d_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The outputs' derivatives for one parameter set.
 
     A (n, n), B (n, m), C (q, n); dA (p, n, n) and dB (p, n, m) their derivatives with
@@ -49,7 +53,9 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
     d_du (p, K, m) the derivatives of its levels (None: the levels do not move); x0 (n,)
     the state at t0 and dx0 (r, n) directions of it. Returns dy/dp (p, N, q) and dy/dx0
     along each direction (r, N, q). Raises NoClosedForm where `response` itself
-    would leave the eigenbasis. `modes`: A's, when several records share it.
+    would leave the eigenbasis. `modes`: A's, when several records share it. d_s (p, K):
+    the derivatives of the drive's step times (None: they do not move); a step at or
+    before t0 is in the state there already, and moving it moves nothing.
     """
     t = np.asarray(t, dtype=float)
     modes = modes or Modes.of(A[None])
@@ -88,14 +94,20 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
     longest = max(float(gaps.max()) if gaps.size else 0.0,
                   float(t[-1] - bounds[-1]) if t.size else 0.0, 1e-300)
     coef = _coefficients(F, lam, c, h, longest)
+    jump = None if d_s is None else _jumps(np.asarray(d_s, dtype=float)[:, order], du,
+                                           W @ B, last)
     sig = np.zeros((p, Kb, n), np.result_type(coef.Fg, c, h))
     if Kb > 1:
         basis = _basis(lam, gaps, coef.M.shape[2]).reshape(Kb - 1, -1, n)
         step = (np.einsum("kbj,pkbj->pkj", basis, coef.M[:, :-1])
                 + coef.apart(decay * c[:-1]) + coef.const[:, :-1])
+        if jump is not None:  # a segment's start jumped: the jump decays through it
+            step = step + decay * jump[:, :-1]
         # sig[k + 1] = decay[k] sig[k] + step[k], in blocks
         sig = carried(lam[None], np.append(bounds, bounds[-1]),
                       np.concatenate([step, np.zeros_like(step[:, :1])], axis=1))
+    if jump is not None:
+        sig = sig + jump
     CVt = (C @ V).T  # (n, q)
     nb = coef.M.shape[2]
     q = C.shape[0]
@@ -133,6 +145,21 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
         np.einsum("rj,jq->jqr", start, CVt).reshape(n, -1), None, cx, n)
     return (dy.transpose(2, 0, 1),
             dy0.reshape(t.size, q, start.shape[0]).transpose(2, 0, 1))
+
+
+def _jumps(d_s: np.ndarray, du: np.ndarray, WB: np.ndarray, last: np.ndarray
+           ) -> np.ndarray | None:
+    """sigma's jump at each segment's start (p, Kb, n) as its steps' instants move: d_s
+    (p, K) and du (K, m) in time order, `last` the last step at or before each start
+    (`segment_bounds`). None where no instant after the first start moves."""
+    first = int(last[0]) + 1  # the steps before it are in the start state
+    if last.size < 2 or not np.any(d_s[:, first:]):
+        return None
+    kick = -d_s[:, first:, None] * (du[first:] @ WB.T)[None]  # (p, steps after t0, n)
+    jump = np.zeros((d_s.shape[0], last.size, WB.shape[0]), kick.dtype)
+    # each start after the first holds the steps since the one before
+    jump[:, 1:] = np.add.reduceat(kick, last[:-1] + 1 - first, axis=1)
+    return jump
 
 
 CLOSE = 1e-3

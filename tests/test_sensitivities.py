@@ -252,3 +252,18 @@ def test_closed_form_with_a_conjugate_pair_of_modes(steps):
     for i in range(n):
         ref = simulated(np.zeros(p), x0 + np.eye(n)[i]) - simulated(np.zeros(p))
         assert np.abs(dy0[i] - ref).max() <= 1e-9 * np.abs(ref).max(), i
+
+
+def test_jacobian_with_every_rate_held(record):
+    """A refit of a record's own unknowns (its initial states and offsets) under rates held
+    fixed, as a held-out record's is: no column moves the drive, and the closed form gives
+    the state's and offsets' columns all the same."""
+    structure = ModelStructure([FuelChange(furnace=PAPER)], furnace=PAPER)
+    fixed = {**PAPER_TABLE_V, "t_fuel": 1201.0, "fuel_ratio": 0.85}
+    prob = Problem([record], structure, fixed, {}, zone_offsets=True)
+    assert prob.k == 0
+    z = prob.start(np.zeros(0))
+    z[:3] += np.array([4.0, -3.0, 2.0])
+    J, ref = prob.jac(z), _central(prob, z)
+    assert J.shape == ref.shape == (prob.fun(z).size, 6)
+    assert np.abs(J - ref).max() <= 1e-6 * np.abs(ref).max()

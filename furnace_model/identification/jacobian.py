@@ -7,7 +7,7 @@ pass over each record. The derivatives of the matrices and levels themselves are
 differences of how the structure builds them (no simulation, and exact to about 1e-10 for
 the rational expressions they are); those of the response are closed-form, and so are
 those of a parameter that moves the instants at which the input steps (a dead time, the
-instant of a fuel change): each moved step is an impulse in the input's derivative. Some
+instant of a fuel change): moving a step puts an impulse into the input. Some
 parameters stay with forward differences, one simulation per column: one that moves a
 step's instant and its level at once (an instant within a difference step of another
 step), one that moves what the sensors read (C), and every parameter of a structure with a

@@ -98,6 +98,43 @@ def test_a_start_that_is_no_guide_is_searched_as_from_scratch():
         assert lo == pytest.approx(cold[0], rel=0.02) and hi == pytest.approx(cold[1], rel=0.02)
 
 
+@pytest.mark.parametrize("name", ["paper_exp1", "paper_exp2"])
+def test_a_profile_correlated_with_one_before_starts_from_its_ends(scenarios, monkeypatch,
+                                                                  name):
+    """e, profiled after d (their correlation near 1), starts from where d's refits put it
+    at d's ends: it ends where its own search from the linearised half-width does, to that
+    search's widths (2% of the distance on the search scale), in fewer refits."""
+    from furnace_model.identification import fit as fit_module
+
+    sc = load_scenario(scenarios / f"{name}.yaml")
+    exp = Plant.from_scenario(sc, seed=1).run_scenario(sc).to_experiment()
+    searches: list[tuple[float, int]] = []
+    search = fit_module.profile_interval
+
+    def counted(sse_at, z_hat, *args):
+        count = [0]
+
+        def each(z):
+            count[0] += 1
+            return sse_at(z)
+
+        ends = search(each, z_hat, *args)
+        searches.append((z_hat, count[0]))
+        return ends
+
+    monkeypatch.setattr(fit_module, "profile_interval", counted)
+    guided = fit([exp], seed=1)
+    assert guided.profiled == ["d", "e"]
+    (_, _), (z_e, n_guided) = searches
+    searches.clear()
+    cold = fit([exp], seed=1, profile=["e"])
+    assert cold.profiled == ["e"] and searches[0][0] == z_e
+    n_cold = searches[0][1]
+    assert n_guided < n_cold, (n_guided, n_cold)
+    for g, c in zip(np.log(guided.ci95["e"]), np.log(cold.ci95["e"]), strict=True):
+        assert g == pytest.approx(c, abs=0.02 * abs(c - z_e)), (guided.ci95["e"], cold.ci95["e"])
+
+
 @pytest.mark.slow
 def test_warm_started_window_intervals_equal_the_cold_ones(scenarios):
     """Consecutive refit windows (45 h, 15 min apart) of the paper's first heat-up, hardest
@@ -167,7 +204,7 @@ def test_a_fit_that_misses_its_noise_floor_keeps_its_intervals_linearised(scenar
 
 def test_a_trial_far_outside_is_known_outside_before_its_refit_ends(scenarios, monkeypatch):
     """The paper's first heat-up without zone offsets leaves d on its upper bound and its
-    linearised half-width past the box, so each profile's first trial lands on the box's
+    linearised half-width past the box, so its profile's first trial lands on the box's
     far edge, far above the rise: its refit stops once it cannot come back below (reason
     "above"), and the intervals are those that refits run to their end give."""
     from furnace_model.identification import fit as fit_module

@@ -413,10 +413,16 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
     """Profile-likelihood intervals of the named (wide) parameters, in their own units; the
     criterion's rise at the ends is the linearised interval's, with the residual's colour
     (`white`: the white-noise interval's, without it).
-    `starts` (own units): where each search starts (a neighbouring window's ends)."""
+    `starts` (own units): where each search starts (a neighbouring window's ends).
+
+    A parameter correlated with one profiled before it starts where that profile's refits
+    put it at their ends, scaled by the correlation: the paper's d and e share one valley,
+    and the second search then needs one or two refits a side where it took five to
+    eight, stepping out from a linearised half-width that says nothing near a bound."""
     out = {}
     white_cov = unc.cov_white if unc.cov_white is not None else unc.cov
     cov = white_cov if white else unc.cov
+    done: list[tuple[int, tuple[float, float], dict[float, np.ndarray]]] = []
     for name in names:
         i = prob.names.index(name)
         if deadline is not None and time.perf_counter() > deadline:
@@ -431,13 +437,7 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
         refitted = {float(z[i]): np.delete(z, i)}
 
         def sse_at(z_i: float, i=i, along=along, refitted=refitted, rise=rise) -> float:
-            near, *others = sorted(refitted, key=lambda v: abs(v - z_i))
-            start = refitted[near].copy()
-            if others:  # along the chord of the two nearest: the valley as refitted
-                start += (refitted[near] - refitted[others[0]]) * (
-                    (z_i - near) / (near - others[0]))
-            else:
-                start[:along.size] += along * (z_i - near)
+            start = _on_valley(refitted, z_i, along)
             p = prob.holding(i, z_i).polish(start, deadline, 30, PROFILE_RISE_SHARE * rise / sse,
                                             1e-7, free_first=False,
                                             above=sse + PROFILE_OUTSIDE * rise)
@@ -451,13 +451,58 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
             if prob.log[i]:
                 ends = np.log(np.where(ends > 0, ends, np.nan))
             start = (float(ends[0]), float(ends[1]))
+        else:
+            start = _guided(i, z, cov, done)
         lo, hi = profile_interval(sse_at, float(z[i]), Z95 * float(np.sqrt(cov[i, i])),
                                   sse, rise, float(prob.lo[i]), float(prob.hi[i]), start)
+        done.append((i, (lo, hi), refitted))
         if prob.log[i]:
             out[name] = within((float(np.exp(lo)), float(np.exp(hi))), float(np.exp(z[i])))
         else:
             out[name] = within((float(lo), float(hi)), float(z[i]))
     return out
+
+
+PROFILE_GUIDE_CORR = 0.9
+"""The least correlation (linearised) with a parameter profiled before at which its
+profile's ends guide another's search: below it the refits' values say little of where
+the other's criterion crosses."""
+
+
+def _on_valley(refitted: Mapping[float, np.ndarray], z_i: float, along: np.ndarray
+               ) -> np.ndarray:
+    """The other unknowns at z_i of a profiled parameter: along the chord of the two refitted
+    trials nearest it, or with one, by the linearisation `along` from it."""
+    near, *others = sorted(refitted, key=lambda v: abs(v - z_i))
+    start = refitted[near].copy()
+    if others:
+        return start + (refitted[near] - refitted[others[0]]) * (
+            (z_i - near) / (near - others[0]))
+    start[:along.size] += along * (z_i - near)
+    return start
+
+
+def _guided(j: int, z: np.ndarray, cov: np.ndarray,
+            done: Sequence[tuple[int, tuple[float, float], Mapping[float, np.ndarray]]]
+            ) -> tuple[float, float] | None:
+    """Where parameter j's profile should start its searches (search scale), from the most
+    correlated profile already done: j's value on that profile's valley at each of its ends,
+    divided by the correlation (for a quadratic criterion exactly j's own ends). None where
+    no profile done is correlated enough (PROFILE_GUIDE_CORR)."""
+    best, guide = PROFILE_GUIDE_CORR, None
+    for i, ends, refitted in done:
+        if cov[i, i] <= 0 or cov[j, j] <= 0:
+            continue
+        rho = cov[i, j] / np.sqrt(cov[i, i] * cov[j, j])
+        if abs(rho) >= best and len(refitted) > 1:
+            best, guide = abs(rho), (i, ends, refitted, rho)
+    if guide is None:
+        return None
+    i, ends, refitted, rho = guide
+    k = j - (j > i)  # j's place among the unknowns other than i
+    along = np.delete(cov[:, i] / cov[i, i], i)
+    at = [float(z[j] + (_on_valley(refitted, end, along)[k] - z[j]) / rho) for end in ends]
+    return (min(at), max(at))
 
 
 def _around(prob: Problem, start: np.ndarray, intervals: Mapping[str, tuple[float, float]],

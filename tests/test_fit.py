@@ -431,6 +431,34 @@ def test_why_the_search_stopped_and_after_how_many_iterations(paper_1min):
     assert (short.reason, short.iterations) == ("iteration_limit", 2)
 
 
+def test_polishes_run_together_end_where_each_alone_ends(paper_1min, monkeypatch):
+    """Polishes from several starts, their residuals evaluated in one batched call per
+    round, end bit for bit where each polished alone ends (a linear structure's batch
+    simulates each set as it would alone), in fewer evaluation calls."""
+    from furnace_model.identification.problem import Problem
+
+    prob = Problem([paper_1min], ModelStructure(furnace=PAPER), {}, {}, zone_offsets=True)
+    truth = prob.to_z(np.array([PAPER_TABLE_V[n] for n in prob.names]))
+    rng = np.random.default_rng(2)
+    starts = [prob.start(truth + rng.normal(0.0, 0.5, truth.size)) for _ in range(4)]
+    calls = [0]
+    fun_many = Problem.fun_many
+
+    def counted(self, Z):
+        calls[0] += 1
+        return fun_many(self, Z)
+
+    monkeypatch.setattr(Problem, "fun_many", counted)
+    alone = [prob.polish(z, None) for z in starts]
+    calls_alone, calls[0] = calls[0], 0
+    together = prob.polish_many(starts, None)
+    assert calls[0] < calls_alone / 2, (calls[0], calls_alone)
+    assert len({p.iterations for p in alone}) > 1  # runs that end in different rounds
+    for a, b in zip(alone, together, strict=True):
+        assert (a.reason, a.iterations, a.free_cost) == (b.reason, b.iterations, b.free_cost)
+        assert np.array_equal(a.z, b.z) and np.array_equal(a.r, b.r)
+
+
 def test_an_unknown_on_its_bound_that_the_step_would_carry_past_it_stays_there():
     """The gradient alone frees unknown 0 from its lower bound (it would lower the cost
     moving inward), but the step coupled with unknown 1 carries it outward: the step is
@@ -558,8 +586,8 @@ def test_an_integrated_models_free_polish_stops_once_its_offsets_leave_their_box
     phases = []
     polish = Problem._polish
 
-    def spied(self, *args, **kwargs):
-        out = polish(self, *args, **kwargs)
+    def spied(self, *args, **kwargs):  # a polish is a generator (Problem._polish)
+        out = yield from polish(self, *args, **kwargs)
         phases.append((kwargs["boxed"], out.iterations, float(out.r @ out.r)))
         return out
 
@@ -584,15 +612,15 @@ def test_members_that_end_in_one_valley_leave_the_rest_unpolished(paper_1min, mo
     from furnace_model.identification import fit as fit_module
     from furnace_model.identification.problem import POLISH_MAX_ITER, Problem
 
-    polish = Problem.polish
+    polish = Problem._polish_run
     full: list[int] = []
 
-    def counted(self, z0, deadline, max_iter=POLISH_MAX_ITER, *args, **kwargs):
-        if max_iter == POLISH_MAX_ITER and not args and not kwargs:
+    def counted(self, z0, deadline, max_iter, *args):
+        if max_iter == POLISH_MAX_ITER:
             full.append(max_iter)  # a member's polish, not a profile's refit
-        return polish(self, z0, deadline, max_iter, *args, **kwargs)
+        return (yield from polish(self, z0, deadline, max_iter, *args))
 
-    monkeypatch.setattr(Problem, "polish", counted)
+    monkeypatch.setattr(Problem, "_polish_run", counted)
     two = fit([paper_1min], profile=False)
     assert len(full) == 2
     monkeypatch.setattr(fit_module, "SAME_END", 0.0)

@@ -215,8 +215,8 @@ def test_a_trial_far_outside_is_known_outside_before_its_refit_ends(scenarios, m
     polish = Problem._polish
     reasons: list[str] = []
 
-    def counted(self, *args, **kwargs):
-        done = polish(self, *args, **kwargs)
+    def counted(self, *args, **kwargs):  # a polish is a generator (Problem._polish)
+        done = yield from polish(self, *args, **kwargs)
         reasons.append(done.reason)
         return done
 

@@ -550,7 +550,7 @@ def _seeded_run(prob: Problem, box: tuple[np.ndarray, np.ndarray], population: i
                            deadline=ga_deadline)
     ga_cut = found.generations < generations  # only the deadline ends it early
     picked = [start, found.best] if found.best_f < at_start - variance else [start]
-    polished = [prob.polish(begin(z), deadline, damping=damping) for z in picked]
+    polished = prob.polish_many([begin(z) for z in picked], deadline, damping=damping)
     report(1.0)
     best = _lowest(polished)
     cut = ga_cut or any(p.reason == "time_budget" for p in polished)
@@ -582,8 +582,8 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
         if len(starts) == 1:
             p = prob.polish(begin(starts[0]), deadline, damping=damping)
         else:
-            scouts = sorted((prob.polish(begin(z), deadline, SCOUT_STEPS, damping=damping)
-                             for z in starts), key=_cost)
+            scouts = sorted(prob.polish_many([begin(z) for z in starts], deadline,
+                                             SCOUT_STEPS, damping=damping), key=_cost)
             ends: list[Polished] = []
             lowest, stalled = np.inf, 0
             for scout in scouts:
@@ -618,18 +618,20 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
     # An integrated model's step costs a simulation per parameter (its Jacobian by
     # differences), so there each member is scouted and only the lowest polished to the end.
     steps = POLISH_MAX_ITER if prob.structure.linear else SCOUT_STEPS
-    polished: list[Polished] = []
     picked: list[np.ndarray] = []
     first = [np.clip(z, prob.lo, prob.hi) for z in starts]
     for cand in [*first, *found.population]:
         if len(picked) == 3 + len(first):
             break
-        if any(np.max(np.abs(cand - p)) < 0.3 for p in picked):
-            continue
-        picked.append(cand)
-        polished.append(prob.polish(begin(cand), deadline, steps))
-        if steps == POLISH_MAX_ITER and _one_valley(prob, polished[len(first):]):
+        if not any(np.max(np.abs(cand - p)) < 0.3 for p in picked):
+            picked.append(cand)
+    # the starts and the first two members are polished whatever their ends: together
+    together = len(first) + 2 if steps == POLISH_MAX_ITER else len(picked)
+    polished = prob.polish_many([begin(z) for z in picked[:together]], deadline, steps)
+    for cand in picked[together:]:
+        if _one_valley(prob, polished[len(first):]):
             break
+        polished.append(prob.polish(begin(cand), deadline, steps))
     report(1.0)
     best = _lowest(polished)
     if best.reason == "iteration_limit" and steps < POLISH_MAX_ITER:

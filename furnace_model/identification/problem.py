@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import copy
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -380,20 +380,43 @@ class Problem:
         outside its interval or not). The polish stops ("above") once its cost less what
         the steps left to it could take at its last step's gain stays above that level: a
         trial far outside need not be refitted to the end to be known outside."""
+        return self.polish_many([z0], deadline, max_iter, gain_tol, damping, free_first,
+                                above)[0]
+
+    def polish_many(self, starts: Sequence[np.ndarray], deadline: float | None,
+                    max_iter: int = POLISH_MAX_ITER, gain_tol: float = POLISH_GAIN_TOL,
+                    damping: float = 1e-3, free_first: bool = True,
+                    above: float | None = None) -> list[Polished]:
+        """`polish` from each start, each run on its own but their residuals evaluated
+        together: a linear structure's batched simulation of a few parameter sets costs
+        little more than one's (two sets 1.3 times one), and each row is what it would be
+        alone, to the bit. A nonlinear one's sets are integrated one run after another."""
+        runs = [self._polish_run(z0, deadline, max_iter, gain_tol, damping, free_first, above)
+                for z0 in starts]
+        if not self.structure.linear:
+            return [_driven(self, [run])[0] for run in runs]
+        return _driven(self, runs)
+
+    def _polish_run(self, z0: np.ndarray, deadline: float | None, max_iter: int,
+                    gain_tol: float, damping: float, free_first: bool, above: float | None
+                    ) -> PolishRun:
         if not free_first:
-            return self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=True,
-                                above=above)
-        free = self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=False)
+            return (yield from self._polish(z0, deadline, max_iter, gain_tol, damping,
+                                            boxed=True, above=above))
+        free = yield from self._polish(z0, deadline, max_iter, gain_tol, damping, boxed=False)
         if free.reason == "not_finite" or not self._outside(free.z):
             return free
-        boxed = self._polish(free.z, deadline, max_iter, gain_tol, damping, boxed=True)
+        boxed = yield from self._polish(free.z, deadline, max_iter, gain_tol, damping,
+                                        boxed=True)
         boxed.free_cost = float(free.r @ free.r)
         return boxed
 
     def _polish(self, z0: np.ndarray, deadline: float | None, max_iter: int,
                 gain_tol: float, damping: float, boxed: bool, above: float | None = None
-                ) -> Polished:
+                ) -> PolishRun:
         """One Levenberg-Marquardt run; `boxed`: the records' own unknowns in their box.
+        A generator: it yields the unknown vectors (P, n) whose residuals it needs and is
+        sent them (P, m) (`_driven`).
 
         The steps are those of scipy's least_squares, solved on the n x n normal equations
         instead of a QR or SVD of the tall Jacobian: with tens of thousands of residuals and
@@ -406,7 +429,12 @@ class Problem:
         lo = np.concatenate([self.lo, self.nuisance_lo if boxed else -wide])
         hi = np.concatenate([self.hi, self.nuisance_hi if boxed else wide])
         z = np.clip(z0, lo, hi)
-        r = self.fun(z)
+        key, hit = z.tobytes(), self._memo.get("fun")
+        if hit is not None and hit[0] == key:
+            r = hit[1]
+        else:
+            r = (yield z[None])[0]
+            self._memo["fun"] = (key, r)
         cost = float(r @ r)
         if not np.isfinite(cost):
             return Polished(z, r, np.zeros((r.size, self.n)), "not_finite", 0)
@@ -432,7 +460,7 @@ class Problem:
                 mus = mu * 4.0 ** np.arange(trials)
                 Z = np.array([np.clip(z - _bounded_step(H, g, m * d, move, z, lo, hi), lo, hi)
                               for m in mus])
-                R = self.fun_many(Z)
+                R = yield Z
                 costs = np.einsum("pm,pm->p", R, R)
                 for i in range(trials):  # the first damping that lowers the cost, as in turn
                     if np.isfinite(costs[i]) and costs[i] < cost:
@@ -511,6 +539,33 @@ class Polished:
     was not physical and the polish went on inside their box: at or above the free optimum
     (an integrated model's stops short of it, `OUTSIDE_GAIN_TOL`), so that a bound that
     `held_by_bounds` finds costly is at least that costly."""
+
+
+PolishRun = Generator[np.ndarray, np.ndarray, Polished]
+"""A polish in progress (`Problem._polish`): yields unknown vectors, is sent their residuals."""
+
+
+def _driven(prob: Problem, runs: list[PolishRun]) -> list[Polished]:
+    """Each run to its end, the residuals all of them ask for at once from one batched
+    evaluation (`Problem.fun_many`); their ends, in order."""
+    ends: list[Polished | None] = [None] * len(runs)
+    asked: dict[int, np.ndarray] = {}
+    for i, run in enumerate(runs):
+        try:
+            asked[i] = next(run)
+        except StopIteration as end:
+            ends[i] = end.value
+    while asked:
+        rows = np.cumsum([0] + [Z.shape[0] for Z in asked.values()])
+        R = prob.fun_many(np.concatenate(list(asked.values())))
+        now = {}
+        for (i, _), a, b in zip(asked.items(), rows[:-1], rows[1:], strict=True):
+            try:
+                now[i] = runs[i].send(R[a:b])
+            except StopIteration as end:
+                ends[i] = end.value
+        asked = now
+    return ends  # type: ignore[return-value]
 
 
 def correlation_time(e: np.ndarray) -> float:

@@ -389,8 +389,9 @@ class Problem:
                     above: float | None = None) -> list[Polished]:
         """`polish` from each start, each run on its own but their residuals evaluated
         together: a linear structure's batched simulation of a few parameter sets costs
-        little more than one's (two sets 1.3 times one), and each row is what it would be
-        alone, to the bit. A nonlinear one's sets are integrated one run after another."""
+        little more than one's, and gives each set what it gives alone, to the bit. A
+        nonlinear one's batch agrees with each set alone only to rounding, on which a
+        polish's path may turn: its runs go one after another."""
         runs = [self._polish_run(z0, deadline, max_iter, gain_tol, damping, free_first, above)
                 for z0 in starts]
         if not self.structure.linear:

@@ -433,8 +433,8 @@ def test_why_the_search_stopped_and_after_how_many_iterations(paper_1min):
 
 def test_polishes_run_together_end_where_each_alone_ends(paper_1min, monkeypatch):
     """Polishes from several starts, their residuals evaluated in one batched call per
-    round, end bit for bit where each polished alone ends (a linear structure's batch
-    simulates each set as it would alone), in fewer evaluation calls."""
+    round, end bit for bit where each polished alone ends (a linear structure's batch of
+    a few sets simulates each as it would alone), in fewer evaluation calls."""
     from furnace_model.identification.problem import Problem
 
     prob = Problem([paper_1min], ModelStructure(furnace=PAPER), {}, {}, zone_offsets=True)

@@ -416,9 +416,10 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
     `starts` (own units): where each search starts (a neighbouring window's ends).
 
     A parameter correlated with one profiled before it starts where that profile's refits
-    put it at their ends, scaled by the correlation: the paper's d and e share one valley,
-    and the second search then needs one or two refits a side where it took five to
-    eight, stepping out from a linearised half-width that says nothing near a bound."""
+    put it at their ends, scaled by the correlation (`_guided`): the paper's d and e share
+    one valley, and the second search then needs one or two refits a side, where one
+    stepping out from a linearised half-width, which says nothing near a bound, needs five
+    to eight."""
     out = {}
     white_cov = unc.cov_white if unc.cov_white is not None else unc.cov
     cov = white_cov if white else unc.cov

@@ -389,9 +389,12 @@ class Problem:
                     above: float | None = None) -> list[Polished]:
         """`polish` from each start, each run on its own but their residuals evaluated
         together: a linear structure's batched simulation of a few parameter sets costs
-        little more than one's, and gives each set what it gives alone, to the bit. A
-        nonlinear one's batch agrees with each set alone only to rounding, on which a
-        polish's path may turn: its runs go one after another."""
+        little more than one's, and gives each set what it gives alone: to the bit while
+        the batch is simulated the way one set is, to rounding where its size takes the
+        simulator another way (`lti.response`). A nonlinear one's runs go one after
+        another: its batch agrees with each set alone to rounding only whatever its size,
+        and the verdicts the diagnosis reaches with its integrated candidates are checked
+        with them so."""
         runs = [self._polish_run(z0, deadline, max_iter, gain_tol, damping, free_first, above)
                 for z0 in starts]
         if not self.structure.linear:

@@ -333,13 +333,19 @@ class Problem:
         """compute() for unknowns z, or what it gave last time for the same z: a fit asks
         for the residuals, Jacobian and zone series at its optimum several times over (the
         scores of each run, the intervals, the criteria), and each is a simulation."""
-        key = np.asarray(z, dtype=float).tobytes()
         hit = self._memo.get(what)
-        if hit is not None and hit[0] == key:
-            return hit[1]
-        value = compute()
-        self._memo[what] = (key, value)
-        return value
+        key = np.asarray(z, dtype=float).tobytes()
+        if hit is None or hit[0] != key:
+            hit = self._memo[what] = (key, compute())
+        return hit[1]
+
+    def _remembered_fun(self, z: np.ndarray) -> Generator[np.ndarray, np.ndarray, np.ndarray]:
+        """`fun(z)` inside a polish (`_polish`): remembered as `remembered` does, the
+        residuals asked for by yielding z where they are not."""
+        key, hit = np.asarray(z, dtype=float).tobytes(), self._memo.get("fun")
+        if hit is None or hit[0] != key:
+            hit = self._memo["fun"] = (key, (yield z[None])[0])
+        return hit[1]
 
     def fun(self, z: np.ndarray) -> np.ndarray:
         return self.remembered("fun", z, lambda: self.fun_many(z[None])[0])
@@ -392,9 +398,8 @@ class Problem:
         little more than one's, and gives each set what it gives alone: to the bit while
         the batch is simulated the way one set is, to rounding where its size takes the
         simulator another way (`lti.response`). A nonlinear one's runs go one after
-        another: its batch agrees with each set alone to rounding only whatever its size,
-        and the verdicts the diagnosis reaches with its integrated candidates are checked
-        with them so."""
+        another: its batch agrees with each set alone only to rounding whatever its size,
+        and a polish's path may turn on a rounding."""
         runs = [self._polish_run(z0, deadline, max_iter, gain_tol, damping, free_first, above)
                 for z0 in starts]
         if not self.structure.linear:
@@ -433,12 +438,7 @@ class Problem:
         lo = np.concatenate([self.lo, self.nuisance_lo if boxed else -wide])
         hi = np.concatenate([self.hi, self.nuisance_hi if boxed else wide])
         z = np.clip(z0, lo, hi)
-        key, hit = z.tobytes(), self._memo.get("fun")
-        if hit is not None and hit[0] == key:
-            r = hit[1]
-        else:
-            r = (yield z[None])[0]
-            self._memo["fun"] = (key, r)
+        r = yield from self._remembered_fun(z)
         cost = float(r @ r)
         if not np.isfinite(cost):
             return Polished(z, r, np.zeros((r.size, self.n)), "not_finite", 0)

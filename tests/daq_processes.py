@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import asyncio
 import os
+import re
 import select
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 import yaml
@@ -40,19 +42,47 @@ def furnace_daq(*args: str, **kw) -> subprocess.Popen:
 
 def start_simplc(*args: str, timeout: float = 20.0) -> tuple[subprocess.Popen, int]:
     """Start `furnace-daq sim-plc` on a free port; return once it prints where it listens."""
-    proc = furnace_daq("sim-plc", "--scenario", str(SCENARIO), "--port", "0", *args)
+    return listening(furnace_daq("sim-plc", "--scenario", str(SCENARIO), "--port", "0", *args),
+                     timeout)
+
+
+def listening(proc: subprocess.Popen, timeout: float = 20.0) -> tuple[subprocess.Popen, int]:
+    """`proc` and its port once a `sim-plc` says where it listens; stopped if it never does."""
+    try:
+        line = wait_for_line(proc, r"^listening on ", timeout, stream="stdout")[-1]
+    except AssertionError as exc:
+        proc.kill()
+        _, err = proc.communicate(timeout=10)
+        raise RuntimeError(f"sim-plc did not start: {exc}; stderr {err!r}") from None
+    return proc, int(line.rsplit(":", 1)[1])
+
+
+def read_line(stream: IO[str], deadline: float) -> str | None:
+    """The next line of a child's pipe, '' at its end, None at `deadline`. Read a byte at a
+    time: a buffered readline takes the lines after it into its buffer, where select no
+    longer sees them, and a wait for one of them would wait in vain while the child is
+    idle. Nothing past the line is taken, so a later read() or communicate() gets the rest."""
+    fd, line = stream.fileno(), bytearray()
+    while (left := deadline - time.monotonic()) > 0 and select.select([fd], [], [], left)[0]:
+        byte = os.read(fd, 1)
+        line += byte
+        if byte in (b"\n", b""):
+            return line.decode(errors="replace")
+    return None
+
+
+def wait_for_line(proc: subprocess.Popen, pattern: str, timeout: float = 30.0,
+                  stream: str = "stderr") -> list[str]:
+    """The lines of `proc`'s `stream` up to the first one that `pattern` matches (re.search);
+    AssertionError with the lines seen if none comes within `timeout` or the pipe ends."""
+    lines: list[str] = []
     deadline = time.monotonic() + timeout
-    line = ""
-    while time.monotonic() < deadline:
-        ready, _, _ = select.select([proc.stdout], [], [], 0.2)
-        if ready:
-            line = proc.stdout.readline()
-            if line.startswith("listening on "):
-                return proc, int(line.rsplit(":", 1)[1])
-            if not line and proc.poll() is not None:
-                break
-    stop(proc)
-    raise RuntimeError(f"sim-plc did not start: {line!r} {proc.stderr.read()!r}")
+    while (line := read_line(getattr(proc, stream), deadline)):
+        lines.append(line)
+        if re.search(pattern, line):
+            return lines
+    end = "the pipe ended" if line == "" else f"{timeout} s passed"
+    raise AssertionError(f"no {stream} line like {pattern!r} before {end}: {lines}")
 
 
 def stop(proc: subprocess.Popen, timeout: float = 10.0) -> int:

@@ -9,7 +9,6 @@ import errno
 import json
 import os
 import re
-import select
 import shutil
 import signal
 import socket
@@ -30,6 +29,7 @@ from daq_processes import (
     start_daemon,
     start_simplc,
     stop,
+    wait_for_line,
 )
 
 from furnace_daq import mcaplog
@@ -155,18 +155,6 @@ def unprivileged(cmd: list[str]) -> list[str]:
             "--inh-caps=-all", *cmd]
 
 
-def wait_for_line(proc: subprocess.Popen, start: str, timeout: float = 30.0) -> str:
-    """stderr up to and including the first line that starts with `start`."""
-    seen, deadline = "", time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if select.select([proc.stderr], [], [], 0.2)[0]:
-            line = proc.stderr.readline()
-            seen += line
-            if line.startswith(start) or not line:
-                return seen
-    return seen
-
-
 def test_unwritable_log_dir_at_start_never_stops_the_service(tmp_path):
     """The log directory exists but is read-only when the service starts (EACCES): the
     daemon runs, polls, says why nothing is written, writes once the directory is fixed,
@@ -190,8 +178,8 @@ def test_unwritable_log_dir_at_start_never_stops_the_service(tmp_path):
                           "--plc", f"127.0.0.1:{port}", "--log-dir", str(log_dir)]),
             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        early = wait_for_line(daq, "<6>polling ")
-        early += wait_for_line(daq, "<5>PLC ")  # connected: it polls while it cannot write
+        # connected: it polls while it cannot write
+        early = "".join(wait_for_line(daq, r"^<6>polling ") + wait_for_line(daq, r"^<5>PLC "))
         time.sleep(1.0)
         assert daq.poll() is None, daq.communicate()
         assert not list(log_dir.iterdir())
@@ -326,7 +314,7 @@ def test_real_disk_full_on_a_tiny_tmpfs(tmp_path):
     try:
         daq = furnace_daq("run", "--config", str(cfg), "--plc", f"127.0.0.1:{port}",
                           "--log-dir", str(log_dir))
-        early = wait_for_line(daq, "<6>polling ")
+        early = "".join(wait_for_line(daq, r"^<6>polling "))
         time.sleep(1.0)
         # every free block, until the kernel says ENOSPC; unbuffered, or the bytes of a short
         # last write stay in the buffer and raise ENOSPC again when the file is closed

@@ -5,9 +5,7 @@ one-line errors."""
 from __future__ import annotations
 
 import asyncio
-import select
 import subprocess
-import time
 import uuid
 from dataclasses import astuple, replace
 from pathlib import Path
@@ -16,7 +14,7 @@ import can
 import numpy as np
 import pytest
 import yaml
-from daq_processes import ROOT, furnace_daq, start_simplc, stop
+from daq_processes import ROOT, furnace_daq, listening, start_simplc, stop
 from pymodbus.client import AsyncModbusTcpClient
 
 from furnace_daq.daemon import Daemon
@@ -45,17 +43,8 @@ def daemon_config(tmp_path: Path) -> Path:
 
 def start_player(logs: list[Path], *args: str, timeout: float = 20.0
                  ) -> tuple[subprocess.Popen, int]:
-    proc = furnace_daq("sim-plc", "--from-log", *map(str, logs), "--port", "0", *args)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if select.select([proc.stdout], [], [], 0.2)[0]:
-            line = proc.stdout.readline()
-            if line.startswith("listening on "):
-                return proc, int(line.rsplit(":", 1)[1])
-            if not line:
-                break
-    stop(proc)
-    raise RuntimeError(f"sim-plc --from-log did not start: {proc.stderr.read()!r}")
+    return listening(furnace_daq("sim-plc", "--from-log", *map(str, logs), "--port", "0",
+                                 *args), timeout)
 
 
 def record(tmp_path: Path, name: str, port: int, duration: float) -> list[Path]:

@@ -6,17 +6,15 @@ CLI runs it, against the simulated PLC, on loopback only."""
 from __future__ import annotations
 
 import json
-import select
 import shutil
 import socket
 import subprocess
-import time
 from collections import Counter
 from pathlib import Path
 
 import pytest
 import yaml
-from daq_processes import ROOT, free_port, furnace_daq, start_simplc, stop
+from daq_processes import ROOT, free_port, furnace_daq, start_simplc, stop, wait_for_line
 from mcap.reader import make_reader
 from test_security import listening_sockets
 
@@ -136,21 +134,6 @@ def node() -> str:
     return exe
 
 
-def wait_for_line(proc: subprocess.Popen, start: str, timeout: float) -> str:
-    deadline = time.monotonic() + timeout
-    seen = []
-    while time.monotonic() < deadline:
-        ready, _, _ = select.select([proc.stderr], [], [], 0.2)
-        if ready:
-            line = proc.stderr.readline()
-            seen.append(line)
-            if start in line:
-                return line
-            if not line and proc.poll() is not None:
-                break
-    raise AssertionError(f"no {start!r} from the daemon: {''.join(seen)!r}")
-
-
 def log_schemas(logs: Path) -> dict[str, tuple[str, str, bytes]]:
     """Each MCAP channel's (schema name, schema encoding, schema) by topic."""
     out = {}
@@ -173,7 +156,7 @@ def test_foxglove_client_sees_every_topic_as_logged_and_cannot_write(tmp_path, n
     daemon = furnace_daq("run", "--config", str(cfg), "--log-dir", str(logs),
                          "--plc", f"127.0.0.1:{plc_port}", "--duration", "60")
     try:
-        line = wait_for_line(daemon, "live view: Foxglove WebSocket on", 30)
+        line = wait_for_line(daemon, r"live view: Foxglove WebSocket on")[-1]
         assert f"ws://127.0.0.1:{port}" in line
         client = subprocess.run([node, "live_client.mjs", f"ws://127.0.0.1:{port}", "1.5"],
                                 cwd=NODE_DIR, capture_output=True, text=True, timeout=30)

@@ -9,12 +9,10 @@ import io
 import logging
 import os
 import re
-import select
 import socket
-import time
 
 import yaml
-from daq_processes import ROOT, free_port, furnace_daq, start_simplc, stop
+from daq_processes import ROOT, free_port, furnace_daq, start_simplc, stop, wait_for_line
 
 from furnace_daq.journal import ERR, INFO, WARNING, Journal, JournalHandler
 from furnace_daq.liveview import SUBPROTOCOL
@@ -37,22 +35,6 @@ def handshake(port: int, subprotocol: str) -> str:
                 break
             answer += chunk
     return answer.decode("latin-1")
-
-
-def wait_for_line(proc, pattern: str, timeout: float = 30.0) -> list[str]:
-    """stderr lines up to the first matching `pattern`."""
-    lines: list[str] = []
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        ready, _, _ = select.select([proc.stderr], [], [], 0.2)
-        if ready:
-            line = proc.stderr.readline()
-            if not line:
-                break
-            lines.append(line)
-            if re.search(pattern, line):
-                return lines
-    raise AssertionError(f"no line like {pattern!r} within {timeout} s: {lines}")
 
 
 def test_the_live_view_speaks_foxglove_sdk_v1_and_says_so_in_the_journal(tmp_path):

@@ -257,8 +257,11 @@ def _direct(lam, out, z, w, w_after, bounds, last_idx, seg_of, t):
     arithmetic."""
     start, steady = _starts_and_steady(lam, z, w, w_after, bounds, last_idx)
     tau = t - bounds[seg_of]
-    modal = start[seg_of] * np.exp(lam[None] * tau[:, None, None]) + steady[seg_of]  # (N, P, n)
-    Y = out @ np.moveaxis(modal, 0, -1)  # (P, q, N)
+    # laid out (P, n, N), samples last: the product below then reads each set's table as it
+    # lies, where a samples-first table is copied into that order first
+    start, steady = np.moveaxis(start, 0, -1), np.moveaxis(steady, 0, -1)  # (P, n, K)
+    modal = start[..., seg_of] * np.exp(lam[..., None] * tau) + steady[..., seg_of]
+    Y = out @ modal  # (P, q, N)
     return Y.real if np.iscomplexobj(Y) else Y
 
 

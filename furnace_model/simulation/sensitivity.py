@@ -126,11 +126,11 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
         real_M = _real_coefficients(out_M, out_c, cx, n)
         flat = dy.reshape(t.size, q * p)
         runs = np.searchsorted(seg, np.arange(Kb + 1))
+        X = _real_basis(lam, t - bounds[seg], nb, cx)  # every sample's, in one pass
         for k in range(Kb):
             lo, hi = runs[k], runs[k + 1]
             if hi > lo:
-                X = _real_basis(lam, t[lo:hi] - bounds[k], nb, cx)
-                np.matmul(X, real_M[k], out=flat[lo:hi])
+                np.matmul(X[lo:hi], real_M[k], out=flat[lo:hi])
     else:  # many short ones (a furnace in closed loop): each sample's modal sensitivity
         for b0 in range(0, t.size, _BLOCK):
             blk = slice(b0, b0 + _BLOCK)
@@ -218,24 +218,24 @@ def _real_basis(lam: np.ndarray, tau: np.ndarray, nb: int, cx: np.ndarray,
     (the others' is zero), and with `constant` a column of ones. Times `_real_coefficients`
     it is the real part of the complex product, at a third of its arithmetic and without
     the complex result's passes (its real part and a constant added cost as much as the
-    product itself)."""
-    n = lam.size
-    E = np.exp(np.maximum(np.real(lam)[None, :] * tau[:, None], FLOOR))
-    re, im = E, E[:, cx]
-    if cx.size:
-        angle = np.imag(lam)[cx][None, :] * tau[:, None]
-        re = E.copy()
-        re[:, cx] *= np.cos(angle)
-        im = im * np.sin(angle)
-    m = cx.size
-    out = np.empty((tau.size, nb * (n + m) + int(constant)))
-    for b in range(nb):
-        power = tau[:, None] ** b
-        out[:, b * n:(b + 1) * n] = re * power
-        out[:, nb * n + b * m:nb * n + (b + 1) * m] = im * power
+    product itself). Built as its transpose, a column per row, and returned as a view of
+    it: filled column by column, a row-major table strides through memory at every write,
+    which cost three times the arithmetic."""
+    n, m = lam.size, cx.size
+    out = np.empty((nb * (n + m) + int(constant), tau.size))
+    re, im = out[:n], out[nb * n:nb * n + m]
+    np.exp(np.maximum(np.real(lam)[:, None] * tau[None, :], FLOOR), out=re)
+    if m:
+        angle = np.imag(lam)[cx][:, None] * tau[None, :]
+        np.multiply(re[cx], np.sin(angle), out=im)
+        re[cx] *= np.cos(angle)
+    for b in range(1, nb):
+        power = tau ** b
+        np.multiply(re, power, out=out[b * n:(b + 1) * n])
+        np.multiply(im, power, out=out[nb * n + b * m:nb * n + (b + 1) * m])
     if constant:
-        out[:, -1] = 1.0
-    return out
+        out[-1] = 1.0
+    return out.T
 
 
 def _real_coefficients(M: np.ndarray, const: np.ndarray | None, cx: np.ndarray, n: int

@@ -8,16 +8,14 @@ A daemon starved of CPU polls less and loses no more, so a busy machine cannot f
 
 from __future__ import annotations
 
-import os
 import random
-import select
 import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
-from daq_processes import ROOT, furnace_daq, stop
+from daq_processes import ROOT, furnace_daq, stop, wait_for_line
 from faultproxy import ThreadedFaultProxy
 
 from furnace_model.log.read import read_messages
@@ -105,19 +103,11 @@ def kill_runs(log_dir: Path, proxy: ThreadedFaultProxy, served: ServedReads, con
 
 def wait_polling(proc, timeout: float = 30.0) -> str:
     """Until the daemon says it polls (its log and recovery are set up by then); what it
-    wrote on stderr so far. Reads the raw pipe: a buffered readline would hide lines from
-    select."""
-    deadline = time.monotonic() + timeout
-    seen = b""
-    fd = proc.stderr.fileno()
-    while time.monotonic() < deadline:
-        ready, _, _ = select.select([fd], [], [], 0.2)
-        if ready:
-            chunk = os.read(fd, 65536)
-            seen += chunk
-            if b"\n<6>polling " in b"\n" + seen or not chunk:
-                return seen.decode(errors="replace")
-    raise RuntimeError(f"furnace-daq run did not start polling: {seen!r}")
+    wrote on stderr so far."""
+    try:
+        return "".join(wait_for_line(proc, r"^<6>polling ", timeout))
+    except AssertionError as exc:
+        raise RuntimeError(f"furnace-daq run did not start polling: {exc}") from None
 
 
 def max_loss_polls(flush_s: float = FLUSH_S, period_s: float = PERIOD_S) -> int:

@@ -135,12 +135,16 @@ def _exact(prob: Problem, z: np.ndarray) -> np.ndarray:
 
 
 def _drive_derivatives(drive: Drive, h: np.ndarray
-                       ) -> tuple[Drive, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                       ) -> tuple[Drive, np.ndarray | None, np.ndarray | None,
+                                  np.ndarray | None, np.ndarray]:
     """The drive of the central set (set 0 of 1 + 2k: the point, then each parameter up,
     then down), the derivatives of its levels (k, m) and (k, K, m) and of its step times
-    (k, K), and which parameters move both a step's time and the levels: across the
-    difference's span an instant then passes another step, so neither derivative holds."""
+    (k, K), None where the drive is one for all sets (no effect moves the inputs), and
+    which parameters move both a step's time and the levels: across the difference's span
+    an instant then passes another step, so neither derivative holds."""
     k = h.size
+    if np.ndim(drive.s) == 1 and drive.u0.shape[0] == 1 and drive.du.shape[0] == 1:
+        return drive, None, None, None, np.zeros(k, dtype=bool)  # no parameter moves it
     P = 1 + 2 * k
     s = np.broadcast_to(drive.s, (P,) + np.shape(drive.s)[-1:])
     u0 = np.broadcast_to(drive.u0, (P,) + drive.u0.shape[1:])

@@ -71,22 +71,28 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
     p, m = dA.shape[0], B.shape[1]
     du = np.asarray(drive.du)[0]  # (K, m)
     u0 = np.asarray(drive.u0)[0]
-    d_u0 = np.zeros((p, m)) if d_u0 is None else d_u0
-    d_du = np.zeros((p,) + du.shape) if d_du is None else d_du
     order, bounds, last = segment_bounds(s, t0)
-    du, d_du = du[order], d_du[:, order]
+    du = du[order]
     Kb = bounds.size
     if s.size:
         U = np.where((last >= 0)[:, None], (u0 + np.cumsum(du, axis=0))[np.maximum(last, 0)], u0)
-        dU = np.where((last >= 0)[None, :, None],
-                      (d_u0[:, None] + np.cumsum(d_du, axis=1))[:, np.maximum(last, 0)],
-                      d_u0[:, None])
     else:
-        U, dU = np.broadcast_to(u0, (Kb, m)), np.broadcast_to(d_u0[:, None], (p, Kb, m))
+        U = np.broadcast_to(u0, (Kb, m))
     steady = -(U @ (W @ B).T) / lam  # (Kb, n)
     F = W @ dA @ V  # (p, n, n)
     # (p, Kb, n) each, as matrix products: a record in closed loop has thousands of segments
-    h = _rows_times(steady, F) + (_rows_times(U, dB) + dU @ B.T) @ W.T
+    driven = _rows_times(U, dB)
+    if d_u0 is not None or d_du is not None:  # the levels move with the parameters
+        d_u0 = np.zeros((p, m)) if d_u0 is None else d_u0
+        d_du = (np.zeros((p,) + du.shape) if d_du is None else d_du)[:, order]
+        if s.size:
+            dU = np.where((last >= 0)[None, :, None],
+                          (d_u0[:, None] + np.cumsum(d_du, axis=1))[:, np.maximum(last, 0)],
+                          d_u0[:, None])
+        else:
+            dU = np.broadcast_to(d_u0[:, None], (p, Kb, m))
+        driven = driven + dU @ B.T
+    h = _rows_times(steady, F) + driven @ W.T
     gaps = np.diff(bounds)
     decay = _exp(lam[None, :] * gaps[:, None])  # (Kb-1, n)
     zeta = W @ np.asarray(x0, dtype=float)

@@ -258,9 +258,13 @@ def _direct(lam, out, z, w, w_after, bounds, last_idx, seg_of, t):
     start, steady = _starts_and_steady(lam, z, w, w_after, bounds, last_idx)
     tau = t - bounds[seg_of]
     # laid out (P, n, N), samples last: the product below then reads each set's table as it
-    # lies, where a samples-first table is copied into that order first
-    start, steady = np.moveaxis(start, 0, -1), np.moveaxis(steady, 0, -1)  # (P, n, K)
-    modal = start[..., seg_of] * np.exp(lam[..., None] * tau) + steady[..., seg_of]
+    # lies, where a samples-first table is copied into that order first. The samples are in
+    # time order: each segment's values repeated over its run of them, not gathered.
+    lo = int(seg_of[0]) if seg_of.size else 0
+    runs = np.bincount(seg_of - lo)
+    start, steady = (np.repeat(np.moveaxis(x, 0, -1)[..., lo:lo + runs.size], runs, axis=-1)
+                     for x in (start, steady))  # (P, n, N)
+    modal = start * np.exp(lam[..., None] * tau) + steady
     Y = out @ modal  # (P, q, N)
     return Y.real if np.iscomplexobj(Y) else Y
 

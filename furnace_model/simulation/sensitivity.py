@@ -225,8 +225,8 @@ def _real_basis(lam: np.ndarray, tau: np.ndarray, nb: int, cx: np.ndarray,
     it is the real part of the complex product, at a third of its arithmetic and without
     the complex result's passes (its real part and a constant added cost as much as the
     product itself). Built as its transpose, a column per row, and returned as a view of
-    it: filled column by column, a row-major table strides through memory at every write,
-    which cost three times the arithmetic."""
+    it: filled column by column, a row-major table would stride through memory at every
+    write, which costs more than the arithmetic."""
     n, m = lam.size, cx.size
     out = np.empty((nb * (n + m) + int(constant), tau.size))
     re, im = out[:n], out[nb * n:nb * n + m]

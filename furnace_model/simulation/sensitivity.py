@@ -74,10 +74,7 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
     order, bounds, last = segment_bounds(s, t0)
     du = du[order]
     Kb = bounds.size
-    if s.size:
-        U = np.where((last >= 0)[:, None], (u0 + np.cumsum(du, axis=0))[np.maximum(last, 0)], u0)
-    else:
-        U = np.broadcast_to(u0, (Kb, m))
+    U = _held(u0, du, last)  # (Kb, m)
     steady = -(U @ (W @ B).T) / lam  # (Kb, n)
     F = W @ dA @ V  # (p, n, n)
     # (p, Kb, n) each, as matrix products: a record in closed loop has thousands of segments
@@ -85,13 +82,7 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
     if d_u0 is not None or d_du is not None:  # the levels move with the parameters
         d_u0 = np.zeros((p, m)) if d_u0 is None else d_u0
         d_du = (np.zeros((p,) + du.shape) if d_du is None else d_du)[:, order]
-        if s.size:
-            dU = np.where((last >= 0)[None, :, None],
-                          (d_u0[:, None] + np.cumsum(d_du, axis=1))[:, np.maximum(last, 0)],
-                          d_u0[:, None])
-        else:
-            dU = np.broadcast_to(d_u0[:, None], (p, Kb, m))
-        driven = driven + dU @ B.T
+        driven = driven + _held(d_u0, d_du, last) @ B.T
     h = _rows_times(steady, F) + driven @ W.T
     gaps = np.diff(bounds)
     decay = _exp(lam[None, :] * gaps[:, None])  # (Kb-1, n)
@@ -151,6 +142,15 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
         np.einsum("rj,jq->jqr", start, CVt).reshape(n, -1), None, cx, n)
     return (dy.transpose(2, 0, 1),
             dy0.reshape(t.size, q, start.shape[0]).transpose(2, 0, 1))
+
+
+def _held(u0: np.ndarray, du: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """The level in force on each segment (..., Kb, m): u0 (..., m) plus the steps du
+    (..., K, m), in time order, up to the segment's last (`segment_bounds`)."""
+    if du.shape[-2] == 0:
+        return np.broadcast_to(u0[..., None, :], u0.shape[:-1] + (last.size, u0.shape[-1]))
+    summed = (u0[..., None, :] + np.cumsum(du, axis=-2))[..., np.maximum(last, 0), :]
+    return np.where((last >= 0)[:, None], summed, u0[..., None, :])
 
 
 def _jumps(d_s: np.ndarray, du: np.ndarray, WB: np.ndarray, last: np.ndarray

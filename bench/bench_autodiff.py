@@ -24,7 +24,6 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
                                    "intra_op_parallelism_threads=1")
 
 import argparse  # noqa: E402
-import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
@@ -38,6 +37,7 @@ except ImportError:
     sys.exit(0)
 import numpy as np  # noqa: E402
 from bench_diagnose import paper_pair  # noqa: E402
+from bench_jacobian import cpu  # noqa: E402
 
 from furnace_model.blas import one_thread  # noqa: E402
 from furnace_model.identification.jacobian import jacobian  # noqa: E402
@@ -45,17 +45,6 @@ from furnace_model.identification.problem import Problem  # noqa: E402
 from furnace_model.simulation.structure import ModelStructure  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
-
-
-def cpu(f: Callable[[], object], repeat: int, inner: int = 20) -> float:
-    """Median CPU seconds of one call."""
-    out = []
-    for _ in range(repeat):
-        t = time.process_time()
-        for _ in range(inner):
-            f()
-        out.append((time.process_time() - t) / inner)
-    return statistics.median(out)
 
 
 def jax_residuals(prob: Problem) -> Callable:
@@ -113,8 +102,9 @@ def main() -> None:
             J = jacobian(prob, z)
             diff = np.max(np.abs(J_ad - J) / np.maximum(np.abs(J).max(axis=0), 1e-300))
             zj = jnp.asarray(z)
-            t_ad = 1e3 * cpu(lambda jac=jac, zj=zj: jac(zj).block_until_ready(), args.repeat)
-            t_exact = 1e3 * cpu(lambda prob=prob, z=z: jacobian(prob, z), args.repeat)
+            t_ad = 1e3 * cpu(lambda jac=jac, zj=zj: jac(zj).block_until_ready(),
+                             args.repeat, 20)
+            t_exact = 1e3 * cpu(lambda prob=prob, z=z: jacobian(prob, z), args.repeat, 20)
             print(f"| {record.name} | {len(record)} | {t_exact:.2f} | {t_ad:.2f} | "
                   f"{t_ad / t_exact:.1f} | {first:.2f} | {diff:.1e} |", flush=True)
 

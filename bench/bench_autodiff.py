@@ -18,16 +18,24 @@ anything is timed. Both on one thread (XLA's and OpenBLAS's), CPU time of this p
 
 from __future__ import annotations
 
+import argparse
 import os
+import sys
+import time
+from collections.abc import Callable
 
+import numpy as np
+from bench_diagnose import paper_pair
+from bench_jacobian import cpu
+
+from furnace_model.blas import one_thread
+from furnace_model.identification.jacobian import jacobian
+from furnace_model.identification.problem import Problem
+from furnace_model.simulation.structure import ModelStructure
+
+# before jax is imported: one thread, as the project's BLAS is held to one
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false "
                                    "intra_op_parallelism_threads=1")
-
-import argparse  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from collections.abc import Callable  # noqa: E402
-
 try:
     import jax
     import jax.numpy as jnp
@@ -35,14 +43,6 @@ except ImportError:
     print("bench_autodiff: skipped, jax is not installed here (it is no dependency of the "
           "project; this script's docstring says how to run it)", file=sys.stderr)
     sys.exit(0)
-import numpy as np  # noqa: E402
-from bench_diagnose import paper_pair  # noqa: E402
-from bench_jacobian import cpu  # noqa: E402
-
-from furnace_model.blas import one_thread  # noqa: E402
-from furnace_model.identification.jacobian import jacobian  # noqa: E402
-from furnace_model.identification.problem import Problem  # noqa: E402
-from furnace_model.simulation.structure import ModelStructure  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
@@ -55,8 +55,9 @@ def jax_residuals(prob: Problem) -> Callable:
     if not np.allclose(h, h[0]):
         raise SystemExit("the JAX program steps on a uniform grid; this record's is not")
     unit = {name: np.eye(k)[i] for i, name in enumerate(prob.names)}
-    sys = structure.system(structure.theta(unit))  # A and B are linear in the rates
-    EA, EB, C = jnp.asarray(sys.A), jnp.asarray(sys.B), jnp.asarray(sys.C[0])
+    network = structure.system(structure.theta(unit))  # A and B are linear in the rates
+    EA, EB = jnp.asarray(network.A), jnp.asarray(network.B)
+    C = jnp.asarray(network.C[0])
     m = EB.shape[2]
     drive = structure.drive(structure.theta(unit), r.inputs)
     U = jnp.asarray(drive.levels_at(r.t)[0])  # (N, m): the input held from each sample on
@@ -101,6 +102,9 @@ def main() -> None:
             first = time.process_time() - t
             J = jacobian(prob, z)
             diff = np.max(np.abs(J_ad - J) / np.maximum(np.abs(J).max(axis=0), 1e-300))
+            if diff > 1e-6:
+                raise SystemExit(f"the JAX Jacobian is not the project's: {diff:.3g} of a "
+                                 "column apart")
             zj = jnp.asarray(z)
             t_ad = 1e3 * cpu(lambda jac=jac, zj=zj: jac(zj).block_until_ready(),
                              args.repeat, 20)

@@ -55,11 +55,12 @@ def jax_residuals(prob: Problem) -> Callable:
     if not np.allclose(h, h[0]):
         raise SystemExit("the JAX program steps on a uniform grid; this record's is not")
     unit = {name: np.eye(k)[i] for i, name in enumerate(prob.names)}
-    network = structure.system(structure.theta(unit))  # A and B are linear in the rates
+    units = structure.theta(unit)
+    network = structure.system(units)  # A and B are linear in the rates
     EA, EB = jnp.asarray(network.A), jnp.asarray(network.B)
     C = jnp.asarray(network.C[0])
     m = EB.shape[2]
-    drive = structure.drive(structure.theta(unit), r.inputs)
+    drive = structure.drive(units, r.inputs)
     U = jnp.asarray(drive.levels_at(r.t)[0])  # (N, m): the input held from each sample on
     y, mask, log = jnp.asarray(r.y), np.asarray(r.mask), jnp.asarray(prob.log)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import signal
 import socket
 import subprocess
@@ -92,6 +93,18 @@ def live_params(live) -> list[dict]:
     return [m for t, m, _, _ in live["msgs"] if t == MODEL_PARAMETERS]
 
 
+MISSING = re.compile(r"([\d.]+)% of the window's (\d+) samples are missing")
+
+
+def logged_bins(live, refit: dict) -> int:
+    """How many of a window's samples (step_s bins on the PLC clock) hold a reading."""
+    lo, hi = (int(np.datetime64(refit[k].rstrip("Z"), "ns").astype(np.int64))
+              for k in ("window_start", "window_end"))
+    step = int(REFIT["step_s"] * 1e9)
+    return len({(pub - lo) // step for t, m, _, pub in live["msgs"]
+                if t == THERMOCOUPLES and "error" not in m and lo <= pub < hi})
+
+
 def common(got: list, want: list) -> list:
     """The replayed refits that the live daemon published too. The live run ends at a fixed
     time: a refit still running in its worker then is not published, while the replay,
@@ -123,8 +136,17 @@ def test_live_refits_while_polling(live):
         [m["window_end"] for m in params]
     statuses = [m["status"] for m in params]
     assert statuses[:2] == ["insufficient_excitation"] * 2  # 6-h windows still filling
-    assert statuses.count("ok") >= 3, [m.get("detail") for m in params]
-    assert {m["search"]["method"] for m in params if m["status"] == "ok"} == {"ga_polish"}
+    # a host that starves the poll loop leaves a window short of samples: it is set aside,
+    # said so, and that is true of the log; every other window is fitted
+    for m in params[2:]:
+        if m["status"] != "ok":
+            assert m["status"] == "insufficient_excitation", m
+            missing = MISSING.search(m["detail"])
+            assert missing and float(missing[1]) > 100 * REFIT["max_gap_fraction"], m
+            assert logged_bins(live, m) <= (1 - REFIT["max_gap_fraction"]) * int(missing[2])
+    fitted = [m for m in params if m["status"] == "ok"]
+    assert fitted, [m.get("detail") for m in params]
+    assert {m["search"]["method"] for m in fitted} == {"ga_polish"}
     assert [m["window_end"][11:16] for m in params[:3]] == ["02:00", "04:00", "06:00"]
     assert live["seen"] == params  # on_model saw each message
     state = json.loads((live["tmp"] / "state" / "model.json").read_text())
@@ -253,7 +275,10 @@ def test_replay_fits_with_the_configured_method(live, tmp_path):
                         {**REFIT, "method": "ga", "population": 12, "generations": 30})
     got = [m.to_json() for m in replay(live["logs"], cfg, tmp_path / "ga.mcap")]
     fitted = [m for m in got if m["status"] != "insufficient_excitation"]
-    assert len(fitted) >= 3 and {m["status"] for m in fitted} == {"ok"}, fitted
+    assert fitted and {m["status"] for m in fitted} == {"ok"}, fitted
+    # the windows the live daemon fitted, whichever a starved host left short of samples
+    assert {m["window_end"] for m in live_params(live) if m["status"] == "ok"} \
+        <= {m["window_end"] for m in fitted}
     assert all(m["search"] == {"method": "ga", "warm_start": False, "population": 12,
                                "generations": 30} for m in fitted)
     want = live_params(live)

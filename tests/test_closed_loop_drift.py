@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,17 +15,24 @@ import pytest
 from furnace_model.diagnosis import diagnose
 from furnace_model.diagnosis.cases import SENSORS_SPEC, draw_closed_loop_case, production_scenario
 from furnace_model.diagnosis.fitting import (
+    Task,
     end_task,
+    moved,
     profile_told,
+    run_task,
     told_interval,
     with_told,
 )
+from furnace_model.diagnosis.holdout import split
 from furnace_model.effects import EFFECTS
 from furnace_model.effects.sensor_drift import SensorDrift
 from furnace_model.identification.fit import fit
+from furnace_model.records import load_experiment
+from furnace_model.simulation.furnacefile import load_furnace
 from furnace_model.simulation.plant import Plant
 from furnace_model.simulation.structure import ModelStructure
 
+ROOT = Path(__file__).resolve().parent.parent
 ONSET_BEFORE, AFTER = 600.0, 900.0  # minutes of the record before and after the onset
 
 
@@ -70,6 +78,42 @@ def test_a_drifting_thermocouple_under_control_is_named_with_its_onset(draw):
     assert said is not None and f"({second})" in said and first not in said
     none, all_said = with_told(kept, [first, second], [late, late])
     assert none is kept and all_said == said.replace(f" ({second})", "")
+
+
+STORY_WINDOW = ROOT / "tests" / "data" / "production_drift_onset_window.csv"
+"""The online story's drift window 5-11 h as the daemon logged it: soak_1 drifting
+-3 °C/h from minute 120 of it (tests/data/production_faults_day.yaml)."""
+STORY_SEED = 1775494800  # the daemon's seed for that window
+STORY_TRUTH = {"drift_rate": -0.05, "t_drift": 120.0}
+
+
+def test_a_told_profile_that_finds_a_lower_valley_moves_the_verdicts_fit():
+    """With the daemon's seed the drift's candidate on the story's window stops in a side
+    valley (-2.1 °C/h from minute 50) that follows the records to their noise as the lowest
+    does, and intervals drawn around it miss the truth. A profile's refits pass the lower
+    valley: the fit moves there, the candidate is fitted and scored there anew, and its told
+    intervals hold the truth (the onset's to within a sample)."""
+    furnace = load_furnace(ROOT / "config" / "furnaces" / "paper-production.yaml")
+    fit_data, hold, tail_of, _ = split([load_experiment(STORY_WINDOW, furnace=furnace)], None)
+    base = run_task(Task((), {}, fit_data, hold, tail_of, None, STORY_SEED))
+    box = EFFECTS["sensor_drift"].tried.search_bounds(fit_data)
+    options = {"sensor_drift": {"sensor": "soak_1"}}
+    kept = run_task(Task(("sensor_drift",), options, fit_data, hold, tail_of,
+                         dict(base.params), STORY_SEED, bounds=box, baseline_sse=base.sse_fit,
+                         baseline_end=base.ended))
+    lo, hi = kept.ci95["drift_rate"]
+    assert not lo <= STORY_TRUTH["drift_rate"] <= hi, kept.ci95  # the side valley
+    structure = ModelStructure([SensorDrift(sensor="soak_1", furnace=furnace)], furnace=furnace)
+    told = fit(fit_data, structure, init=kept.params, zone_offsets=True, bounds=box,
+               profile=SensorDrift.told, warm=kept.ended)
+    assert told.moves >= 1 and told.sse < kept.sse_fit
+    part = profile_told(end_task(kept, fit_data, hold, tail_of, STORY_SEED, box), kept)
+    assert moved(kept, [part]) is part and part.sse_fit == pytest.approx(told.sse)
+    assert part.rmse_holdout_c != kept.rmse_holdout_c  # scored where it now lies
+    lo, hi = part.ci95["drift_rate"]
+    assert lo <= STORY_TRUTH["drift_rate"] <= hi, part.ci95
+    lo, hi = part.ci95["t_drift"]  # the onset to within the records' one-minute sample
+    assert lo - 1.0 <= STORY_TRUTH["t_drift"] <= hi + 1.0, part.ci95
 
 
 @pytest.mark.slow  # half a minute of one core

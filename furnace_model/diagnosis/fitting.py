@@ -167,8 +167,13 @@ def profile_told(task: Task, kept: CandidateResult) -> CandidateResult:
     records (`told_interval`): the candidates' fits give linearised intervals, which rank
     them well enough, but the verdict's are read by someone who replaces a thermocouple
     from them, and a drift's onset trades with its rate along a valley far from quadratic
-    (docs/diagnosis.md, "The verdict's intervals"). The parameters stay the kept fit's.
+    (docs/diagnosis.md, "The verdict's intervals"). The parameters stay the kept fit's,
+    unless a profile's refit ended lower than it (`FitResult.moves`: a drift's onset has
+    side valleys that follow the records to their noise as well as the lowest, and an
+    interval drawn around one of them can miss the truth): then the candidate as fitted in
+    that lower valley, its intervals drawn there (`moved`, with a lower `sse_fit`).
     Cut by the time limit: kept as it was, marked `cut`. Only `task.told` when it names any."""
+    t0 = time.perf_counter()
     names = list(task.told) or told_names(kept)
     if not names or (task.deadline is not None and time.monotonic() >= task.deadline):
         return dataclasses.replace(kept, cut=bool(names))
@@ -178,10 +183,21 @@ def profile_told(task: Task, kept: CandidateResult) -> CandidateResult:
     if fr.stop_reason == "time_budget" or (task.deadline is not None
                                            and time.monotonic() >= task.deadline):
         return dataclasses.replace(kept, cut=True)
+    if fr.moves and fr.sse < kept.sse_fit:
+        kept = scored(fr, task, structure, task.bounds, t0)
+        lin = fr.linearised_ci95()
+        kept.ci95.update({n: lin[n] for n in names if n in lin})
     ci = dict(kept.ci95)
     for n in fr.profiled:
         ci[n] = told_interval(kept.ci95[n], fr.ci95[n], kept.params[n])
     return dataclasses.replace(kept, ci95=ci)
+
+
+def moved(kept: CandidateResult, parts: list[CandidateResult]) -> CandidateResult | None:
+    """The lowest of `profile_told`'s results that left kept's valley for a lower one (None:
+    none did)."""
+    lower = [c for c in parts if not c.cut and c.sse_fit < kept.sse_fit]
+    return min(lower, key=lambda c: c.sse_fit) if lower else None
 
 
 def strengths_inside(effects: tuple[str, ...], options: dict[str, dict],
@@ -271,7 +287,6 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
         task = dataclasses.replace(task, start_on=None, **(
             {"init": start, "baseline_sse": None, "baseline_end": None} if start else {}))
     structure = structure_of(task.effects, task.options, task.furnace)
-    zones = task.furnace.zones
     init, bounds = _start_of(task, structure)
     # Linearised intervals (with the residual's colour): the profiles' refits would cost
     # more than the candidate's fit, and the verdict reads the white ones.
@@ -298,6 +313,13 @@ def _run_task(task: Task, t0: float) -> CandidateResult:
             fr = cold
     if fr.stop_reason == "time_budget":
         return not_tried(task)
+    return scored(fr, task, structure, bounds, t0)
+
+
+def scored(fr: FitResult, task: Task, structure: ModelStructure,
+           bounds: dict[str, tuple[float, float]], t0: float) -> CandidateResult:
+    """The task's candidate as `fr` fitted it: predicted on the held-out data, scored."""
+    zones = task.furnace.zones
     fit_pred = fitted_predictions(fr, task.fit_data)
     unseen = unseen_by_fit(fr, bounds)
     hold_pred, refined = holdout_predictions(fr, task.fit_data, task.holdout, task.tail_of,

@@ -41,6 +41,7 @@ from .fitting import (
     baseline_settled,
     baseline_tasks,
     end_task,
+    moved,
     profile_strength,
     profile_told,
     strengths_inside,
@@ -58,6 +59,10 @@ from .signals import prefer_signal, signal_candidates, unused_signals
 from .verdict import judge
 
 MAX_EFFECTS = 3
+TOLD_ROUNDS = 2
+"""Rounds of the told parameters' profiles: a round whose refits find a lower valley than
+the kept fit's moves it there (`fitting.moved`), and the next profiles it from there; the
+last round's lower valley is kept with the intervals its own fit drew."""
 SSE_GAIN = 1e-3
 """The share by which a refit of the kept effects must lower their fitted squared error (or
 their held-out error, refitted from a combination that closes the gap) to replace them:
@@ -276,16 +281,23 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
                      if signals else [])
     candidates = sorted(singles + combos + followed, key=rank)
     told = told_names(kept) if kept is not None else []
-    if told:
+    for _round in range(TOLD_ROUNDS if told else 0):
         # one profile per parameter, side by side: each is a search of its own
         parts = run_all([end_task(kept, fit_data, hold, tail_of, seed, bounds, (n,))
                          for n in told], lambda _f: None, limit=limit,
                         work=functools.partial(profile_told, kept=kept))
+        lower = moved(kept, parts)
+        if lower is not None:  # the kept fit lay in a side valley: it moves, and is told there
+            score_against(lower, base, floor)
+            candidates = [lower if c is kept else c for c in candidates]
+            kept = lower
+            continue
         profiled, words = with_told(kept, told, parts)
         if words is not None:
             untried.append(words)
         candidates = [profiled if c is kept else c for c in candidates]
         kept = profiled
+        break
 
     def remaining(c: CandidateResult) -> list[Located] | None:
         """Where c's held-out residual lies, as the baseline's is located; None without

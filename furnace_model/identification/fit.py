@@ -58,6 +58,11 @@ PROFILE_RISE_SHARE = 0.01
 """A profile's refit has converged when a step lowers the criterion by less than this share
 of the rise its interval ends at: the rise is wanted to a few percent, and near a minimum
 the steps left would take less than the last one did."""
+PROFILE_LOWER = 0.1
+"""A profile's refit that ends this share of its rise below the fit's criterion has found a
+lower valley, which the fit moves to (`PROFILE_MOVES` times at most): less is the scatter
+of the refits' convergence."""
+PROFILE_MOVES = 2
 PROFILE_OUTSIDE = 2.0
 """A profile's trial whose criterion stays above this many times the rise is outside its
 interval whatever the refit's last steps would take (`Problem.polish`'s `above`): its
@@ -250,34 +255,49 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
                           "elapsed_s": round(dt, 4), "stop_reason": run.stop_reason,
                           "iterations": run.iterations})
     best_run = results[int(np.argmin([d["sse"] for d in run_dicts]))][0]
-    z = best_run.z
-    res = prob.fun(z)
-    J = prob.jac(z)
-    held = prob.held_by_bounds(Polished(z, res, J, best_run.stop_reason, 0, best_run.free_cost))
-    unc = from_jacobian(prob.unflagged(J, held), res, prob.names, prob.log, z[:prob.k],
-                        prob.series(), prob.blocked)
-    flags = prob.flags(z, held)
-    params = prob.param_dict(z)
-    ci = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val), strict=True))
-    ci_white = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val, white=True), strict=True))
-    for name, v in prob.fixed.items():
-        ci[name] = ci_white[name] = (float(v), float(v))
-    undetermined = unc.undetermined(prob.from_z(z[:prob.k]), prob.lo_val, prob.hi_val)
-    profiled = {}
-    per_zone = prob.per_zone(z)
-    missed = _missed_floor(per_zone, experiments) if profile else {}
-    if profile and not missed:
-        if isinstance(profile, bool):
-            chosen = [n for i, n in enumerate(prob.names)
-                      if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE]
-        else:
-            chosen = [n for n in prob.names if n in profile]
-        profiled = _profiled(prob, z, float(res @ res), unc, chosen, deadline,
-                             None if warm is None else warm.intervals)
-        ci.update(profiled)
-    chosen = [n for n in prob.names if n in white_profile]
-    if chosen:
-        ci_white.update(_profiled(prob, z, float(res @ res), unc, chosen, deadline, white=True))
+    for move in range(PROFILE_MOVES + 1):
+        z = best_run.z
+        res = prob.fun(z)
+        J = prob.jac(z)
+        held = prob.held_by_bounds(Polished(z, res, J, best_run.stop_reason, 0,
+                                            best_run.free_cost))
+        unc = from_jacobian(prob.unflagged(J, held), res, prob.names, prob.log, z[:prob.k],
+                            prob.series(), prob.blocked)
+        flags = prob.flags(z, held)
+        params = prob.param_dict(z)
+        ci = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val), strict=True))
+        ci_white = dict(zip(prob.names, unc.ci95(prob.lo_val, prob.hi_val, white=True),
+                            strict=True))
+        for name, v in prob.fixed.items():
+            ci[name] = ci_white[name] = (float(v), float(v))
+        undetermined = unc.undetermined(prob.from_z(z[:prob.k]), prob.lo_val, prob.hi_val)
+        profiled: dict[str, tuple[float, float]] = {}
+        per_zone = prob.per_zone(z)
+        missed = _missed_floor(per_zone, experiments) if profile else {}
+        lower: list[tuple[float, np.ndarray]] = []
+        if profile and not missed:
+            if isinstance(profile, bool):
+                chosen = [n for i, n in enumerate(prob.names)
+                          if Z95 * np.sqrt(max(unc.cov[i, i], 0.0)) > PROFILE_WIDE]
+            else:
+                chosen = [n for n in prob.names if n in profile]
+            profiled = _profiled(prob, z, float(res @ res), unc, chosen, deadline,
+                                 None if warm is None else warm.intervals, lower=lower)
+            ci.update(profiled)
+        chosen = [n for n in prob.names if n in white_profile]
+        if chosen:
+            ci_white.update(_profiled(prob, z, float(res @ res), unc, chosen, deadline,
+                                      white=True, lower=lower))
+        if not lower or move == PROFILE_MOVES:
+            break
+        # A profile's refit ended lower than the fit: the fit stopped in a side valley (a
+        # hinge's onset has many), and every interval drawn around it is off. The fit
+        # moves to the lowest and is judged again there.
+        p = prob.polish(min(lower, key=lambda c: c[0])[1], deadline)
+        if not float(p.r @ p.r) < float(res @ res):
+            break
+        best_run = _Run(p.z, p.reason, p.iterations, best_run.generations,
+                        best_run.truncated or p.reason == "time_budget", p.free_cost)
     named = unc.determined_combinations(undetermined)
     combos = [name for name, _ in named]
     combo_values = {}
@@ -314,7 +334,7 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
                                   strict=True))
                          for j in range(len(experiments))] if zone_offsets else None),
         zone_offsets_ci95_c=_offset_intervals(prob, z, unc, flags) if zone_offsets else None,
-        bounds_c=_bounds_c(prob), flags=flags,
+        bounds_c=_bounds_c(prob), flags=flags, moves=move,
         uncertainty=unc, ci95_white={n: ci_white[n] for n in structure.names},
         profiled=list(profiled),
         std={n: float(np.sqrt(max(cov[i, i], 0.0))) if np.isfinite(cov[i, i]) else float("nan")
@@ -408,12 +428,15 @@ def _missed_floor(per_zone: Mapping[str, Mapping[str, float]],
 
 def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
               names: list[str], deadline: float | None,
-              starts: Mapping[str, tuple[float, float]] | None = None, white: bool = False
+              starts: Mapping[str, tuple[float, float]] | None = None, white: bool = False,
+              lower: list[tuple[float, np.ndarray]] | None = None
               ) -> dict[str, tuple[float, float]]:
     """Profile-likelihood intervals of the named (wide) parameters, in their own units; the
     criterion's rise at the ends is the linearised interval's, with the residual's colour
     (`white`: the white-noise interval's, without it).
     `starts` (own units): where each search starts (a neighbouring window's ends).
+    `lower` hears each refit that ended `PROFILE_LOWER` below `sse` (its cost and every
+    unknown): the fit it profiles is not at its optimum.
 
     A parameter correlated with one profiled before it starts where that profile's refits
     put it at their ends, scaled by the correlation (`_guided`): the paper's d and e share
@@ -442,9 +465,12 @@ def _profiled(prob: Problem, z: np.ndarray, sse: float, unc: Uncertainty,
             p = prob.holding(i, z_i).polish(start, deadline, 30, PROFILE_RISE_SHARE * rise / sse,
                                             1e-7, free_first=False,
                                             above=sse + PROFILE_OUTSIDE * rise)
+            cost = float(p.r @ p.r)
             if p.reason != "above":
                 refitted[z_i] = p.z
-            return float(p.r @ p.r)
+            if lower is not None and cost < sse - PROFILE_LOWER * rise:
+                lower.append((cost, np.insert(p.z, i, z_i)))
+            return cost
 
         start = None
         if starts is not None and name in starts:  # on the search scale; NaN: no guide

@@ -59,11 +59,23 @@ class FitResult(Predicts):
     """Per record, the physical box of its offsets and initial temperatures (`_bounds_c`)."""
     flags: list[Flag] = field(default_factory=list)
     """The records' offsets and initial temperatures that ended on their physical bound."""
+    moves: int = 0
+    """How often a profile's refit ended lower than the fit and the fit moved there
+    (`fit`'s `PROFILE_MOVES`): its search had stopped in a side valley."""
 
     @property
     def zone_offsets(self) -> bool:
         """Whether the fit estimated thermocouple offsets: a new record gets them too."""
         return self.zone_offsets_c is not None
+
+    def linearised_ci95(self) -> dict[str, tuple[float, float]]:
+        """The fitted parameters' linearised intervals (with the residual's colour), where
+        `ci95` holds profiled ones for `profiled`."""
+        unc = self.uncertainty
+        if unc is None:
+            return {}
+        lo, hi = (np.array([self.bounds[n][k] for n in unc.names]) for k in (0, 1))
+        return dict(zip(unc.names, unc.ci95(lo, hi), strict=True))
 
     @property
     def stop_description(self) -> str:

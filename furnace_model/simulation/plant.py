@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy.signal import lfilter
+from scipy.linalg.lapack import dtbtrs
 
 from ..experiment import Experiment
 from ..heldmeans import held_means, row_edges
@@ -108,9 +108,8 @@ class Plant:
             gain = sd * np.sqrt(1.0 - phi * phi)
             noise = np.empty(shape)
             noise[0] = prev = phi[0] * prev + gain[0] * u[0]
-            if t.size > 1 and np.all(phi[1:] == phi[-1]):  # regular sampling: one filter call
-                noise[1:] = lfilter([1.0], [1.0, -phi[-1]], gain[1:, None] * u[1:], axis=0,
-                                    zi=(phi[-1] * prev)[None])[0]
+            if t.size > 1 and np.all(phi[1:] == phi[-1]):  # regular sampling: one solve
+                noise[1:] = _autoregressed(gain[1:, None] * u[1:], float(phi[-1]), prev)
             else:
                 for k in range(1, t.size):
                     noise[k] = prev = phi[k] * prev + gain[k] * u[k]
@@ -157,6 +156,18 @@ class Plant:
     def stepper(self, x0_zone: np.ndarray, burners: np.ndarray, t_air: float,
                 t0: float = 0.0, disturbances: np.ndarray | None = None) -> PlantStepper:
         return PlantStepper(self, x0_zone, burners, t_air, t0, disturbances)
+
+
+def _autoregressed(drive: np.ndarray, phi: float, prev: np.ndarray) -> np.ndarray:
+    """y[k] = phi y[k-1] + drive[k] down axis 0 from y[-1] = prev: the recursion is a unit
+    lower bidiagonal system, which LAPACK's banded solve runs as that loop (scipy.signal's
+    filter would cost its import, a second, at every start of a simulated PLC)."""
+    b = np.array(drive, dtype=float, order="F")
+    b[0] += phi * prev
+    band = np.empty((2, b.shape[0]))
+    band[0], band[1] = 1.0, -phi
+    y, _ = dtbtrs(band, b, uplo="L", trans="N", diag="U")
+    return y
 
 
 def logged_inputs(inputs: Inputs, t: np.ndarray, furnace: Furnace

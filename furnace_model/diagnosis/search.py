@@ -289,6 +289,11 @@ def diagnose(data: list[Experiment], holdout: list[Experiment] | None = None, *,
         lower = moved(kept, parts)
         if lower is not None:  # the kept fit lay in a side valley: it moves, and is told there
             score_against(lower, base, floor)
+            if kept.identifiable and not lower.identifiable:  # judged as the kept one was
+                judged = run_all([end_task(lower, fit_data, hold, tail_of, seed, bounds)],
+                                 lambda _f: None, limit=limit, work=profile_strength)[0]
+                if not judged.cut:
+                    strength_rejudged(lower, judged)
             candidates = [lower if c is kept else c for c in candidates]
             kept = lower
             continue

@@ -63,6 +63,7 @@ PROFILE_LOWER = 0.1
 lower valley, which the fit moves to (`PROFILE_MOVES` times at most): less is the scatter
 of the refits' convergence."""
 PROFILE_MOVES = 2
+"""Moves at most: each is a polish and every profile again."""
 PROFILE_OUTSIDE = 2.0
 """A profile's trial whose criterion stays above this many times the rise is outside its
 interval whatever the refit's last steps would take (`Problem.polish`'s `above`): its
@@ -139,7 +140,8 @@ def fit(experiments: list[Experiment], structure: ModelStructure | None = None, 
     (`_missed_floor`); a refit per trial value, so callers that only rank fits may leave it
     off. Names instead of True: those parameters are profiled whatever their linearised
     width (a hinge's onset, whose criterion is far from quadratic when it trades with the
-    hinge's slope), and no others.
+    hinge's slope), and no others. A profile whose refits end lower than the fit has found
+    a valley the search missed: the fit moves there (`FitResult.moves`).
 
     `warm` (with `init`): a sliding window's refit, which starts from the window before
     (see `WarmStart`); the same optimum and intervals, to the optimiser's and the profile's

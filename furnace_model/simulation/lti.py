@@ -230,14 +230,17 @@ def _segments(lam, out, z, w, s, dw, t_start, t):
     return Y
 
 
-def segment_starts(lam: np.ndarray, z: np.ndarray, steady: np.ndarray, bounds: np.ndarray
-                   ) -> np.ndarray:
+def segment_starts(lam: np.ndarray, z: np.ndarray, steady: np.ndarray, bounds: np.ndarray,
+                   carry: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """Modal states (P, K, n) at each segment's start `bounds` (K,), from z (P, n) at the
     first, with the state settling toward steady[:, k] (P, K, n) on segment k:
-    z_(k+1) = e^(lam d_k) z_k + (1 - e^(lam d_k)) steady_k, in blocks (`carried`)."""
+    z_(k+1) = e^(lam d_k) z_k + (1 - e^(lam d_k)) steady_k, in blocks (`carried`).
+    `carry`: `carrier(lam, bounds and its last again, K)`, where the caller carries other
+    contributions over the same segments too."""
     ends = np.append(bounds, bounds[-1])
     fade = -np.expm1(lam[:, None, :] * np.diff(ends)[None, :, None])
-    return (carried(lam, ends, fade * steady)
+    carry = carry or carrier(lam, ends, bounds.size)
+    return (carry(fade * steady)
             + np.exp(lam[:, None, :] * (bounds - bounds[0])[None, :, None]) * z[:, None])
 
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lti import Drive, Modes, carried, segment_bounds, segment_starts
+from .lti import Drive, Modes, carrier, segment_bounds, segment_starts
 
 _BLOCK = 4096
 """Samples per block of the per-sample coefficient tables."""
@@ -87,7 +87,9 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
     gaps = np.diff(bounds)
     decay = _exp(lam[None, :] * gaps[:, None])  # (Kb-1, n)
     zeta = W @ np.asarray(x0, dtype=float)
-    c = segment_starts(lam[None], zeta[None], steady[None], bounds)[0] - steady  # (Kb, n)
+    # one carrier for the state's starts and for sigma's: the exponentials are half a walk
+    carry = carrier(lam[None], np.append(bounds, bounds[-1]), Kb)
+    c = segment_starts(lam[None], zeta[None], steady[None], bounds, carry)[0] - steady  # (Kb, n)
     longest = max(float(gaps.max()) if gaps.size else 0.0,
                   float(t[-1] - bounds[-1]) if t.size else 0.0, 1e-300)
     coef = _coefficients(F, lam, c, h, longest)
@@ -96,13 +98,12 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
     sig = np.zeros((p, Kb, n), np.result_type(coef.Fg, c, h))
     if Kb > 1:
         basis = _basis(lam, gaps, coef.M.shape[2]).reshape(Kb - 1, -1, n)
-        step = (np.einsum("kbj,pkbj->pkj", basis, coef.M[:, :-1])
+        step = (_summed(coef.M, slice(0, -1), basis)
                 + coef.apart(decay * c[:-1]) + coef.const[:, :-1])
         if jump is not None:  # a segment's start jumped: the jump decays through it
             step = step + decay * jump[:, :-1]
         # sig[k + 1] = decay[k] sig[k] + step[k], in blocks
-        sig = carried(lam[None], np.append(bounds, bounds[-1]),
-                      np.concatenate([step, np.zeros_like(step[:, :1])], axis=1))
+        sig = carry(np.concatenate([step, np.zeros_like(step[:, :1])], axis=1))
     if jump is not None:
         sig = sig + jump
     CVt = (C @ V).T  # (n, q)
@@ -133,8 +134,8 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
             blk = slice(b0, b0 + _BLOCK)
             k = seg[blk]
             X = _basis(lam, t[blk] - bounds[k], nb).reshape(-1, nb, n)  # (T, nb, n)
-            sigma = (np.einsum("ptbj,tbj->ptj", M[:, k], X)  # (p, T, n)
-                     + coef.apart(c[k] * X[:, 0]) + coef.const[:, k])
+            sigma = (_summed(M, k, X) + coef.apart(c[k] * X[:, 0])
+                     + np.take(coef.const, k, axis=1))
             dy[blk] = np.real(sigma @ CVt).transpose(1, 2, 0)
     free = _real_basis(lam, t - t0, 1, cx, constant=False)  # the response to the start
     start = np.asarray(dx0, dtype=float) @ W.T  # (r, n)
@@ -142,6 +143,20 @@ def response_sensitivity(A: np.ndarray, B: np.ndarray, C: np.ndarray, dA: np.nda
         np.einsum("rj,jq->jqr", start, CVt).reshape(n, -1), None, cx, n)
     return (dy.transpose(2, 0, 1),
             dy0.reshape(t.size, q, start.shape[0]).transpose(2, 0, 1))
+
+
+def _summed(M: np.ndarray, k: np.ndarray | slice, X: np.ndarray) -> np.ndarray:
+    """sum_b M[:, k, b] X[:, b] (p, T, n): segments k's coefficients (p, Kb, nb, n) at the
+    basis X (T, nb, n) of each of their T instants. Written out over the few basis
+    functions: einsum's general loop costs twice the products and their sum, and `take`
+    gathers the segments' rows (a basis function at a time: no table of them all) at a
+    third of what indexing them costs."""
+    def rows(b: int) -> np.ndarray:
+        return M[:, k, b] if isinstance(k, slice) else np.take(M[:, :, b], k, axis=1)
+    out = rows(0) * X[:, 0]
+    for b in range(1, X.shape[1]):
+        out += rows(b) * X[:, b]
+    return out
 
 
 def _held(u0: np.ndarray, du: np.ndarray, last: np.ndarray) -> np.ndarray:

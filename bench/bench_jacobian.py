@@ -8,7 +8,9 @@ markdown tables for docs/performance.md.
 The paper pair is the worked example of docs/diagnosis.md (bench_diagnose.py); the fit is
 of its first heat-up. CPU time of this process, one BLAS thread (the diagnosis's pool is set to
 one worker so that all of its work is counted here). The six-zone rows are a random
-heat-up of the shipped six-zone furnace, with its thermocouple offsets fitted.
+heat-up of the shipped six-zone furnace, with its thermocouple offsets fitted; the
+production rows a closed-loop record of the shipped paper_production scenario (seed 5), its
+burners staged nearly every minute. Two trees compare by running this alternately in each.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from bench_diagnose import paper_pair
 from furnace_model.blas import one_thread
 from furnace_model.diagnosis import diagnose
 from furnace_model.diagnosis import pool as diagnosis_pool
-from furnace_model.diagnosis.cases import draw_case, network_truth
+from furnace_model.diagnosis.cases import draw_case, draw_closed_loop_case, network_truth
 from furnace_model.effects import EFFECTS
 from furnace_model.identification import jacobian as jacobian_module
 from furnace_model.identification import problem as problem_module
@@ -90,6 +92,17 @@ def measure(args: argparse.Namespace) -> None:
         truth = {**structure.defaults(), **network_truth(six)}
         z = prob.start(prob.to_z(np.array([truth[n] for n in prob.names])))
         row(f"six-zone {name} ({len(records[0])} samples, {prob.n} columns)", prob, z,
+            args.repeat)
+    production = draw_closed_loop_case(None, np.random.default_rng(5)).fit
+    plant = production[0].furnace
+    for name in ("baseline", "sensor_lag", "wall_storage", "sensor_drift", "fuel_change",
+                 "dead_time"):
+        structure = ModelStructure([] if name == "baseline" else [EFFECTS[name](furnace=plant)],
+                                   furnace=plant)
+        prob = Problem(production, structure, {}, {}, zone_offsets=True)
+        truth = {**structure.defaults(), **network_truth(plant)}
+        z = prob.start(prob.to_z(np.array([truth[n] for n in prob.names])))
+        row(f"production, {name} ({len(production[0])} samples, in closed loop)", prob, z,
             args.repeat)
     print()
     rows = [("fit of paper_exp1_zone_burners, cold (GA + polish)",

@@ -644,9 +644,12 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
     # Polish the best few distinct members: the GA's best may sit in a side valley. The
     # starts are always among them: the extended model may be the baseline with its effect off.
     # Once two members end in one valley, the rest are left: the search leads there.
-    # An integrated model's step costs a simulation per parameter (its Jacobian by
-    # differences), so there each member is scouted and only the lowest polished to the end.
-    steps = POLISH_MAX_ITER if prob.structure.linear else SCOUT_STEPS
+    # A step costs a Jacobian per member, which no batch shares: where a start was given (an
+    # effect on top of a fitted baseline, the members around it) or the model is
+    # integrated (its Jacobian by differences, a simulation per parameter), each member is
+    # scouted and only the lowest polished to the end. A search from scratch polishes its
+    # members whole: spread over the box, their scouts would not rank their valleys.
+    steps = POLISH_MAX_ITER if prob.structure.linear and not starts else SCOUT_STEPS
     picked: list[np.ndarray] = []
     first = [np.clip(z, prob.lo, prob.hi) for z in starts]
     for cand in [*first, *found.population]:
@@ -663,9 +666,17 @@ def _one_run(prob: Problem, method: str, population: int, generations: int,
         polished.append(prob.polish(begin(cand), deadline, steps))
     report(1.0)
     best = _lowest(polished)
+    more: list[Polished] = []
     if best.reason == "iteration_limit" and steps < POLISH_MAX_ITER:
+        lowest = best
         best = prob.polish(best.z, deadline)
-    cut = ga_cut or any(p.reason == "time_budget" for p in [*polished, best])
+        if best.reason == "iteration_limit" and prob.structure.linear:
+            # a long valley the polish crawls along: the lowest scout's end need not be the
+            # lowest end, so the others are polished on too, as a search polishes its members
+            more = prob.polish_many([p.z for p in polished if p is not lowest
+                                     and p.reason == "iteration_limit"], deadline)
+            best = _lowest([best, *more])
+    cut = ga_cut or any(p.reason == "time_budget" for p in [*polished, *more, best])
     return _Run(best.z, best.reason, best.iterations, found.generations, cut, best.free_cost)
 
 

@@ -6,9 +6,10 @@ the last online model's errors against the truth. Prints a markdown table.
 With `--story`, the online story test's run instead (tests/test_demo.py's production day
 with a drifting thermocouple and a fuel change, 17 hours at 500x, refits of 6-h windows
 every hour), against its aim of a minute of CPU: each online diagnosis's line is printed
-under the table.
+under the table. `--against TREE` runs another source tree's demo alternately with this
+one's (its modules first on the path, as bench_diagnose.py does), a row each.
 
-    .venv/bin/python bench/bench_demo.py [--runs 1] [--speed 5000] [--story]
+    .venv/bin/python bench/bench_demo.py [--runs 1] [--speed 5000] [--story] [--against TREE]
 """
 
 from __future__ import annotations
@@ -29,13 +30,14 @@ STORY = ("--scenario", str(ROOT / "tests" / "data" / "production_faults_day.yaml
          "500", "--refit-window-h", "6", "--refit-period-h", "1")
 
 
-def one(*args: str) -> dict:
+def one(tree: Path, *args: str) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(tree)}
     with tempfile.TemporaryDirectory() as tmp:
         load = os.getloadavg()[0]
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.monotonic()
         done = subprocess.run([sys.executable, "-m", "furnace_daq.demo", "--out", tmp, *args],
-                              capture_output=True, text=True, cwd=ROOT)
+                              capture_output=True, text=True, cwd=tree, env=env)
         wall = time.monotonic() - t0
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
@@ -48,7 +50,7 @@ def one(*args: str) -> dict:
     return {"wall": wall, "cpu": cpu, "load": load, "polls": int(polls.group(2)),
             "skipped": int(polls.group(3)), "refits": int(polls.group(4)),
             "ok": int(polls.group(5)), "errors": errors,
-            "diagnoses": [line.strip()[:160] for line in done.stdout.splitlines()
+            "diagnoses": [line.strip() for line in done.stdout.splitlines()
                           if line.startswith("   online diagnosis of ")]}
 
 
@@ -58,20 +60,24 @@ def main() -> int:
     ap.add_argument("--speed", default="5000")
     ap.add_argument("--story", action="store_true",
                     help="the online story test's run (its own speed)")
+    ap.add_argument("--against", type=Path, metavar="TREE",
+                    help="another source tree, run alternately with this one")
     args = ap.parse_args()
-    runs = [one(*(STORY if args.story else ("--speed", args.speed))) for _ in range(args.runs)]
+    trees = [ROOT] + ([args.against.resolve()] if args.against else [])
+    demo = STORY if args.story else ("--speed", args.speed)
+    runs = [(tree, one(tree, *demo)) for _ in range(args.runs) for tree in trees]
     what = ("the online story (production_faults_day, 17 simulated hours at 500x)" if args.story
             else f"make demo (paper_exp1, 55.2 simulated hours at {args.speed}x)")
     print(f"{what}, {len(runs)} run(s)\n")
-    print("| run | wall | CPU (all processes) | load avg at start | polls, skipped ticks "
+    print("| run | tree | wall | CPU (all processes) | load avg at start | polls, skipped ticks "
           "| refits ok / all | last online model: a, f, b/c, d/e error |")
-    print("|---|---|---|---|---|---|---|")
-    for k, r in enumerate(runs, 1):
-        errs = ", ".join(f"{r['errors'].get(n, float('nan')):+.2f}%" for n in ("a", "f", "b/c",
-                                                                               "d/e"))
-        print(f"| {k} | {r['wall']:.1f} s | {r['cpu']:.1f} s | {r['load']:.1f} "
+    print("|---|---|---|---|---|---|---|---|")
+    for k, (tree, r) in enumerate(runs, 1):
+        errs = ", ".join(f"{r['errors'][n]:+.2f}%" if n in r["errors"] else "-"
+                         for n in ("a", "f", "b/c", "d/e"))
+        print(f"| {k} | {tree} | {r['wall']:.1f} s | {r['cpu']:.1f} s | {r['load']:.1f} "
               f"| {r['polls']}, {r['skipped']} | {r['ok']} / {r['refits']} | {errs} |")
-    for k, r in enumerate(runs, 1):
+    for k, (_, r) in enumerate(runs, 1):
         for line in r["diagnoses"]:
             print(f"\nrun {k}: {line}")
     return 0

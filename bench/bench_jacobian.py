@@ -58,6 +58,18 @@ def row(label: str, prob: Problem, z: np.ndarray, repeat: int) -> None:
           f"{t['differences'] / t['exact']:.1f} |")
 
 
+def at_truth_row(records: list, name: str, label: str, repeat: int) -> None:
+    """`row` for the records' network with effect `name` (or none), its offsets fitted, at
+    the network's truth and the effect's defaults."""
+    furnace = records[0].furnace
+    structure = ModelStructure([] if name == "baseline" else [EFFECTS[name](furnace=furnace)],
+                               furnace=furnace)
+    prob = Problem(records, structure, {}, {}, zone_offsets=True)
+    truth = {**structure.defaults(), **network_truth(furnace)}
+    z = prob.start(prob.to_z(np.array([truth[n] for n in prob.names])))
+    row(label.format(name=name, samples=len(records[0]), columns=prob.n), prob, z, repeat)
+
+
 def using(way: str) -> None:
     problem_module.jacobian = WAYS[way]
 
@@ -86,24 +98,13 @@ def measure(args: argparse.Namespace) -> None:
     six = load_furnace(SHIPPED / "six-zone.yaml")
     records = draw_case(None, np.random.default_rng(3), furnace=six).fit
     for name in ("baseline", "wall_storage", "sensor_lag", "sensor_drift"):
-        structure = ModelStructure([] if name == "baseline" else [EFFECTS[name](furnace=six)],
-                                   furnace=six)
-        prob = Problem(records, structure, {}, {}, zone_offsets=True)
-        truth = {**structure.defaults(), **network_truth(six)}
-        z = prob.start(prob.to_z(np.array([truth[n] for n in prob.names])))
-        row(f"six-zone {name} ({len(records[0])} samples, {prob.n} columns)", prob, z,
-            args.repeat)
+        at_truth_row(records, name, "six-zone {name} ({samples} samples, {columns} columns)",
+                     args.repeat)
     production = draw_closed_loop_case(None, np.random.default_rng(5)).fit
-    plant = production[0].furnace
     for name in ("baseline", "sensor_lag", "wall_storage", "sensor_drift", "fuel_change",
                  "dead_time"):
-        structure = ModelStructure([] if name == "baseline" else [EFFECTS[name](furnace=plant)],
-                                   furnace=plant)
-        prob = Problem(production, structure, {}, {}, zone_offsets=True)
-        truth = {**structure.defaults(), **network_truth(plant)}
-        z = prob.start(prob.to_z(np.array([truth[n] for n in prob.names])))
-        row(f"production, {name} ({len(production[0])} samples, in closed loop)", prob, z,
-            args.repeat)
+        at_truth_row(production, name, "production, {name} ({samples} samples, in closed loop)",
+                     args.repeat)
     print()
     rows = [("fit of paper_exp1_zone_burners, cold (GA + polish)",
              lambda: fit(data[:1], ModelStructure(furnace=furnace)))]
